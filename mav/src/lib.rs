@@ -1,0 +1,37 @@
+//! `mav` owns the physics of the bench: the paper's 8-state micro aerial vehicle model, its
+//! explicit-Euler (controller prediction) and RK4 (plant truth) integrators, the obstacle
+//! geometry (vertical cylinders and the ground), the scenario definitions of `SPEC.md`, and the
+//! truth simulation that the plant service wraps.
+//!
+//! It is a pure library: no clock, no I/O, no async. Time is an argument (integer nanoseconds
+//! of plant time), so the same code runs in real time, in lockstep and inside tests.
+
+pub mod geometry;
+pub mod model;
+pub mod scenario;
+pub mod sim;
+
+pub use geometry::{Cylinder, GROUND_INDEX};
+pub use model::{Dynamics, Input, InputBounds, MavModel, ModelParams, State, euler_step, rk4_step};
+pub use scenario::{DelayModel, Scenario, ScenarioError};
+pub use sim::{
+    AppliedCommand, CollisionEvent, CollisionKind, CommandMeta, PlantSample, PlantSim, SimError, SimSettings,
+};
+
+/// Nanoseconds per second, for converting wire timestamps.
+pub const NS_PER_S: f64 = 1e9;
+
+/// Converts a duration in nanoseconds to seconds.
+#[inline]
+pub fn ns_to_s(ns: u64) -> f64 {
+    ns as f64 / NS_PER_S
+}
+
+/// Converts a non-negative duration in seconds to nanoseconds, rounded to the nearest.
+/// Negative or non-finite input gives `None`.
+pub fn s_to_ns(s: f64) -> Option<u64> {
+    if !s.is_finite() || s < 0.0 || s * NS_PER_S > u64::MAX as f64 {
+        return None;
+    }
+    Some((s * NS_PER_S).round() as u64)
+}

@@ -1,0 +1,322 @@
+//! The MAV model of `SPEC.md`: continuous dynamics and the two integrators.
+
+use nalgebra::SVector;
+
+/// `[px, py, pz, vx, vy, vz, phi, theta]` in m, m/s, rad.
+pub type State = SVector<f64, 8>;
+/// `[T, phi_d, theta_d]`: mass-normalised thrust in m/s^2, desired roll and pitch in rad.
+pub type Input = SVector<f64, 3>;
+
+/// Physical parameters of the model (defaults from `SPEC.md`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ModelParams {
+    /// Gravitational acceleration, m/s^2.
+    pub gravity_mps2: f64,
+    /// Mass-normalised linear drag in x, 1/s.
+    pub drag_x_per_s: f64,
+    /// Mass-normalised linear drag in y, 1/s.
+    pub drag_y_per_s: f64,
+    /// Mass-normalised linear drag in z, 1/s.
+    pub drag_z_per_s: f64,
+    /// Time constant of the roll response, s.
+    pub tau_roll_s: f64,
+    /// Time constant of the pitch response, s.
+    pub tau_pitch_s: f64,
+    /// Static gain of the roll response.
+    pub gain_roll: f64,
+    /// Static gain of the pitch response.
+    pub gain_pitch: f64,
+}
+
+impl Default for ModelParams {
+    fn default() -> Self {
+        Self {
+            gravity_mps2: 9.81,
+            drag_x_per_s: 0.1,
+            drag_y_per_s: 0.1,
+            drag_z_per_s: 0.2,
+            tau_roll_s: 0.5,
+            tau_pitch_s: 0.5,
+            gain_roll: 1.0,
+            gain_pitch: 1.0,
+        }
+    }
+}
+
+impl ModelParams {
+    /// Checks that every parameter is finite and physically meaningful; names the first bad one.
+    pub fn validate(&self) -> Result<(), &'static str> {
+        let checks: [(&'static str, f64, bool); 8] = [
+            ("gravity_mps2", self.gravity_mps2, self.gravity_mps2 > 0.0),
+            ("drag_x_per_s", self.drag_x_per_s, self.drag_x_per_s >= 0.0),
+            ("drag_y_per_s", self.drag_y_per_s, self.drag_y_per_s >= 0.0),
+            ("drag_z_per_s", self.drag_z_per_s, self.drag_z_per_s >= 0.0),
+            ("tau_roll_s", self.tau_roll_s, self.tau_roll_s > 0.0),
+            ("tau_pitch_s", self.tau_pitch_s, self.tau_pitch_s > 0.0),
+            ("gain_roll", self.gain_roll, self.gain_roll > 0.0),
+            ("gain_pitch", self.gain_pitch, self.gain_pitch > 0.0),
+        ];
+        for (name, value, ok) in checks {
+            if !value.is_finite() || !ok {
+                return Err(name);
+            }
+        }
+        Ok(())
+    }
+
+    /// The hover input `[g, 0, 0]`.
+    pub fn hover_input(&self) -> Input {
+        Input::new(self.gravity_mps2, 0.0, 0.0)
+    }
+}
+
+/// Box bounds on the input.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputBounds {
+    /// `[T_min, phi_min, theta_min]`.
+    pub min: [f64; 3],
+    /// `[T_max, phi_max, theta_max]`.
+    pub max: [f64; 3],
+}
+
+impl InputBounds {
+    /// `SPEC.md`: `T in [0, 2g]`, angles in `[-pi/18, pi/18]` rad.
+    pub fn paper(gravity_mps2: f64) -> Self {
+        let a = std::f64::consts::PI / 18.0;
+        Self { min: [0.0, -a, -a], max: [2.0 * gravity_mps2, a, a] }
+    }
+
+    /// Names the first non-finite or inverted bound.
+    pub fn validate(&self) -> Result<(), &'static str> {
+        const NAMES: [&str; 3] = ["thrust", "roll", "pitch"];
+        for i in 0..3 {
+            if !self.min[i].is_finite() || !self.max[i].is_finite() || self.min[i] > self.max[i] {
+                return Err(NAMES[i]);
+            }
+        }
+        Ok(())
+    }
+
+    /// Clips `u` into the box; says whether anything was clipped.
+    pub fn saturate(&self, u: &Input) -> (Input, bool) {
+        let mut out = *u;
+        let mut clipped = false;
+        for i in 0..3 {
+            let c = u[i].clamp(self.min[i], self.max[i]);
+            clipped |= c != u[i];
+            out[i] = c;
+        }
+        (out, clipped)
+    }
+
+    /// True when every component lies inside the box.
+    pub fn contains(&self, u: &Input) -> bool {
+        (0..3).all(|i| u[i] >= self.min[i] && u[i] <= self.max[i])
+    }
+}
+
+/// A continuous-time model `x' = f(x, u)`, small enough that the integrators and tests can be
+/// written once for the MAV and for textbook systems with known solutions.
+pub trait Dynamics<const NX: usize, const NU: usize> {
+    fn derivative(&self, x: &SVector<f64, NX>, u: &SVector<f64, NU>) -> SVector<f64, NX>;
+}
+
+/// The MAV of `SPEC.md` with its parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct MavModel {
+    pub params: ModelParams,
+}
+
+impl MavModel {
+    pub fn new(params: ModelParams) -> Self {
+        Self { params }
+    }
+}
+
+impl Dynamics<8, 3> for MavModel {
+    #[inline]
+    fn derivative(&self, x: &State, u: &Input) -> State {
+        let p = &self.params;
+        let (s_phi, c_phi) = x[6].sin_cos();
+        let (s_theta, c_theta) = x[7].sin_cos();
+        let thrust = u[0];
+        State::from([
+            x[3],
+            x[4],
+            x[5],
+            thrust * c_phi * s_theta - p.drag_x_per_s * x[3],
+            -thrust * s_phi - p.drag_y_per_s * x[4],
+            thrust * c_phi * c_theta - p.gravity_mps2 - p.drag_z_per_s * x[5],
+            (p.gain_roll * u[1] - x[6]) / p.tau_roll_s,
+            (p.gain_pitch * u[2] - x[7]) / p.tau_pitch_s,
+        ])
+    }
+}
+
+/// One explicit Euler step: the controller's prediction model.
+#[inline]
+pub fn euler_step<const NX: usize, const NU: usize, D: Dynamics<NX, NU>>(
+    model: &D,
+    x: &SVector<f64, NX>,
+    u: &SVector<f64, NU>,
+    dt_s: f64,
+) -> SVector<f64, NX> {
+    x + model.derivative(x, u) * dt_s
+}
+
+/// One classical fourth-order Runge-Kutta step with the input held: the plant's truth model.
+#[inline]
+pub fn rk4_step<const NX: usize, const NU: usize, D: Dynamics<NX, NU>>(
+    model: &D,
+    x: &SVector<f64, NX>,
+    u: &SVector<f64, NU>,
+    dt_s: f64,
+) -> SVector<f64, NX> {
+    let half = 0.5 * dt_s;
+    let k1 = model.derivative(x, u);
+    let k2 = model.derivative(&(x + k1 * half), u);
+    let k3 = model.derivative(&(x + k2 * half), u);
+    let k4 = model.derivative(&(x + k3 * dt_s), u);
+    x + (k1 + (k2 + k3) * 2.0 + k4) * (dt_s / 6.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+    use proptest::prelude::*;
+
+    fn mav() -> MavModel {
+        MavModel::default()
+    }
+
+    fn integrate(
+        step: fn(&MavModel, &State, &Input, f64) -> State,
+        x0: State,
+        u: Input,
+        t_end: f64,
+        n: usize,
+    ) -> State {
+        let dt = t_end / n as f64;
+        let mut x = x0;
+        for _ in 0..n {
+            x = step(&mav(), &x, &u, dt);
+        }
+        x
+    }
+
+    #[test]
+    fn hover_is_an_equilibrium() {
+        let m = mav();
+        let x = State::from([1.0, -2.0, 3.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        let u = m.params.hover_input();
+        assert_eq!(m.derivative(&x, &u), State::zeros());
+        assert_eq!(rk4_step(&m, &x, &u, 0.001), x);
+        assert_eq!(euler_step(&m, &x, &u, 0.05), x);
+    }
+
+    #[test]
+    fn free_fall_with_zero_thrust_matches_the_drag_solution() {
+        // vz' = -g - Az vz  =>  vz(t) = -(g/Az)(1 - e^{-Az t}),  z(t) = -(g/Az) t + (g/Az^2)(1 - e^{-Az t})
+        let p = ModelParams::default();
+        let (g, a) = (p.gravity_mps2, p.drag_z_per_s);
+        let t = 2.0;
+        let x = integrate(rk4_step, State::zeros(), Input::zeros(), t, 2000);
+        let vz = -(g / a) * (1.0 - (-a * t).exp());
+        let z = -(g / a) * t + (g / (a * a)) * (1.0 - (-a * t).exp());
+        assert_relative_eq!(x[5], vz, max_relative = 1e-12);
+        assert_relative_eq!(x[2], z, max_relative = 1e-12);
+        assert_eq!(x[0], 0.0);
+        assert_eq!(x[1], 0.0);
+    }
+
+    #[test]
+    fn attitude_follows_a_first_order_response() {
+        let p = ModelParams::default();
+        let u = Input::new(p.gravity_mps2, 0.1, -0.05);
+        for &t in &[0.1, 0.5, 1.0, 3.0] {
+            let x = integrate(rk4_step, State::zeros(), u, t, (t * 1000.0) as usize);
+            let phi = 0.1 * (1.0 - (-t / p.tau_roll_s).exp());
+            let theta = -0.05 * (1.0 - (-t / p.tau_pitch_s).exp());
+            assert_relative_eq!(x[6], phi, max_relative = 1e-12);
+            assert_relative_eq!(x[7], theta, max_relative = 1e-12);
+        }
+    }
+
+    /// Observed order of convergence from errors at step h and h/2 against a fine reference.
+    fn observed_order(step: fn(&MavModel, &State, &Input, f64) -> State, n: usize) -> f64 {
+        let x0 = State::from([0.0, 0.0, 1.0, 0.5, -0.3, 0.2, 0.1, -0.12]);
+        let u = Input::new(12.0, -0.17, 0.17);
+        let t = 1.0;
+        let reference = integrate(rk4_step, x0, u, t, 100_000);
+        let e1 = (integrate(step, x0, u, t, n) - reference).norm();
+        let e2 = (integrate(step, x0, u, t, 2 * n) - reference).norm();
+        (e1 / e2).log2()
+    }
+
+    #[test]
+    fn rk4_converges_at_fourth_order() {
+        let order = observed_order(rk4_step, 20);
+        assert!((order - 4.0).abs() < 0.15, "observed order {order}");
+    }
+
+    #[test]
+    fn euler_converges_at_first_order() {
+        let order = observed_order(euler_step, 200);
+        assert!((order - 1.0).abs() < 0.05, "observed order {order}");
+    }
+
+    /// A textbook system through the same generic integrators: x'' = -x, exact solution cos t.
+    struct Oscillator;
+    impl Dynamics<2, 1> for Oscillator {
+        fn derivative(&self, x: &SVector<f64, 2>, _u: &SVector<f64, 1>) -> SVector<f64, 2> {
+            SVector::<f64, 2>::new(x[1], -x[0])
+        }
+    }
+
+    #[test]
+    fn integrators_solve_the_harmonic_oscillator() {
+        let (n, t) = (1000, 1.0);
+        let dt = t / n as f64;
+        let (mut a, mut b) = (SVector::<f64, 2>::new(1.0, 0.0), SVector::<f64, 2>::new(1.0, 0.0));
+        let u = SVector::<f64, 1>::zeros();
+        for _ in 0..n {
+            a = rk4_step(&Oscillator, &a, &u, dt);
+            b = euler_step(&Oscillator, &b, &u, dt);
+        }
+        assert_relative_eq!(a[0], t.cos(), epsilon = 1e-12);
+        assert_relative_eq!(b[0], t.cos(), epsilon = 1e-3);
+    }
+
+    #[test]
+    fn saturation_clips_to_the_box() {
+        let b = InputBounds::paper(9.81);
+        let (u, clipped) = b.saturate(&Input::new(30.0, -1.0, 0.1));
+        assert!(clipped);
+        assert_eq!(u, Input::new(19.62, -std::f64::consts::PI / 18.0, 0.1));
+        let (_, clipped) = b.saturate(&Input::new(9.81, 0.0, 0.0));
+        assert!(!clipped);
+    }
+
+    proptest! {
+        #[test]
+        fn steps_stay_finite_for_finite_states_and_bounded_inputs(
+            p in prop::array::uniform3(-1e3f64..1e3),
+            v in prop::array::uniform3(-50f64..50.0),
+            att in prop::array::uniform2(-3.2f64..3.2),
+            t in 0.0f64..19.62,
+            phi_d in -0.1746f64..0.1746,
+            theta_d in -0.1746f64..0.1746,
+            dt in 1e-4f64..0.4,
+        ) {
+            let x = State::from([p[0], p[1], p[2], v[0], v[1], v[2], att[0], att[1]]);
+            let u = Input::new(t, phi_d, theta_d);
+            let a = rk4_step(&mav(), &x, &u, dt);
+            let b = euler_step(&mav(), &x, &u, dt);
+            prop_assert!(a.iter().all(|c| c.is_finite()));
+            prop_assert!(b.iter().all(|c| c.is_finite()));
+        }
+    }
+}

@@ -1,0 +1,459 @@
+//! The truth simulation wrapped by the plant service: RK4 on a fixed grid of plant time,
+//! actuator saturation, collision events, a command watchdog, and run statistics.
+//!
+//! Integration sub-steps end at every multiple of `step_ns` and at every time where the caller
+//! stops (a command arrives, a sample is taken). Observing the simulation therefore never moves
+//! a step boundary, and two runs with the same commands at the same plant times are
+//! bit-identical however their `advance` calls were split on the grid.
+
+use crate::geometry::{Cylinder, GROUND_INDEX};
+use crate::model::{Input, InputBounds, MavModel, State, rk4_step};
+use crate::scenario::Scenario;
+
+/// Settings of the truth simulation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SimSettings {
+    /// Integration step of RK4, ns (default 1 ms, the plant's 1 kHz rate).
+    pub step_ns: u64,
+    /// Hold hover when no command arrived for this long, ns; `None` disables the watchdog.
+    pub watchdog_timeout_ns: Option<u64>,
+}
+
+impl Default for SimSettings {
+    fn default() -> Self {
+        Self { step_ns: 1_000_000, watchdog_timeout_ns: None }
+    }
+}
+
+impl SimSettings {
+    /// Step from a rate in Hz (must be in 1 Hz ..= 1 MHz).
+    pub fn with_rate_hz(rate_hz: f64) -> Result<Self, SimError> {
+        if !rate_hz.is_finite() || !(1.0..=1e6).contains(&rate_hz) {
+            return Err(SimError::Invalid { field: "rate_hz", reason: "must be in [1, 1e6] Hz" });
+        }
+        Ok(Self { step_ns: (1e9 / rate_hz).round() as u64, ..Self::default() })
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SimError {
+    #[error("invalid `{field}`: {reason}")]
+    Invalid { field: &'static str, reason: &'static str },
+}
+
+/// What a command says about where it came from; echoed back in state samples so that a
+/// controller can measure its round-trip delay from plant time stamps alone.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct CommandMeta {
+    pub command_seq: u64,
+    pub based_on_sample_seq: u64,
+    pub based_on_sample_time_ns: u64,
+}
+
+/// The command in force, after saturation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AppliedCommand {
+    pub input: Input,
+    pub meta: CommandMeta,
+    pub applied_time_ns: u64,
+    pub saturated: bool,
+    /// True until the first command after reset: the start input `u_{-1}`.
+    pub initial: bool,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CollisionKind {
+    Cylinder,
+    Ground,
+}
+
+/// Entry into an obstacle or the ground.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CollisionEvent {
+    pub kind: CollisionKind,
+    /// Index into the obstacle list; `GROUND_INDEX` for the ground.
+    pub obstacle_index: u32,
+    pub time_ns: u64,
+    pub position_m: [f64; 3],
+    pub penetration_m: f64,
+}
+
+/// One state sample with everything the plant API reports.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlantSample {
+    pub seq: u64,
+    pub time_ns: u64,
+    pub state: State,
+    pub last_command: AppliedCommand,
+    pub watchdog_hover: bool,
+    pub collided: bool,
+    pub min_clearance_m: f64,
+    pub path_length_m: f64,
+    pub collisions: Vec<CollisionEvent>,
+}
+
+/// The truth simulation.
+#[derive(Debug, Clone)]
+pub struct PlantSim {
+    model: MavModel,
+    bounds: InputBounds,
+    obstacles: Vec<Cylinder>,
+    ground_z_m: f64,
+    settings: SimSettings,
+    state: State,
+    time_ns: u64,
+    /// The input the dynamics see (the last command, or hover while the watchdog holds).
+    effective_input: Input,
+    last_command: AppliedCommand,
+    watchdog_hover: bool,
+    /// Plant time of the last command (or of the reset).
+    last_command_time_ns: u64,
+    /// Per obstacle, then the ground: currently inside?
+    inside: Vec<bool>,
+    lifted_off: bool,
+    collisions: Vec<CollisionEvent>,
+    min_clearance_m: f64,
+    path_length_m: f64,
+    sample_seq: u64,
+}
+
+impl PlantSim {
+    /// A simulation of `scenario`, at rest in its start state.
+    pub fn new(scenario: &Scenario, settings: SimSettings) -> Result<Self, SimError> {
+        if settings.step_ns == 0 {
+            return Err(SimError::Invalid { field: "step_ns", reason: "must be > 0" });
+        }
+        if settings.watchdog_timeout_ns == Some(0) {
+            return Err(SimError::Invalid { field: "watchdog_timeout_ns", reason: "must be > 0 when set" });
+        }
+        let hover = scenario.model.hover_input();
+        let mut sim = Self {
+            model: MavModel::new(scenario.model),
+            bounds: scenario.bounds,
+            obstacles: scenario.obstacles.clone(),
+            ground_z_m: scenario.ground_z_m,
+            settings,
+            state: scenario.start_state(),
+            time_ns: 0,
+            effective_input: hover,
+            last_command: AppliedCommand {
+                input: hover,
+                meta: CommandMeta::default(),
+                applied_time_ns: 0,
+                saturated: false,
+                initial: true,
+            },
+            watchdog_hover: false,
+            last_command_time_ns: 0,
+            inside: vec![false; scenario.obstacles.len() + 1],
+            lifted_off: false,
+            collisions: Vec::new(),
+            min_clearance_m: f64::INFINITY,
+            path_length_m: 0.0,
+            sample_seq: 0,
+        };
+        sim.reset(scenario.start_state())?;
+        Ok(sim)
+    }
+
+    /// Back to time zero in `state`, with the start input `u_{-1} = [g, 0, 0]` and fresh statistics.
+    pub fn reset(&mut self, state: State) -> Result<(), SimError> {
+        if state.iter().any(|v| !v.is_finite()) {
+            return Err(SimError::Invalid { field: "state", reason: "must be finite" });
+        }
+        let hover = self.model.params.hover_input();
+        self.state = state;
+        self.time_ns = 0;
+        self.effective_input = hover;
+        self.last_command = AppliedCommand {
+            input: hover,
+            meta: CommandMeta::default(),
+            applied_time_ns: 0,
+            saturated: false,
+            initial: true,
+        };
+        self.watchdog_hover = false;
+        self.last_command_time_ns = 0;
+        self.inside.iter_mut().for_each(|b| *b = false);
+        self.lifted_off = false;
+        self.collisions.clear();
+        self.min_clearance_m = f64::INFINITY;
+        self.path_length_m = 0.0;
+        self.sample_seq = 0;
+        self.check_contacts();
+        Ok(())
+    }
+
+    pub fn state(&self) -> &State {
+        &self.state
+    }
+    pub fn time_ns(&self) -> u64 {
+        self.time_ns
+    }
+    pub fn settings(&self) -> &SimSettings {
+        &self.settings
+    }
+    pub fn bounds(&self) -> &InputBounds {
+        &self.bounds
+    }
+    pub fn obstacles(&self) -> &[Cylinder] {
+        &self.obstacles
+    }
+    pub fn model(&self) -> &MavModel {
+        &self.model
+    }
+    pub fn ground_z_m(&self) -> f64 {
+        self.ground_z_m
+    }
+    pub fn last_command(&self) -> &AppliedCommand {
+        &self.last_command
+    }
+    pub fn effective_input(&self) -> &Input {
+        &self.effective_input
+    }
+    pub fn watchdog_hover(&self) -> bool {
+        self.watchdog_hover
+    }
+    pub fn collisions(&self) -> &[CollisionEvent] {
+        &self.collisions
+    }
+    pub fn collided(&self) -> bool {
+        !self.collisions.is_empty()
+    }
+    pub fn min_clearance_m(&self) -> f64 {
+        self.min_clearance_m
+    }
+    pub fn path_length_m(&self) -> f64 {
+        self.path_length_m
+    }
+
+    /// Applies a command now (at the current plant time), saturated at the actuator limits.
+    /// A non-finite input is refused and changes nothing.
+    pub fn apply(&mut self, input: Input, meta: CommandMeta) -> Result<AppliedCommand, SimError> {
+        const FIELDS: [&str; 3] = ["thrust_mps2", "roll_rad", "pitch_rad"];
+        if let Some(i) = input.iter().position(|v| !v.is_finite()) {
+            return Err(SimError::Invalid { field: FIELDS[i], reason: "must be finite" });
+        }
+        let (saturated_input, saturated) = self.bounds.saturate(&input);
+        self.last_command = AppliedCommand {
+            input: saturated_input,
+            meta,
+            applied_time_ns: self.time_ns,
+            saturated,
+            initial: false,
+        };
+        self.effective_input = saturated_input;
+        self.watchdog_hover = false;
+        self.last_command_time_ns = self.time_ns;
+        Ok(self.last_command)
+    }
+
+    /// Integrates for `duration_ns`, calling `observer` after every sub-step.
+    pub fn advance(&mut self, duration_ns: u64, mut observer: impl FnMut(&PlantSim)) {
+        let target = self.time_ns.saturating_add(duration_ns);
+        let step = self.settings.step_ns;
+        while self.time_ns < target {
+            let next_grid = (self.time_ns / step + 1).saturating_mul(step);
+            let end = next_grid.min(target);
+            self.integrate_to(end);
+            observer(self);
+        }
+    }
+
+    /// Integrates to plant time `time_ns` (no-op when it is not in the future).
+    pub fn advance_to(&mut self, time_ns: u64, observer: impl FnMut(&PlantSim)) {
+        if time_ns > self.time_ns {
+            self.advance(time_ns - self.time_ns, observer);
+        }
+    }
+
+    fn integrate_to(&mut self, end_ns: u64) {
+        let dt_s = (end_ns - self.time_ns) as f64 / 1e9;
+        let speed_before = self.speed();
+        self.state = rk4_step(&self.model, &self.state, &self.effective_input, dt_s);
+        self.time_ns = end_ns;
+        self.path_length_m += 0.5 * (speed_before + self.speed()) * dt_s;
+        self.check_contacts();
+        if let Some(timeout) = self.settings.watchdog_timeout_ns {
+            if !self.watchdog_hover && self.time_ns.saturating_sub(self.last_command_time_ns) >= timeout {
+                self.watchdog_hover = true;
+                self.effective_input = self.model.params.hover_input();
+            }
+        }
+    }
+
+    fn speed(&self) -> f64 {
+        (self.state[3] * self.state[3] + self.state[4] * self.state[4] + self.state[5] * self.state[5]).sqrt()
+    }
+
+    fn check_contacts(&mut self) {
+        let (px, py, pz, vz) = (self.state[0], self.state[1], self.state[2], self.state[5]);
+        for i in 0..self.obstacles.len() {
+            let clearance = self.obstacles[i].clearance_m(px, py, pz);
+            self.min_clearance_m = self.min_clearance_m.min(clearance);
+            let now_inside = clearance < 0.0;
+            if now_inside && !self.inside[i] {
+                self.collisions.push(CollisionEvent {
+                    kind: CollisionKind::Cylinder,
+                    obstacle_index: i as u32,
+                    time_ns: self.time_ns,
+                    position_m: [px, py, pz],
+                    penetration_m: -clearance,
+                });
+            }
+            self.inside[i] = now_inside;
+        }
+        // The paper's model has no floor. Below the ground after lift-off, or sinking into it
+        // from the start, is ground contact: a crash, not a landing.
+        self.lifted_off |= pz > self.ground_z_m;
+        let g = self.obstacles.len();
+        let below = pz < self.ground_z_m && (self.lifted_off || vz < 0.0);
+        if below && !self.inside[g] {
+            self.collisions.push(CollisionEvent {
+                kind: CollisionKind::Ground,
+                obstacle_index: GROUND_INDEX,
+                time_ns: self.time_ns,
+                position_m: [px, py, pz],
+                penetration_m: self.ground_z_m - pz,
+            });
+        }
+        self.inside[g] = below;
+    }
+
+    /// Takes a sample of the current state (numbered in order of sampling).
+    pub fn sample(&mut self) -> PlantSample {
+        let s = self.peek();
+        self.sample_seq += 1;
+        s
+    }
+
+    /// The sample `sample()` would return, without consuming a sequence number.
+    pub fn peek(&self) -> PlantSample {
+        PlantSample {
+            seq: self.sample_seq,
+            time_ns: self.time_ns,
+            state: self.state,
+            last_command: self.last_command,
+            watchdog_hover: self.watchdog_hover,
+            collided: self.collided(),
+            min_clearance_m: self.min_clearance_m,
+            path_length_m: self.path_length_m,
+            collisions: self.collisions.clone(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::rk4_step;
+
+    fn sim(s: &Scenario) -> PlantSim {
+        PlantSim::new(s, SimSettings::default()).expect("valid settings")
+    }
+
+    #[test]
+    fn advancing_matches_plain_rk4_and_is_split_invariant_on_the_grid() {
+        let s = Scenario::paper_1();
+        let u = Input::new(10.5, 0.05, -0.03);
+        let mut a = sim(&s);
+        a.apply(u, CommandMeta::default()).expect("finite");
+        a.advance(250_000_000, |_| {});
+        let mut b = sim(&s);
+        b.apply(u, CommandMeta::default()).expect("finite");
+        for _ in 0..25 {
+            b.advance(10_000_000, |_| {});
+        }
+        let mut x = s.start_state();
+        for _ in 0..250 {
+            x = rk4_step(&MavModel::default(), &x, &u, 0.001);
+        }
+        assert_eq!(a.state(), &x);
+        assert_eq!(b.state(), &x);
+        assert_eq!(a.time_ns(), 250_000_000);
+    }
+
+    #[test]
+    fn off_grid_stops_add_a_partial_step_and_realign() {
+        let s = Scenario::paper_1();
+        let mut a = sim(&s);
+        let mut steps = Vec::new();
+        a.advance(2_500_000, |p| steps.push(p.time_ns()));
+        a.advance(1_000_000, |p| steps.push(p.time_ns()));
+        assert_eq!(steps, vec![1_000_000, 2_000_000, 2_500_000, 3_000_000, 3_500_000]);
+    }
+
+    #[test]
+    fn commands_are_saturated_and_non_finite_ones_change_nothing() {
+        let s = Scenario::paper_1();
+        let mut a = sim(&s);
+        let applied =
+            a.apply(Input::new(100.0, 0.0, 0.0), CommandMeta { command_seq: 7, ..Default::default() });
+        let applied = applied.expect("finite");
+        assert!(applied.saturated);
+        assert_eq!(applied.input[0], 2.0 * 9.81);
+        let before = a.peek();
+        assert_eq!(
+            a.apply(Input::new(f64::NAN, 0.0, 0.0), CommandMeta::default()),
+            Err(SimError::Invalid { field: "thrust_mps2", reason: "must be finite" })
+        );
+        assert_eq!(a.peek(), before);
+    }
+
+    #[test]
+    fn flying_into_a_cylinder_is_reported_once_with_time_and_position() {
+        let s = Scenario::paper_1();
+        let mut a = sim(&s);
+        a.reset(State::from([0.0, 4.0, 1.0, 0.0, 3.0, 0.0, 0.0, 0.0])).expect("finite");
+        a.advance(1_000_000_000, |_| {});
+        let cyl: Vec<_> = a.collisions().iter().filter(|c| c.kind == CollisionKind::Cylinder).collect();
+        assert_eq!(cyl.len(), 1);
+        let e = cyl[0];
+        assert_eq!(e.obstacle_index, 0);
+        assert!((e.position_m[1] - 4.5).abs() < 0.01, "entered at {:?}", e.position_m);
+        assert!(a.min_clearance_m() < 0.0);
+    }
+
+    #[test]
+    fn falling_below_the_ground_is_a_collision() {
+        let s = Scenario::paper_1();
+        let mut a = sim(&s);
+        a.apply(Input::new(12.0, 0.0, 0.0), CommandMeta::default()).expect("finite");
+        a.advance(500_000_000, |_| {});
+        assert!(!a.collided());
+        a.apply(Input::new(0.0, 0.0, 0.0), CommandMeta::default()).expect("finite");
+        a.advance(2_000_000_000, |_| {});
+        assert_eq!(a.collisions().len(), 1);
+        assert_eq!(a.collisions()[0].kind, CollisionKind::Ground);
+        // Resting on the ground at hover thrust is not a collision.
+        let mut b = sim(&s);
+        b.advance(1_000_000_000, |_| {});
+        assert!(!b.collided());
+    }
+
+    #[test]
+    fn watchdog_holds_hover_until_the_next_command() {
+        let s = Scenario::paper_1();
+        let settings = SimSettings { watchdog_timeout_ns: Some(100_000_000), ..Default::default() };
+        let mut a = PlantSim::new(&s, settings).expect("valid");
+        a.apply(Input::new(12.0, 0.1, 0.0), CommandMeta::default()).expect("finite");
+        a.advance(99_000_000, |_| {});
+        assert!(!a.watchdog_hover());
+        a.advance(1_000_000, |_| {});
+        assert!(a.watchdog_hover());
+        assert_eq!(a.effective_input(), &Input::new(9.81, 0.0, 0.0));
+        a.apply(Input::new(11.0, 0.0, 0.0), CommandMeta::default()).expect("finite");
+        assert!(!a.watchdog_hover());
+    }
+
+    #[test]
+    fn path_length_integrates_speed() {
+        let s = Scenario::paper_1();
+        let mut a = sim(&s);
+        a.reset(State::from([0.0, -5.0, 1.0, 0.0, 2.0, 0.0, 0.0, 0.0])).expect("finite");
+        a.advance(1_000_000_000, |_| {});
+        // vy(t) = 2 e^{-0.1 t}  =>  distance = 20 (1 - e^{-0.1})
+        let expected = 20.0 * (1.0 - (-0.1f64).exp());
+        assert!((a.path_length_m() - expected).abs() < 1e-6, "{}", a.path_length_m());
+    }
+}
