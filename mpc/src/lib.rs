@@ -1,1 +1,1 @@
-
+//! The multi-stage NMPC (see ARCHITECTURE.md).

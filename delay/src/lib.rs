@@ -1,0 +1,1 @@
+//! Pure delay profiles and delay lines for netem (see ARCHITECTURE.md).

@@ -1,0 +1,1 @@
+//! The netem service (see ARCHITECTURE.md).

@@ -1,0 +1,1 @@
+//! The plant service (see ARCHITECTURE.md).

@@ -1,0 +1,72 @@
+//! Wire <-> core conversion. Everything that comes in is validated here, once, for every
+//! service: `TryFrom<pb::X>` (or a `*_from_pb` function) returns a [`FieldError`] naming the
+//! offending field, which services turn into `INVALID_ARGUMENT` via `From<FieldError> for
+//! tonic::Status`. Outgoing conversions (`From<&core> for pb::X`) cannot fail.
+
+pub mod controller;
+pub mod netem;
+pub mod plant;
+
+/// A field of an incoming message that failed validation.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("invalid field `{field}`: {reason}")]
+pub struct FieldError {
+    /// Dotted path of the field, e.g. `command.input.thrust_mps2` or `initial_state.x[3]`.
+    pub field: String,
+    /// What is wrong with it.
+    pub reason: String,
+}
+
+impl FieldError {
+    pub fn new(field: impl Into<String>, reason: impl Into<String>) -> Self {
+        Self { field: field.into(), reason: reason.into() }
+    }
+
+    /// The same error for a field nested inside `parent`.
+    pub fn within(self, parent: &str) -> Self {
+        Self { field: format!("{parent}.{}", self.field), reason: self.reason }
+    }
+}
+
+impl From<FieldError> for tonic::Status {
+    fn from(e: FieldError) -> Self {
+        tonic::Status::invalid_argument(e.to_string())
+    }
+}
+
+/// A finite number, or an error naming `field`.
+pub fn finite(field: &str, v: f64) -> Result<f64, FieldError> {
+    if v.is_finite() { Ok(v) } else { Err(FieldError::new(field, format!("must be finite, got {v}"))) }
+}
+
+/// Exactly `N` finite numbers, or an error naming `field` (and the index of a bad element).
+pub fn finite_array<const N: usize>(field: &str, v: &[f64]) -> Result<[f64; N], FieldError> {
+    if v.len() != N {
+        return Err(FieldError::new(field, format!("must hold exactly {N} values, got {}", v.len())));
+    }
+    let mut out = [0.0; N];
+    for (i, (o, x)) in out.iter_mut().zip(v).enumerate() {
+        *o = finite(&format!("{field}[{i}]"), *x)?;
+    }
+    Ok(out)
+}
+
+/// A required sub-message, or an error naming `field` as missing.
+pub fn required<'a, T>(field: &str, v: &'a Option<T>) -> Result<&'a T, FieldError> {
+    v.as_ref().ok_or_else(|| FieldError::new(field, "is required"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn arrays_are_checked_for_length_and_finiteness() {
+        assert_eq!(finite_array::<3>("u", &[1.0, 2.0, 3.0]), Ok([1.0, 2.0, 3.0]));
+        assert_eq!(finite_array::<3>("u", &[1.0, 2.0]).map_err(|e| e.field), Err("u".to_string()));
+        assert_eq!(finite_array::<3>("u", &[1.0, f64::NAN, 3.0]).map_err(|e| e.field), Err("u[1]".to_string()));
+        let status: tonic::Status = FieldError::new("x", "bad").within("req").into();
+        assert_eq!(status.code(), tonic::Code::InvalidArgument);
+        assert!(status.message().contains("req.x"));
+    }
+}

@@ -1,0 +1,6 @@
+//! One integration-test binary, a module per area (as ripgrep does): every test here starts
+//! real services on loopback ports and talks gRPC to them, or runs the full closed loop.
+
+mod closed_loop;
+mod netem;
+mod plant;
