@@ -1,1 +1,39 @@
-//! Pure delay profiles and delay lines for netem (see ARCHITECTURE.md).
+//! Pure delay profiles and delay lines for netem.
+//!
+//! This crate decides *what the network does* to each message: whether it is lost, duplicated,
+//! and when each copy is released. It never reads a clock and never does I/O: send times are
+//! passed in as integer nanoseconds (plant time in lockstep, the service's monotonic clock in
+//! real time), and decisions come back as release times in the same unit. The netem service is
+//! the thin shell that holds messages until those times.
+//!
+//! **Architecture Invariant:** no tokio, tonic or prost here; every random draw comes from a
+//! [`rand_chacha::ChaCha8Rng`] seeded from the profile's seed, so the same seed, profile and
+//! sequence of send times give the same decisions, bit for bit, in every time mode and with
+//! every version of `rand` that keeps ChaCha8 (unlike `StdRng`, whose algorithm may change).
+//!
+//! - [`profile`]: what a direction of the network does ([`DirectionProfile`]), validated with
+//!   errors naming the field, and the named presets ([`preset`], e.g. `"paper"`).
+//! - [`line`]: the per-direction [`DelayLine`] that turns send times into [`Decision`]s.
+//! - [`queue`]: a [`ReleaseQueue`] ordering held messages by release time.
+//! - [`stats`]: counters, delay histogram and percentiles of one direction.
+//! - [`trace`]: parsing a recorded delay trace from CSV text.
+
+pub mod line;
+pub mod profile;
+pub mod queue;
+pub mod stats;
+pub mod trace;
+
+pub use line::{Decision, DelayLine, Fate, Release};
+pub use profile::{
+    Direction, DirectionProfile, Distribution, MAX_DELAY_S, Ordering, PRESETS, Preset, ProfileError, preset,
+};
+pub use queue::ReleaseQueue;
+pub use stats::{DirectionStats, Percentiles};
+pub use trace::{TraceError, parse_trace};
+
+/// Seconds to integer nanoseconds, rounded to the nearest, clamped to `[0, MAX_DELAY_S]`.
+pub fn secs_to_ns(s: f64) -> u64 {
+    let s = if s.is_nan() { 0.0 } else { s.clamp(0.0, MAX_DELAY_S) };
+    (s * 1e9).round() as u64
+}

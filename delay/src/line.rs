@@ -1,0 +1,337 @@
+//! The delay line of one direction: send times in, release decisions out.
+
+use std::sync::Arc;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution as _, Gamma, LogNormal, Normal, Pareto, Uniform};
+
+use crate::profile::{Direction, DirectionProfile, Distribution, Ordering, ProfileError};
+use crate::secs_to_ns;
+
+/// A ready-to-draw form of a [`Distribution`], built once when the profile is set.
+#[derive(Debug, Clone)]
+enum Sampler {
+    Constant(f64),
+    Uniform(Uniform<f64>),
+    Normal(Normal<f64>),
+    Gamma(Gamma<f64>),
+    Lognormal(LogNormal<f64>),
+    Pareto(Pareto<f64>),
+    Trace { delays_s: Arc<[f64]>, looping: bool, next: usize },
+}
+
+impl Sampler {
+    /// Builds the sampler of a distribution that passed [`Distribution::validate`].
+    fn new(d: &Distribution) -> Result<Self, ProfileError> {
+        fn bad(field: &str, e: impl std::fmt::Display) -> ProfileError {
+            ProfileError::new(field, e.to_string())
+        }
+        Ok(match d {
+            Distribution::Constant { delay_s } => Sampler::Constant(*delay_s),
+            Distribution::Uniform { min_s, max_s } => {
+                Sampler::Uniform(Uniform::new_inclusive(*min_s, *max_s).map_err(|e| bad("delay.uniform", e))?)
+            }
+            Distribution::Normal { mean_s, std_s } => {
+                Sampler::Normal(Normal::new(*mean_s, *std_s).map_err(|e| bad("delay.normal", e))?)
+            }
+            Distribution::Gamma { shape, scale_s } => {
+                Sampler::Gamma(Gamma::new(*shape, *scale_s).map_err(|e| bad("delay.gamma", e))?)
+            }
+            Distribution::GammaMoments { mean_s, std_s } => {
+                let (shape, scale) = Distribution::gamma_from_moments(*mean_s, *std_s);
+                Sampler::Gamma(Gamma::new(shape, scale).map_err(|e| bad("delay.gamma_moments", e))?)
+            }
+            Distribution::Lognormal { mu, sigma } => {
+                Sampler::Lognormal(LogNormal::new(*mu, *sigma).map_err(|e| bad("delay.lognormal", e))?)
+            }
+            Distribution::Pareto { scale_s, shape } => {
+                Sampler::Pareto(Pareto::new(*scale_s, *shape).map_err(|e| bad("delay.pareto", e))?)
+            }
+            Distribution::Trace { delays_s, looping } => {
+                Sampler::Trace { delays_s: delays_s.clone(), looping: *looping, next: 0 }
+            }
+        })
+    }
+
+    fn sample(&mut self, rng: &mut ChaCha8Rng) -> f64 {
+        match self {
+            Sampler::Constant(d) => *d,
+            Sampler::Uniform(u) => u.sample(rng),
+            Sampler::Normal(n) => {
+                // Truncation at zero by rejection: validation keeps the mean >= 0, so at least
+                // half of the draws are accepted. A zero std never draws a negative value.
+                loop {
+                    let d = n.sample(rng);
+                    if d >= 0.0 {
+                        return d;
+                    }
+                }
+            }
+            Sampler::Gamma(g) => g.sample(rng),
+            Sampler::Lognormal(l) => l.sample(rng),
+            Sampler::Pareto(p) => p.sample(rng),
+            Sampler::Trace { delays_s, looping, next } => {
+                let n = delays_s.len();
+                let i = if *looping { *next % n } else { (*next).min(n - 1) };
+                *next = next.saturating_add(1);
+                delays_s[i]
+            }
+        }
+    }
+
+    fn exhausted(&self) -> bool {
+        matches!(self, Sampler::Trace { delays_s, looping: false, next } if *next >= delays_s.len())
+    }
+}
+
+/// One copy of a message and when it leaves the line.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Release {
+    /// When the copy is released, ns (same clock as the send time).
+    pub release_time_ns: u64,
+    /// The delay actually injected, `release_time_ns - send_time_ns` (FIFO queueing included).
+    pub delay_ns: u64,
+    /// The delay drawn for this copy, s (before FIFO queueing and rounding to ns).
+    pub sampled_delay_s: f64,
+    /// This copy is the duplicate.
+    pub duplicate: bool,
+}
+
+/// What happens to a message.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Fate {
+    /// Lost on the way.
+    Dropped,
+    /// Delivered at `original.release_time_ns`, and a second time if `duplicate` is set.
+    Delivered { original: Release, duplicate: Option<Release> },
+}
+
+/// The decision for one message.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Decision {
+    /// Number of the message on this line since the last reset (0, 1, 2, ...).
+    pub seq: u64,
+    pub send_time_ns: u64,
+    /// The delay drawn for the message, s. It is drawn even for a lost message, so the delay of
+    /// message `k` does not depend on the loss or duplicate probability.
+    pub sampled_delay_s: f64,
+    pub fate: Fate,
+}
+
+impl Decision {
+    /// The copies to deliver, original first.
+    pub fn releases(&self) -> impl Iterator<Item = Release> + '_ {
+        let (a, b) = match self.fate {
+            Fate::Dropped => (None, None),
+            Fate::Delivered { original, duplicate } => (Some(original), duplicate),
+        };
+        a.into_iter().chain(b)
+    }
+}
+
+/// The four independent random streams of a line. Giving delay, loss, duplication and the
+/// duplicate's delay their own streams means that changing a probability never shifts the
+/// delays drawn for the other messages.
+#[derive(Debug, Clone)]
+struct Streams {
+    delay: ChaCha8Rng,
+    loss: ChaCha8Rng,
+    duplicate: ChaCha8Rng,
+    duplicate_delay: ChaCha8Rng,
+}
+
+impl Streams {
+    fn new(seed: u64, direction: Direction) -> Self {
+        let stream = |k: u64| {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            rng.set_stream(direction.index() as u64 * 4 + k);
+            rng
+        };
+        Self { delay: stream(0), loss: stream(1), duplicate: stream(2), duplicate_delay: stream(3) }
+    }
+}
+
+/// The delay line of one direction: seeded, pure, and cheap to drive.
+///
+/// Feed it the send time of every message in order with [`DelayLine::send`]; it answers with
+/// the message's [`Decision`]. The line only remembers what FIFO ordering needs (the last
+/// release time); holding the messages is the caller's job (see [`crate::ReleaseQueue`]).
+#[derive(Debug, Clone)]
+pub struct DelayLine {
+    direction: Direction,
+    profile: DirectionProfile,
+    sampler: Sampler,
+    streams: Streams,
+    last_release_ns: Option<u64>,
+    next_seq: u64,
+}
+
+impl DelayLine {
+    /// A line for `direction` with a validated `profile`.
+    pub fn new(direction: Direction, profile: DirectionProfile) -> Result<Self, ProfileError> {
+        profile.validate()?;
+        let sampler = Sampler::new(&profile.delay)?;
+        let streams = Streams::new(profile.seed, direction);
+        Ok(Self { direction, profile, sampler, streams, last_release_ns: None, next_seq: 0 })
+    }
+
+    pub fn direction(&self) -> Direction {
+        self.direction
+    }
+
+    pub fn profile(&self) -> &DirectionProfile {
+        &self.profile
+    }
+
+    /// Replaces the profile at run time. An invalid profile is refused and changes nothing.
+    /// A valid one restarts the generators from its seed (so what follows is reproducible from
+    /// the moment of the change) and keeps the FIFO state and the message numbering, so
+    /// messages already in flight keep their release times and are never overtaken under FIFO.
+    pub fn set_profile(&mut self, profile: DirectionProfile) -> Result<(), ProfileError> {
+        profile.validate()?;
+        let sampler = Sampler::new(&profile.delay)?;
+        self.streams = Streams::new(profile.seed, self.direction);
+        self.sampler = sampler;
+        self.profile = profile;
+        Ok(())
+    }
+
+    /// Back to the state of a new line with the same profile: generators restarted from the
+    /// seed, message numbering from 0, no FIFO history.
+    pub fn reset(&mut self) {
+        // The profile was valid when it was set, so rebuilding its sampler cannot fail; keep
+        // the old sampler (rewound) if it somehow did.
+        if let Ok(s) = Sampler::new(&self.profile.delay) {
+            self.sampler = s;
+        }
+        self.streams = Streams::new(self.profile.seed, self.direction);
+        self.last_release_ns = None;
+        self.next_seq = 0;
+    }
+
+    /// A non-looping trace has been used up and now holds its last delay.
+    pub fn trace_exhausted(&self) -> bool {
+        self.sampler.exhausted()
+    }
+
+    /// The latest release time handed out (what FIFO queues behind).
+    pub fn last_release_ns(&self) -> Option<u64> {
+        self.last_release_ns
+    }
+
+    /// Draws one delay, s, from the delay stream (what [`DelayLine::send`] does for each
+    /// message). Exposed for benchmarks and statistical tests.
+    pub fn sample_delay_s(&mut self) -> f64 {
+        self.sampler.sample(&mut self.streams.delay)
+    }
+
+    fn release(&mut self, send_time_ns: u64, sampled_delay_s: f64, duplicate: bool) -> Release {
+        let own = send_time_ns.saturating_add(secs_to_ns(sampled_delay_s));
+        let release_time_ns = match (self.profile.ordering, self.last_release_ns) {
+            (Ordering::Fifo, Some(prev)) => own.max(prev),
+            _ => own,
+        };
+        self.last_release_ns = Some(self.last_release_ns.map_or(release_time_ns, |p| p.max(release_time_ns)));
+        Release { release_time_ns, delay_ns: release_time_ns - send_time_ns, sampled_delay_s, duplicate }
+    }
+
+    /// Decides the fate of a message sent at `send_time_ns`.
+    pub fn send(&mut self, send_time_ns: u64) -> Decision {
+        let seq = self.next_seq;
+        self.next_seq += 1;
+        let sampled_delay_s = self.sampler.sample(&mut self.streams.delay);
+        // One draw per message on each of the loss and duplicate streams, always, so that the
+        // streams stay aligned with the message numbers whatever the probabilities are.
+        let lost = self.streams.loss.random::<f64>() < self.profile.loss_probability;
+        let duplicated = self.streams.duplicate.random::<f64>() < self.profile.duplicate_probability;
+        let fate = if lost {
+            Fate::Dropped
+        } else {
+            let original = self.release(send_time_ns, sampled_delay_s, false);
+            let duplicate = duplicated.then(|| {
+                let d = self.sampler_for_duplicate();
+                self.release(send_time_ns, d, true)
+            });
+            Fate::Delivered { original, duplicate }
+        };
+        Decision { seq, send_time_ns, sampled_delay_s, fate }
+    }
+
+    /// The duplicate's delay: drawn from its own stream; a trace replays the original's delay.
+    fn sampler_for_duplicate(&mut self) -> f64 {
+        match &self.sampler {
+            Sampler::Trace { delays_s, looping, next } => {
+                let n = delays_s.len();
+                let last = next.saturating_sub(1);
+                delays_s[if *looping { last % n } else { last.min(n - 1) }]
+            }
+            _ => {
+                let mut s = self.sampler.clone();
+                s.sample(&mut self.streams.duplicate_delay)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn line(delay: Distribution) -> Result<DelayLine, ProfileError> {
+        DelayLine::new(Direction::ControllerToPlant, DirectionProfile::with_delay(delay, 9))
+    }
+
+    #[test]
+    fn fifo_queues_behind_a_slow_message_and_independent_reorders() -> Result<(), ProfileError> {
+        let trace = Distribution::Trace { delays_s: Arc::from(vec![0.5, 0.1]), looping: false };
+        let mut fifo = line(trace.clone())?;
+        let a = fifo.send(0);
+        let b = fifo.send(1_000);
+        let rel = |d: Decision| d.releases().next().map(|r| r.release_time_ns);
+        assert_eq!(rel(a), Some(500_000_000));
+        assert_eq!(rel(b), Some(500_000_000), "FIFO: the second waits for the first");
+        let mut indep = line(trace)?;
+        let mut p = indep.profile().clone();
+        p.ordering = Ordering::Independent;
+        indep.set_profile(p)?;
+        let a = indep.send(0);
+        let b = indep.send(1_000);
+        assert_eq!(rel(a), Some(500_000_000));
+        assert_eq!(rel(b), Some(100_001_000), "independent: the second overtakes");
+        Ok(())
+    }
+
+    #[test]
+    fn invalid_profile_change_keeps_the_running_one() -> Result<(), ProfileError> {
+        let mut l = line(Distribution::Constant { delay_s: 0.02 })?;
+        let before = l.profile().clone();
+        let bad = DirectionProfile::with_delay(Distribution::Gamma { shape: -1.0, scale_s: 0.01 }, 1);
+        assert_eq!(l.set_profile(bad).map_err(|e| e.field), Err("delay.gamma.shape".to_string()));
+        assert_eq!(l.profile(), &before);
+        assert_eq!(l.send(0).releases().next().map(|r| r.delay_ns), Some(20_000_000));
+        Ok(())
+    }
+
+    #[test]
+    fn non_looping_trace_holds_its_last_delay() -> Result<(), ProfileError> {
+        let mut l = line(Distribution::Trace { delays_s: Arc::from(vec![0.001, 0.002]), looping: false })?;
+        let d: Vec<f64> = (0..4).map(|_| l.sample_delay_s()).collect();
+        assert_eq!(d, vec![0.001, 0.002, 0.002, 0.002]);
+        assert!(l.trace_exhausted());
+        Ok(())
+    }
+
+    #[test]
+    fn loss_one_drops_everything_and_duplicate_one_doubles() -> Result<(), ProfileError> {
+        let mut p = DirectionProfile::with_delay(Distribution::Constant { delay_s: 0.01 }, 3);
+        p.loss_probability = 1.0;
+        let mut l = DelayLine::new(Direction::PlantToController, p.clone())?;
+        assert!((0..100).all(|i| l.send(i).fate == Fate::Dropped));
+        p.loss_probability = 0.0;
+        p.duplicate_probability = 1.0;
+        let mut l = DelayLine::new(Direction::PlantToController, p)?;
+        assert!((0..100).all(|i| l.send(i).releases().count() == 2));
+        Ok(())
+    }
+}
