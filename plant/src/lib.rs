@@ -1,1 +1,112 @@
-//! The plant service (see ARCHITECTURE.md).
+//! The plant service (see ARCHITECTURE.md): the MAV truth simulation of `mav` behind the
+//! `hilbench.v1.Plant` API, with gRPC health checking and server reflection.
+//!
+//! - [`config`]: [`PlantConfig`], validated settings with documented defaults.
+//! - [`clock`]: the injectable clock; the simulation never reads a clock.
+//! - [`service`]: [`PlantService`], a small handle around the simulation and its subscribers.
+//! - [`serve`]: runs the service on a bound listener until `shutdown` resolves; the `plant`
+//!   binary and the tests both start it this way.
+//!
+//! Time modes: in lockstep plant time moves only through `Advance`/`Step`, so runs are
+//! deterministic and bit-identical to the in-process simulation. In real time a task calls
+//! [`PlantService::tick`] at the integration rate, which catches the simulation up to the
+//! clock (plant time = time since the last reset), and `Advance`/`Step` with a duration are
+//! refused with `FAILED_PRECONDITION`.
+
+pub mod clock;
+pub mod config;
+pub mod service;
+
+pub use clock::{Clock, ManualClock, WallClock};
+pub use config::{ConfigError, PlantConfig, TimeMode};
+pub use service::PlantService;
+
+use hilbench_proto::pb::plant_server::PlantServer;
+use std::future::Future;
+use std::sync::Arc;
+use std::time::Duration;
+use tonic::transport::Server;
+use tonic::transport::server::TcpIncoming;
+
+/// Why the plant could not serve.
+#[derive(Debug, thiserror::Error)]
+pub enum PlantError {
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error("reflection service: {0}")]
+    Reflection(#[from] tonic_reflection::server::Error),
+    #[error("listener: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("gRPC server: {0}")]
+    Transport(#[from] tonic::transport::Error),
+}
+
+/// Serves the plant on `listener` until `shutdown` resolves, on the wall clock.
+pub async fn serve(
+    listener: tokio::net::TcpListener,
+    config: PlantConfig,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<(), PlantError> {
+    serve_with_clock(listener, config, Arc::new(WallClock::new()), shutdown).await
+}
+
+/// As [`serve`], with the clock that real-time mode reads.
+pub async fn serve_with_clock(
+    listener: tokio::net::TcpListener,
+    config: PlantConfig,
+    clock: Arc<dyn Clock>,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<(), PlantError> {
+    let addr = listener.local_addr()?;
+    let scenario = config.scenario.name.clone();
+    let rate_hz = config.rate_hz;
+    let service = PlantService::new(config, clock)?;
+
+    let (health_reporter, health) = tonic_health::server::health_reporter();
+    health_reporter.set_serving::<PlantServer<PlantService>>().await;
+    let reflection = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(hilbench_proto::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+        .build_v1()?;
+
+    let ticker = match service.time_mode() {
+        TimeMode::Lockstep => None,
+        TimeMode::RealTime => Some(tokio::spawn(run_real_time(service.clone()))),
+    };
+
+    let signal = {
+        let service = service.clone();
+        async move {
+            shutdown.await;
+            tracing::info!("plant shutting down");
+            health_reporter.set_not_serving::<PlantServer<PlantService>>().await;
+            // Open state streams would otherwise keep the graceful shutdown waiting forever.
+            service.close();
+        }
+    };
+    tracing::info!(%addr, mode = %service.time_mode(), %scenario, rate_hz, "plant serving");
+    let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));
+    let result = Server::builder()
+        .add_service(health)
+        .add_service(reflection)
+        .add_service(PlantServer::new(service))
+        .serve_with_incoming_shutdown(incoming, signal)
+        .await;
+    if let Some(t) = ticker {
+        t.abort();
+    }
+    result?;
+    tracing::info!("plant stopped");
+    Ok(())
+}
+
+/// Real time: integrate at the configured rate. Each tick catches the simulation up to the
+/// clock, so a late tick loses no plant time (it integrates more steps).
+async fn run_real_time(service: PlantService) {
+    let mut interval = tokio::time::interval(Duration::from_nanos(service.step_ns()));
+    interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        interval.tick().await;
+        service.tick();
+    }
+}

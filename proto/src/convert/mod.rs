@@ -64,7 +64,10 @@ mod tests {
     fn arrays_are_checked_for_length_and_finiteness() {
         assert_eq!(finite_array::<3>("u", &[1.0, 2.0, 3.0]), Ok([1.0, 2.0, 3.0]));
         assert_eq!(finite_array::<3>("u", &[1.0, 2.0]).map_err(|e| e.field), Err("u".to_string()));
-        assert_eq!(finite_array::<3>("u", &[1.0, f64::NAN, 3.0]).map_err(|e| e.field), Err("u[1]".to_string()));
+        assert_eq!(
+            finite_array::<3>("u", &[1.0, f64::NAN, 3.0]).map_err(|e| e.field),
+            Err("u[1]".to_string())
+        );
         let status: tonic::Status = FieldError::new("x", "bad").within("req").into();
         assert_eq!(status.code(), tonic::Code::InvalidArgument);
         assert!(status.message().contains("req.x"));

@@ -1,0 +1,148 @@
+//! Settings of the plant service: validated data with documented defaults and units.
+
+use mav::{Scenario, SimSettings};
+use std::fmt;
+use std::str::FromStr;
+
+/// How plant time moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TimeMode {
+    /// Time advances only through `Advance`/`Step`: deterministic, faster than real time.
+    /// This is what the bench uses.
+    Lockstep,
+    /// A task integrates on the wall clock; plant time is the time since the last reset.
+    RealTime,
+}
+
+impl TimeMode {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Lockstep => "lockstep",
+            Self::RealTime => "real-time",
+        }
+    }
+}
+
+impl fmt::Display for TimeMode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for TimeMode {
+    type Err = ConfigError;
+
+    fn from_str(s: &str) -> Result<Self, ConfigError> {
+        match s {
+            "lockstep" => Ok(Self::Lockstep),
+            "real-time" | "realtime" => Ok(Self::RealTime),
+            other => Err(ConfigError::new(
+                "time_mode",
+                format!("unknown time mode {other:?} (lockstep, real-time)"),
+            )),
+        }
+    }
+}
+
+/// An invalid setting.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("invalid plant setting `{field}`: {reason}")]
+pub struct ConfigError {
+    pub field: String,
+    pub reason: String,
+}
+
+impl ConfigError {
+    fn new(field: impl Into<String>, reason: impl Into<String>) -> Self {
+        Self { field: field.into(), reason: reason.into() }
+    }
+}
+
+/// Default watchdog timeout in real time, ns (500 ms).
+pub const DEFAULT_REAL_TIME_WATCHDOG_NS: u64 = 500_000_000;
+
+/// Settings of one plant service.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlantConfig {
+    /// Scenario loaded at start, and by a `Reset` that names no scenario (default: paper-1).
+    pub scenario: Scenario,
+    /// How plant time moves (default: lockstep).
+    pub time_mode: TimeMode,
+    /// RK4 integration rate, Hz; the step is `round(1e9 / rate_hz)` ns (default 1000, i.e. 1 ms).
+    /// In real time it is also the rate of the integration task.
+    pub rate_hz: f64,
+    /// With no command for this long, ns, the plant holds hover and says so in its samples;
+    /// `None` = off. Default: 500 ms in real time, off in lockstep.
+    pub watchdog_timeout_ns: Option<u64>,
+    /// Samples queued per `StreamState` subscriber; when the queue is full, newer samples are
+    /// dropped for that subscriber only (it sees a gap in `seq`). Default 1024.
+    pub stream_buffer: usize,
+}
+
+impl Default for PlantConfig {
+    fn default() -> Self {
+        Self::lockstep(Scenario::paper_1())
+    }
+}
+
+impl PlantConfig {
+    /// Lockstep on `scenario`, 1 kHz, no watchdog.
+    pub fn lockstep(scenario: Scenario) -> Self {
+        Self {
+            scenario,
+            time_mode: TimeMode::Lockstep,
+            rate_hz: 1000.0,
+            watchdog_timeout_ns: None,
+            stream_buffer: 1024,
+        }
+    }
+
+    /// Real time on `scenario`, 1 kHz, watchdog 500 ms.
+    pub fn real_time(scenario: Scenario) -> Self {
+        Self {
+            time_mode: TimeMode::RealTime,
+            watchdog_timeout_ns: Some(DEFAULT_REAL_TIME_WATCHDOG_NS),
+            ..Self::lockstep(scenario)
+        }
+    }
+
+    /// Checks every setting and returns the truth simulation's settings.
+    pub fn validate(&self) -> Result<SimSettings, ConfigError> {
+        self.scenario.validate().map_err(|e| ConfigError::new("scenario", e.to_string()))?;
+        let mut settings = SimSettings::with_rate_hz(self.rate_hz)
+            .map_err(|e| ConfigError::new("rate_hz", e.to_string()))?;
+        if self.watchdog_timeout_ns == Some(0) {
+            return Err(ConfigError::new(
+                "watchdog_timeout_ns",
+                "must be > 0 when set (use None to turn it off)",
+            ));
+        }
+        settings.watchdog_timeout_ns = self.watchdog_timeout_ns;
+        if self.stream_buffer == 0 {
+            return Err(ConfigError::new("stream_buffer", "must be at least 1"));
+        }
+        Ok(settings)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid_and_bad_settings_are_named() {
+        let s = PlantConfig::default().validate().expect("valid");
+        assert_eq!(s.step_ns, 1_000_000);
+        assert_eq!(s.watchdog_timeout_ns, None);
+        let rt = PlantConfig::real_time(Scenario::paper_2()).validate().expect("valid");
+        assert_eq!(rt.watchdog_timeout_ns, Some(500_000_000));
+        let bad = PlantConfig { rate_hz: f64::NAN, ..Default::default() };
+        assert_eq!(bad.validate().map_err(|e| e.field), Err("rate_hz".to_string()));
+        let bad = PlantConfig { watchdog_timeout_ns: Some(0), ..Default::default() };
+        assert_eq!(bad.validate().map_err(|e| e.field), Err("watchdog_timeout_ns".to_string()));
+        let bad = PlantConfig { stream_buffer: 0, ..Default::default() };
+        assert_eq!(bad.validate().map_err(|e| e.field), Err("stream_buffer".to_string()));
+        assert_eq!("real-time".parse(), Ok(TimeMode::RealTime));
+        assert!("fast".parse::<TimeMode>().is_err());
+    }
+}

@@ -1,0 +1,101 @@
+//! `plant`: the MAV plant service. Glue only: flags, logging, signals; the service is the
+//! `plant` library.
+
+use anyhow::Context;
+use clap::Parser;
+use mav::Scenario;
+use plant::{PlantConfig, TimeMode};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Mode {
+    /// Integrate on the wall clock; Advance/Step with a duration are refused.
+    RealTime,
+    /// Time moves only through Advance/Step (deterministic; what the bench drives).
+    Lockstep,
+}
+
+/// The hilbench plant: the MAV truth simulation served over gRPC (hilbench.v1.Plant, with
+/// health checking and server reflection).
+#[derive(Debug, Parser)]
+#[command(name = "plant", version)]
+struct Args {
+    /// Address to listen on, HOST:PORT.
+    #[arg(long, default_value = "127.0.0.1:50051")]
+    listen: String,
+    /// Scenario loaded at start (paper-1, paper-2, paper-3).
+    #[arg(long, default_value = "paper-1")]
+    scenario: String,
+    /// How plant time moves.
+    #[arg(long, value_enum, default_value_t = Mode::RealTime)]
+    time_mode: Mode,
+    /// RK4 integration rate, Hz (the step is 1/rate).
+    #[arg(long, default_value_t = 1000.0)]
+    rate_hz: f64,
+    /// Hold hover after this long without a command, ms; 0 = off.
+    /// Default: 500 in real time, off in lockstep.
+    #[arg(long)]
+    watchdog_ms: Option<u64>,
+}
+
+fn config(args: &Args) -> anyhow::Result<PlantConfig> {
+    let scenario = Scenario::by_name(&args.scenario)?;
+    let mut config = match args.time_mode {
+        Mode::RealTime => PlantConfig::real_time(scenario),
+        Mode::Lockstep => PlantConfig::lockstep(scenario),
+    };
+    config.rate_hz = args.rate_hz;
+    if let Some(ms) = args.watchdog_ms {
+        config.watchdog_timeout_ns = match ms {
+            0 => None,
+            ms => Some(ms.checked_mul(1_000_000).context("--watchdog-ms is too large")?),
+        };
+    }
+    config.validate()?;
+    debug_assert_eq!(config.time_mode == TimeMode::Lockstep, args.time_mode == Mode::Lockstep);
+    Ok(config)
+}
+
+/// Resolves on SIGINT (Ctrl-C) or SIGTERM.
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        if let Err(e) = tokio::signal::ctrl_c().await {
+            tracing::error!("cannot listen for Ctrl-C: {e}");
+            std::future::pending::<()>().await;
+        }
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(e) => {
+                tracing::error!("cannot listen for SIGTERM: {e}");
+                std::future::pending::<()>().await;
+            }
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        () = ctrl_c => {}
+        () = term => {}
+    }
+}
+
+#[tokio::main]
+async fn main() -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .init();
+    let args = Args::parse();
+    let config = config(&args)?;
+    let listener = tokio::net::TcpListener::bind(&args.listen)
+        .await
+        .with_context(|| format!("cannot listen on {}", args.listen))?;
+    plant::serve(listener, config, shutdown_signal()).await?;
+    Ok(())
+}

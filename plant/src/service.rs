@@ -1,0 +1,503 @@
+//! The `hilbench.v1.Plant` service: decode and validate (in `hilbench_proto::convert`), call
+//! the truth simulation of `mav`, encode. The service owns the clock and passes plant times
+//! into the simulation.
+
+use crate::clock::Clock;
+use crate::config::{ConfigError, PlantConfig, TimeMode};
+use hilbench_proto::convert::FieldError;
+use hilbench_proto::convert::plant::{self as conv, Command, Reset, Step, StreamState};
+use hilbench_proto::pb;
+use mav::{PlantSim, Scenario, SimSettings};
+use std::pin::Pin;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::{Request, Response, Status};
+
+/// What the plant calls itself in `PlantDescription.implementation`.
+pub const IMPLEMENTATION: &str = concat!("hilbench-plant ", env!("CARGO_PKG_VERSION"), " (simulated)");
+
+/// Lockstep advances longer than this (plant time, ns) run on the blocking pool instead of a
+/// runtime worker. Shorter ones (a control cycle, the 1 ms bench step) cost microseconds and run
+/// inline, which keeps the round trip short.
+const INLINE_ADVANCE_MAX_NS: u64 = 100_000_000;
+
+type SampleTx = mpsc::Sender<Result<pb::StateSample, Status>>;
+
+/// One `StreamState` subscriber.
+struct Subscriber {
+    period_ns: u64,
+    /// `floor(time / period)` of the last sample sent (unused when `period_ns == 0`).
+    last_slot: u64,
+    tx: SampleTx,
+    /// Samples dropped because the subscriber's queue was full.
+    dropped: u64,
+}
+
+/// Everything behind the lock.
+struct Inner {
+    scenario: Scenario,
+    sim: PlantSim,
+    /// Clock reading at the last reset; in real time, plant time is `now - epoch`.
+    epoch_ns: u64,
+    /// Sequence number of the next sample produced (every sample, on every path, is numbered
+    /// once; subscribers of the same instant share one sample).
+    next_seq: u64,
+    /// The sample of the current instant, once produced; cleared whenever the state, the time
+    /// or the last command changes.
+    current: Option<pb::StateSample>,
+    subscribers: Vec<Subscriber>,
+    /// Set at shutdown: streams are closed and no new ones are accepted.
+    closed: bool,
+}
+
+/// The sample of the current instant (produced and numbered on first use).
+fn current_sample(
+    sim: &PlantSim,
+    next_seq: &mut u64,
+    current: &mut Option<pb::StateSample>,
+) -> pb::StateSample {
+    current
+        .get_or_insert_with(|| {
+            let mut s = sim.peek();
+            s.seq = *next_seq;
+            *next_seq += 1;
+            pb::StateSample::from(&s)
+        })
+        .clone()
+}
+
+/// Called after every integration sub-step. It only reads the simulation, so observing never
+/// changes the physics (the step boundaries are the simulation's own).
+fn on_step(
+    sim: &PlantSim,
+    next_seq: &mut u64,
+    current: &mut Option<pb::StateSample>,
+    subs: &mut Vec<Subscriber>,
+) {
+    *current = None;
+    if subs.is_empty() {
+        return;
+    }
+    let t = sim.time_ns();
+    let mut sample: Option<pb::StateSample> = None;
+    subs.retain_mut(|s| {
+        if s.period_ns != 0 {
+            let slot = t / s.period_ns;
+            if slot <= s.last_slot {
+                return true;
+            }
+            s.last_slot = slot;
+        }
+        let msg = sample.get_or_insert_with(|| current_sample(sim, next_seq, current)).clone();
+        offer(s, msg)
+    });
+}
+
+/// Hands a sample to a subscriber without ever waiting: a slow subscriber must not hold up the
+/// simulation (nor the other subscribers), so when its bounded queue is full the sample is
+/// dropped for it alone and it sees a gap in `seq`. Returns false when the subscriber is gone.
+fn offer(s: &mut Subscriber, msg: pb::StateSample) -> bool {
+    match s.tx.try_send(Ok(msg)) {
+        Ok(()) => true,
+        Err(mpsc::error::TrySendError::Full(_)) => {
+            s.dropped += 1;
+            if s.dropped.is_power_of_two() {
+                tracing::warn!(dropped = s.dropped, "state stream subscriber is too slow; dropping samples");
+            }
+            true
+        }
+        Err(mpsc::error::TrySendError::Closed(_)) => {
+            tracing::debug!("state stream subscriber left");
+            false
+        }
+    }
+}
+
+impl Inner {
+    /// Integrates to plant time `time_ns`, feeding the subscribers.
+    fn advance_to(&mut self, time_ns: u64) {
+        let Inner { sim, next_seq, current, subscribers, .. } = self;
+        sim.advance_to(time_ns, |s| on_step(s, next_seq, current, subscribers));
+    }
+
+    fn advance(&mut self, duration_ns: u64) {
+        let target = self.sim.time_ns().saturating_add(duration_ns);
+        self.advance_to(target);
+    }
+
+    fn apply(&mut self, c: &Command) -> Result<pb::AppliedCommand, Status> {
+        let applied = self.sim.apply(c.input, c.meta).map_err(|e| Status::invalid_argument(e.to_string()))?;
+        self.current = None;
+        Ok(pb::AppliedCommand::from(&applied))
+    }
+
+    fn sample(&mut self) -> pb::StateSample {
+        current_sample(&self.sim, &mut self.next_seq, &mut self.current)
+    }
+}
+
+struct Shared {
+    inner: Mutex<Inner>,
+    time_mode: TimeMode,
+    settings: SimSettings,
+    /// The configured scenario (what an empty `Reset.scenario` means at start).
+    config_scenario: Scenario,
+    stream_buffer: usize,
+    clock: Arc<dyn Clock>,
+}
+
+impl Shared {
+    /// The simulation never panics on validated input; if a panic ever poisoned the lock, the
+    /// state is still a valid simulation state, so keep serving it rather than fail every call.
+    fn lock(&self) -> MutexGuard<'_, Inner> {
+        self.inner.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Real time: integrate up to the clock's current plant time.
+    fn catch_up(&self, inner: &mut Inner) {
+        if self.time_mode == TimeMode::RealTime {
+            let now = self.clock.now_ns().saturating_sub(inner.epoch_ns);
+            inner.advance_to(now);
+        }
+    }
+
+    fn resolve(&self, current: &Scenario, name: Option<&str>) -> Result<Scenario, FieldError> {
+        match name {
+            None => Ok(current.clone()),
+            Some(n) if n == current.name => Ok(current.clone()),
+            Some(n) if n == self.config_scenario.name => Ok(self.config_scenario.clone()),
+            Some(n) => conv::scenario_by_name("scenario", n),
+        }
+    }
+
+    fn describe(&self, inner: &Inner) -> pb::PlantDescription {
+        let mode = match self.time_mode {
+            TimeMode::Lockstep => pb::TimeMode::Lockstep,
+            TimeMode::RealTime => pb::TimeMode::RealTime,
+        };
+        conv::plant_description(&inner.scenario, &self.settings, mode, IMPLEMENTATION)
+    }
+}
+
+/// The plant service: a small handle around the shared simulation (cheap to clone).
+#[derive(Clone)]
+pub struct PlantService {
+    shared: Arc<Shared>,
+}
+
+impl PlantService {
+    /// A service on `config`, whose real-time mode reads `clock`. In real time, something must
+    /// call [`PlantService::tick`] regularly (`serve` spawns a task for it).
+    pub fn new(config: PlantConfig, clock: Arc<dyn Clock>) -> Result<Self, ConfigError> {
+        let settings = config.validate()?;
+        let sim = PlantSim::new(&config.scenario, settings)
+            .map_err(|e| ConfigError { field: "scenario".into(), reason: e.to_string() })?;
+        let inner = Inner {
+            scenario: config.scenario.clone(),
+            sim,
+            epoch_ns: clock.now_ns(),
+            next_seq: 0,
+            current: None,
+            subscribers: Vec::new(),
+            closed: false,
+        };
+        Ok(Self {
+            shared: Arc::new(Shared {
+                inner: Mutex::new(inner),
+                time_mode: config.time_mode,
+                settings,
+                config_scenario: config.scenario,
+                stream_buffer: config.stream_buffer,
+                clock,
+            }),
+        })
+    }
+
+    pub fn time_mode(&self) -> TimeMode {
+        self.shared.time_mode
+    }
+
+    /// Integration step, ns.
+    pub fn step_ns(&self) -> u64 {
+        self.shared.settings.step_ns
+    }
+
+    /// Real time: integrate to the clock's current plant time (a no-op in lockstep).
+    pub fn tick(&self) {
+        let mut inner = self.shared.lock();
+        self.shared.catch_up(&mut inner);
+    }
+
+    /// Ends every state stream and refuses new ones (at shutdown, so that the server can
+    /// finish its open calls).
+    pub fn close(&self) {
+        let mut inner = self.shared.lock();
+        inner.closed = true;
+        inner.subscribers.clear();
+    }
+
+    /// Lockstep advance, off the runtime workers when it is long.
+    async fn advance_and_sample(
+        &self,
+        command: Option<Command>,
+        duration_ns: u64,
+    ) -> Result<pb::StateSample, Status> {
+        let shared = self.shared.clone();
+        let work = move || -> Result<pb::StateSample, Status> {
+            let mut inner = shared.lock();
+            shared.catch_up(&mut inner);
+            if let Some(c) = &command {
+                inner.apply(c)?;
+            }
+            inner.advance(duration_ns);
+            Ok(inner.sample())
+        };
+        if duration_ns <= INLINE_ADVANCE_MAX_NS {
+            work()
+        } else {
+            tokio::task::spawn_blocking(work)
+                .await
+                .map_err(|e| Status::internal(format!("advance task failed: {e}")))?
+        }
+    }
+
+    fn refuse_in_real_time(&self, what: &str) -> Result<(), Status> {
+        match self.shared.time_mode {
+            TimeMode::Lockstep => Ok(()),
+            TimeMode::RealTime => Err(Status::failed_precondition(format!(
+                "the plant runs in real time: {what} with a duration > 0 is only served in lockstep"
+            ))),
+        }
+    }
+}
+
+type SampleStream =
+    Pin<Box<dyn tokio_stream::Stream<Item = Result<pb::StateSample, Status>> + Send + 'static>>;
+
+#[tonic::async_trait]
+impl pb::plant_server::Plant for PlantService {
+    async fn reset(&self, request: Request<pb::ResetRequest>) -> Result<Response<pb::ResetResponse>, Status> {
+        let req = Reset::try_from(request.get_ref())?;
+        let shared = &self.shared;
+        let mut inner = shared.lock();
+        let scenario = shared.resolve(&inner.scenario, req.scenario.as_deref())?;
+        let start = req.initial_state.unwrap_or_else(|| scenario.start_state());
+        // Build the new simulation completely before touching the current one.
+        let mut sim = PlantSim::new(&scenario, shared.settings)
+            .map_err(|e| Status::internal(format!("scenario: {e}")))?;
+        sim.reset(start).map_err(|e| FieldError::new("initial_state", e.to_string()))?;
+        tracing::info!(scenario = %scenario.name, custom_start = req.initial_state.is_some(), "reset");
+        inner.sim = sim;
+        inner.scenario = scenario;
+        inner.epoch_ns = shared.clock.now_ns();
+        inner.next_seq = 0;
+        inner.current = None;
+        let sample = inner.sample();
+        let description = shared.describe(&inner);
+        // Every subscriber learns about the reset: it gets the new first sample.
+        let msg = sample.clone();
+        inner.subscribers.retain_mut(|s| {
+            s.last_slot = 0;
+            offer(s, msg.clone())
+        });
+        Ok(Response::new(pb::ResetResponse { description: Some(description), sample: Some(sample) }))
+    }
+
+    type StreamStateStream = SampleStream;
+
+    async fn stream_state(
+        &self,
+        request: Request<pb::StreamStateRequest>,
+    ) -> Result<Response<Self::StreamStateStream>, Status> {
+        let req = StreamState::try_from(request.get_ref())?;
+        let (tx, rx) = mpsc::channel(self.shared.stream_buffer);
+        let mut inner = self.shared.lock();
+        if inner.closed {
+            return Err(Status::unavailable("the plant is shutting down"));
+        }
+        // The stream starts with the current sample.
+        let first = inner.sample();
+        let time_ns = first.time_ns;
+        let mut sub = Subscriber {
+            period_ns: req.period_ns,
+            last_slot: time_ns.checked_div(req.period_ns).unwrap_or(0),
+            tx,
+            dropped: 0,
+        };
+        offer(&mut sub, first);
+        inner.subscribers.push(sub);
+        tracing::debug!(
+            period_ns = req.period_ns,
+            subscribers = inner.subscribers.len(),
+            "state stream opened"
+        );
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    async fn get_state(
+        &self,
+        _request: Request<pb::GetStateRequest>,
+    ) -> Result<Response<pb::StateSample>, Status> {
+        // In real time this is the state at the last integration tick: reading never adds a
+        // step boundary.
+        Ok(Response::new(self.shared.lock().sample()))
+    }
+
+    async fn apply_command(
+        &self,
+        request: Request<pb::Command>,
+    ) -> Result<Response<pb::ApplyCommandResponse>, Status> {
+        let command = Command::try_from(request.get_ref())?;
+        let mut inner = self.shared.lock();
+        // Real time: the command takes effect at its arrival time, not at the next tick.
+        self.shared.catch_up(&mut inner);
+        let applied = inner.apply(&command)?;
+        Ok(Response::new(pb::ApplyCommandResponse { applied: Some(applied) }))
+    }
+
+    async fn advance(
+        &self,
+        request: Request<pb::AdvanceRequest>,
+    ) -> Result<Response<pb::AdvanceResponse>, Status> {
+        let duration_ns = conv::advance_duration_ns(request.get_ref())?;
+        self.refuse_in_real_time("Advance")?;
+        let sample = self.advance_and_sample(None, duration_ns).await?;
+        Ok(Response::new(pb::AdvanceResponse { sample: Some(sample) }))
+    }
+
+    async fn step(&self, request: Request<pb::StepRequest>) -> Result<Response<pb::AdvanceResponse>, Status> {
+        let step = Step::try_from(request.get_ref())?;
+        if step.duration_ns > 0 {
+            self.refuse_in_real_time("Step")?;
+        }
+        let sample = self.advance_and_sample(step.command, step.duration_ns).await?;
+        Ok(Response::new(pb::AdvanceResponse { sample: Some(sample) }))
+    }
+
+    async fn describe(
+        &self,
+        _request: Request<pb::DescribeRequest>,
+    ) -> Result<Response<pb::PlantDescription>, Status> {
+        let inner = self.shared.lock();
+        Ok(Response::new(self.shared.describe(&inner)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! The service's logic called directly (no network), with a manual clock for real time.
+    use super::*;
+    use crate::clock::ManualClock;
+    use pb::plant_server::Plant;
+
+    fn cmd(thrust: f64, roll: f64, seq: u64) -> pb::Command {
+        pb::Command {
+            input: Some(pb::ControlInput { thrust_mps2: thrust, roll_rad: roll, pitch_rad: 0.0 }),
+            command_seq: seq,
+            ..Default::default()
+        }
+    }
+
+    fn time_of(s: &pb::StateSample) -> u64 {
+        s.time_ns
+    }
+
+    #[tokio::test]
+    async fn real_time_follows_the_clock_and_the_watchdog_holds_hover() {
+        let clock = Arc::new(ManualClock::new(5_000));
+        let svc =
+            PlantService::new(PlantConfig::real_time(Scenario::paper_1()), clock.clone()).expect("valid");
+        clock.advance(2_500_000);
+        svc.tick();
+        let s = svc.get_state(Request::new(pb::GetStateRequest {})).await.expect("ok").into_inner();
+        assert_eq!(time_of(&s), 2_500_000);
+        // A command arriving between ticks takes effect at its arrival time.
+        clock.advance(300_000);
+        let applied = svc.apply_command(Request::new(cmd(12.0, 0.05, 1))).await.expect("ok").into_inner();
+        assert_eq!(applied.applied.map(|a| a.applied_time_ns), Some(2_800_000));
+        // Advance is refused, a zero-duration Step (apply and read) is served.
+        let err = svc
+            .advance(Request::new(pb::AdvanceRequest { duration_ns: 1_000_000 }))
+            .await
+            .expect_err("refused");
+        assert_eq!(err.code(), tonic::Code::FailedPrecondition);
+        let read = svc
+            .step(Request::new(pb::StepRequest { command: None, duration_ns: 0 }))
+            .await
+            .expect("ok")
+            .into_inner();
+        assert_eq!(read.sample.map(|s| s.time_ns), Some(2_800_000));
+        // No command for 500 ms: hover.
+        clock.advance(499_000_000);
+        svc.tick();
+        let s = svc.get_state(Request::new(pb::GetStateRequest {})).await.expect("ok").into_inner();
+        assert!(!s.watchdog_hover);
+        clock.advance(1_000_000);
+        svc.tick();
+        let s = svc.get_state(Request::new(pb::GetStateRequest {})).await.expect("ok").into_inner();
+        assert!(s.watchdog_hover, "at {} ns", s.time_ns);
+        assert_eq!(s.time_ns, 502_800_000);
+        // Reset restarts plant time from the clock.
+        svc.reset(Request::new(pb::ResetRequest::default())).await.expect("ok");
+        clock.advance(7_000_000);
+        svc.tick();
+        let s = svc.get_state(Request::new(pb::GetStateRequest {})).await.expect("ok").into_inner();
+        assert_eq!((s.time_ns, s.seq, s.watchdog_hover), (7_000_000, 1, false));
+    }
+
+    #[tokio::test]
+    async fn streams_emit_on_period_boundaries_and_samples_are_numbered_once() {
+        let svc = PlantService::new(PlantConfig::default(), Arc::new(ManualClock::new(0))).expect("valid");
+        let every = svc
+            .stream_state(Request::new(pb::StreamStateRequest { period_ns: 0 }))
+            .await
+            .expect("ok")
+            .into_inner();
+        let coarse = svc
+            .stream_state(Request::new(pb::StreamStateRequest { period_ns: 2_500_000 }))
+            .await
+            .expect("ok")
+            .into_inner();
+        let r = svc.advance(Request::new(pb::AdvanceRequest { duration_ns: 6_000_000 })).await.expect("ok");
+        let last = r.into_inner().sample.expect("sample");
+        svc.close();
+        use tokio_stream::StreamExt;
+        let every: Vec<_> = every.map(|s| s.expect("ok")).collect().await;
+        let coarse: Vec<_> = coarse.map(|s| s.expect("ok")).collect().await;
+        let times: Vec<u64> = every.iter().map(time_of).collect();
+        assert_eq!(times, vec![0, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 5_000_000, 6_000_000]);
+        let times: Vec<u64> = coarse.iter().map(time_of).collect();
+        assert_eq!(times, vec![0, 3_000_000, 5_000_000]);
+        // One sample per instant, shared by every path that reads it.
+        let seqs: Vec<u64> = every.iter().map(|s| s.seq).collect();
+        assert_eq!(seqs, (0..7).collect::<Vec<_>>());
+        assert_eq!(coarse[1].seq, every[3].seq);
+        assert_eq!(last.seq, every[6].seq);
+        // Closed: no new streams.
+        let err = svc.stream_state(Request::new(pb::StreamStateRequest { period_ns: 0 })).await;
+        assert_eq!(err.err().map(|e| e.code()), Some(tonic::Code::Unavailable));
+    }
+
+    #[tokio::test]
+    async fn a_full_subscriber_loses_samples_but_never_blocks_the_plant() {
+        let config = PlantConfig { stream_buffer: 2, ..Default::default() };
+        let svc = PlantService::new(config, Arc::new(ManualClock::new(0))).expect("valid");
+        let mut stream = svc
+            .stream_state(Request::new(pb::StreamStateRequest { period_ns: 0 }))
+            .await
+            .expect("ok")
+            .into_inner();
+        let r = svc.advance(Request::new(pb::AdvanceRequest { duration_ns: 50_000_000 })).await.expect("ok");
+        assert_eq!(r.into_inner().sample.map(|s| s.time_ns), Some(50_000_000));
+        use tokio_stream::StreamExt;
+        let first = stream.next().await.and_then(Result::ok).map(|s| s.time_ns);
+        let second = stream.next().await.and_then(Result::ok).map(|s| s.time_ns);
+        assert_eq!((first, second), (Some(0), Some(1_000_000)));
+        // The queue has room again: the next step is delivered, with a gap in seq.
+        svc.advance(Request::new(pb::AdvanceRequest { duration_ns: 1_000_000 })).await.expect("ok");
+        let third = stream.next().await.and_then(Result::ok).expect("sample");
+        assert_eq!(third.time_ns, 51_000_000);
+        assert!(third.seq > 2);
+    }
+}
