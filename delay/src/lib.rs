@@ -17,18 +17,21 @@
 //! - [`queue`]: a [`ReleaseQueue`] ordering held messages by release time.
 //! - [`stats`]: counters, delay histogram and percentiles of one direction.
 //! - [`trace`]: parsing a recorded delay trace from CSV text.
+//! - [`record`]: one line of a delivery trace.
 
 pub mod line;
 pub mod profile;
 pub mod queue;
+pub mod record;
 pub mod stats;
 pub mod trace;
 
-pub use line::{Decision, DelayLine, Fate, Release};
+pub use line::{Decision, DelayLine, Draw, Fate, Release};
 pub use profile::{
     Direction, DirectionProfile, Distribution, MAX_DELAY_S, Ordering, PRESETS, Preset, ProfileError, preset,
 };
 pub use queue::ReleaseQueue;
+pub use record::Record;
 pub use stats::{DirectionStats, Percentiles};
 pub use trace::{TraceError, parse_trace};
 

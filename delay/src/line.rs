@@ -85,6 +85,15 @@ impl Sampler {
     }
 }
 
+/// The random part of a decision, before any scheduling.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Draw {
+    pub seq: u64,
+    pub sampled_delay_s: f64,
+    pub lost: bool,
+    pub duplicated: bool,
+}
+
 /// One copy of a message and when it leaves the line.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Release {
@@ -236,8 +245,10 @@ impl DelayLine {
         Release { release_time_ns, delay_ns: release_time_ns - send_time_ns, sampled_delay_s, duplicate }
     }
 
-    /// Decides the fate of a message sent at `send_time_ns`.
-    pub fn send(&mut self, send_time_ns: u64) -> Decision {
+    /// Draws what happens to the next message without scheduling it (no FIFO state is used
+    /// or changed). [`DelayLine::send`] is `draw` plus scheduling; a shell that maps delays to
+    /// times its own way (netem's lockstep samples) uses `draw` directly.
+    pub fn draw(&mut self) -> Draw {
         let seq = self.next_seq;
         self.next_seq += 1;
         let sampled_delay_s = self.sampler.sample(&mut self.streams.delay);
@@ -245,6 +256,12 @@ impl DelayLine {
         // streams stay aligned with the message numbers whatever the probabilities are.
         let lost = self.streams.loss.random::<f64>() < self.profile.loss_probability;
         let duplicated = self.streams.duplicate.random::<f64>() < self.profile.duplicate_probability;
+        Draw { seq, sampled_delay_s, lost, duplicated }
+    }
+
+    /// Decides the fate of a message sent at `send_time_ns`.
+    pub fn send(&mut self, send_time_ns: u64) -> Decision {
+        let Draw { seq, sampled_delay_s, lost, duplicated } = self.draw();
         let fate = if lost {
             Fate::Dropped
         } else {
