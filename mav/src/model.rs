@@ -91,9 +91,9 @@ impl InputBounds {
     /// Names the first non-finite or inverted bound.
     pub fn validate(&self) -> Result<(), &'static str> {
         const NAMES: [&str; 3] = ["thrust", "roll", "pitch"];
-        for i in 0..3 {
+        for (i, name) in NAMES.iter().enumerate() {
             if !self.min[i].is_finite() || !self.max[i].is_finite() || self.min[i] > self.max[i] {
-                return Err(NAMES[i]);
+                return Err(name);
             }
         }
         Ok(())

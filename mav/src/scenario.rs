@@ -210,7 +210,8 @@ impl Scenario {
         if let Some(i) = self.nominal_weights.iter().position(|v| !v.is_finite() || *v < 0.0) {
             return Err(invalid(format!("nominal_weights[{i}]"), "must be finite and >= 0"));
         }
-        if !(self.nominal_weights.iter().sum::<f64>() > 0.0) {
+        // Every weight is finite and >= 0 here, so the sum cannot be NaN.
+        if self.nominal_weights.iter().sum::<f64>() <= 0.0 {
             return Err(invalid("nominal_weights", "must not all be zero"));
         }
         if !positive(self.prior_gamma.0) || !positive(self.prior_gamma.1) {

@@ -274,11 +274,12 @@ impl PlantSim {
         self.time_ns = end_ns;
         self.path_length_m += 0.5 * (speed_before + self.speed()) * dt_s;
         self.check_contacts();
-        if let Some(timeout) = self.settings.watchdog_timeout_ns {
-            if !self.watchdog_hover && self.time_ns.saturating_sub(self.last_command_time_ns) >= timeout {
-                self.watchdog_hover = true;
-                self.effective_input = self.model.params.hover_input();
-            }
+        if let Some(timeout) = self.settings.watchdog_timeout_ns
+            && !self.watchdog_hover
+            && self.time_ns.saturating_sub(self.last_command_time_ns) >= timeout
+        {
+            self.watchdog_hover = true;
+            self.effective_input = self.model.params.hover_input();
         }
     }
 

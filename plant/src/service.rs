@@ -82,8 +82,8 @@ fn on_step(
     let t = sim.time_ns();
     let mut sample: Option<pb::StateSample> = None;
     subs.retain_mut(|s| {
-        if s.period_ns != 0 {
-            let slot = t / s.period_ns;
+        // Period 0 (no division) means every step.
+        if let Some(slot) = t.checked_div(s.period_ns) {
             if slot <= s.last_slot {
                 return true;
             }
