@@ -1,1 +1,188 @@
-//! The netem service (see ARCHITECTURE.md).
+//! The netem service: a gRPC proxy of the `hilbench.v1.Plant` API that injects a delay per
+//! message and direction, loss and duplication, decided by the pure `delay` crate.
+//!
+//! The controller connects to netem exactly as it would to a plant; netem is a client of the
+//! upstream plant and a server of the Plant API (see [`proxy`] for what each call does in
+//! lockstep and in real time) and of `NetemControl` ([`control`]), to change profiles, read
+//! statistics and record traces at run time.
+//!
+//! - [`Config`]: validated settings with documented defaults.
+//! - [`serve`]: runs both services (plus health and reflection) on a bound listener until
+//!   `shutdown` resolves; the `netem` binary and the tests start it this way.
+//!
+//! **Architecture Invariant:** every random decision is made by `delay::DelayLine`, which is
+//! pure and seeded; this crate only moves messages and reads clocks. Lockstep never reads a
+//! clock, so a lockstep run through netem is as deterministic as the plant behind it.
+//!
+//! Stamps: see the header of `netem.proto`. Unary answers carry `netem-command-*` /
+//! `netem-sample-*` metadata; stream items are described on `NetemControl.StreamDeliveries`.
+
+pub mod clock;
+pub mod control;
+mod core;
+pub mod proxy;
+pub mod release;
+
+use std::future::Future;
+use std::time::Duration;
+
+use delay::{DirectionProfile, ProfileError};
+use hilbench_proto::pb::netem_control_server::NetemControlServer;
+use hilbench_proto::pb::plant_server::PlantServer;
+use tonic::transport::server::TcpIncoming;
+use tonic::transport::{Endpoint, Server};
+
+pub use control::Control;
+pub use proxy::Proxy;
+
+/// How netem decides between lockstep and real time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TimeModeSetting {
+    /// Ask the upstream plant (`Describe`), and follow it across resets.
+    #[default]
+    Auto,
+    RealTime,
+    Lockstep,
+}
+
+/// The time mode in force.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    RealTime,
+    Lockstep,
+}
+
+/// Settings of a netem instance.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// Upstream plant, `HOST:PORT` (or a full `http://` URI).
+    pub upstream: String,
+    /// Lockstep, real time, or whatever the upstream says (default).
+    pub time_mode: TimeModeSetting,
+    /// Profile of state samples, plant to controller (default: no delay).
+    pub plant_to_controller: DirectionProfile,
+    /// Profile of commands, controller to plant (default: no delay).
+    pub controller_to_plant: DirectionProfile,
+    /// Seed given to presets chosen at run time through `NetemControl.SetProfile` (default 42).
+    pub seed: u64,
+    /// How often a gone upstream is polled, ms (default 200).
+    pub probe_interval_ms: u64,
+}
+
+impl Config {
+    /// No delay either way, seed 42.
+    pub fn new(upstream: impl Into<String>) -> Self {
+        Self {
+            upstream: upstream.into(),
+            time_mode: TimeModeSetting::Auto,
+            plant_to_controller: DirectionProfile::default(),
+            controller_to_plant: DirectionProfile::default(),
+            seed: 42,
+            probe_interval_ms: 200,
+        }
+    }
+
+    /// Both directions from a named preset (`paper`, `paper-split`, `none`) with `seed`.
+    pub fn with_preset(mut self, name: &str, seed: u64) -> Result<Self, ProfileError> {
+        let p = delay::preset(name, seed)?;
+        self.plant_to_controller = p.plant_to_controller;
+        self.controller_to_plant = p.controller_to_plant;
+        self.seed = seed;
+        Ok(self)
+    }
+
+    pub fn validate(&self) -> Result<(), NetemError> {
+        self.plant_to_controller.validate().map_err(NetemError::Profile)?;
+        self.controller_to_plant.validate().map_err(NetemError::Profile)?;
+        if self.probe_interval_ms == 0 {
+            return Err(NetemError::Config("probe_interval_ms must be > 0".into()));
+        }
+        Ok(())
+    }
+
+    fn upstream_uri(&self) -> String {
+        if self.upstream.contains("://") {
+            self.upstream.clone()
+        } else {
+            format!("http://{}", self.upstream)
+        }
+    }
+}
+
+/// Why netem could not serve.
+#[derive(Debug, thiserror::Error)]
+pub enum NetemError {
+    #[error("profile: {0}")]
+    Profile(ProfileError),
+    #[error("config: {0}")]
+    Config(String),
+    #[error("upstream address: {0}")]
+    Upstream(tonic::transport::Error),
+    #[error("reflection service: {0}")]
+    Reflection(#[from] tonic_reflection::server::Error),
+    #[error("io: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("gRPC server: {0}")]
+    Transport(#[from] tonic::transport::Error),
+}
+
+/// Serves netem on `listener` until `shutdown` resolves.
+pub async fn serve(
+    listener: tokio::net::TcpListener,
+    config: Config,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<(), NetemError> {
+    config.validate()?;
+    let addr = listener.local_addr()?;
+    let endpoint = Endpoint::from_shared(config.upstream_uri())
+        .map_err(NetemError::Upstream)?
+        .connect_timeout(Duration::from_secs(1))
+        .tcp_nodelay(true);
+    let channel = endpoint.connect_lazy();
+    let client = hilbench_proto::pb::plant_client::PlantClient::new(channel);
+    let (shared, forward_rx) = core::Shared::new(
+        client,
+        config.upstream.clone(),
+        config.time_mode,
+        [config.plant_to_controller.clone(), config.controller_to_plant.clone()],
+        config.seed,
+    )?;
+    let forwarder = tokio::spawn(core::run_forwarder(shared.clone(), forward_rx));
+    let probe =
+        tokio::spawn(core::run_probe(shared.clone(), Duration::from_millis(config.probe_interval_ms)));
+
+    let (health_reporter, health) = tonic_health::server::health_reporter();
+    health_reporter.set_serving::<PlantServer<Proxy>>().await;
+    health_reporter.set_serving::<NetemControlServer<Control>>().await;
+    let reflection = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(hilbench_proto::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+        .build_v1()?;
+
+    tracing::info!(
+        %addr,
+        upstream = %config.upstream,
+        time_mode = ?config.time_mode,
+        plant_to_controller = ?config.plant_to_controller,
+        controller_to_plant = ?config.controller_to_plant,
+        "netem serving"
+    );
+    let signal = async move {
+        shutdown.await;
+        tracing::info!("netem shutting down");
+        health_reporter.set_not_serving::<PlantServer<Proxy>>().await;
+    };
+    let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));
+    let result = Server::builder()
+        .add_service(health)
+        .add_service(reflection)
+        .add_service(PlantServer::new(Proxy { shared: shared.clone() }))
+        .add_service(NetemControlServer::new(Control { shared }))
+        .serve_with_incoming_shutdown(incoming, signal)
+        .await;
+    forwarder.abort();
+    probe.abort();
+    result?;
+    tracing::info!("netem stopped");
+    Ok(())
+}

@@ -1,0 +1,385 @@
+//! The state shared by netem's two services: the delay lines and statistics (under one short
+//! lock that is never held across an await), the upstream client, and the real-time release
+//! machinery.
+
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use delay::{Decision, DelayLine, Direction, DirectionProfile, DirectionStats, Fate, Record, ReleaseQueue};
+use hilbench_proto::pb;
+use hilbench_proto::pb::plant_client::PlantClient;
+use tokio::sync::{broadcast, mpsc, oneshot};
+use tonic::transport::Channel;
+use tonic::{Response, Status};
+
+use crate::clock::Clock;
+use crate::release::Releaser;
+use crate::{Mode, TimeModeSetting};
+
+/// Largest number of records a trace recording keeps; later ones are counted but not kept.
+pub const MAX_TRACE_RECORDS: usize = 5_000_000;
+
+/// One copy of one message on its way.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Msg {
+    pub dir: Direction,
+    pub seq: u64,
+    pub payload_seq: u64,
+    pub send_ns: u64,
+    pub release_ns: u64,
+    pub duplicate: bool,
+}
+
+impl Msg {
+    /// The copies a decision delivers.
+    pub fn copies(d: &Decision, dir: Direction, payload_seq: u64) -> impl Iterator<Item = Msg> + '_ {
+        d.releases().map(move |r| Msg {
+            dir,
+            seq: d.seq,
+            payload_seq,
+            send_ns: d.send_time_ns,
+            release_ns: r.release_time_ns,
+            duplicate: r.duplicate,
+        })
+    }
+}
+
+/// A command held in lockstep until plant time reaches its release.
+pub struct PendingCommand {
+    pub msg: Msg,
+    pub command: pb::Command,
+}
+
+/// A command handed to the real-time forwarder at its release.
+pub struct Forward {
+    pub msg: Msg,
+    pub command: pb::Command,
+    pub epoch: u64,
+    pub release_error_ns: i64,
+    pub reply: Option<oneshot::Sender<Result<pb::ApplyCommandResponse, Status>>>,
+}
+
+pub struct Inner {
+    pub lines: [DelayLine; 2],
+    pub stats: [DirectionStats; 2],
+    pub in_flight: [u64; 2],
+    pub recording: Option<Vec<Record>>,
+    pub deliveries: broadcast::Sender<pb::TraceRecord>,
+    pub mode: Option<Mode>,
+    /// Lockstep: plant time as of the last upstream answer; `None` until known again.
+    pub plant_time_ns: Option<u64>,
+    pub pending: ReleaseQueue<PendingCommand>,
+    /// The newest sample delivered to the controller (what a lost sample leaves it with).
+    pub last_sample: Option<pb::StateSample>,
+    pub upstream_connected: bool,
+    pub upstream_failures: u64,
+    /// Bumped when the upstream goes away or the plant is reset: real-time copies of an older
+    /// epoch are dropped with `epoch_reason` instead of being delivered.
+    pub epoch: u64,
+    pub epoch_reason: String,
+}
+
+impl Inner {
+    fn record(&mut self, r: Record) {
+        if self.deliveries.receiver_count() > 0 {
+            let _ = self.deliveries.send(pb::TraceRecord::from(&r));
+        }
+        if let Some(rec) = &mut self.recording
+            && rec.len() < MAX_TRACE_RECORDS
+        {
+            rec.push(r);
+        }
+    }
+
+    /// Runs message `payload_seq`, sent at `send_ns`, through the line of `dir`.
+    pub fn decide(&mut self, dir: Direction, send_ns: u64, payload_seq: u64) -> Decision {
+        let d = self.lines[dir.index()].send(send_ns);
+        self.stats[dir.index()].record_decision(&d);
+        match d.fate {
+            Fate::Dropped => self.record(Record {
+                direction: dir,
+                message_seq: d.seq,
+                payload_seq,
+                send_time_ns: send_ns,
+                release_time_ns: send_ns.saturating_add(delay::secs_to_ns(d.sampled_delay_s)),
+                injected_delay_s: d.sampled_delay_s,
+                dropped: true,
+                duplicate: false,
+                drop_reason: "loss".into(),
+                release_error_ns: 0,
+            }),
+            Fate::Delivered { .. } => self.in_flight[dir.index()] += d.releases().count() as u64,
+        }
+        d
+    }
+
+    /// A copy reached its destination `release_error_ns` after its scheduled release.
+    pub fn delivered(&mut self, m: &Msg, release_error_ns: i64) {
+        let i = m.dir.index();
+        self.in_flight[i] = self.in_flight[i].saturating_sub(1);
+        let actual = (m.release_ns as i64 + release_error_ns).max(m.send_ns as i64) as u64;
+        let delay_ns = actual - m.send_ns;
+        self.stats[i].record_delivered(delay_ns);
+        if release_error_ns != 0 || self.mode == Some(Mode::RealTime) {
+            self.stats[i].record_release_error(release_error_ns);
+        }
+        self.record(Record {
+            direction: m.dir,
+            message_seq: m.seq,
+            payload_seq: m.payload_seq,
+            send_time_ns: m.send_ns,
+            release_time_ns: m.release_ns,
+            injected_delay_s: delay_ns as f64 / 1e9,
+            dropped: false,
+            duplicate: m.duplicate,
+            drop_reason: String::new(),
+            release_error_ns,
+        });
+    }
+
+    /// A copy held by netem was dropped (the upstream went away, the plant was reset, ...).
+    pub fn dropped(&mut self, m: &Msg, reason: &str) {
+        let i = m.dir.index();
+        self.in_flight[i] = self.in_flight[i].saturating_sub(1);
+        self.stats[i].record_dropped();
+        self.record(Record {
+            direction: m.dir,
+            message_seq: m.seq,
+            payload_seq: m.payload_seq,
+            send_time_ns: m.send_ns,
+            release_time_ns: m.release_ns,
+            injected_delay_s: (m.release_ns - m.send_ns) as f64 / 1e9,
+            dropped: true,
+            duplicate: m.duplicate,
+            drop_reason: reason.to_string(),
+            release_error_ns: 0,
+        });
+    }
+
+    /// A lockstep sample: drawn from the plant-to-controller line without FIFO scheduling,
+    /// delivered (or lost) at once; see `proxy::Proxy::lockstep_advance`.
+    pub fn lockstep_sample(&mut self, t_s: u64, target: u64, draw: &delay::Draw, payload_seq: u64) -> Msg {
+        let dir = Direction::PlantToController;
+        let i = dir.index();
+        self.stats[i].sent += 1;
+        let m = Msg { dir, seq: draw.seq, payload_seq, send_ns: t_s, release_ns: target, duplicate: false };
+        if draw.lost {
+            self.in_flight[i] += 1;
+            self.dropped(&m, "loss");
+            return m;
+        }
+        let copies = 1 + u64::from(draw.duplicated);
+        self.stats[i].duplicated += u64::from(draw.duplicated);
+        self.in_flight[i] += copies;
+        self.delivered(&m, 0);
+        if draw.duplicated {
+            self.delivered(&Msg { duplicate: true, ..m }, 0);
+        }
+        m
+    }
+
+    /// Everything held is dropped with `reason`, and copies still in the real-time release
+    /// thread will be when their time comes.
+    pub fn new_epoch(&mut self, reason: &str) {
+        self.epoch += 1;
+        self.epoch_reason = reason.to_string();
+        for (_, p) in self.pending.drain() {
+            self.dropped(&p.msg, reason);
+        }
+    }
+}
+
+/// Whether an upstream status means that the plant is gone (as opposed to refusing a request).
+pub fn is_gone(s: &Status) -> bool {
+    matches!(s.code(), tonic::Code::Unavailable | tonic::Code::Cancelled | tonic::Code::Unknown)
+}
+
+pub struct Shared {
+    inner: Mutex<Inner>,
+    pub upstream: PlantClient<Channel>,
+    pub upstream_addr: String,
+    pub clock: Clock,
+    pub releaser: Releaser,
+    /// Serialises lockstep operations so that their order, and so the run, is deterministic.
+    pub lockstep: tokio::sync::Mutex<()>,
+    pub setting: TimeModeSetting,
+    /// Seed given to presets set at run time.
+    pub seed: u64,
+    pub forward_tx: mpsc::UnboundedSender<Forward>,
+}
+
+impl Shared {
+    pub fn new(
+        upstream: PlantClient<Channel>,
+        upstream_addr: String,
+        setting: TimeModeSetting,
+        profiles: [DirectionProfile; 2],
+        seed: u64,
+    ) -> Result<(Arc<Self>, mpsc::UnboundedReceiver<Forward>), crate::NetemError> {
+        let [p2c, c2p] = profiles;
+        let lines = [
+            DelayLine::new(Direction::PlantToController, p2c).map_err(crate::NetemError::Profile)?,
+            DelayLine::new(Direction::ControllerToPlant, c2p).map_err(crate::NetemError::Profile)?,
+        ];
+        let clock = Clock::new();
+        let releaser = Releaser::start(clock).map_err(crate::NetemError::Io)?;
+        let (forward_tx, forward_rx) = mpsc::unbounded_channel();
+        let mode = match setting {
+            TimeModeSetting::Auto => None,
+            TimeModeSetting::RealTime => Some(Mode::RealTime),
+            TimeModeSetting::Lockstep => Some(Mode::Lockstep),
+        };
+        let inner = Inner {
+            lines,
+            stats: Default::default(),
+            in_flight: [0; 2],
+            recording: None,
+            deliveries: broadcast::channel(16_384).0,
+            mode,
+            plant_time_ns: None,
+            pending: ReleaseQueue::new(),
+            last_sample: None,
+            upstream_connected: true,
+            upstream_failures: 0,
+            epoch: 0,
+            epoch_reason: String::new(),
+        };
+        let shared = Arc::new(Self {
+            inner: Mutex::new(inner),
+            upstream,
+            upstream_addr,
+            clock,
+            releaser,
+            lockstep: tokio::sync::Mutex::new(()),
+            setting,
+            seed,
+            forward_tx,
+        });
+        Ok((shared, forward_rx))
+    }
+
+    pub fn lock(&self) -> MutexGuard<'_, Inner> {
+        self.inner.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    pub fn client(&self) -> PlantClient<Channel> {
+        self.upstream.clone()
+    }
+
+    /// Awaits an upstream call, keeping track of whether the upstream is there. A gone
+    /// upstream drops everything in flight and becomes `UNAVAILABLE` for the controller.
+    pub async fn up<T>(
+        &self,
+        call: impl std::future::Future<Output = Result<Response<T>, Status>>,
+    ) -> Result<Response<T>, Status> {
+        match call.await {
+            Ok(r) => {
+                self.upstream_ok();
+                Ok(r)
+            }
+            Err(s) if is_gone(&s) => Err(self.upstream_lost(&s)),
+            Err(s) => Err(s),
+        }
+    }
+
+    pub fn upstream_ok(&self) {
+        let mut inner = self.lock();
+        if !inner.upstream_connected {
+            tracing::info!(upstream = %self.upstream_addr, "upstream plant is back");
+            inner.upstream_connected = true;
+        }
+    }
+
+    /// Records the loss of the upstream and returns the status the controller gets.
+    pub fn upstream_lost(&self, s: &Status) -> Status {
+        let reason = format!("upstream unavailable: {}", s.message());
+        let mut inner = self.lock();
+        if inner.upstream_connected {
+            tracing::warn!(upstream = %self.upstream_addr, status = %s, "upstream plant is gone");
+            inner.upstream_connected = false;
+            inner.upstream_failures += 1;
+        }
+        inner.new_epoch(&reason);
+        inner.plant_time_ns = None;
+        Status::unavailable(format!(
+            "netem: the upstream plant at {} is unavailable: {}",
+            self.upstream_addr,
+            s.message()
+        ))
+    }
+
+    /// The time mode: fixed by configuration, or asked from the upstream once.
+    pub async fn mode(&self) -> Result<Mode, Status> {
+        if let Some(m) = self.lock().mode {
+            return Ok(m);
+        }
+        let d = self.up(self.client().describe(pb::DescribeRequest {})).await?.into_inner();
+        let m = self.learn_mode(d.time_mode);
+        Ok(m)
+    }
+
+    /// Takes the upstream's time mode into account (only when configured `auto`).
+    pub fn learn_mode(&self, time_mode: i32) -> Mode {
+        let mut inner = self.lock();
+        if self.setting == TimeModeSetting::Auto {
+            inner.mode = Some(if time_mode == pb::TimeMode::Lockstep as i32 {
+                Mode::Lockstep
+            } else {
+                Mode::RealTime
+            });
+        }
+        inner.mode.unwrap_or(Mode::RealTime)
+    }
+}
+
+/// Real time: applies released commands upstream one at a time, in release order (so FIFO
+/// holds on the way to the plant as well).
+pub async fn run_forwarder(shared: Arc<Shared>, mut rx: mpsc::UnboundedReceiver<Forward>) {
+    while let Some(f) = rx.recv().await {
+        let stale = {
+            let inner = shared.lock();
+            (f.epoch != inner.epoch).then(|| inner.epoch_reason.clone())
+        };
+        if let Some(reason) = stale {
+            shared.lock().dropped(&f.msg, &reason);
+            if let Some(reply) = f.reply {
+                let _ = reply.send(Err(Status::unavailable(format!("netem: {reason}"))));
+            }
+            continue;
+        }
+        let result = shared.up(shared.client().apply_command(f.command)).await;
+        let reply = match result {
+            Ok(r) => {
+                shared.lock().delivered(&f.msg, f.release_error_ns);
+                Ok(r.into_inner())
+            }
+            Err(s) => {
+                let reason = if s.code() == tonic::Code::Unavailable {
+                    format!("upstream unavailable: {}", s.message())
+                } else {
+                    format!("refused by the plant: {}", s.message())
+                };
+                shared.lock().dropped(&f.msg, &reason);
+                Err(s)
+            }
+        };
+        if let Some(tx) = f.reply {
+            let _ = tx.send(reply);
+        }
+    }
+}
+
+/// Polls a gone upstream until it answers again.
+pub async fn run_probe(shared: Arc<Shared>, interval: std::time::Duration) {
+    let mut tick = tokio::time::interval(interval);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tick.tick().await;
+        if shared.lock().upstream_connected {
+            continue;
+        }
+        if let Ok(d) = shared.client().describe(pb::DescribeRequest {}).await {
+            shared.upstream_ok();
+            shared.learn_mode(d.into_inner().time_mode);
+        }
+    }
+}

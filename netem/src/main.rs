@@ -1,0 +1,91 @@
+//! `netem`: the delay emulator between a controller and its plant. Glue only: flags, logging,
+//! signals; the service is the `netem` library.
+
+use anyhow::Context;
+use clap::Parser;
+use netem::{Config, TimeModeSetting};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum TimeModeArg {
+    /// Follow the upstream plant (asked with Describe).
+    Auto,
+    /// Release every message on netem's clock.
+    RealTime,
+    /// Advance the plant's virtual clock to each release (deterministic).
+    Lockstep,
+}
+
+/// hilbench netem: serves the Plant API (and NetemControl, health, reflection), forwarding
+/// every message to the upstream plant after a delay drawn per message and direction.
+#[derive(Debug, Parser)]
+#[command(name = "netem", version)]
+struct Args {
+    /// Address to listen on, HOST:PORT.
+    #[arg(long, default_value = "127.0.0.1:50052")]
+    listen: String,
+    /// Upstream plant, HOST:PORT.
+    #[arg(long, default_value = "127.0.0.1:50051")]
+    upstream: String,
+    /// Named profile of both directions: paper (Gamma(12, 0.015) round trip on commands, as in
+    /// SPEC.md), paper-split (Gamma(6, 0.015) each way), none.
+    #[arg(long, default_value = "paper")]
+    profile: String,
+    /// Seed of the delay generators.
+    #[arg(long, default_value_t = 42)]
+    seed: u64,
+    /// How time moves.
+    #[arg(long, value_enum, default_value_t = TimeModeArg::Auto)]
+    time_mode: TimeModeArg,
+}
+
+/// Resolves on SIGINT (Ctrl-C) or SIGTERM.
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        if let Err(e) = tokio::signal::ctrl_c().await {
+            tracing::error!("cannot listen for Ctrl-C: {e}");
+            std::future::pending::<()>().await;
+        }
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(e) => {
+                tracing::error!("cannot listen for SIGTERM: {e}");
+                std::future::pending::<()>().await;
+            }
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        () = ctrl_c => {}
+        () = term => {}
+    }
+}
+
+#[tokio::main]
+async fn main() -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .init();
+    let args = Args::parse();
+    let mut config = Config::new(&args.upstream)
+        .with_preset(&args.profile, args.seed)
+        .with_context(|| format!("--profile {}", args.profile))?;
+    config.time_mode = match args.time_mode {
+        TimeModeArg::Auto => TimeModeSetting::Auto,
+        TimeModeArg::RealTime => TimeModeSetting::RealTime,
+        TimeModeArg::Lockstep => TimeModeSetting::Lockstep,
+    };
+    let listener = tokio::net::TcpListener::bind(&args.listen)
+        .await
+        .with_context(|| format!("cannot listen on {}", args.listen))?;
+    netem::serve(listener, config, shutdown_signal()).await?;
+    Ok(())
+}

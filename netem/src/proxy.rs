@@ -1,0 +1,534 @@
+//! netem's face to the controller: the `hilbench.v1.Plant` service, proxied to the upstream
+//! plant with a delay per message and direction.
+//!
+//! ## Lockstep
+//! The controller drives plant time with `Advance`/`Step`. A command sent with `ApplyCommand`
+//! or `Step` at plant time `t` (the time of the newest sample) is held in the delay line and
+//! applied upstream exactly at its release time `t + d`: netem advances the upstream plant
+//! piecewise, `Advance(r1 - t)`, `ApplyCommand(c1)`, `Advance(r2 - r1)`, ..., up to the end of
+//! the call. A zero delay applies the command at once (its `ApplyCommandResponse.applied` is
+//! then set; a held command answers with `applied` unset).
+//!
+//! State samples in lockstep are delayed by staleness: the sample returned at the end of an
+//! `Advance`/`Step` to plant time `T` is the state at `T - d`, `d` drawn on the
+//! plant-to-controller line, i.e. the sample that was sent `d` ago and arrives now. `d` is
+//! clamped to the duration of the call (netem cannot observe the plant before the call
+//! started); the stamps report the staleness actually applied. A lost sample leaves the
+//! controller with the previous one. Reading the state at `T - d` ends an integration sub-step
+//! there, so a profile with sample delays gives a (deterministic) plant trajectory that
+//! differs in the last bits from a run without them. `GetState` is a read at the current
+//! plant time and is not delayed; `StreamState` in lockstep is a pass-through monitor.
+//!
+//! ## Real time
+//! Every command and every state sample (`StreamState` items and `GetState` answers) is
+//! released on netem's clock at `send + d` by the release thread. `ApplyCommand` answers at
+//! once with `applied` unset (the command is in flight), unless its delay is zero, in which
+//! case it answers with the upstream's answer.
+//!
+//! `Reset` and `Describe` are control-plane calls and pass through undelayed. A `Reset`
+//! drops every command in flight (reason "plant reset") and restarts both delay lines from
+//! their seeds, so that a run after a reset is reproducible.
+
+use std::pin::Pin;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering as AtomicOrdering};
+
+use delay::{Direction, Fate};
+use hilbench_proto::convert::netem::check_command;
+use hilbench_proto::pb;
+use tokio::sync::{mpsc, oneshot};
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::metadata::{MetadataMap, MetadataValue};
+use tonic::{Request, Response, Status};
+
+use crate::Mode;
+use crate::core::{Forward, Msg, PendingCommand, Shared};
+
+/// The Plant service as netem serves it.
+#[derive(Clone)]
+pub struct Proxy {
+    pub(crate) shared: Arc<Shared>,
+}
+
+const OUTCOME_DELIVERED: &str = "delivered";
+const OUTCOME_HELD: &str = "in-flight";
+const OUTCOME_DROPPED: &str = "dropped";
+
+/// Writes the stamps of one message into response metadata under `netem-<prefix>-*`.
+fn stamp(md: &mut MetadataMap, prefix: &str, m: &Msg, outcome: &'static str) {
+    let mut put = |key: &str, v: u64| {
+        if let Ok(k) = tonic::metadata::MetadataKey::from_bytes(format!("netem-{prefix}-{key}").as_bytes()) {
+            md.insert(k, MetadataValue::from(v));
+        }
+    };
+    put("seq", m.seq);
+    put("send-time-ns", m.send_ns);
+    put("release-time-ns", m.release_ns);
+    put("delay-ns", m.release_ns.saturating_sub(m.send_ns));
+    if let Ok(k) = tonic::metadata::MetadataKey::from_bytes(format!("netem-{prefix}-outcome").as_bytes()) {
+        md.insert(k, MetadataValue::from_static(outcome));
+    }
+}
+
+fn respond<T>(body: T, md: MetadataMap, mode: Mode) -> Response<T> {
+    let mut r = Response::new(body);
+    *r.metadata_mut() = md;
+    r.metadata_mut().insert(
+        "netem-clock",
+        MetadataValue::from_static(if mode == Mode::Lockstep { "plant" } else { "netem" }),
+    );
+    r
+}
+
+impl Proxy {
+    /// Lockstep: plant time now, asked from the upstream when netem does not know it.
+    async fn plant_time(&self) -> Result<u64, Status> {
+        if let Some(t) = self.shared.lock().plant_time_ns {
+            return Ok(t);
+        }
+        let s = self.shared.up(self.shared.client().get_state(pb::GetStateRequest {})).await?.into_inner();
+        self.shared.lock().plant_time_ns = Some(s.time_ns);
+        Ok(s.time_ns)
+    }
+
+    /// Lockstep: applies one held command upstream at the current plant time.
+    async fn apply_upstream(&self, p: PendingCommand) -> Result<Option<pb::ApplyCommandResponse>, Status> {
+        match self.shared.up(self.shared.client().apply_command(p.command)).await {
+            Ok(r) => {
+                self.shared.lock().delivered(&p.msg, 0);
+                Ok(Some(r.into_inner()))
+            }
+            Err(s) if s.code() == tonic::Code::Unavailable => {
+                self.shared.lock().dropped(&p.msg, &format!("upstream unavailable: {}", s.message()));
+                Err(s)
+            }
+            Err(s) => {
+                // The plant refused it (it passed netem's checks): the command is lost, the
+                // run goes on, and the trace says why.
+                tracing::warn!(status = %s, "the plant refused a released command");
+                self.shared.lock().dropped(&p.msg, &format!("refused by the plant: {}", s.message()));
+                Ok(None)
+            }
+        }
+    }
+
+    /// Lockstep: a command sent now. Held until its release, or applied at once when due now.
+    async fn lockstep_command(
+        &self,
+        command: pb::Command,
+        md: &mut MetadataMap,
+    ) -> Result<Option<pb::ApplyCommandResponse>, Status> {
+        let t = self.plant_time().await?;
+        let mut due_now = Vec::new();
+        {
+            let mut inner = self.shared.lock();
+            let d = inner.decide(Direction::ControllerToPlant, t, command.command_seq);
+            match d.fate {
+                Fate::Dropped => {
+                    let m = Msg {
+                        dir: Direction::ControllerToPlant,
+                        seq: d.seq,
+                        payload_seq: command.command_seq,
+                        send_ns: t,
+                        release_ns: t + delay::secs_to_ns(d.sampled_delay_s),
+                        duplicate: false,
+                    };
+                    stamp(md, "command", &m, OUTCOME_DROPPED);
+                }
+                Fate::Delivered { .. } => {
+                    for m in Msg::copies(&d, Direction::ControllerToPlant, command.command_seq) {
+                        if !m.duplicate {
+                            let outcome = if m.release_ns <= t { OUTCOME_DELIVERED } else { OUTCOME_HELD };
+                            stamp(md, "command", &m, outcome);
+                        }
+                        let p = PendingCommand { msg: m, command };
+                        if m.release_ns <= t { due_now.push(p) } else { inner.pending.push(m.release_ns, p) }
+                    }
+                }
+            }
+        }
+        let mut applied = None;
+        for p in due_now {
+            let original = !p.msg.duplicate;
+            let r = self.apply_upstream(p).await?;
+            if original {
+                applied = r;
+            }
+        }
+        Ok(applied)
+    }
+
+    async fn up_advance(&self, duration_ns: u64) -> Result<pb::StateSample, Status> {
+        let r = self
+            .shared
+            .up(self.shared.client().advance(pb::AdvanceRequest { duration_ns }))
+            .await?
+            .into_inner();
+        r.sample.ok_or_else(|| Status::internal("the upstream plant answered Advance without a sample"))
+    }
+
+    async fn up_state(&self) -> Result<pb::StateSample, Status> {
+        Ok(self.shared.up(self.shared.client().get_state(pb::GetStateRequest {})).await?.into_inner())
+    }
+
+    /// Lockstep: advances plant time by `duration_ns`, applying every held command exactly at
+    /// its release time, and returns the sample the controller receives at the end.
+    async fn lockstep_advance(
+        &self,
+        duration_ns: u64,
+        md: &mut MetadataMap,
+    ) -> Result<pb::StateSample, Status> {
+        let t0 = self.plant_time().await?;
+        let target = t0.saturating_add(duration_ns);
+        let draw = self.shared.lock().lines[Direction::PlantToController.index()].draw();
+        let staleness = delay::secs_to_ns(draw.sampled_delay_s).min(duration_ns);
+        let t_s = target - staleness;
+        let mut now = t0;
+        let mut stale_sample: Option<pb::StateSample> = None;
+        loop {
+            let next = self.shared.lock().pending.next_release_ns().filter(|r| *r <= target);
+            // The sample sent at t_s is read once every command due at or before t_s is in.
+            if staleness > 0 && stale_sample.is_none() && next.is_none_or(|r| r > t_s) {
+                let s = if t_s > now { self.up_advance(t_s - now).await? } else { self.up_state().await? };
+                now = t_s;
+                self.shared.lock().plant_time_ns = Some(now);
+                stale_sample = Some(s);
+                continue;
+            }
+            let Some(r) = next else { break };
+            if r > now {
+                self.up_advance(r - now).await?;
+                now = r;
+                self.shared.lock().plant_time_ns = Some(now);
+            }
+            let popped = self.shared.lock().pending.pop();
+            if let Some((_, p)) = popped {
+                self.apply_upstream(p).await?;
+            }
+        }
+        let end = if target > now { self.up_advance(target - now).await? } else { self.up_state().await? };
+        let mut inner = self.shared.lock();
+        inner.plant_time_ns = Some(end.time_ns);
+        let sample = stale_sample.unwrap_or(end);
+        let m = inner.lockstep_sample(t_s, target, &draw, sample.seq);
+        let delivered = if draw.lost {
+            stamp(md, "sample", &m, OUTCOME_DROPPED);
+            inner.last_sample.clone().unwrap_or(sample)
+        } else {
+            stamp(md, "sample", &m, OUTCOME_DELIVERED);
+            inner.last_sample = Some(sample.clone());
+            sample
+        };
+        Ok(delivered)
+    }
+
+    /// Real time: a command sent now, released by the release thread.
+    async fn real_time_command(
+        &self,
+        command: pb::Command,
+        md: &mut MetadataMap,
+    ) -> Result<Option<pb::ApplyCommandResponse>, Status> {
+        let now = self.shared.clock.now_ns();
+        let (d, epoch) = {
+            let mut inner = self.shared.lock();
+            if !inner.upstream_connected {
+                return Err(Status::unavailable(format!(
+                    "netem: the upstream plant at {} is unavailable",
+                    self.shared.upstream_addr
+                )));
+            }
+            (inner.decide(Direction::ControllerToPlant, now, command.command_seq), inner.epoch)
+        };
+        let mut wait = None;
+        if d.fate == Fate::Dropped {
+            let m = Msg {
+                dir: Direction::ControllerToPlant,
+                seq: d.seq,
+                payload_seq: command.command_seq,
+                send_ns: now,
+                release_ns: now + delay::secs_to_ns(d.sampled_delay_s),
+                duplicate: false,
+            };
+            stamp(md, "command", &m, OUTCOME_DROPPED);
+        }
+        for m in Msg::copies(&d, Direction::ControllerToPlant, command.command_seq) {
+            let reply = if !m.duplicate && m.release_ns == now {
+                let (tx, rx) = oneshot::channel();
+                wait = Some(rx);
+                Some(tx)
+            } else {
+                None
+            };
+            if !m.duplicate {
+                stamp(md, "command", &m, if reply.is_some() { OUTCOME_DELIVERED } else { OUTCOME_HELD });
+            }
+            let forward_tx = self.shared.forward_tx.clone();
+            let action = Box::new(move |release_error_ns: i64| {
+                let _ = forward_tx.send(Forward { msg: m, command, epoch, release_error_ns, reply });
+            });
+            if self.shared.releaser.schedule(m.release_ns, action).is_err() {
+                self.shared.lock().dropped(&m, "netem is shutting down");
+            }
+        }
+        match wait {
+            Some(rx) => rx.await.map_err(|_| Status::unavailable("netem is shutting down"))?.map(Some),
+            None => Ok(None),
+        }
+    }
+
+    /// Real time: a sample read now from the upstream, held for its delay.
+    async fn real_time_state(&self, md: &mut MetadataMap) -> Result<pb::StateSample, Status> {
+        let sample = self.up_state().await?;
+        let now = self.shared.clock.now_ns();
+        let d = self.shared.lock().decide(Direction::PlantToController, now, sample.seq);
+        let mut original = None;
+        for m in Msg::copies(&d, Direction::PlantToController, sample.seq) {
+            if m.duplicate {
+                // A duplicate answer to a request is discarded on arrival; it is counted.
+                let shared = self.shared.clone();
+                let action = Box::new(move |e: i64| shared.lock().delivered(&m, e));
+                let _ = self.shared.releaser.schedule(m.release_ns, action);
+                continue;
+            }
+            let (tx, rx) = oneshot::channel();
+            let shared = self.shared.clone();
+            let action = Box::new(move |e: i64| {
+                shared.lock().delivered(&m, e);
+                let _ = tx.send(());
+            });
+            if self.shared.releaser.schedule(m.release_ns, action).is_err() {
+                return Err(Status::unavailable("netem is shutting down"));
+            }
+            original = Some((m, rx));
+        }
+        match original {
+            Some((m, rx)) => {
+                rx.await.map_err(|_| Status::unavailable("netem is shutting down"))?;
+                stamp(md, "sample", &m, OUTCOME_DELIVERED);
+                self.shared.lock().last_sample = Some(sample.clone());
+                Ok(sample)
+            }
+            None => {
+                let m = Msg {
+                    dir: Direction::PlantToController,
+                    seq: d.seq,
+                    payload_seq: sample.seq,
+                    send_ns: now,
+                    release_ns: now + delay::secs_to_ns(d.sampled_delay_s),
+                    duplicate: false,
+                };
+                stamp(md, "sample", &m, OUTCOME_DROPPED);
+                Ok(self.shared.lock().last_sample.clone().unwrap_or(sample))
+            }
+        }
+    }
+}
+
+type SampleStream =
+    Pin<Box<dyn tokio_stream::Stream<Item = Result<pb::StateSample, Status>> + Send + 'static>>;
+
+/// Size of the buffer of a controller's state stream; a controller that falls this far
+/// behind loses samples (counted as dropped, reason "controller too slow").
+const STREAM_BUFFER: usize = 4096;
+
+#[tonic::async_trait]
+impl pb::plant_server::Plant for Proxy {
+    async fn reset(&self, request: Request<pb::ResetRequest>) -> Result<Response<pb::ResetResponse>, Status> {
+        let _guard = self.shared.lockstep.lock().await;
+        let r = self.shared.up(self.shared.client().reset(request.into_inner())).await?.into_inner();
+        if let Some(d) = &r.description {
+            self.shared.learn_mode(d.time_mode);
+        }
+        let mut inner = self.shared.lock();
+        inner.new_epoch("plant reset");
+        for line in &mut inner.lines {
+            line.reset();
+        }
+        inner.plant_time_ns = r.sample.as_ref().map(|s| s.time_ns);
+        inner.last_sample = r.sample.clone();
+        tracing::info!(
+            scenario = r.description.as_ref().map(|d| d.scenario.as_str()),
+            "plant reset through netem"
+        );
+        Ok(Response::new(r))
+    }
+
+    type StreamStateStream = SampleStream;
+
+    async fn stream_state(
+        &self,
+        request: Request<pb::StreamStateRequest>,
+    ) -> Result<Response<Self::StreamStateStream>, Status> {
+        let mode = self.shared.mode().await?;
+        let mut upstream =
+            self.shared.up(self.shared.client().stream_state(request.into_inner())).await?.into_inner();
+        if mode == Mode::Lockstep {
+            let shared = self.shared.clone();
+            let s = async_stream_map(upstream, shared);
+            return Ok(Response::new(s));
+        }
+        let (tx, rx) = mpsc::channel(STREAM_BUFFER);
+        let shared = self.shared.clone();
+        tokio::spawn(async move {
+            let closed = Arc::new(AtomicBool::new(false));
+            loop {
+                let item = tokio::select! {
+                    item = upstream.message() => item,
+                    () = tx.closed() => break,
+                };
+                match item {
+                    Ok(Some(sample)) => {
+                        shared.upstream_ok();
+                        let now = shared.clock.now_ns();
+                        let d = shared.lock().decide(Direction::PlantToController, now, sample.seq);
+                        for m in Msg::copies(&d, Direction::PlantToController, sample.seq) {
+                            let (tx, closed, sh) = (tx.clone(), closed.clone(), shared.clone());
+                            let sample = sample.clone();
+                            let action = Box::new(move |e: i64| {
+                                let mut inner = sh.lock();
+                                if closed.load(AtomicOrdering::Acquire) {
+                                    let reason = inner.epoch_reason.clone();
+                                    inner.dropped(&m, &reason);
+                                    return;
+                                }
+                                match tx.try_send(Ok(sample)) {
+                                    Ok(()) => inner.delivered(&m, e),
+                                    Err(mpsc::error::TrySendError::Full(_)) => {
+                                        inner.dropped(&m, "controller too slow")
+                                    }
+                                    Err(mpsc::error::TrySendError::Closed(_)) => {
+                                        inner.dropped(&m, "controller gone")
+                                    }
+                                }
+                            });
+                            if shared.releaser.schedule(m.release_ns, action).is_err() {
+                                shared.lock().dropped(&m, "netem is shutting down");
+                            }
+                        }
+                    }
+                    Ok(None) => {
+                        let s = Status::unavailable("the upstream plant closed the state stream");
+                        closed.store(true, AtomicOrdering::Release);
+                        shared.upstream_lost(&s);
+                        let _ = tx.send(Err(s)).await;
+                        break;
+                    }
+                    Err(s) => {
+                        closed.store(true, AtomicOrdering::Release);
+                        let status = if crate::core::is_gone(&s) { shared.upstream_lost(&s) } else { s };
+                        let _ = tx.send(Err(status)).await;
+                        break;
+                    }
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    async fn get_state(
+        &self,
+        _request: Request<pb::GetStateRequest>,
+    ) -> Result<Response<pb::StateSample>, Status> {
+        let mode = self.shared.mode().await?;
+        let mut md = MetadataMap::new();
+        let sample = match mode {
+            Mode::Lockstep => {
+                let _guard = self.shared.lockstep.lock().await;
+                let s = self.up_state().await?;
+                self.shared.lock().plant_time_ns = Some(s.time_ns);
+                s
+            }
+            Mode::RealTime => self.real_time_state(&mut md).await?,
+        };
+        Ok(respond(sample, md, mode))
+    }
+
+    async fn apply_command(
+        &self,
+        request: Request<pb::Command>,
+    ) -> Result<Response<pb::ApplyCommandResponse>, Status> {
+        let command = request.into_inner();
+        check_command("command", &command).map_err(Status::from)?;
+        let mode = self.shared.mode().await?;
+        let mut md = MetadataMap::new();
+        let applied = match mode {
+            Mode::Lockstep => {
+                let _guard = self.shared.lockstep.lock().await;
+                self.lockstep_command(command, &mut md).await?
+            }
+            Mode::RealTime => self.real_time_command(command, &mut md).await?,
+        };
+        let applied = applied.and_then(|r| r.applied);
+        Ok(respond(pb::ApplyCommandResponse { applied }, md, mode))
+    }
+
+    async fn advance(
+        &self,
+        request: Request<pb::AdvanceRequest>,
+    ) -> Result<Response<pb::AdvanceResponse>, Status> {
+        let req = request.into_inner();
+        let mode = self.shared.mode().await?;
+        if mode == Mode::RealTime || req.duration_ns == 0 {
+            // Let the plant answer what it does with it (it refuses both).
+            return self.shared.up(self.shared.client().advance(req)).await;
+        }
+        let _guard = self.shared.lockstep.lock().await;
+        let mut md = MetadataMap::new();
+        let sample = self.lockstep_advance(req.duration_ns, &mut md).await?;
+        Ok(respond(pb::AdvanceResponse { sample: Some(sample) }, md, mode))
+    }
+
+    async fn step(&self, request: Request<pb::StepRequest>) -> Result<Response<pb::AdvanceResponse>, Status> {
+        let req = request.into_inner();
+        if let Some(c) = &req.command {
+            check_command("command", c).map_err(Status::from)?;
+        }
+        let mode = self.shared.mode().await?;
+        let mut md = MetadataMap::new();
+        let sample = match mode {
+            Mode::Lockstep => {
+                let _guard = self.shared.lockstep.lock().await;
+                if let Some(c) = req.command {
+                    self.lockstep_command(c, &mut md).await?;
+                }
+                if req.duration_ns > 0 {
+                    self.lockstep_advance(req.duration_ns, &mut md).await?
+                } else {
+                    let s = self.up_state().await?;
+                    self.shared.lock().plant_time_ns = Some(s.time_ns);
+                    s
+                }
+            }
+            Mode::RealTime => {
+                if req.duration_ns > 0 {
+                    return self.shared.up(self.shared.client().step(req)).await;
+                }
+                if let Some(c) = req.command {
+                    self.real_time_command(c, &mut md).await?;
+                }
+                self.real_time_state(&mut md).await?
+            }
+        };
+        Ok(respond(pb::AdvanceResponse { sample: Some(sample) }, md, mode))
+    }
+
+    async fn describe(
+        &self,
+        request: Request<pb::DescribeRequest>,
+    ) -> Result<Response<pb::PlantDescription>, Status> {
+        let r = self.shared.up(self.shared.client().describe(request.into_inner())).await?;
+        self.shared.learn_mode(r.get_ref().time_mode);
+        Ok(r)
+    }
+}
+
+/// Lockstep `StreamState`: the upstream's items pass through (the plant-to-controller delay
+/// applies to the samples of `Advance`/`Step`, which is what a lockstep controller reads).
+fn async_stream_map(upstream: tonic::Streaming<pb::StateSample>, shared: Arc<Shared>) -> SampleStream {
+    use tokio_stream::StreamExt;
+    Box::pin(upstream.map(move |item| match item {
+        Ok(s) => Ok(s),
+        Err(s) if crate::core::is_gone(&s) => Err(shared.upstream_lost(&s)),
+        Err(s) => Err(s),
+    }))
+}
