@@ -144,6 +144,6 @@ impl pb::netem_control_server::NetemControl for Control {
                 None
             }
         });
-        Ok(Response::new(Box::pin(s)))
+        Ok(Response::new(Box::pin(crate::core::until_closed(s, self.shared.closed()))))
     }
 }

@@ -205,6 +205,9 @@ pub struct Shared {
     /// Seed given to presets set at run time.
     pub seed: u64,
     pub forward_tx: mpsc::UnboundedSender<Forward>,
+    /// Set to true when netem shuts down: open streams end, so the graceful shutdown is not
+    /// kept waiting by a controller that never hangs up.
+    pub closing: tokio::sync::watch::Sender<bool>,
 }
 
 impl Shared {
@@ -253,8 +256,17 @@ impl Shared {
             setting,
             seed,
             forward_tx,
+            closing: tokio::sync::watch::channel(false).0,
         });
         Ok((shared, forward_rx))
+    }
+
+    /// Resolves when netem starts shutting down.
+    pub fn closed(&self) -> impl std::future::Future<Output = ()> + Send + 'static {
+        let mut rx = self.closing.subscribe();
+        async move {
+            let _ = rx.wait_for(|c| *c).await;
+        }
     }
 
     pub fn lock(&self) -> MutexGuard<'_, Inner> {
@@ -382,4 +394,32 @@ pub async fn run_probe(shared: Arc<Shared>, interval: std::time::Duration) {
             shared.learn_mode(d.into_inner().time_mode);
         }
     }
+}
+
+/// The items of `stream` until netem starts shutting down (or the reader leaves).
+pub fn until_closed<T: Send + 'static>(
+    stream: impl tokio_stream::Stream<Item = T> + Send + 'static,
+    closing: impl std::future::Future<Output = ()> + Send + 'static,
+) -> tokio_stream::wrappers::ReceiverStream<T> {
+    use tokio_stream::StreamExt;
+    let (tx, rx) = mpsc::channel(1024);
+    tokio::spawn(async move {
+        tokio::pin!(stream);
+        tokio::pin!(closing);
+        loop {
+            tokio::select! {
+                item = stream.next() => match item {
+                    Some(i) => {
+                        if tx.send(i).await.is_err() {
+                            break;
+                        }
+                    }
+                    None => break,
+                },
+                () = &mut closing => break,
+                () = tx.closed() => break,
+            }
+        }
+    });
+    tokio_stream::wrappers::ReceiverStream::new(rx)
 }

@@ -167,10 +167,13 @@ pub async fn serve(
         controller_to_plant = ?config.controller_to_plant,
         "netem serving"
     );
+    let closing = shared.closing.clone();
     let signal = async move {
         shutdown.await;
         tracing::info!("netem shutting down");
         health_reporter.set_not_serving::<PlantServer<Proxy>>().await;
+        health_reporter.set_not_serving::<NetemControlServer<Control>>().await;
+        closing.send_replace(true);
     };
     let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));
     let result = Server::builder()

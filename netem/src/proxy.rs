@@ -369,12 +369,18 @@ impl pb::plant_server::Plant for Proxy {
         }
         let (tx, rx) = mpsc::channel(STREAM_BUFFER);
         let shared = self.shared.clone();
+        let netem_closing = self.shared.closed();
         tokio::spawn(async move {
             let closed = Arc::new(AtomicBool::new(false));
+            tokio::pin!(netem_closing);
             loop {
                 let item = tokio::select! {
                     item = upstream.message() => item,
                     () = tx.closed() => break,
+                    () = &mut netem_closing => {
+                        closed.store(true, AtomicOrdering::Release);
+                        break;
+                    }
                 };
                 match item {
                     Ok(Some(sample)) => {
@@ -526,9 +532,11 @@ impl pb::plant_server::Plant for Proxy {
 /// applies to the samples of `Advance`/`Step`, which is what a lockstep controller reads).
 fn async_stream_map(upstream: tonic::Streaming<pb::StateSample>, shared: Arc<Shared>) -> SampleStream {
     use tokio_stream::StreamExt;
-    Box::pin(upstream.map(move |item| match item {
+    let closing = shared.closed();
+    let items = upstream.map(move |item| match item {
         Ok(s) => Ok(s),
         Err(s) if crate::core::is_gone(&s) => Err(shared.upstream_lost(&s)),
         Err(s) => Err(s),
-    }))
+    });
+    Box::pin(crate::core::until_closed(items, closing))
 }
