@@ -1,1 +1,19 @@
-//! The multi-stage NMPC (see ARCHITECTURE.md).
+//! `mpc` owns the paper's controller as pure numerics: the multi-stage nonlinear MPC whose
+//! scenario tree branches over sampling times (standard NMPC is the same code with one
+//! scenario), solved with PANOC inside OpEn's penalty method; the hand-derived adjoint
+//! gradient; the delay statistics that weight the scenarios; and the deterministic in-process
+//! closed loop of `SPEC.md`'s paper mode.
+//!
+//! No clock is read here except by OpEn's own solve timer and optional wall-clock deadline;
+//! no I/O, no async. Services wrap it.
+
+pub mod accuracy;
+pub mod closed_loop;
+pub mod delays;
+pub mod problem;
+pub mod solver;
+
+pub use closed_loop::{CycleRecord, DelaySource, RunSummary, run_closed_loop, ClosedLoopSettings};
+pub use delays::{DelayWindow, GammaParams, ScenarioWeights, WeightSettings, WeightSource};
+pub use problem::{ControllerMode, Evaluator, ObstacleFormulation, OcpDefinition};
+pub use solver::{Mpc, MpcError, MpcSettings, SolveBudget, SolveReport, SolveStatus};

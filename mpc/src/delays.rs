@@ -1,0 +1,312 @@
+//! Delay statistics of `SPEC.md`: a fixed-size window of observed round-trip delays, a Gamma
+//! distribution fitted to it by moments, and the scenario weights from its CDF.
+
+use statrs::distribution::{ContinuousCDF, Gamma};
+
+/// A Gamma distribution by shape and scale (s).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct GammaParams {
+    pub shape: f64,
+    pub scale_s: f64,
+}
+
+impl GammaParams {
+    pub fn mean_s(&self) -> f64 {
+        self.shape * self.scale_s
+    }
+
+    /// Moment fit: `shape = mu^2 / sigma^2`, `scale = sigma^2 / mu`. `None` when the moments
+    /// cannot define a Gamma (non-positive mean, zero or non-finite variance).
+    pub fn from_moments(mean_s: f64, variance_s2: f64) -> Option<Self> {
+        if !(mean_s.is_finite() && variance_s2.is_finite() && mean_s > 0.0 && variance_s2 > 0.0) {
+            return None;
+        }
+        let shape = mean_s * mean_s / variance_s2;
+        let scale_s = variance_s2 / mean_s;
+        (shape.is_finite() && scale_s.is_finite() && shape > 0.0 && scale_s > 0.0)
+            .then_some(Self { shape, scale_s })
+    }
+
+    /// `P(d <= t)`; `None` if statrs rejects the parameters.
+    pub fn cdf(&self, t_s: f64) -> Option<f64> {
+        let g = Gamma::new(self.shape, 1.0 / self.scale_s).ok()?;
+        Some(g.cdf(t_s.max(0.0)))
+    }
+}
+
+/// Where the weights of a cycle came from.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub enum WeightSource {
+    /// The run has no delays: the fixed nominal weights.
+    Nominal,
+    /// Too few (or degenerate) observations: the configured prior.
+    Prior(GammaParams),
+    /// Fitted to the window.
+    Fitted(GammaParams),
+}
+
+/// The last `capacity` observed round-trip delays.
+#[derive(Debug, Clone)]
+pub struct DelayWindow {
+    buf: Vec<f64>,
+    capacity: usize,
+    next: usize,
+    len: usize,
+}
+
+impl DelayWindow {
+    /// A window of `capacity` delays (`n_max`, at least 1).
+    pub fn new(capacity: usize) -> Self {
+        let capacity = capacity.max(1);
+        Self { buf: vec![0.0; capacity], capacity, next: 0, len: 0 }
+    }
+
+    /// Records one delay; non-finite or negative values are not delays and are ignored.
+    pub fn push(&mut self, delay_s: f64) -> bool {
+        if !delay_s.is_finite() || delay_s < 0.0 {
+            return false;
+        }
+        self.buf[self.next] = delay_s;
+        self.next = (self.next + 1) % self.capacity;
+        self.len = (self.len + 1).min(self.capacity);
+        true
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    pub fn clear(&mut self) {
+        self.len = 0;
+        self.next = 0;
+    }
+
+    /// Mean and population variance (the method of moments uses the sample's own moments).
+    pub fn moments(&self) -> Option<(f64, f64)> {
+        if self.len == 0 {
+            return None;
+        }
+        let values = &self.buf[..self.len];
+        let n = self.len as f64;
+        let mean = values.iter().sum::<f64>() / n;
+        let var = values.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / n;
+        Some((mean, var))
+    }
+
+    /// The Gamma fit, or `None` with fewer than `min_samples` delays or degenerate moments.
+    pub fn fit(&self, min_samples: usize) -> Option<GammaParams> {
+        if self.len < min_samples.max(2) {
+            return None;
+        }
+        let (mean, var) = self.moments()?;
+        GammaParams::from_moments(mean, var)
+    }
+}
+
+/// `w_1 = G(ts_1)`, `w_i = G(ts_i) - G(ts_{i-1})`. Writes into `out` (one per sampling time).
+/// Returns `false` (and leaves `out` unspecified) if the CDF cannot be evaluated.
+pub fn weights_from_gamma(gamma: &GammaParams, sampling_times_s: &[f64], out: &mut [f64]) -> bool {
+    let Ok(g) = Gamma::new(gamma.shape, 1.0 / gamma.scale_s) else {
+        return false;
+    };
+    let mut previous = 0.0;
+    for (w, &ts) in out.iter_mut().zip(sampling_times_s) {
+        let cdf = g.cdf(ts);
+        if !cdf.is_finite() {
+            return false;
+        }
+        *w = (cdf - previous).max(0.0);
+        previous = previous.max(cdf);
+    }
+    true
+}
+
+/// Settings of the weight estimator.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct WeightSettings {
+    /// Window size `n_max`.
+    pub window: usize,
+    /// Fewest delays before the fit replaces the prior.
+    pub min_samples: usize,
+    /// Prior used until then (and when the window is degenerate).
+    pub prior: GammaParams,
+}
+
+impl Default for WeightSettings {
+    fn default() -> Self {
+        Self { window: 50, min_samples: 10, prior: GammaParams { shape: 12.0, scale_s: 0.015 } }
+    }
+}
+
+/// Scenario weights for the multi-stage controller, updated from observed delays.
+#[derive(Debug, Clone)]
+pub struct ScenarioWeights {
+    settings: WeightSettings,
+    window: DelayWindow,
+    sampling_times_s: Vec<f64>,
+    /// `Some` when the run has no delays: fixed weights.
+    nominal: Option<Vec<f64>>,
+    current: Vec<f64>,
+    source: WeightSource,
+}
+
+impl ScenarioWeights {
+    /// Weights over `sampling_times_s`; with `nominal` the weights are fixed (no delays).
+    pub fn new(settings: WeightSettings, sampling_times_s: &[f64], nominal: Option<&[f64]>) -> Self {
+        let mut s = Self {
+            settings,
+            window: DelayWindow::new(settings.window),
+            sampling_times_s: sampling_times_s.to_vec(),
+            nominal: nominal.map(|w| w.to_vec()),
+            current: vec![0.0; sampling_times_s.len()],
+            source: WeightSource::Prior(settings.prior),
+        };
+        s.refresh();
+        s
+    }
+
+    /// Records an observed round-trip delay and recomputes the weights.
+    pub fn observe(&mut self, delay_s: f64) {
+        if self.window.push(delay_s) {
+            self.refresh();
+        }
+    }
+
+    fn refresh(&mut self) {
+        if let Some(nominal) = &self.nominal {
+            self.current.copy_from_slice(nominal);
+            self.source = WeightSource::Nominal;
+            return;
+        }
+        if let Some(fit) = self.window.fit(self.settings.min_samples) {
+            if weights_from_gamma(&fit, &self.sampling_times_s, &mut self.current) {
+                self.source = WeightSource::Fitted(fit);
+                return;
+            }
+        }
+        let prior = self.settings.prior;
+        if weights_from_gamma(&prior, &self.sampling_times_s, &mut self.current) {
+            self.source = WeightSource::Prior(prior);
+        } else {
+            // An invalid prior is refused by validation; keep uniform weights as a last resort.
+            let m = self.current.len() as f64;
+            self.current.iter_mut().for_each(|w| *w = 1.0 / m);
+        }
+    }
+
+    pub fn weights(&self) -> &[f64] {
+        &self.current
+    }
+
+    pub fn source(&self) -> WeightSource {
+        self.source
+    }
+
+    pub fn window(&self) -> &DelayWindow {
+        &self.window
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+    use proptest::prelude::*;
+    use rand::SeedableRng;
+    use rand_distr::Distribution;
+
+    const TS: [f64; 5] = [0.05, 0.07, 0.1, 0.2, 0.33];
+
+    #[test]
+    fn moment_fit_recovers_a_known_gamma() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let dist = rand_distr::Gamma::new(12.0, 0.015).expect("valid");
+        let mut w = DelayWindow::new(200_000);
+        for _ in 0..200_000 {
+            w.push(dist.sample(&mut rng));
+        }
+        let fit = w.fit(10).expect("fit");
+        assert_relative_eq!(fit.shape, 12.0, max_relative = 0.02);
+        assert_relative_eq!(fit.scale_s, 0.015, max_relative = 0.02);
+    }
+
+    #[test]
+    fn exact_moments_give_exact_parameters() {
+        // A window holding {0.1, 0.3}: mean 0.2, population variance 0.01.
+        let mut w = DelayWindow::new(50);
+        w.push(0.1);
+        w.push(0.3);
+        let fit = w.fit(2).expect("fit");
+        assert_relative_eq!(fit.shape, 4.0, max_relative = 1e-12);
+        assert_relative_eq!(fit.scale_s, 0.05, max_relative = 1e-12);
+    }
+
+    #[test]
+    fn weights_of_the_paper_prior_match_the_gamma_cdf() {
+        let g = GammaParams { shape: 12.0, scale_s: 0.015 };
+        let mut w = [0.0; 5];
+        assert!(weights_from_gamma(&g, &TS, &mut w));
+        // The CDF of Gamma(k, theta) at t is the regularised lower incomplete gamma P(k, t/theta);
+        // for integer k it is 1 - e^{-x} sum_{n<k} x^n / n!.
+        let cdf = |t: f64| {
+            let x = t / 0.015;
+            let mut term = 1.0;
+            let mut sum = 1.0;
+            for n in 1..12 {
+                term *= x / n as f64;
+                sum += term;
+            }
+            1.0 - (-x).exp() * sum
+        };
+        assert_relative_eq!(w[0], cdf(0.05), max_relative = 1e-9);
+        assert_relative_eq!(w[3], cdf(0.2) - cdf(0.1), max_relative = 1e-9);
+        assert_relative_eq!(w.iter().sum::<f64>(), cdf(0.33), max_relative = 1e-9);
+    }
+
+    #[test]
+    fn prior_until_enough_samples_and_on_degenerate_windows() {
+        let s = WeightSettings::default();
+        let mut sw = ScenarioWeights::new(s, &TS, None);
+        assert_eq!(sw.source(), WeightSource::Prior(s.prior));
+        for _ in 0..20 {
+            sw.observe(0.18); // zero variance: degenerate
+        }
+        assert_eq!(sw.source(), WeightSource::Prior(s.prior));
+        sw.observe(f64::NAN); // ignored
+        assert_eq!(sw.window().len(), 20);
+        sw.observe(0.25);
+        assert!(matches!(sw.source(), WeightSource::Fitted(_)));
+        let fixed = ScenarioWeights::new(s, &TS, Some(&[0.05, 0.15, 0.45, 0.30, 0.05]));
+        assert_eq!(fixed.weights(), &[0.05, 0.15, 0.45, 0.30, 0.05]);
+    }
+
+    proptest! {
+        #[test]
+        fn weights_are_non_negative_and_sum_to_the_cdf_at_the_last_time(
+            shape in 0.2f64..200.0,
+            scale in 1e-4f64..0.5,
+        ) {
+            let g = GammaParams { shape, scale_s: scale };
+            let mut w = [0.0; 5];
+            prop_assert!(weights_from_gamma(&g, &TS, &mut w));
+            prop_assert!(w.iter().all(|v| *v >= 0.0));
+            let total = g.cdf(0.33).expect("valid");
+            prop_assert!((w.iter().sum::<f64>() - total).abs() < 1e-12);
+        }
+
+        #[test]
+        fn the_window_keeps_only_the_last_n(values in prop::collection::vec(0.0f64..1.0, 1..200)) {
+            let mut w = DelayWindow::new(50);
+            for v in &values { w.push(*v); }
+            let tail = &values[values.len().saturating_sub(50)..];
+            let mean = tail.iter().sum::<f64>() / tail.len() as f64;
+            let (m, _) = w.moments().expect("non-empty");
+            prop_assert!((m - mean).abs() < 1e-12);
+            prop_assert_eq!(w.len(), tail.len());
+        }
+    }
+}

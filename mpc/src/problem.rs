@@ -1,0 +1,565 @@
+//! The optimal control problem of `SPEC.md` and its hot path: cost, penalty and gradient by
+//! hand-derived reverse mode (the adjoint of the explicit Euler recursion), allocation-free.
+//!
+//! Decision variables are *scaled*: `u_j[c] = u_ref[c] + scale[j][c] * z_j[c]`, with
+//! `scale = 1 / sqrt(H_jj)` where `H_jj` is the Gauss-Newton Hessian diagonal of the
+//! objective linearised at hover. Thrust spans 0..19.6 m/s^2 while the angles span +-0.17 rad
+//! and early inputs move a 13 s prediction much more than late ones; without this the problem's
+//! curvature differs by orders of magnitude between variables, and PANOC's fixed-point
+//! residual test stops far from the optimum (see ARCHITECTURE.md).
+
+use mav::{Cylinder, InputBounds, ModelParams, Scenario};
+
+/// Which controller of the paper.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ControllerMode {
+    /// Standard NMPC: one scenario at the nominal sampling time, weight 1.
+    Nmpc,
+    /// Multi-stage NMPC: one scenario per sampling time, weighted by delay probability.
+    Multistage,
+}
+
+impl ControllerMode {
+    pub fn name(self) -> &'static str {
+        match self {
+            ControllerMode::Nmpc => "nmpc",
+            ControllerMode::Multistage => "multistage",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "nmpc" => Some(Self::Nmpc),
+            "multistage" | "multi-stage" => Some(Self::Multistage),
+            _ => None,
+        }
+    }
+}
+
+/// How the cylinder constraint enters the solver.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ObstacleFormulation {
+    /// The paper's form: `F2 = [R^2 - dx^2 - dy^2]_+ [zo - z]_+ = 0` per point, handled by
+    /// OpEn's penalty method (PM). Its units are m^3, its gradient scales with `R (zo - z)^2`
+    /// (so a 1.5 m cylinder and a 0.25 m one are penalised very differently), and the penalty
+    /// must grow large to push violations to zero, which makes PANOC's problem stiff.
+    PaperPenalty,
+    /// `g = min(R - d, zo - z) <= 0` per point (horizontal distance `d` to the axis), handled
+    /// by OpEn's augmented Lagrangian (ALM) with multipliers warm-started across cycles. The
+    /// same feasible set, in metres for every cylinder, and exact feasibility with a moderate
+    /// penalty. The default.
+    DistanceAlm,
+}
+
+/// A cylinder as the constraint sees it: inflated radius squared, precomputed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct ObstacleTerm {
+    pub xo: f64,
+    pub yo: f64,
+    pub r2: f64,
+    pub zo: f64,
+    pub r: f64,
+}
+
+/// What to solve: everything of the optimal control problem except the current state, the
+/// last applied input and the scenario weights, which change every cycle.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OcpDefinition {
+    pub model: ModelParams,
+    pub bounds: InputBounds,
+    pub obstacles: Vec<Cylinder>,
+    /// Added to every cylinder radius in the constraint, m.
+    pub obstacle_margin_m: f64,
+    pub formulation: ObstacleFormulation,
+    pub horizon: usize,
+    /// One prediction per sampling time, s.
+    pub sampling_times_s: Vec<f64>,
+    pub q_x: [f64; 8],
+    pub q_u: [f64; 3],
+    pub q_du: [f64; 3],
+    pub x_ref: [f64; 8],
+    pub u_ref: [f64; 3],
+}
+
+impl OcpDefinition {
+    /// The problem of `scenario` for `mode`.
+    pub fn from_scenario(
+        scenario: &Scenario,
+        mode: ControllerMode,
+        obstacle_margin_m: f64,
+        formulation: ObstacleFormulation,
+    ) -> Self {
+        let sampling_times_s = match mode {
+            ControllerMode::Nmpc => vec![scenario.nmpc_sampling_time_s],
+            ControllerMode::Multistage => scenario.sampling_times_s.clone(),
+        };
+        let g = scenario.model.gravity_mps2;
+        let mut x_ref = [0.0; 8];
+        x_ref[..3].copy_from_slice(&scenario.goal_m);
+        Self {
+            model: scenario.model,
+            bounds: scenario.bounds,
+            obstacles: scenario.obstacles.clone(),
+            obstacle_margin_m,
+            formulation,
+            horizon: scenario.horizon,
+            sampling_times_s,
+            q_x: scenario.q_x,
+            q_u: scenario.q_u,
+            q_du: scenario.q_du,
+            x_ref,
+            u_ref: [g, 0.0, 0.0],
+        }
+    }
+
+    pub fn num_scenarios(&self) -> usize {
+        self.sampling_times_s.len()
+    }
+
+    /// Number of decision variables, `3 N`.
+    pub fn num_variables(&self) -> usize {
+        3 * self.horizon
+    }
+
+    /// Number of constraint values (ALM's `F1` or PM's `F2`): one per scenario, predicted point
+    /// and cylinder.
+    pub fn num_constraints(&self) -> usize {
+        self.num_scenarios() * self.horizon * self.obstacles.len()
+    }
+}
+
+/// Per-variable affine scaling `u = offset + scale * z`.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Scaling {
+    pub offset: Vec<f64>,
+    pub scale: Vec<f64>,
+}
+
+/// Impulse-response energy of each input channel through the hover linearisation:
+/// `energy[c][n-1] = sum_{m=1..n} |s_m|^2_{2 Qx}` with `s_1 = B e_c`, `s_{m+1} = A s_m`.
+pub(crate) fn hover_impulse_energy(def: &OcpDefinition, dt: f64) -> [Vec<f64>; 3] {
+    let p = &def.model;
+    let g = p.gravity_mps2;
+    let n = def.horizon;
+    let mut out = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
+    for (c, energy) in out.iter_mut().enumerate() {
+        // s = B e_c for the Euler map at hover (T = g, phi = theta = 0).
+        let mut s = [0.0f64; 8];
+        match c {
+            0 => s[5] = dt,
+            1 => s[6] = dt * p.gain_roll / p.tau_roll_s,
+            _ => s[7] = dt * p.gain_pitch / p.tau_pitch_s,
+        }
+        let mut acc = 0.0;
+        for e in energy.iter_mut() {
+            acc += (0..8).map(|k| 2.0 * def.q_x[k] * s[k] * s[k]).sum::<f64>();
+            *e = acc;
+            // s <- A s, A = I + dt * Fx(hover)
+            let next = [
+                s[0] + dt * s[3],
+                s[1] + dt * s[4],
+                s[2] + dt * s[5],
+                s[3] + dt * (-p.drag_x_per_s * s[3] + g * s[7]),
+                s[4] + dt * (-p.drag_y_per_s * s[4] - g * s[6]),
+                s[5] + dt * (-p.drag_z_per_s * s[5]),
+                s[6] - dt * s[6] / p.tau_roll_s,
+                s[7] - dt * s[7] / p.tau_pitch_s,
+            ];
+            s = next;
+        }
+    }
+    out
+}
+
+/// The cost, penalty and gradient of one problem instance, with every buffer allocated once.
+///
+/// ## Memory allocation
+/// `M (N + 1)` states of 8 values, `M N` attitude sin/cos quadruples, and a handful of
+/// `3 N` vectors; all allocated in [`Evaluator::new`], none in the solve loop.
+#[derive(Debug, Clone)]
+pub struct Evaluator {
+    m: usize,
+    n: usize,
+    params: ModelParams,
+    dts: Vec<f64>,
+    weights: Vec<f64>,
+    weight_sum: f64,
+    q_x: [f64; 8],
+    q_u: [f64; 3],
+    q_du: [f64; 3],
+    x_ref: [f64; 8],
+    u_ref: [f64; 3],
+    obstacles: Vec<ObstacleTerm>,
+    formulation: ObstacleFormulation,
+    x0: [f64; 8],
+    u_prev: [f64; 3],
+    pub(crate) scaling: Scaling,
+    /// Per scenario, per channel: hover impulse energies (for the preconditioner).
+    impulse_energy: Vec<[Vec<f64>; 3]>,
+    // Work buffers.
+    u: Vec<f64>,
+    states: Vec<[f64; 8]>,
+    trig: Vec<[f64; 4]>,
+    grad_u: Vec<f64>,
+    /// Constraint value and its gradient in (px, py, pz), per scenario, point and cylinder.
+    con: Vec<f64>,
+    con_grad: Vec<[f64; 3]>,
+    // Cache of the last forward pass, keyed by the bits of `z`.
+    last_z: Vec<f64>,
+    forward_valid: bool,
+    objective: f64,
+}
+
+impl Evaluator {
+    pub fn new(def: &OcpDefinition) -> Self {
+        let m = def.num_scenarios();
+        let n = def.horizon;
+        let obstacles = def
+            .obstacles
+            .iter()
+            .map(|c| {
+                let r = c.radius_m + def.obstacle_margin_m;
+                ObstacleTerm { xo: c.x_m, yo: c.y_m, r2: r * r, zo: c.height_m, r }
+            })
+            .collect();
+        let impulse_energy = def.sampling_times_s.iter().map(|&dt| hover_impulse_energy(def, dt)).collect();
+        let mut ev = Self {
+            m,
+            n,
+            params: def.model,
+            dts: def.sampling_times_s.clone(),
+            weights: vec![1.0 / m as f64; m],
+            weight_sum: 1.0,
+            q_x: def.q_x,
+            q_u: def.q_u,
+            q_du: def.q_du,
+            x_ref: def.x_ref,
+            u_ref: def.u_ref,
+            obstacles,
+            formulation: def.formulation,
+            x0: [0.0; 8],
+            u_prev: def.u_ref,
+            scaling: Scaling { offset: vec![0.0; 3 * n], scale: vec![1.0; 3 * n] },
+            impulse_energy,
+            u: vec![0.0; 3 * n],
+            states: vec![[0.0; 8]; m * (n + 1)],
+            trig: vec![[0.0; 4]; m * n],
+            grad_u: vec![0.0; 3 * n],
+            con: vec![0.0; def.num_constraints()],
+            con_grad: vec![[0.0; 3]; def.num_constraints()],
+            last_z: vec![0.0; 3 * n],
+            forward_valid: false,
+            objective: 0.0,
+        };
+        ev.update_scaling();
+        ev
+    }
+
+    pub fn num_variables(&self) -> usize {
+        3 * self.n
+    }
+
+    pub fn num_scenarios(&self) -> usize {
+        self.m
+    }
+
+    pub fn horizon(&self) -> usize {
+        self.n
+    }
+
+    /// Sets the per-cycle data. The caller has validated lengths and finiteness.
+    pub fn set_instance(&mut self, x0: &[f64; 8], u_prev: &[f64; 3], weights: &[f64]) {
+        self.x0 = *x0;
+        self.u_prev = *u_prev;
+        self.weights.copy_from_slice(weights);
+        self.weight_sum = weights.iter().sum();
+        self.forward_valid = false;
+        self.update_scaling();
+    }
+
+    /// Jacobi preconditioner from the hover Gauss-Newton Hessian diagonal for the current
+    /// weights: `H[j][c] = sum_i w_i E_i[c][N-j-1] + 2 W (Qu[c] + Qdu[c] (1 + [j < N-1]))`.
+    fn update_scaling(&mut self) {
+        let n = self.n;
+        for j in 0..n {
+            for c in 0..3 {
+                let mut h = 0.0;
+                for (i, w) in self.weights.iter().enumerate() {
+                    h += w * self.impulse_energy[i][c][n - j - 1];
+                }
+                let rate_terms = if j + 1 < n { 2.0 } else { 1.0 };
+                h += 2.0 * self.weight_sum * (self.q_u[c] + self.q_du[c] * rate_terms);
+                let k = 3 * j + c;
+                self.scaling.scale[k] = if h > 1e-12 { 1.0 / h.sqrt() } else { 1.0 };
+                self.scaling.offset[k] = self.u_ref[c];
+            }
+        }
+        self.forward_valid = false;
+    }
+
+    /// Scaled variables from inputs.
+    pub fn to_scaled(&self, u: &[f64], z: &mut [f64]) {
+        for k in 0..z.len() {
+            z[k] = (u[k] - self.scaling.offset[k]) / self.scaling.scale[k];
+        }
+    }
+
+    /// Inputs from scaled variables.
+    pub fn to_inputs(&self, z: &[f64], u: &mut [f64]) {
+        for k in 0..z.len() {
+            u[k] = self.scaling.offset[k] + self.scaling.scale[k] * z[k];
+        }
+    }
+
+    /// Box bounds of the scaled variables.
+    pub fn scaled_bounds(&self, bounds: &InputBounds, lo: &mut [f64], hi: &mut [f64]) {
+        for k in 0..lo.len() {
+            let c = k % 3;
+            lo[k] = (bounds.min[c] - self.scaling.offset[k]) / self.scaling.scale[k];
+            hi[k] = (bounds.max[c] - self.scaling.offset[k]) / self.scaling.scale[k];
+        }
+    }
+
+    fn ensure_forward(&mut self, z: &[f64]) {
+        if self.forward_valid && self.last_z.iter().zip(z).all(|(a, b)| a.to_bits() == b.to_bits()) {
+            return;
+        }
+        self.last_z.copy_from_slice(z);
+        for k in 0..z.len() {
+            self.u[k] = self.scaling.offset[k] + self.scaling.scale[k] * z[k];
+        }
+        self.forward_inputs();
+        self.forward_valid = true;
+    }
+
+    /// Forward pass on `self.u`: predictions of every scenario, the objective, and every
+    /// constraint value with its gradient.
+    fn forward_inputs(&mut self) {
+        let (m, n) = (self.m, self.n);
+        let p = self.params;
+        let (g, ax, ay, az) = (p.gravity_mps2, p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
+        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
+        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
+        let n_obs = self.obstacles.len();
+        let mut objective = 0.0;
+        for i in 0..m {
+            let dt = self.dts[i];
+            let w = self.weights[i];
+            let base = i * (n + 1);
+            let mut x = self.x0;
+            self.states[base] = x;
+            let mut state_cost = 0.0;
+            for j in 0..n {
+                let (sr, cr) = x[6].sin_cos();
+                let (sp, cp) = x[7].sin_cos();
+                self.trig[i * n + j] = [sr, cr, sp, cp];
+                let (t, rd, pd) = (self.u[3 * j], self.u[3 * j + 1], self.u[3 * j + 2]);
+                let nx = [
+                    x[0] + dt * x[3],
+                    x[1] + dt * x[4],
+                    x[2] + dt * x[5],
+                    x[3] + dt * (t * cr * sp - ax * x[3]),
+                    x[4] + dt * (-t * sr - ay * x[4]),
+                    x[5] + dt * (t * cr * cp - g - az * x[5]),
+                    x[6] + dt * (kr * rd - ir * x[6]),
+                    x[7] + dt * (kp * pd - ip * x[7]),
+                ];
+                x = nx;
+                self.states[base + j + 1] = x;
+                for k in 0..8 {
+                    let e = x[k] - self.x_ref[k];
+                    state_cost += self.q_x[k] * e * e;
+                }
+                let first = (i * n + j) * n_obs;
+                for (o, ob) in self.obstacles.iter().enumerate() {
+                    let (value, grad) = constraint(self.formulation, ob, &x);
+                    self.con[first + o] = value;
+                    self.con_grad[first + o] = grad;
+                }
+            }
+            objective += w * state_cost;
+        }
+        objective += self.weight_sum * self.input_cost();
+        self.objective = objective;
+    }
+
+    fn input_cost(&self) -> f64 {
+        let mut cost = 0.0;
+        let mut prev = self.u_prev;
+        for j in 0..self.n {
+            for c in 0..3 {
+                let u = self.u[3 * j + c];
+                let e = u - self.u_ref[c];
+                let d = u - prev[c];
+                cost += self.q_u[c] * e * e + self.q_du[c] * d * d;
+                prev[c] = u;
+            }
+        }
+        cost
+    }
+
+    /// `psi(z; c, y) = sum_i w_i J_i + (c / 2) sum_k [g_k + y_k / c]_+^2`: OpEn's augmented
+    /// Lagrangian for `g <= 0` (with `y` empty it is the penalty method's `(c / 2) |F2|^2`, as
+    /// `F2 >= 0`).
+    pub fn cost(&mut self, z: &[f64], penalty: f64, multipliers: &[f64]) -> f64 {
+        self.ensure_forward(z);
+        self.objective + self.penalty_term(penalty, multipliers)
+    }
+
+    fn penalty_term(&self, c: f64, y: &[f64]) -> f64 {
+        if c <= 0.0 {
+            return 0.0;
+        }
+        let mut acc = 0.0;
+        for (k, g) in self.con.iter().enumerate() {
+            let v = g + y.get(k).map_or(0.0, |y| y / c);
+            if v > 0.0 {
+                acc += v * v;
+            }
+        }
+        0.5 * c * acc
+    }
+
+    /// The spec's objective `sum_i w_i J_i` alone, at `z`.
+    pub fn objective(&mut self, z: &[f64]) -> f64 {
+        self.ensure_forward(z);
+        self.objective
+    }
+
+    /// The spec's objective at inputs `u` (unscaled).
+    pub fn objective_at_inputs(&mut self, u: &[f64]) -> f64 {
+        self.u.copy_from_slice(u);
+        self.forward_inputs();
+        self.forward_valid = false;
+        self.objective
+    }
+
+    /// The constraint mapping at `z` (ALM's `F1` or PM's `F2`, by formulation).
+    pub fn constraints(&mut self, z: &[f64], out: &mut [f64]) {
+        self.ensure_forward(z);
+        out.copy_from_slice(&self.con);
+    }
+
+    /// Constraint values of the last forward pass.
+    pub fn constraint_values(&self) -> &[f64] {
+        &self.con
+    }
+
+    /// Gradient of `psi(z; c, y)` with respect to the scaled variables.
+    pub fn gradient(&mut self, z: &[f64], penalty: f64, multipliers: &[f64], grad: &mut [f64]) {
+        self.ensure_forward(z);
+        let (m, n) = (self.m, self.n);
+        let p = self.params;
+        let (ax, ay, az) = (p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
+        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
+        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
+        self.input_cost_gradient();
+        let n_obs = self.obstacles.len();
+        let c = penalty;
+        for i in 0..m {
+            let dt = self.dts[i];
+            let w2 = 2.0 * self.weights[i];
+            let base = i * (n + 1);
+            let mut l = [0.0f64; 8];
+            for j in (0..n).rev() {
+                // Stage terms at x_{j+1}.
+                let x = &self.states[base + j + 1];
+                for k in 0..8 {
+                    l[k] += w2 * self.q_x[k] * (x[k] - self.x_ref[k]);
+                }
+                if c > 0.0 {
+                    let first = (i * n + j) * n_obs;
+                    for k in first..first + n_obs {
+                        let v = c * self.con[k] + multipliers.get(k).copied().unwrap_or(0.0);
+                        if v > 0.0 {
+                            let dg = self.con_grad[k];
+                            l[0] += v * dg[0];
+                            l[1] += v * dg[1];
+                            l[2] += v * dg[2];
+                        }
+                    }
+                }
+                // Input sensitivity of x_{j+1} = x_j + dt f(x_j, u_j).
+                let [sr, cr, sp, cp] = self.trig[i * n + j];
+                let t = self.u[3 * j];
+                let g = &mut self.grad_u[3 * j..3 * j + 3];
+                g[0] += dt * (cr * sp * l[3] - sr * l[4] + cr * cp * l[5]);
+                g[1] += dt * kr * l[6];
+                g[2] += dt * kp * l[7];
+                // Adjoint: l_j = (I + dt Fx(x_j, u_j))^T l_{j+1}.
+                let l6 = l[6] + dt * (-t * sr * sp * l[3] - t * cr * l[4] - t * sr * cp * l[5] - ir * l[6]);
+                let l7 = l[7] + dt * (t * cr * cp * l[3] - t * cr * sp * l[5] - ip * l[7]);
+                l[3] += dt * (l[0] - ax * l[3]);
+                l[4] += dt * (l[1] - ay * l[4]);
+                l[5] += dt * (l[2] - az * l[5]);
+                l[6] = l6;
+                l[7] = l7;
+            }
+        }
+        for k in 0..grad.len() {
+            grad[k] = self.grad_u[k] * self.scaling.scale[k];
+        }
+    }
+
+    /// Overwrites `grad_u` with the gradient of `W * input_cost`.
+    fn input_cost_gradient(&mut self) {
+        let n = self.n;
+        let w2 = 2.0 * self.weight_sum;
+        for j in 0..n {
+            for c in 0..3 {
+                let k = 3 * j + c;
+                let u = self.u[k];
+                let prev = if j == 0 { self.u_prev[c] } else { self.u[k - 3] };
+                let mut g = self.q_u[c] * (u - self.u_ref[c]) + self.q_du[c] * (u - prev);
+                if j + 1 < n {
+                    g -= self.q_du[c] * (self.u[k + 3] - u);
+                }
+                self.grad_u[k] = w2 * g;
+            }
+        }
+    }
+
+    /// Predicted states of scenario `i` after the last forward pass: `N + 1` points.
+    pub fn predicted_states(&self, i: usize) -> &[[f64; 8]] {
+        let base = i * (self.n + 1);
+        &self.states[base..base + self.n + 1]
+    }
+
+    /// Inputs of the last forward pass.
+    pub fn inputs(&self) -> &[f64] {
+        &self.u
+    }
+
+    pub fn sampling_times(&self) -> &[f64] {
+        &self.dts
+    }
+
+    pub fn weights(&self) -> &[f64] {
+        &self.weights
+    }
+}
+
+/// One constraint value and its gradient with respect to `(px, py, pz)`.
+#[inline]
+fn constraint(formulation: ObstacleFormulation, ob: &ObstacleTerm, x: &[f64; 8]) -> (f64, [f64; 3]) {
+    let (dx, dy) = (x[0] - ob.xo, x[1] - ob.yo);
+    let hz = ob.zo - x[2];
+    match formulation {
+        ObstacleFormulation::PaperPenalty => {
+            let hc = ob.r2 - dx * dx - dy * dy;
+            if hc > 0.0 && hz > 0.0 {
+                (hc * hz, [-2.0 * dx * hz, -2.0 * dy * hz, -hc])
+            } else {
+                (0.0, [0.0; 3])
+            }
+        }
+        ObstacleFormulation::DistanceAlm => {
+            // The axis itself is never a solution; keep the gradient finite there.
+            let d = (dx * dx + dy * dy).sqrt().max(1e-9);
+            let radial = ob.r - d;
+            if radial <= hz { (radial, [-dx / d, -dy / d, 0.0]) } else { (hz, [0.0, 0.0, -1.0]) }
+        }
+    }
+}

@@ -1,0 +1,509 @@
+//! The controller workspace: OpEn's ALM/PM + PANOC on the scaled problem, warm start, budgets,
+//! and the per-solve report.
+
+use std::cell::RefCell;
+use std::time::Duration;
+
+use optimization_engine::alm::{AlmCache, AlmOptimizer, AlmProblem};
+use optimization_engine::constraints::Rectangle;
+use optimization_engine::core::ExitStatus;
+use optimization_engine::panoc::PANOCCache;
+use optimization_engine::{FunctionCallResult, SolverError};
+
+use crate::problem::{Evaluator, ObstacleFormulation, OcpDefinition};
+
+/// Upper bound of the multiplier box `Y` OpEn's ALM requires (compact, inside the dual cone).
+const MAX_MULTIPLIER: f64 = 1e9;
+
+/// Settings of the solver (validated in [`Mpc::new`]).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MpcSettings {
+    /// Added to every cylinder radius in the constraint, m. The penalty lets solutions cut
+    /// into the constraint by a little, and delayed inputs make the plant drift from the
+    /// prediction; the margin keeps the true clearance non-negative.
+    pub obstacle_margin_m: f64,
+    /// How the cylinder constraint enters the solver.
+    pub formulation: ObstacleFormulation,
+    /// PANOC's fixed-point residual tolerance, in scaled variables.
+    pub tolerance: f64,
+    /// Inner (AKKT) tolerance of the ALM/PM outer loop, in units of the cost gradient.
+    pub akkt_tolerance: f64,
+    /// Largest accepted constraint violation: `|F2|` for the penalty method, `|y+ - y| / c`
+    /// (the ALM's infeasibility, m for the distance form) for the augmented Lagrangian.
+    pub constraint_tolerance: f64,
+    /// Penalty parameter of the first outer iteration (and floor for later solves).
+    pub initial_penalty: f64,
+    /// Largest penalty parameter. Past a point a larger penalty only ill-conditions the
+    /// problem: with the shared input sequence some predicted point of the long-horizon
+    /// scenarios can stay inside a cylinder whatever the inputs, and an uncapped penalty
+    /// method then multiplies its parameter every outer iteration without bound.
+    pub max_penalty: f64,
+    /// Factor by which the penalty grows when the violation does not shrink enough.
+    pub penalty_update_factor: f64,
+    /// Outer (penalty) iterations per solve.
+    pub max_outer_iterations: usize,
+    /// PANOC iterations per outer iteration.
+    pub max_inner_iterations: usize,
+    /// L-BFGS memory of PANOC.
+    pub lbfgs_memory: usize,
+}
+
+impl Default for MpcSettings {
+    fn default() -> Self {
+        Self {
+            obstacle_margin_m: 0.1,
+            formulation: ObstacleFormulation::DistanceAlm,
+            tolerance: 1e-4,
+            akkt_tolerance: 1e-2,
+            constraint_tolerance: 0.005,
+            initial_penalty: 1e3,
+            max_penalty: 1e6,
+            penalty_update_factor: 5.0,
+            max_outer_iterations: 8,
+            max_inner_iterations: 500,
+            lbfgs_memory: 10,
+        }
+    }
+}
+
+impl MpcSettings {
+    /// Names the first invalid setting.
+    pub fn validate(&self) -> Result<(), MpcError> {
+        let pos = |v: f64| v.is_finite() && v > 0.0;
+        let bad = |field: &'static str, reason: &'static str| Err(MpcError::InvalidSetting { field, reason });
+        if !(self.obstacle_margin_m.is_finite() && self.obstacle_margin_m >= 0.0) {
+            return bad("obstacle_margin_m", "must be finite and >= 0");
+        }
+        if !pos(self.tolerance) {
+            return bad("tolerance", "must be finite and > 0");
+        }
+        if !pos(self.akkt_tolerance) {
+            return bad("akkt_tolerance", "must be finite and > 0");
+        }
+        if !pos(self.constraint_tolerance) {
+            return bad("constraint_tolerance", "must be finite and > 0");
+        }
+        if !pos(self.initial_penalty) {
+            return bad("initial_penalty", "must be finite and > 0");
+        }
+        if !(self.max_penalty.is_finite() && self.max_penalty >= self.initial_penalty) {
+            return bad("max_penalty", "must be finite and >= initial_penalty");
+        }
+        if !(self.penalty_update_factor.is_finite() && self.penalty_update_factor > 1.0 + 1e-9) {
+            return bad("penalty_update_factor", "must be finite and > 1");
+        }
+        if self.max_outer_iterations == 0 {
+            return bad("max_outer_iterations", "must be > 0");
+        }
+        if self.lbfgs_memory == 0 {
+            return bad("lbfgs_memory", "must be > 0");
+        }
+        Ok(())
+    }
+}
+
+/// Bad input or settings: no solve was attempted and nothing changed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MpcError {
+    #[error("invalid setting `{field}`: {reason}")]
+    InvalidSetting { field: &'static str, reason: &'static str },
+    #[error("invalid problem: {0}")]
+    InvalidProblem(String),
+    #[error("invalid `{field}`: {reason}")]
+    InvalidInput { field: String, reason: String },
+}
+
+fn invalid_input(field: impl Into<String>, reason: impl Into<String>) -> MpcError {
+    MpcError::InvalidInput { field: field.into(), reason: reason.into() }
+}
+
+/// How a solve ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SolveStatus {
+    /// Tolerances met, constraint violation within tolerance.
+    Converged,
+    /// The iteration budget ran out; the best iterate is returned.
+    IterationLimit,
+    /// The wall-clock budget ran out (real time only); the best iterate is returned.
+    Deadline,
+    /// A non-finite value appeared; the warm start is returned unchanged.
+    NumericalFailure,
+}
+
+impl SolveStatus {
+    pub fn name(self) -> &'static str {
+        match self {
+            SolveStatus::Converged => "converged",
+            SolveStatus::IterationLimit => "iteration_limit",
+            SolveStatus::Deadline => "deadline",
+            SolveStatus::NumericalFailure => "numerical_failure",
+        }
+    }
+}
+
+/// What a solve may spend. In lockstep only iteration counts bound a solve, so that runs are
+/// bit-identical; in real time a wall-clock deadline is added.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct SolveBudget {
+    /// Overrides `MpcSettings::max_inner_iterations` when set.
+    pub max_inner_iterations: Option<usize>,
+    /// Wall-clock limit of the whole solve.
+    pub deadline: Option<Duration>,
+}
+
+/// The outcome of one solve.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct SolveReport {
+    pub status: SolveStatus,
+    /// PANOC iterations, summed over the outer iterations.
+    pub iterations: usize,
+    pub outer_iterations: usize,
+    /// Wall-clock time measured by the solver.
+    pub solve_time: Duration,
+    /// The spec's objective `sum_i w_i J_i` at the returned inputs (no penalty, unscaled).
+    pub cost: f64,
+    /// `|F2|` at the returned inputs (0 when no predicted point enters an inflated cylinder).
+    pub constraint_violation: f64,
+    /// Penalty parameter of the last outer iteration.
+    pub penalty_parameter: f64,
+    /// Smallest true clearance (no margin) of any predicted point of any scenario, m.
+    pub min_clearance_m: f64,
+}
+
+/// The controller workspace: problem, solver memory, warm start. Allocated once, solved every
+/// cycle.
+///
+/// ## Memory allocation
+/// The evaluator buffers (see [`Evaluator`]), OpEn's ALM and PANOC caches (`O(L n)` for
+/// L-BFGS memory `L` and `n = 3N` variables), and a few `3N` and `M N n_obs` vectors.
+pub struct Mpc {
+    def: OcpDefinition,
+    settings: MpcSettings,
+    evaluator: RefCell<Evaluator>,
+    alm_cache: AlmCache,
+    z: Vec<f64>,
+    lo: Vec<f64>,
+    hi: Vec<f64>,
+    solution: Vec<f64>,
+    warm: Vec<f64>,
+    con: Vec<f64>,
+    /// ALM multipliers: of the last solve, and shifted by one step for the next.
+    multipliers: Vec<f64>,
+    warm_multipliers: Vec<f64>,
+    lagrange_box_lo: Vec<f64>,
+    lagrange_box_hi: Vec<f64>,
+    c_set_hi: Vec<f64>,
+    has_solution: bool,
+    penalty: f64,
+}
+
+impl Mpc {
+    pub fn new(def: OcpDefinition, settings: MpcSettings) -> Result<Self, MpcError> {
+        settings.validate()?;
+        if def.horizon == 0 || def.sampling_times_s.is_empty() {
+            return Err(MpcError::InvalidProblem("needs a horizon and at least one sampling time".into()));
+        }
+        if def.sampling_times_s.iter().any(|t| !(t.is_finite() && *t > 0.0)) {
+            return Err(MpcError::InvalidProblem("sampling times must be finite and > 0".into()));
+        }
+        let evaluator = Evaluator::new(&def);
+        let n = def.num_variables();
+        let nc = def.num_constraints();
+        let (n1, n2) = match def.formulation {
+            ObstacleFormulation::DistanceAlm => (nc, 0),
+            ObstacleFormulation::PaperPenalty => (0, nc),
+        };
+        let panoc_cache = PANOCCache::new(n, settings.tolerance, settings.lbfgs_memory);
+        let alm_cache = AlmCache::new(panoc_cache, n1, n2);
+        let mut warm = vec![0.0; n];
+        for j in 0..def.horizon {
+            warm[3 * j..3 * j + 3].copy_from_slice(&def.u_ref);
+        }
+        Ok(Self {
+            settings,
+            evaluator: RefCell::new(evaluator),
+            alm_cache,
+            z: vec![0.0; n],
+            lo: vec![0.0; n],
+            hi: vec![0.0; n],
+            solution: warm.clone(),
+            warm,
+            con: vec![0.0; nc],
+            multipliers: vec![0.0; n1],
+            warm_multipliers: vec![0.0; n1],
+            lagrange_box_lo: vec![0.0; n1],
+            lagrange_box_hi: vec![MAX_MULTIPLIER; n1],
+            c_set_hi: vec![0.0; n1],
+            has_solution: false,
+            penalty: settings.initial_penalty,
+            def,
+        })
+    }
+
+    pub fn definition(&self) -> &OcpDefinition {
+        &self.def
+    }
+
+    pub fn settings(&self) -> &MpcSettings {
+        &self.settings
+    }
+
+    /// The last solution: `N` inputs, flattened `[T, phi_d, theta_d, ...]`.
+    pub fn solution(&self) -> &[f64] {
+        &self.solution
+    }
+
+    /// The first input of the last solution, within the input bounds.
+    pub fn first_input(&self) -> [f64; 3] {
+        [self.solution[0], self.solution[1], self.solution[2]]
+    }
+
+    /// Replaces the warm start of the next solve (`N x 3` inputs, clipped to the bounds).
+    pub fn set_warm_start(&mut self, u: &[f64]) -> Result<(), MpcError> {
+        if u.len() != self.warm.len() {
+            return Err(invalid_input(
+                "warm_start",
+                format!("must hold {} values ({} x 3), got {}", self.warm.len(), self.def.horizon, u.len()),
+            ));
+        }
+        if let Some(k) = u.iter().position(|v| !v.is_finite()) {
+            return Err(invalid_input(format!("warm_start[{}][{}]", k / 3, k % 3), "must be finite"));
+        }
+        for (k, (w, v)) in self.warm.iter_mut().zip(u).enumerate() {
+            *w = v.clamp(self.def.bounds.min[k % 3], self.def.bounds.max[k % 3]);
+        }
+        Ok(())
+    }
+
+    /// Forgets the previous solution: the next solve starts from hover.
+    pub fn reset_warm_start(&mut self) {
+        for j in 0..self.def.horizon {
+            self.warm[3 * j..3 * j + 3].copy_from_slice(&self.def.u_ref);
+        }
+        self.has_solution = false;
+        self.penalty = self.settings.initial_penalty;
+        self.warm_multipliers.iter_mut().for_each(|y| *y = 0.0);
+    }
+
+    /// Shifts the last solution by one step into the warm start (last input repeated).
+    fn shift_solution_into_warm_start(&mut self) {
+        let n = self.solution.len();
+        self.warm[..n - 3].copy_from_slice(&self.solution[3..]);
+        let last = [self.solution[n - 3], self.solution[n - 2], self.solution[n - 1]];
+        self.warm[n - 3..].copy_from_slice(&last);
+        // Multipliers are laid out per scenario, point and cylinder: shift the points.
+        let n_obs = self.def.obstacles.len();
+        if n_obs > 0 && !self.multipliers.is_empty() {
+            let horizon = self.def.horizon;
+            for i in 0..self.def.num_scenarios() {
+                let block = &self.multipliers[i * horizon * n_obs..(i + 1) * horizon * n_obs];
+                let warm = &mut self.warm_multipliers[i * horizon * n_obs..(i + 1) * horizon * n_obs];
+                warm[..(horizon - 1) * n_obs].copy_from_slice(&block[n_obs..]);
+                let last = &block[(horizon - 1) * n_obs..];
+                warm[(horizon - 1) * n_obs..].copy_from_slice(last);
+            }
+        }
+    }
+
+    fn validate_instance(&self, x0: &[f64; 8], u_prev: &[f64; 3], weights: &[f64]) -> Result<(), MpcError> {
+        if let Some(i) = x0.iter().position(|v| !v.is_finite()) {
+            return Err(invalid_input(format!("x0[{i}]"), "must be finite"));
+        }
+        if let Some(i) = u_prev.iter().position(|v| !v.is_finite()) {
+            return Err(invalid_input(format!("u_prev[{i}]"), "must be finite"));
+        }
+        let m = self.def.num_scenarios();
+        if weights.len() != m {
+            return Err(invalid_input("weights", format!("must hold {m} values, got {}", weights.len())));
+        }
+        if let Some(i) = weights.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
+            return Err(invalid_input(format!("weights[{i}]"), "must be finite and >= 0"));
+        }
+        if !(weights.iter().sum::<f64>() > 0.0) {
+            return Err(invalid_input("weights", "must not all be zero"));
+        }
+        Ok(())
+    }
+
+    /// Solves from state `x0` with last applied input `u_prev` and scenario weights.
+    ///
+    /// Warm-starts from the previous solution shifted by one step (or from what
+    /// [`Mpc::set_warm_start`] set). On success the solution is available through
+    /// [`Mpc::solution`], whatever the status; with `NumericalFailure` it is the warm start.
+    pub fn solve(
+        &mut self,
+        x0: &[f64; 8],
+        u_prev: &[f64; 3],
+        weights: &[f64],
+        budget: &SolveBudget,
+    ) -> Result<SolveReport, MpcError> {
+        self.validate_instance(x0, u_prev, weights)?;
+        let outcome = self.solve_scaled(x0, u_prev, weights, budget);
+        let (status, iterations, outer_iterations, solve_time, penalty) = match outcome {
+            Ok(r) => r,
+            Err(_) => {
+                let warm = self.warm.clone();
+                self.solution.copy_from_slice(&warm);
+                (SolveStatus::NumericalFailure, 0, 0, Duration::ZERO, self.penalty)
+            }
+        };
+        // The returned inputs are within the bounds by construction (box projection); clip
+        // anyway so that rounding in the unscaling can never leave the box.
+        for (k, u) in self.solution.iter_mut().enumerate() {
+            *u = u.clamp(self.def.bounds.min[k % 3], self.def.bounds.max[k % 3]);
+        }
+        let (cost, violation, min_clearance_m) = self.evaluate_solution();
+        if status != SolveStatus::NumericalFailure {
+            // Keep the penalty that was needed (warm start of the outer loop); relax it
+            // when no predicted point enters an inflated cylinder any more.
+            let s = &self.settings;
+            self.penalty = if violation == 0.0 { penalty / s.penalty_update_factor } else { penalty }
+                .clamp(s.initial_penalty, s.max_penalty);
+        }
+        self.has_solution = true;
+        self.shift_solution_into_warm_start();
+        Ok(SolveReport {
+            status,
+            iterations,
+            outer_iterations,
+            solve_time,
+            cost,
+            constraint_violation: violation,
+            penalty_parameter: penalty,
+            min_clearance_m,
+        })
+    }
+
+    #[allow(clippy::type_complexity)]
+    fn solve_scaled(
+        &mut self,
+        x0: &[f64; 8],
+        u_prev: &[f64; 3],
+        weights: &[f64],
+        budget: &SolveBudget,
+    ) -> Result<(SolveStatus, usize, usize, Duration, f64), SolverError> {
+        {
+            let mut ev = self.evaluator.borrow_mut();
+            ev.set_instance(x0, u_prev, weights);
+            ev.scaled_bounds(&self.def.bounds, &mut self.lo, &mut self.hi);
+            ev.to_scaled(&self.warm, &mut self.z);
+        }
+        for ((z, lo), hi) in self.z.iter_mut().zip(&self.lo).zip(&self.hi) {
+            *z = z.clamp(*lo, *hi);
+        }
+        let nc = self.def.num_constraints();
+        let alm = self.def.formulation == ObstacleFormulation::DistanceAlm && nc > 0;
+        let pm = self.def.formulation == ObstacleFormulation::PaperPenalty && nc > 0;
+        let evaluator = &self.evaluator;
+        // OpEn passes xi = (c, y): the penalty parameter, then the ALM multipliers (if any).
+        let split = |xi: &[f64]| -> (f64, usize) { (xi.first().copied().unwrap_or(0.0), 1.min(xi.len())) };
+        let psi = |z: &[f64], xi: &[f64], cost: &mut f64| -> FunctionCallResult {
+            let (c, from) = split(xi);
+            *cost = evaluator.borrow_mut().cost(z, c, &xi[from..]);
+            if cost.is_finite() { Ok(()) } else { Err(SolverError::NotFiniteComputation("cost")) }
+        };
+        let d_psi = |z: &[f64], xi: &[f64], grad: &mut [f64]| -> FunctionCallResult {
+            let (c, from) = split(xi);
+            evaluator.borrow_mut().gradient(z, c, &xi[from..], grad);
+            Ok(())
+        };
+        let mapping = |z: &[f64], out: &mut [f64]| -> FunctionCallResult {
+            evaluator.borrow_mut().constraints(z, out);
+            Ok(())
+        };
+        let mapping_pm = mapping;
+        let bounds = Rectangle::new(Some(&self.lo), Some(&self.hi));
+        let set_c = Rectangle::new(None, Some(&self.c_set_hi));
+        let set_y = Rectangle::new(Some(&self.lagrange_box_lo), Some(&self.lagrange_box_hi));
+        let (n1, n2) = (if alm { nc } else { 0 }, if pm { nc } else { 0 });
+        let problem = AlmProblem::new(
+            bounds,
+            alm.then_some(set_c),
+            alm.then_some(set_y),
+            psi,
+            d_psi,
+            alm.then_some(mapping),
+            pm.then_some(mapping_pm),
+            n1,
+            n2,
+        );
+        let s = &self.settings;
+        let c_start = self.penalty.clamp(s.initial_penalty, s.max_penalty);
+        // Outer iterations that keep the penalty within its cap: one per growth step left.
+        let growth_steps = ((s.max_penalty / c_start).ln() / s.penalty_update_factor.ln()).floor();
+        let max_outer = (1 + growth_steps.max(0.0) as usize).min(s.max_outer_iterations);
+        let mut optimizer = AlmOptimizer::new(&mut self.alm_cache, problem)
+            .with_max_outer_iterations(max_outer)
+            .with_max_inner_iterations(budget.max_inner_iterations.unwrap_or(s.max_inner_iterations).max(1))
+            .with_delta_tolerance(s.constraint_tolerance)
+            .with_epsilon_tolerance(s.akkt_tolerance)
+            .with_initial_inner_tolerance(s.akkt_tolerance)
+            .with_penalty_update_factor(s.penalty_update_factor);
+        if nc > 0 {
+            optimizer = optimizer.with_initial_penalty(c_start);
+        }
+        if alm {
+            optimizer = optimizer.with_initial_lagrange_multipliers(&self.warm_multipliers);
+        }
+        if let Some(deadline) = budget.deadline {
+            optimizer = optimizer.with_max_duration(deadline);
+        }
+        let report = optimizer.solve(&mut self.z)?;
+        if self.z.iter().any(|v| !v.is_finite()) {
+            return Err(SolverError::NotFiniteComputation("solution"));
+        }
+        if let Some(y) = report.lagrange_multipliers() {
+            if y.len() == self.multipliers.len() {
+                self.multipliers.copy_from_slice(y);
+            }
+        }
+        let status = match report.exit_status() {
+            ExitStatus::Converged => SolveStatus::Converged,
+            ExitStatus::NotConvergedIterations => SolveStatus::IterationLimit,
+            ExitStatus::NotConvergedOutOfTime => SolveStatus::Deadline,
+        };
+        self.evaluator.borrow().to_inputs(&self.z, &mut self.solution);
+        Ok((
+            status,
+            report.num_inner_iterations(),
+            report.num_outer_iterations(),
+            report.solve_time(),
+            report.penalty(),
+        ))
+    }
+
+    /// Objective, `|F2|` and true clearance at `self.solution`.
+    fn evaluate_solution(&mut self) -> (f64, f64, f64) {
+        let mut ev = self.evaluator.borrow_mut();
+        let cost = ev.objective_at_inputs(&self.solution);
+        let mut min_clearance = f64::INFINITY;
+        for i in 0..ev.num_scenarios() {
+            for x in &ev.predicted_states(i)[1..] {
+                let (c, _) = mav::geometry::min_clearance(&self.def.obstacles, x[0], x[1], x[2]);
+                min_clearance = min_clearance.min(c);
+            }
+        }
+        // Violation at the solution: the norm of the positive parts of the constraint values.
+        self.con.copy_from_slice(ev.constraint_values());
+        let violation = self.con.iter().map(|v| v.max(0.0).powi(2)).sum::<f64>().sqrt();
+        (cost, violation, min_clearance)
+    }
+
+    /// Predicted states of every scenario at the last solution: `M` trajectories of `N + 1`.
+    pub fn predictions(&self) -> Vec<Vec<[f64; 8]>> {
+        let mut ev = self.evaluator.borrow_mut();
+        ev.objective_at_inputs(&self.solution);
+        (0..ev.num_scenarios()).map(|i| ev.predicted_states(i).to_vec()).collect()
+    }
+
+    /// Objective of arbitrary inputs for the current instance (used by accuracy checks).
+    pub fn objective_of(&self, u: &[f64]) -> f64 {
+        self.evaluator.borrow_mut().objective_at_inputs(u)
+    }
+
+    pub fn has_solution(&self) -> bool {
+        self.has_solution
+    }
+}
