@@ -1,1 +1,76 @@
-//! The controller service (see ARCHITECTURE.md).
+//! The controller service: the paper's NMPC (from the pure `mpc` crate) driving any endpoint
+//! that speaks the `hilbench.v1.Plant` API — the simulated plant, the netem proxy, or a real
+//! vehicle gateway; it cannot tell which. It also serves the `hilbench.v1.Controller` API
+//! (status, per-cycle telemetry, goal and scenario setting), with health and reflection.
+//!
+//! - [`config`]: [`ControllerConfig`], validated settings.
+//! - [`runner`]: the control loop (a Plant API client): the cycle of `SPEC.md`, delay
+//!   measurement from plant stamps, reconnection with backoff.
+//! - [`service`]: the Controller API, a thin shell over the runner's shared state.
+//! - [`solve_lines`]: `controller solve`, one JSON problem per line in, one JSON answer out.
+//!
+//! **Architecture Invariant:** every command that leaves this crate is finite and inside the
+//! scenario's input bounds ([`runner::sanitize_command`]), whatever the solver returned.
+
+pub mod config;
+pub mod runner;
+pub mod service;
+pub mod solve_lines;
+
+pub use config::{ControllerConfig, TimeModeSetting};
+pub use service::ControllerService;
+
+use hilbench_proto::pb::controller_server::ControllerServer;
+use std::future::Future;
+use tonic::transport::Server;
+use tonic::transport::server::TcpIncoming;
+
+/// Why the controller could not serve.
+#[derive(Debug, thiserror::Error)]
+pub enum ControllerError {
+    #[error("invalid configuration: {0}")]
+    Config(String),
+    #[error("reflection service: {0}")]
+    Reflection(#[from] tonic_reflection::server::Error),
+    #[error("listener: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("gRPC server: {0}")]
+    Transport(#[from] tonic::transport::Error),
+}
+
+/// Serves the Controller API on `listener` and runs the control loop against
+/// `config.plant`, until `shutdown` resolves.
+pub async fn serve(
+    listener: tokio::net::TcpListener,
+    config: ControllerConfig,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<(), ControllerError> {
+    config.validate().map_err(ControllerError::Config)?;
+    let addr = listener.local_addr()?;
+    let shared = runner::Shared::new(&config);
+    let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    let loop_task = tokio::spawn(runner::run(config.clone(), shared.clone(), stop_rx));
+    let service = ControllerService::new(shared.clone());
+
+    let (health_reporter, health) = tonic_health::server::health_reporter();
+    health_reporter.set_serving::<ControllerServer<ControllerService>>().await;
+    let reflection = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(hilbench_proto::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+        .build_v1()?;
+    tracing::info!(%addr, plant = %config.plant, scenario = %config.scenario.name, mode = config.mode.name(), "controller serving");
+    let incoming = TcpIncoming::from(listener);
+    let result = Server::builder()
+        .add_service(health)
+        .add_service(reflection)
+        .add_service(ControllerServer::new(service))
+        .serve_with_incoming_shutdown(incoming, async move {
+            shutdown.await;
+            let _ = stop_tx.send(true);
+        })
+        .await;
+    shared.close();
+    let _ = loop_task.await;
+    tracing::info!("controller stopped");
+    Ok(result?)
+}

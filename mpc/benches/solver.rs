@@ -2,7 +2,8 @@
 //! paper closed loops (targets in BENCHMARKS.md).
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use mpc::{
-    ClosedLoopSettings, ControllerMode, Evaluator, Mpc, MpcSettings, OcpDefinition, SolveBudget, run_closed_loop,
+    ClosedLoopSettings, ControllerMode, Evaluator, Mpc, MpcSettings, OcpDefinition, SolveBudget,
+    run_closed_loop,
 };
 use std::hint::black_box;
 
@@ -64,7 +65,12 @@ fn warm_started_solves(c: &mut Criterion) {
     for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
         for (scenario, instances) in instances(mode) {
             let settings = MpcSettings::default();
-            let def = OcpDefinition::from_scenario(&scenario, mode, settings.obstacle_margin_m, settings.formulation);
+            let def = OcpDefinition::from_scenario(
+                &scenario,
+                mode,
+                settings.obstacle_margin_m,
+                settings.formulation,
+            );
             let mut mpc = Mpc::new(def, settings).expect("valid");
             group.bench_with_input(BenchmarkId::new(mode.name(), &scenario.name), &instances, |b, inst| {
                 b.iter(|| {

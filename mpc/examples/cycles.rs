@@ -9,10 +9,27 @@ fn main() {
     for r in &records {
         println!(
             "{:3} t={:6.2} p=[{:6.2} {:6.2} {:6.2}] v=[{:5.2} {:5.2} {:5.2}] u=[{:6.2} {:6.3} {:6.3}] d={:.3} {:?} it={} outer={} c={:.0e} viol={:.2e} clr={:.3} ms={:.2} cost={:.1} w={:.2?}",
-            r.cycle, r.t_s, r.state[0], r.state[1], r.state[2], r.state[3], r.state[4], r.state[5],
-            r.command[0], r.command[1], r.command[2], r.delay_s, r.report.status, r.report.iterations,
-            r.report.outer_iterations, r.report.penalty_parameter, r.report.constraint_violation,
-            r.report.min_clearance_m, r.report.solve_time.as_secs_f64() * 1e3, r.report.cost, r.weights
+            r.cycle,
+            r.t_s,
+            r.state[0],
+            r.state[1],
+            r.state[2],
+            r.state[3],
+            r.state[4],
+            r.state[5],
+            r.command[0],
+            r.command[1],
+            r.command[2],
+            r.delay_s,
+            r.report.status,
+            r.report.iterations,
+            r.report.outer_iterations,
+            r.report.penalty_parameter,
+            r.report.constraint_violation,
+            r.report.min_clearance_m,
+            r.report.solve_time.as_secs_f64() * 1e3,
+            r.report.cost,
+            r.weights
         );
     }
     println!("{s:?}");

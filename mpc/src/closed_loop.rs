@@ -28,7 +28,9 @@ impl DelaySource {
     pub fn of_scenario(scenario: &Scenario) -> Self {
         match scenario.delays {
             DelayModel::None => DelaySource::None,
-            DelayModel::Gamma { shape, scale_s } => DelaySource::Gamma { shape, scale_s, seed: scenario.seed },
+            DelayModel::Gamma { shape, scale_s } => {
+                DelaySource::Gamma { shape, scale_s, seed: scenario.seed }
+            }
         }
     }
 
@@ -36,10 +38,8 @@ impl DelaySource {
         Ok(match self {
             DelaySource::None => DelaySampler::None,
             DelaySource::Gamma { shape, scale_s, seed } => DelaySampler::Gamma(
-                rand_distr::Gamma::new(*shape, *scale_s).map_err(|e| MpcError::InvalidInput {
-                    field: "delays".into(),
-                    reason: e.to_string(),
-                })?,
+                rand_distr::Gamma::new(*shape, *scale_s)
+                    .map_err(|e| MpcError::InvalidInput { field: "delays".into(), reason: e.to_string() })?,
                 ChaCha8Rng::seed_from_u64(*seed),
             ),
             DelaySource::Trace(trace) => {
@@ -236,15 +236,20 @@ pub fn run_closed_loop(
         let sample = sim.sample();
         sim.advance(delay_ns, |_| {});
         let u = Input::from(command);
-        sim.apply(u, CommandMeta {
-            command_seq: cycle + 1,
-            based_on_sample_seq: sample.seq,
-            based_on_sample_time_ns: sample.time_ns,
-        })
+        sim.apply(
+            u,
+            CommandMeta {
+                command_seq: cycle + 1,
+                based_on_sample_seq: sample.seq,
+                based_on_sample_time_ns: sample.time_ns,
+            },
+        )
         .map_err(|e| MpcError::InvalidProblem(e.to_string()))?;
         sim.advance(min_cycle_ns.max(delay_ns) - delay_ns, |_| {});
         if delays.has_delays() {
-            weights.observe(delay_s);
+            // What a controller measures from plant stamps: applied time minus the time of the
+            // sample the command came from, in whole nanoseconds.
+            weights.observe(mav::ns_to_s(delay_ns));
         }
         records.push(CycleRecord {
             cycle,
@@ -274,7 +279,8 @@ fn summarize(
 ) -> RunSummary {
     let mut solve_ms: Vec<f64> = records.iter().map(|r| r.report.solve_time.as_secs_f64() * 1e3).collect();
     let mut iterations: Vec<f64> = records.iter().map(|r| r.report.iterations as f64).collect();
-    let mean = if solve_ms.is_empty() { f64::NAN } else { solve_ms.iter().sum::<f64>() / solve_ms.len() as f64 };
+    let mean =
+        if solve_ms.is_empty() { f64::NAN } else { solve_ms.iter().sum::<f64>() / solve_ms.len() as f64 };
     let x = sim.state();
     RunSummary {
         scenario: scenario.name.clone(),

@@ -16,9 +16,15 @@ impl GammaParams {
     }
 
     /// Moment fit: `shape = mu^2 / sigma^2`, `scale = sigma^2 / mu`. `None` when the moments
-    /// cannot define a Gamma (non-positive mean, zero or non-finite variance).
+    /// cannot define a Gamma (non-positive mean, non-finite variance, or a variance that is
+    /// zero up to rounding: identical delays summed in floating point leave ~1e-34, which
+    /// would otherwise become a shape of 1e30).
     pub fn from_moments(mean_s: f64, variance_s2: f64) -> Option<Self> {
-        if !(mean_s.is_finite() && variance_s2.is_finite() && mean_s > 0.0 && variance_s2 > 0.0) {
+        const MIN_RELATIVE_VARIANCE: f64 = 1e-12;
+        if !(mean_s.is_finite() && variance_s2.is_finite() && mean_s > 0.0) {
+            return None;
+        }
+        if variance_s2 <= MIN_RELATIVE_VARIANCE * mean_s * mean_s {
             return None;
         }
         let shape = mean_s * mean_s / variance_s2;

@@ -13,7 +13,7 @@ pub mod delays;
 pub mod problem;
 pub mod solver;
 
-pub use closed_loop::{CycleRecord, DelaySource, RunSummary, run_closed_loop, ClosedLoopSettings};
+pub use closed_loop::{ClosedLoopSettings, CycleRecord, DelaySource, RunSummary, run_closed_loop};
 pub use delays::{DelayWindow, GammaParams, ScenarioWeights, WeightSettings, WeightSource};
 pub use problem::{ControllerMode, Evaluator, ObstacleFormulation, OcpDefinition};
 pub use solver::{Mpc, MpcError, MpcSettings, SolveBudget, SolveReport, SolveStatus};

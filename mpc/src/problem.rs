@@ -563,3 +563,146 @@ fn constraint(formulation: ObstacleFormulation, ob: &ObstacleTerm, x: &[f64; 8])
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mav::{Dynamics, MavModel, euler_step};
+    use proptest::prelude::*;
+
+    fn evaluator(
+        mode: ControllerMode,
+        formulation: ObstacleFormulation,
+        x0: [f64; 8],
+        weights: &[f64],
+    ) -> Evaluator {
+        let def = OcpDefinition::from_scenario(&Scenario::paper_2(), mode, 0.1, formulation);
+        let mut ev = Evaluator::new(&def);
+        ev.set_instance(&x0, &[9.81, 0.01, -0.02], weights);
+        ev
+    }
+
+    #[test]
+    fn forward_pass_is_the_euler_model_of_mav() {
+        let x0 = [3.0, 0.5, 0.7, 0.2, 1.1, -0.3, 0.05, -0.08];
+        let mut ev = evaluator(ControllerMode::Multistage, ObstacleFormulation::DistanceAlm, x0, &[0.2; 5]);
+        let n = ev.num_variables();
+        let z: Vec<f64> = (0..n).map(|k| ((k % 7) as f64 - 3.0) * 0.3).collect();
+        ev.objective(&z);
+        let u = ev.inputs().to_vec();
+        let model = MavModel::default();
+        for (i, &dt) in [0.05, 0.07, 0.1, 0.2, 0.33].iter().enumerate() {
+            let mut x = mav::State::from(x0);
+            for j in 0..ev.horizon() {
+                let uj = mav::Input::new(u[3 * j], u[3 * j + 1], u[3 * j + 2]);
+                x = euler_step(&model, &x, &uj, dt);
+                let p = ev.predicted_states(i)[j + 1];
+                for k in 0..8 {
+                    assert!(
+                        (p[k] - x[k]).abs() <= 1e-9 * (1.0 + x[k].abs()),
+                        "scenario {i} step {j} state {k}"
+                    );
+                }
+            }
+        }
+        // and the derivative used is the model's
+        let d = model.derivative(&mav::State::from(x0), &mav::Input::new(9.81, 0.0, 0.0));
+        assert!(d.iter().all(|v| v.is_finite()));
+    }
+
+    /// Central finite differences of `cost` against `gradient`, coordinate by coordinate.
+    fn check_gradient(ev: &mut Evaluator, z: &[f64], c: f64, y: &[f64]) -> Result<(), String> {
+        let n = z.len();
+        let mut grad = vec![0.0; n];
+        ev.gradient(z, c, y, &mut grad);
+        let mut zp = z.to_vec();
+        let scale = grad.iter().fold(1.0f64, |m, g| m.max(g.abs()));
+        for k in 0..n {
+            let h = 1e-6 * (1.0 + z[k].abs());
+            zp[k] = z[k] + h;
+            let fp = ev.cost(&zp, c, y);
+            zp[k] = z[k] - h;
+            let fm = ev.cost(&zp, c, y);
+            zp[k] = z[k];
+            let fd = (fp - fm) / (2.0 * h);
+            if (fd - grad[k]).abs() > 2e-5 * scale {
+                return Err(format!(
+                    "variable {k}: adjoint {} vs finite difference {fd} (scale {scale})",
+                    grad[k]
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn arb_z(n: usize) -> impl Strategy<Value = Vec<f64>> {
+        prop::collection::vec(-1.0f64..1.0, n)
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(24))]
+
+        #[test]
+        fn gradient_matches_finite_differences_single_scenario(
+            z in arb_z(120), px in 2.5f64..3.8, py in 0.5f64..4.5, vy in 0.0f64..2.0,
+            c in prop::sample::select(vec![0.0, 1e2, 1e4]),
+            paper_form in any::<bool>(),
+        ) {
+            let form = if paper_form { ObstacleFormulation::PaperPenalty } else { ObstacleFormulation::DistanceAlm };
+            let x0 = [px, py, 0.8, 0.1, vy, 0.0, 0.02, -0.03];
+            let mut ev = evaluator(ControllerMode::Nmpc, form, x0, &[1.0]);
+            let y = vec![0.0; 0];
+            prop_assert!(check_gradient(&mut ev, &z, c, &y).is_ok(), "{:?}", check_gradient(&mut ev, &z, c, &y));
+        }
+
+        #[test]
+        fn gradient_matches_finite_differences_five_scenarios(
+            z in arb_z(120), px in 2.5f64..3.8, py in 0.5f64..4.5, vy in 0.0f64..2.0,
+            w in prop::collection::vec(0.0f64..1.0, 5),
+            c in prop::sample::select(vec![0.0, 1e2, 1e4]),
+            y_scale in 0.0f64..50.0,
+            paper_form in any::<bool>(),
+        ) {
+            let form = if paper_form { ObstacleFormulation::PaperPenalty } else { ObstacleFormulation::DistanceAlm };
+            let mut w = w;
+            w[2] += 0.1;
+            let x0 = [px, py, 0.8, 0.1, vy, 0.0, 0.02, -0.03];
+            let mut ev = evaluator(ControllerMode::Multistage, form, x0, &w);
+            let nc = 5 * 40 * 3;
+            let y: Vec<f64> = if paper_form { Vec::new() } else { (0..nc).map(|k| y_scale * ((k % 5) as f64) / 5.0).collect() };
+            prop_assert!(check_gradient(&mut ev, &z, c, &y).is_ok(), "{:?}", check_gradient(&mut ev, &z, c, &y));
+        }
+    }
+
+    #[test]
+    fn obstacles_are_active_in_the_gradient_tests() {
+        // A state heading straight at the 0.4 m cylinder: some predicted point is inside.
+        let x0 = [2.8, 2.0, 0.8, 0.0, 1.5, 0.0, 0.0, 0.0];
+        for form in [ObstacleFormulation::PaperPenalty, ObstacleFormulation::DistanceAlm] {
+            let mut ev = evaluator(ControllerMode::Multistage, form, x0, &[0.2; 5]);
+            let z = vec![0.0; 120];
+            let with = ev.cost(&z, 1e3, &[]);
+            let without = ev.cost(&z, 0.0, &[]);
+            assert!(with > without, "{form:?}: penalty must be active");
+            assert!(check_gradient(&mut ev, &z, 1e3, &[]).is_ok());
+        }
+    }
+
+    #[test]
+    fn scaling_round_trips_and_maps_the_box() {
+        let ev = evaluator(ControllerMode::Multistage, ObstacleFormulation::DistanceAlm, [0.0; 8], &[0.2; 5]);
+        let u: Vec<f64> = (0..120).map(|k| [12.0, 0.1, -0.1][k % 3]).collect();
+        let mut z = vec![0.0; 120];
+        let mut back = vec![0.0; 120];
+        ev.to_scaled(&u, &mut z);
+        ev.to_inputs(&z, &mut back);
+        for (a, b) in u.iter().zip(&back) {
+            assert!((a - b).abs() < 1e-12);
+        }
+        let (mut lo, mut hi) = (vec![0.0; 120], vec![0.0; 120]);
+        ev.scaled_bounds(&mav::InputBounds::paper(9.81), &mut lo, &mut hi);
+        let mut u_lo = vec![0.0; 120];
+        ev.to_inputs(&lo, &mut u_lo);
+        assert!((u_lo[0] - 0.0).abs() < 1e-12 && (u_lo[1] + std::f64::consts::PI / 18.0).abs() < 1e-12);
+    }
+}

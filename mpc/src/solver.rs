@@ -507,3 +507,100 @@ impl Mpc {
         self.has_solution
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::problem::ControllerMode;
+    use mav::Scenario;
+
+    fn mpc_for(scenario: &Scenario, mode: ControllerMode, settings: MpcSettings) -> Mpc {
+        let def =
+            OcpDefinition::from_scenario(scenario, mode, settings.obstacle_margin_m, settings.formulation);
+        Mpc::new(def, settings).expect("valid settings")
+    }
+
+    const W5: [f64; 5] = [0.05, 0.15, 0.45, 0.30, 0.05];
+
+    #[test]
+    fn solves_the_paper_start_safely_within_bounds() {
+        for formulation in [ObstacleFormulation::DistanceAlm, ObstacleFormulation::PaperPenalty] {
+            let s = Scenario::paper_2();
+            let mut mpc =
+                mpc_for(&s, ControllerMode::Multistage, MpcSettings { formulation, ..Default::default() });
+            let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid");
+            assert_ne!(r.status, SolveStatus::NumericalFailure);
+            assert!(r.cost.is_finite() && r.cost > 0.0);
+            assert!(r.min_clearance_m >= 0.0, "{formulation:?}: predicted clearance {}", r.min_clearance_m);
+            let u = mpc.first_input();
+            assert!(s.bounds.contains(&mav::Input::from(u)));
+            assert!(u[0] > 9.81, "climbs towards the goal 1 m up: {u:?}");
+        }
+    }
+
+    #[test]
+    fn a_warm_started_second_solve_is_cheaper() {
+        let s = Scenario::paper_3();
+        let mut mpc = mpc_for(&s, ControllerMode::Nmpc, MpcSettings::default());
+        let first = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &[1.0], &SolveBudget::default()).expect("valid");
+        let second = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &[1.0], &SolveBudget::default()).expect("valid");
+        assert!(second.iterations <= first.iterations, "{} > {}", second.iterations, first.iterations);
+    }
+
+    #[test]
+    fn the_iteration_budget_is_respected_and_reported() {
+        let s = Scenario::paper_1();
+        let settings = MpcSettings { max_outer_iterations: 1, ..Default::default() };
+        let mut mpc = mpc_for(&s, ControllerMode::Multistage, settings);
+        let budget = SolveBudget { max_inner_iterations: Some(2), deadline: None };
+        let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &budget).expect("valid");
+        assert_eq!(r.status, SolveStatus::IterationLimit);
+        assert!(r.iterations <= 2);
+        assert!(s.bounds.contains(&mav::Input::from(mpc.first_input())));
+    }
+
+    #[test]
+    fn bad_input_is_refused_naming_the_field_and_changes_nothing() {
+        let s = Scenario::paper_1();
+        let mut mpc = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
+        let before = mpc.solution().to_vec();
+        let mut x0 = s.start;
+        x0[4] = f64::NAN;
+        let e = mpc.solve(&x0, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default());
+        assert_eq!(e, Err(invalid_input("x0[4]", "must be finite")));
+        let e = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &[1.0], &SolveBudget::default());
+        assert!(matches!(e, Err(MpcError::InvalidInput { field, .. }) if field == "weights"));
+        let e = mpc.solve(&s.start, &[9.81, f64::INFINITY, 0.0], &W5, &SolveBudget::default());
+        assert!(matches!(e, Err(MpcError::InvalidInput { field, .. }) if field == "u_prev[1]"));
+        let e = mpc.set_warm_start(&[1.0; 7]);
+        assert!(matches!(e, Err(MpcError::InvalidInput { field, .. }) if field == "warm_start"));
+        assert_eq!(mpc.solution(), &before[..]);
+        assert!(matches!(
+            MpcSettings { penalty_update_factor: 1.0, ..Default::default() }.validate(),
+            Err(MpcError::InvalidSetting { field: "penalty_update_factor", .. })
+        ));
+    }
+
+    #[test]
+    fn solves_are_deterministic() {
+        let s = Scenario::paper_2();
+        let x0 = [3.1, 1.2, 0.6, 0.1, 1.4, 0.2, 0.05, -0.02];
+        let run = || {
+            let mut mpc = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
+            let r = mpc.solve(&x0, &[10.0, 0.01, 0.0], &W5, &SolveBudget::default()).expect("valid");
+            (r.cost.to_bits(), r.iterations, mpc.solution().iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+        };
+        assert_eq!(run(), run());
+    }
+
+    #[test]
+    fn a_numerical_failure_returns_the_warm_start_inside_the_bounds() {
+        let s = Scenario::paper_1();
+        let mut mpc = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
+        // Finite but absurd: the predicted cost overflows to infinity.
+        let x0 = [0.0, 0.0, 0.0, 1e200, 1e200, 1e200, 0.0, 0.0];
+        let r = mpc.solve(&x0, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid input");
+        assert_eq!(r.status, SolveStatus::NumericalFailure);
+        assert_eq!(mpc.first_input(), [9.81, 0.0, 0.0]);
+    }
+}

@@ -1,0 +1,137 @@
+//! `controller`: serve the controller against a Plant API endpoint, or solve problems from
+//! JSON lines (`controller solve`).
+
+use std::io::BufReader;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::{Parser, Subcommand, ValueEnum};
+use controller::solve_lines::LineSolver;
+use controller::{ControllerConfig, TimeModeSetting};
+use mpc::{ControllerMode, MpcSettings};
+
+#[derive(Parser, Debug)]
+#[command(name = "controller", version, about = "The multi-stage NMPC controller of hilbench")]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+    /// Address of the Controller API.
+    #[arg(long, default_value = "127.0.0.1:50053")]
+    listen: SocketAddr,
+    /// Plant API endpoint: a plant, netem, or a vehicle gateway.
+    #[arg(long, default_value = "127.0.0.1:50052")]
+    plant: String,
+    /// Scenario (problem, goal, limits): paper-1, paper-2, paper-3.
+    #[arg(long, default_value = "paper-1")]
+    scenario: String,
+    /// Controller: the standard NMPC or the multi-stage NMPC.
+    #[arg(long, value_enum, default_value_t = Mode::Multistage)]
+    mode: Mode,
+    /// Time mode; `auto` follows the plant's Describe.
+    #[arg(long, value_enum, default_value_t = TimeMode::Auto)]
+    time_mode: TimeMode,
+    /// Do not reset the plant when an episode starts.
+    #[arg(long)]
+    no_reset: bool,
+    /// Wait for SetScenario before flying.
+    #[arg(long)]
+    no_autostart: bool,
+    /// Safety margin added to every cylinder radius, m.
+    #[arg(long, default_value_t = MpcSettings::default().obstacle_margin_m)]
+    margin_m: f64,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Solve problems given as JSON lines (from FILE, or stdin) and print one JSON line each.
+    Solve {
+        /// Input file; stdin when absent or `-`.
+        file: Option<PathBuf>,
+    },
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug)]
+enum Mode {
+    Nmpc,
+    Multistage,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug)]
+enum TimeMode {
+    Auto,
+    Lockstep,
+    RealTime,
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    let settings = MpcSettings { obstacle_margin_m: cli.margin_m, ..MpcSettings::default() };
+    settings.validate().context("--margin-m")?;
+    if let Some(Command::Solve { file }) = &cli.command {
+        let mut solver = LineSolver::new(settings);
+        let stdout = std::io::stdout().lock();
+        match file {
+            Some(path) if path.as_os_str() != "-" => {
+                let f =
+                    std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+                solver.run(BufReader::new(f), stdout)?;
+            }
+            _ => {
+                solver.run(std::io::stdin().lock(), stdout)?;
+            }
+        }
+        return Ok(());
+    }
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .init();
+    let scenario = mav::Scenario::by_name(&cli.scenario).context("--scenario")?;
+    let mode = match cli.mode {
+        Mode::Nmpc => ControllerMode::Nmpc,
+        Mode::Multistage => ControllerMode::Multistage,
+    };
+    let mut config = ControllerConfig::new(cli.plant.clone(), scenario, mode);
+    config.mpc = settings;
+    config.reset_plant = !cli.no_reset;
+    config.autostart = !cli.no_autostart;
+    config.time_mode = match cli.time_mode {
+        TimeMode::Auto => TimeModeSetting::Auto,
+        TimeMode::Lockstep => TimeModeSetting::Lockstep,
+        TimeMode::RealTime => TimeModeSetting::RealTime,
+    };
+    let runtime = tokio::runtime::Runtime::new()?;
+    runtime.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(cli.listen)
+            .await
+            .with_context(|| format!("cannot listen on {}", cli.listen))?;
+        controller::serve(listener, config, shutdown_signal()).await?;
+        anyhow::Ok(())
+    })
+}
+
+/// Resolves on SIGINT or SIGTERM.
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {}
+        _ = term => {}
+    }
+    tracing::info!("shutdown requested");
+}

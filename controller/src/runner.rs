@@ -1,0 +1,502 @@
+//! The control loop: a Plant API client running `SPEC.md`'s cycle.
+//!
+//! Lockstep (the controller drives plant time): at `t_k` it solves from the sample, sends the
+//! command, and asks for `Advance(min_cycle, wait_for_command_seq = k)`, so the next sample
+//! comes at `t_k + max(min_cycle, d_k)` whatever sits between it and the plant. Real time:
+//! one cycle every `min_cycle` of wall time, from the freshest sample, with a solve deadline.
+//!
+//! Delays are measured from plant stamps only: a sample's `last_command` says which command
+//! was applied at which plant time and which sample it was computed from, so
+//! `d = applied_time - based_on_sample_time` is the whole round trip.
+//!
+//! A broken link is retried with exponential backoff; the episode (solver warm start, delay
+//! window, command numbering) survives, and the plant is not reset on reconnection.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use hilbench_proto::pb;
+use hilbench_proto::pb::plant_client::PlantClient;
+use mav::{InputBounds, Scenario};
+use mpc::{
+    ControllerMode, GammaParams, Mpc, OcpDefinition, ScenarioWeights, SolveBudget, SolveReport,
+    WeightSettings,
+};
+use tokio::sync::{Notify, broadcast, watch};
+use tonic::transport::{Channel, Endpoint};
+
+use crate::config::{ControllerConfig, TimeModeSetting};
+
+/// Telemetry items buffered per subscriber; a slow subscriber skips (lags), the loop never waits.
+const TELEMETRY_BUFFER: usize = 1024;
+
+/// What the service reports in `GetStatus`.
+#[derive(Debug, Clone, Default)]
+pub struct Status {
+    pub scenario: String,
+    pub mode: String,
+    pub plant_connected: bool,
+    pub plant_address: String,
+    pub cycles: u64,
+    pub goal_m: [f64; 3],
+    pub weights: Vec<f64>,
+    pub sampling_times_s: Vec<f64>,
+    pub last_solve: Option<pb::SolveStats>,
+    pub reconnects: u64,
+    pub last_error: String,
+    pub reached: bool,
+}
+
+/// Requests from the Controller API, taken by the loop at the start of the next cycle.
+#[derive(Debug, Default)]
+struct Requests {
+    goal: Option<[f64; 3]>,
+    scenario: Option<(Scenario, Option<ControllerMode>)>,
+}
+
+/// State shared between the loop and the gRPC service.
+#[derive(Debug)]
+pub struct Shared {
+    status: Mutex<Status>,
+    requests: Mutex<Requests>,
+    wake: Notify,
+    closed: AtomicBool,
+    telemetry: broadcast::Sender<pb::CycleTelemetry>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A panic while holding the lock leaves plain data behind; keep serving it.
+    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+impl Shared {
+    pub fn new(config: &ControllerConfig) -> Arc<Self> {
+        let (telemetry, _) = broadcast::channel(TELEMETRY_BUFFER);
+        let status = Status {
+            scenario: config.scenario.name.clone(),
+            mode: config.mode.name().to_string(),
+            plant_address: config.plant.clone(),
+            goal_m: config.scenario.goal_m,
+            ..Status::default()
+        };
+        Arc::new(Self {
+            status: Mutex::new(status),
+            requests: Mutex::new(Requests::default()),
+            wake: Notify::new(),
+            closed: AtomicBool::new(false),
+            telemetry,
+        })
+    }
+
+    pub fn status(&self) -> Status {
+        lock(&self.status).clone()
+    }
+
+    pub fn subscribe(&self) -> broadcast::Receiver<pb::CycleTelemetry> {
+        self.telemetry.subscribe()
+    }
+
+    pub fn request_goal(&self, goal: [f64; 3]) {
+        lock(&self.requests).goal = Some(goal);
+        self.wake.notify_one();
+    }
+
+    pub fn request_scenario(&self, scenario: Scenario, mode: Option<ControllerMode>) {
+        lock(&self.requests).scenario = Some((scenario, mode));
+        self.wake.notify_one();
+    }
+
+    pub fn close(&self) {
+        self.closed.store(true, Ordering::SeqCst);
+        self.wake.notify_one();
+    }
+
+    fn take_requests(&self) -> Requests {
+        std::mem::take(&mut *lock(&self.requests))
+    }
+
+    fn update(&self, f: impl FnOnce(&mut Status)) {
+        f(&mut lock(&self.status));
+    }
+}
+
+/// A command that is safe to send: finite and inside the bounds. A non-finite component makes
+/// the whole command hover (a solver fault must not tilt the vehicle).
+pub fn sanitize_command(u: [f64; 3], bounds: &InputBounds, hover: [f64; 3]) -> [f64; 3] {
+    let base = if u.iter().all(|v| v.is_finite()) { u } else { hover };
+    let mut out = [0.0; 3];
+    for c in 0..3 {
+        out[c] = base[c].clamp(bounds.min[c], bounds.max[c]);
+    }
+    out
+}
+
+/// Everything an episode keeps across reconnections.
+struct Episode {
+    scenario: Scenario,
+    mode: ControllerMode,
+    mpc: Mpc,
+    weights: ScenarioWeights,
+    command_seq: u64,
+    measured_seq: u64,
+    cycle: u64,
+    /// Lockstep: the sample the last `Advance` returned.
+    pending_sample: Option<pb::StateSample>,
+    last_delay_s: f64,
+}
+
+impl Episode {
+    fn new(config: &ControllerConfig, scenario: Scenario, mode: ControllerMode) -> Result<Self, String> {
+        let def = OcpDefinition::from_scenario(
+            &scenario,
+            mode,
+            config.mpc.obstacle_margin_m,
+            config.mpc.formulation,
+        );
+        let ts = def.sampling_times_s.clone();
+        let mpc = Mpc::new(def, config.mpc).map_err(|e| e.to_string())?;
+        let weights = weight_estimator(&scenario, mode, &ts);
+        Ok(Self {
+            scenario,
+            mode,
+            mpc,
+            weights,
+            command_seq: 0,
+            measured_seq: 0,
+            cycle: 0,
+            pending_sample: None,
+            last_delay_s: f64::NAN,
+        })
+    }
+}
+
+/// The weights of `mode`: fixed 1 for the standard NMPC; for the multi-stage controller the
+/// nominal weights when the scenario has no delays, otherwise the Gamma fit of measured delays.
+pub fn weight_estimator(
+    scenario: &Scenario,
+    mode: ControllerMode,
+    sampling_times_s: &[f64],
+) -> ScenarioWeights {
+    let settings = WeightSettings {
+        window: scenario.delay_window,
+        prior: GammaParams { shape: scenario.prior_gamma.0, scale_s: scenario.prior_gamma.1 },
+        ..WeightSettings::default()
+    };
+    match mode {
+        ControllerMode::Nmpc => ScenarioWeights::new(settings, sampling_times_s, Some(&[1.0])),
+        ControllerMode::Multistage if scenario.delays == mav::DelayModel::None => {
+            ScenarioWeights::new(settings, sampling_times_s, Some(&scenario.nominal_weights))
+        }
+        ControllerMode::Multistage => ScenarioWeights::new(settings, sampling_times_s, None),
+    }
+}
+
+enum Outcome {
+    /// Reached the goal or the time limit (lockstep); wait for the next request.
+    Finished,
+    /// A new scenario was requested: start a new episode.
+    Restart,
+    Stopped,
+}
+
+#[derive(Debug, thiserror::Error)]
+enum LoopError {
+    #[error("plant: {0}")]
+    Rpc(#[from] tonic::Status),
+    #[error("connect: {0}")]
+    Connect(#[from] tonic::transport::Error),
+    #[error("{0}")]
+    Bad(String),
+}
+
+/// Runs until `stop` turns true.
+pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch::Receiver<bool>) {
+    let mut scenario = config.scenario.clone();
+    let mut mode = config.mode;
+    let mut active = config.autostart;
+    let mut episode: Option<Episode> = None;
+    let mut backoff = config.backoff_min;
+    loop {
+        if *stop.borrow() || shared.closed.load(Ordering::SeqCst) {
+            return;
+        }
+        if !active {
+            let requests = shared.take_requests();
+            if let Some((s, m)) = requests.scenario {
+                scenario = s;
+                mode = m.unwrap_or(mode);
+                episode = None;
+                active = true;
+                continue;
+            }
+            if let Some(goal) = requests.goal {
+                scenario.goal_m = goal;
+                shared.update(|st| st.goal_m = goal);
+                active = true;
+                continue;
+            }
+            tokio::select! {
+                _ = shared.wake.notified() => {}
+                _ = stop.changed() => return,
+            }
+            continue;
+        }
+        let outcome = async {
+            let channel = Endpoint::from_shared(config.plant_uri())
+                .map_err(LoopError::Connect)?
+                .connect_timeout(Duration::from_secs(2))
+                .tcp_nodelay(true)
+                .connect()
+                .await?;
+            shared.update(|st| st.plant_connected = true);
+            let mut client = PlantClient::new(channel);
+            fly(&config, &shared, &mut client, &mut scenario, &mut mode, &mut episode, &mut stop).await
+        }
+        .await;
+        match outcome {
+            Ok(Outcome::Stopped) => return,
+            Ok(Outcome::Finished) => {
+                active = false;
+                episode = None;
+                backoff = config.backoff_min;
+            }
+            Ok(Outcome::Restart) => {
+                episode = None;
+                backoff = config.backoff_min;
+            }
+            Err(e) => {
+                tracing::warn!(error = %e, retry_in_ms = backoff.as_millis() as u64, "plant link lost; retrying");
+                shared.update(|st| {
+                    st.plant_connected = false;
+                    st.last_error = e.to_string();
+                    st.reconnects += 1;
+                });
+                tokio::select! {
+                    _ = tokio::time::sleep(backoff) => {}
+                    _ = stop.changed() => return,
+                }
+                backoff = (backoff * 2).min(config.backoff_max);
+            }
+        }
+    }
+}
+
+fn state_of(sample: &pb::StateSample) -> Result<[f64; 8], LoopError> {
+    let x =
+        sample.state.as_ref().ok_or_else(|| LoopError::Bad("plant sent a sample without a state".into()))?;
+    hilbench_proto::convert::finite_array::<8>("state.x", &x.x)
+        .map_err(|e| LoopError::Bad(format!("plant sent {e}")))
+}
+
+fn applied_input(sample: &pb::StateSample, fallback: [f64; 3]) -> [f64; 3] {
+    sample
+        .last_command
+        .as_ref()
+        .and_then(|c| c.input.as_ref())
+        .map(|u| [u.thrust_mps2, u.roll_rad, u.pitch_rad])
+        .filter(|u| u.iter().all(|v| v.is_finite()))
+        .unwrap_or(fallback)
+}
+
+#[allow(clippy::too_many_arguments)]
+async fn fly(
+    config: &ControllerConfig,
+    shared: &Shared,
+    client: &mut PlantClient<Channel>,
+    scenario: &mut Scenario,
+    mode: &mut ControllerMode,
+    episode: &mut Option<Episode>,
+    stop: &mut watch::Receiver<bool>,
+) -> Result<Outcome, LoopError> {
+    let description = client.describe(pb::DescribeRequest {}).await?.into_inner();
+    let lockstep = match config.time_mode {
+        TimeModeSetting::Lockstep => true,
+        TimeModeSetting::RealTime => false,
+        TimeModeSetting::Auto => description.time_mode == pb::TimeMode::Lockstep as i32,
+    };
+    if episode.is_none() {
+        let mut ep = Episode::new(config, scenario.clone(), *mode).map_err(LoopError::Bad)?;
+        let sample = if config.reset_plant {
+            let reset = pb::ResetRequest { scenario: scenario.name.clone(), initial_state: None };
+            client.reset(reset).await?.into_inner().sample
+        } else {
+            Some(client.get_state(pb::GetStateRequest {}).await?.into_inner())
+        };
+        ep.pending_sample = sample;
+        shared.update(|st| {
+            st.scenario = scenario.name.clone();
+            st.mode = mode.name().to_string();
+            st.goal_m = scenario.goal_m;
+            st.cycles = 0;
+            st.reached = false;
+            st.sampling_times_s = ep.mpc.definition().sampling_times_s.clone();
+        });
+        tracing::info!(scenario = %scenario.name, mode = mode.name(), lockstep, "episode started");
+        *episode = Some(ep);
+    }
+    let Some(ep) = episode.as_mut() else {
+        return Err(LoopError::Bad("no episode".into()));
+    };
+    let hover = ep.scenario.model.hover_input();
+    let hover = [hover[0], hover[1], hover[2]];
+    let min_cycle = Duration::from_secs_f64(ep.scenario.min_cycle_s);
+    let min_cycle_ns = mav::s_to_ns(ep.scenario.min_cycle_s).unwrap_or(50_000_000);
+    let max_ns = mav::s_to_ns(ep.scenario.max_duration_s).unwrap_or(u64::MAX);
+    loop {
+        if *stop.borrow() || shared.closed.load(Ordering::SeqCst) {
+            return Ok(Outcome::Stopped);
+        }
+        let requests = shared.take_requests();
+        if let Some((s, m)) = requests.scenario {
+            *scenario = s;
+            *mode = m.unwrap_or(*mode);
+            return Ok(Outcome::Restart);
+        }
+        if let Some(goal) = requests.goal {
+            scenario.goal_m = goal;
+            ep.scenario.goal_m = goal;
+            let def = OcpDefinition::from_scenario(
+                &ep.scenario,
+                ep.mode,
+                config.mpc.obstacle_margin_m,
+                config.mpc.formulation,
+            );
+            ep.mpc = Mpc::new(def, config.mpc).map_err(|e| LoopError::Bad(e.to_string()))?;
+            shared.update(|st| {
+                st.goal_m = goal;
+                st.reached = false;
+            });
+        }
+        let cycle_start = Instant::now();
+        let sample = match (lockstep, ep.pending_sample.take()) {
+            (true, Some(s)) => s,
+            _ => client.get_state(pb::GetStateRequest {}).await?.into_inner(),
+        };
+        let x = state_of(&sample)?;
+        if let Some(last) = &sample.last_command {
+            if last.command_seq > ep.measured_seq && last.command_seq <= ep.command_seq && !last.initial {
+                let d_ns = last.applied_time_ns.saturating_sub(last.based_on_sample_time_ns);
+                ep.last_delay_s = mav::ns_to_s(d_ns);
+                ep.weights.observe(ep.last_delay_s);
+                ep.measured_seq = last.command_seq;
+            }
+        }
+        let state = mav::State::from(x);
+        if ep.scenario.goal_reached(&state) {
+            shared.update(|st| st.reached = true);
+            if lockstep {
+                tracing::info!(t_s = mav::ns_to_s(sample.time_ns), cycles = ep.cycle, "goal reached");
+                return Ok(Outcome::Finished);
+            }
+        }
+        if lockstep && sample.time_ns >= max_ns {
+            tracing::info!(cycles = ep.cycle, "time limit reached");
+            return Ok(Outcome::Finished);
+        }
+        let u_prev = applied_input(&sample, hover);
+        let budget = if lockstep {
+            SolveBudget::default()
+        } else {
+            SolveBudget {
+                deadline: Some(min_cycle.mul_f64(config.deadline_fraction)),
+                ..SolveBudget::default()
+            }
+        };
+        let weights = ep.weights.weights().to_vec();
+        let report: SolveReport =
+            ep.mpc.solve(&x, &u_prev, &weights, &budget).map_err(|e| LoopError::Bad(e.to_string()))?;
+        let command = sanitize_command(ep.mpc.first_input(), &ep.scenario.bounds, hover);
+        ep.command_seq += 1;
+        let pb_command = pb::Command {
+            input: Some(pb::ControlInput {
+                thrust_mps2: command[0],
+                roll_rad: command[1],
+                pitch_rad: command[2],
+            }),
+            command_seq: ep.command_seq,
+            based_on_sample_seq: sample.seq,
+            based_on_sample_time_ns: sample.time_ns,
+        };
+        client.apply_command(pb_command).await?;
+        publish(shared, ep, &sample, command, &weights, &report);
+        if lockstep {
+            let advance =
+                pb::AdvanceRequest { duration_ns: min_cycle_ns, wait_for_command_seq: ep.command_seq };
+            ep.pending_sample = client.advance(advance).await?.into_inner().sample;
+        } else {
+            let next = cycle_start + min_cycle;
+            tokio::select! {
+                _ = tokio::time::sleep_until(next.into()) => {}
+                _ = stop.changed() => return Ok(Outcome::Stopped),
+            }
+        }
+        ep.cycle += 1;
+    }
+}
+
+fn publish(
+    shared: &Shared,
+    ep: &Episode,
+    sample: &pb::StateSample,
+    command: [f64; 3],
+    weights: &[f64],
+    report: &SolveReport,
+) {
+    let stats = pb::SolveStats::from(report);
+    shared.update(|st| {
+        st.cycles = ep.cycle + 1;
+        st.weights = weights.to_vec();
+        st.last_solve = Some(stats);
+    });
+    if shared.telemetry.receiver_count() == 0 {
+        return;
+    }
+    let ts = &ep.mpc.definition().sampling_times_s;
+    let predictions = ep
+        .mpc
+        .predictions()
+        .iter()
+        .zip(ts)
+        .zip(weights)
+        .map(|((traj, &dt), &w)| pb::PredictedTrajectory {
+            sampling_time_s: dt,
+            weight: w,
+            positions_m: traj.iter().flat_map(|s| [s[0], s[1], s[2]]).collect(),
+        })
+        .collect();
+    let item = pb::CycleTelemetry {
+        cycle: ep.cycle,
+        sample: Some(sample.clone()),
+        command: Some(pb::ControlInput {
+            thrust_mps2: command[0],
+            roll_rad: command[1],
+            pitch_rad: command[2],
+        }),
+        command_seq: ep.command_seq,
+        scenario_weights: weights.to_vec(),
+        solve: Some(stats),
+        solver: pb::SolverKind::Panoc as i32,
+        predictions,
+        measured_delay_s: if ep.last_delay_s.is_finite() { ep.last_delay_s } else { 0.0 },
+    };
+    // No subscriber left is not an error.
+    let _ = shared.telemetry.send(item);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn commands_are_clipped_and_non_finite_ones_become_hover() {
+        let b = InputBounds::paper(9.81);
+        let hover = [9.81, 0.0, 0.0];
+        assert_eq!(
+            sanitize_command([30.0, -1.0, 0.05], &b, hover),
+            [19.62, -std::f64::consts::PI / 18.0, 0.05]
+        );
+        assert_eq!(sanitize_command([f64::NAN, 0.1, 0.1], &b, hover), hover);
+        assert_eq!(sanitize_command([f64::INFINITY, 0.1, 0.1], &b, hover), hover);
+    }
+}

@@ -1,0 +1,87 @@
+//! The `hilbench.v1.Controller` API: a thin shell over the control loop's shared state.
+
+use std::pin::Pin;
+use std::sync::Arc;
+
+use hilbench_proto::convert::controller::{goal_from_pb, scenario_from_pb};
+use hilbench_proto::pb;
+use hilbench_proto::pb::controller_server::Controller;
+use tokio_stream::Stream;
+use tokio_stream::StreamExt;
+use tokio_stream::wrappers::BroadcastStream;
+use tonic::{Request, Response, Status};
+
+use crate::runner::Shared;
+
+#[derive(Debug, Clone)]
+pub struct ControllerService {
+    shared: Arc<Shared>,
+}
+
+impl ControllerService {
+    pub fn new(shared: Arc<Shared>) -> Self {
+        Self { shared }
+    }
+}
+
+type TelemetryStream = Pin<Box<dyn Stream<Item = Result<pb::CycleTelemetry, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl Controller for ControllerService {
+    async fn get_status(
+        &self,
+        _: Request<pb::GetStatusRequest>,
+    ) -> Result<Response<pb::ControllerStatus>, Status> {
+        let s = self.shared.status();
+        Ok(Response::new(pb::ControllerStatus {
+            scenario: s.scenario,
+            mode: s.mode,
+            plant_connected: s.plant_connected,
+            plant_address: s.plant_address,
+            cycles: s.cycles,
+            goal_m: s.goal_m.to_vec(),
+            scenario_weights: s.weights,
+            sampling_times_s: s.sampling_times_s,
+            last_solve: s.last_solve,
+            reconnects: s.reconnects,
+            last_error: s.last_error,
+            reached: s.reached,
+        }))
+    }
+
+    type StreamTelemetryStream = TelemetryStream;
+
+    async fn stream_telemetry(
+        &self,
+        _: Request<pb::StreamTelemetryRequest>,
+    ) -> Result<Response<Self::StreamTelemetryStream>, Status> {
+        // A subscriber that falls behind loses the oldest items (and is told how many in the
+        // log); the control loop never waits for it.
+        let stream = BroadcastStream::new(self.shared.subscribe()).filter_map(|item| match item {
+            Ok(t) => Some(Ok(t)),
+            Err(tokio_stream::wrappers::errors::BroadcastStreamRecvError::Lagged(n)) => {
+                tracing::warn!(skipped = n, "telemetry subscriber lagging");
+                None
+            }
+        });
+        Ok(Response::new(Box::pin(stream)))
+    }
+
+    async fn set_goal(
+        &self,
+        request: Request<pb::SetGoalRequest>,
+    ) -> Result<Response<pb::SetGoalResponse>, Status> {
+        let goal = goal_from_pb(request.get_ref())?;
+        self.shared.request_goal(goal);
+        Ok(Response::new(pb::SetGoalResponse {}))
+    }
+
+    async fn set_scenario(
+        &self,
+        request: Request<pb::SetScenarioRequest>,
+    ) -> Result<Response<pb::SetScenarioResponse>, Status> {
+        let (scenario, mode) = scenario_from_pb(request.get_ref())?;
+        self.shared.request_scenario(scenario, mode);
+        Ok(Response::new(pb::SetScenarioResponse {}))
+    }
+}
