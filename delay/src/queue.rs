@@ -76,6 +76,11 @@ impl<T> ReleaseQueue<T> {
         out
     }
 
+    /// The held messages with their release times, in no particular order.
+    pub fn iter(&self) -> impl Iterator<Item = (u64, &T)> {
+        self.heap.iter().map(|Reverse(e)| (e.release_time_ns, &e.item))
+    }
+
     pub fn len(&self) -> usize {
         self.heap.len()
     }

@@ -161,7 +161,7 @@ impl Proxy {
     async fn up_advance(&self, duration_ns: u64) -> Result<pb::StateSample, Status> {
         let r = self
             .shared
-            .up(self.shared.client().advance(pb::AdvanceRequest { duration_ns }))
+            .up(self.shared.client().advance(pb::AdvanceRequest { duration_ns, ..Default::default() }))
             .await?
             .into_inner();
         r.sample.ok_or_else(|| Status::internal("the upstream plant answered Advance without a sample"))
@@ -173,13 +173,31 @@ impl Proxy {
 
     /// Lockstep: advances plant time by `duration_ns`, applying every held command exactly at
     /// its release time, and returns the sample the controller receives at the end.
+    ///
+    /// With `wait_for_command_seq` set (not 0) and that command still held, the call goes on
+    /// past `duration_ns` to the command's release (SPEC.md's `t_k + max(T, d_k)`); a command
+    /// already applied or lost does not extend it.
     async fn lockstep_advance(
         &self,
         duration_ns: u64,
+        wait_for_command_seq: u64,
         md: &mut MetadataMap,
     ) -> Result<pb::StateSample, Status> {
         let t0 = self.plant_time().await?;
-        let target = t0.saturating_add(duration_ns);
+        let mut target = t0.saturating_add(duration_ns);
+        if wait_for_command_seq != 0 {
+            let inner = self.shared.lock();
+            let release = inner
+                .pending
+                .iter()
+                .filter(|(_, p)| p.msg.payload_seq == wait_for_command_seq && !p.msg.duplicate)
+                .map(|(r, _)| r)
+                .max();
+            if let Some(r) = release {
+                target = target.max(r);
+            }
+        }
+        let duration_ns = target - t0;
         let draw = self.shared.lock().lines[Direction::PlantToController.index()].draw();
         let staleness = delay::secs_to_ns(draw.sampled_delay_s).min(duration_ns);
         let t_s = target - staleness;
@@ -327,9 +345,10 @@ impl Proxy {
 type SampleStream =
     Pin<Box<dyn tokio_stream::Stream<Item = Result<pb::StateSample, Status>> + Send + 'static>>;
 
-/// Size of the buffer of a controller's state stream; a controller that falls this far
-/// behind loses samples (counted as dropped, reason "controller too slow").
-const STREAM_BUFFER: usize = 4096;
+/// Size of the buffer of a controller's state stream, in samples (held in flight or waiting
+/// to be read). When it is full, netem stops reading the upstream stream until the controller
+/// catches up: backpressure, not loss.
+const STREAM_BUFFER: usize = 16_384;
 
 #[tonic::async_trait]
 impl pb::plant_server::Plant for Proxy {
@@ -385,25 +404,41 @@ impl pb::plant_server::Plant for Proxy {
                 match item {
                     Ok(Some(sample)) => {
                         shared.upstream_ok();
+                        // Backpressure: every copy gets a slot in the controller's buffer
+                        // before it is sent, so a slow reader slows the upstream down (as TCP
+                        // flow control would) instead of losing samples.
+                        let first = tokio::select! {
+                            p = tx.clone().reserve_owned() => p,
+                            () = &mut netem_closing => break,
+                        };
+                        let Ok(first) = first else { break };
                         let now = shared.clock.now_ns();
                         let d = shared.lock().decide(Direction::PlantToController, now, sample.seq);
+                        let mut first = Some(first);
                         for m in Msg::copies(&d, Direction::PlantToController, sample.seq) {
-                            let (tx, closed, sh) = (tx.clone(), closed.clone(), shared.clone());
+                            let permit = match first.take() {
+                                Some(p) => p,
+                                None => match tx.clone().reserve_owned().await {
+                                    Ok(p) => p,
+                                    Err(_) => {
+                                        shared.lock().dropped(&m, "controller gone");
+                                        continue;
+                                    }
+                                },
+                            };
+                            let (closed, sh) = (closed.clone(), shared.clone());
                             let sample = sample.clone();
                             let action = Box::new(move |e: i64| {
                                 let mut inner = sh.lock();
                                 if closed.load(AtomicOrdering::Acquire) {
                                     let reason = inner.epoch_reason.clone();
                                     inner.dropped(&m, &reason);
-                                    return;
-                                }
-                                match tx.try_send(Ok(sample)) {
-                                    Ok(()) => inner.delivered(&m, e),
-                                    Err(mpsc::error::TrySendError::Full(_)) => {
-                                        inner.dropped(&m, "controller too slow")
-                                    }
-                                    Err(mpsc::error::TrySendError::Closed(_)) => {
-                                        inner.dropped(&m, "controller gone")
+                                } else {
+                                    let tx = permit.send(Ok(sample));
+                                    if tx.is_closed() {
+                                        inner.dropped(&m, "controller gone");
+                                    } else {
+                                        inner.delivered(&m, e);
                                     }
                                 }
                             });
@@ -413,10 +448,16 @@ impl pb::plant_server::Plant for Proxy {
                         }
                     }
                     Ok(None) => {
-                        let s = Status::unavailable("the upstream plant closed the state stream");
-                        closed.store(true, AtomicOrdering::Release);
-                        shared.upstream_lost(&s);
-                        let _ = tx.send(Err(s)).await;
+                        // A clean end: the samples already sent are still on their way; the
+                        // controller learns of the end after the last of them.
+                        let last =
+                            shared.lock().lines[Direction::PlantToController.index()].last_release_ns();
+                        let Ok(permit) = tx.clone().reserve_owned().await else { break };
+                        let end = Box::new(move |_e: i64| {
+                            permit
+                                .send(Err(Status::unavailable("the upstream plant closed the state stream")));
+                        });
+                        let _ = shared.releaser.schedule(last.unwrap_or(0), end);
                         break;
                     }
                     Err(s) => {
@@ -474,13 +515,13 @@ impl pb::plant_server::Plant for Proxy {
     ) -> Result<Response<pb::AdvanceResponse>, Status> {
         let req = request.into_inner();
         let mode = self.shared.mode().await?;
-        if mode == Mode::RealTime || req.duration_ns == 0 {
+        if mode == Mode::RealTime || (req.duration_ns == 0 && req.wait_for_command_seq == 0) {
             // Let the plant answer what it does with it (it refuses both).
             return self.shared.up(self.shared.client().advance(req)).await;
         }
         let _guard = self.shared.lockstep.lock().await;
         let mut md = MetadataMap::new();
-        let sample = self.lockstep_advance(req.duration_ns, &mut md).await?;
+        let sample = self.lockstep_advance(req.duration_ns, req.wait_for_command_seq, &mut md).await?;
         Ok(respond(pb::AdvanceResponse { sample: Some(sample) }, md, mode))
     }
 
@@ -497,8 +538,8 @@ impl pb::plant_server::Plant for Proxy {
                 if let Some(c) = req.command {
                     self.lockstep_command(c, &mut md).await?;
                 }
-                if req.duration_ns > 0 {
-                    self.lockstep_advance(req.duration_ns, &mut md).await?
+                if req.duration_ns > 0 || req.wait_for_command_seq != 0 {
+                    self.lockstep_advance(req.duration_ns, req.wait_for_command_seq, &mut md).await?
                 } else {
                     let s = self.up_state().await?;
                     self.shared.lock().plant_time_ns = Some(s.time_ns);

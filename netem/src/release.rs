@@ -4,7 +4,8 @@
 //! A thread rather than a tokio timer: tokio's timer wheel has a 1 ms resolution, which alone
 //! would eat the whole 1 ms release-error budget. The thread sleeps in a channel receive with
 //! a timeout (futex, tens of microseconds of slack) until shortly before the next release, and
-//! yields in a loop for the last [`SPIN_NS`].
+//! yields in a loop for the last [`SPIN_NS`]. On Linux it asks for a higher priority
+//! ([`RELEASE_THREAD_NICE`]) so that it is not kept waiting behind busy threads.
 
 use std::sync::mpsc;
 
@@ -43,7 +44,20 @@ impl Releaser {
     }
 }
 
+/// Nice value asked for the release thread (Linux; needs the privilege to lower it, and is
+/// skipped with a debug log without it): a woken release thread then preempts busy threads.
+pub const RELEASE_THREAD_NICE: i32 = -10;
+
+fn raise_priority() {
+    #[cfg(target_os = "linux")]
+    match rustix::process::setpriority_process(Some(rustix::thread::gettid()), RELEASE_THREAD_NICE) {
+        Ok(()) => tracing::debug!(nice = RELEASE_THREAD_NICE, "release thread priority raised"),
+        Err(e) => tracing::debug!("release thread keeps its priority: {e}"),
+    }
+}
+
 fn run(clock: Clock, rx: mpsc::Receiver<Job>) {
+    raise_priority();
     let mut queue: ReleaseQueue<Action> = ReleaseQueue::new();
     loop {
         while let Some((due, action)) = queue.pop_due(clock.now_ns()) {

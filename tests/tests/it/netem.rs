@@ -138,7 +138,11 @@ async fn lockstep_run(
     let mut stamps = Vec::new();
     for k in 1..=cycles {
         let r = client
-            .step(pb::StepRequest { command: Some(command(k, &last)), duration_ns: 50_000_000 })
+            .step(pb::StepRequest {
+                command: Some(command(k, &last)),
+                duration_ns: 50_000_000,
+                ..Default::default()
+            })
             .await
             .expect("step through netem");
         let md = r.metadata().clone();
@@ -334,8 +338,11 @@ async fn profiles_change_at_run_time_and_invalid_ones_are_refused_keeping_the_ol
     assert_eq!(p, constant(0.03), "the running profile is unchanged");
 
     // The command in flight arrives at its release time.
-    let s =
-        client.advance(pb::AdvanceRequest { duration_ns: 40_000_000 }).await.expect("advance").into_inner();
+    let s = client
+        .advance(pb::AdvanceRequest { duration_ns: 40_000_000, ..Default::default() })
+        .await
+        .expect("advance")
+        .into_inner();
     let lc = s.sample.expect("sample").last_command.expect("last command");
     assert_eq!((lc.command_seq, lc.applied_time_ns), (1, 30_000_000));
     let stats = control.get_stats(pb::GetStatsRequest {}).await.expect("stats").into_inner();
@@ -343,6 +350,22 @@ async fn profiles_change_at_run_time_and_invalid_ones_are_refused_keeping_the_ol
     assert_eq!((c.sent, c.delivered, c.dropped, c.in_flight), (1, 1, 0, 0));
     assert_eq!(c.delay_max_s, 0.03);
     assert_eq!(stats.time_mode, pb::TimeMode::Lockstep as i32);
+
+    // wait_for_command_seq: the step goes on to the command's release (t + max(T, d)).
+    let now = s_time(&mut client).await;
+    let r = client
+        .step(pb::StepRequest {
+            command: Some(command(5, &start)),
+            duration_ns: 10_000_000,
+            wait_for_command_seq: 5,
+        })
+        .await
+        .expect("step waiting for its command")
+        .into_inner();
+    let s = r.sample.expect("sample");
+    assert_eq!(s.time_ns, now + 30_000_000, "advanced past 10 ms to the release at +30 ms");
+    let lc = s.last_command.expect("last command");
+    assert_eq!((lc.command_seq, lc.applied_time_ns), (5, now + 30_000_000));
 
     // A preset for both directions at run time.
     let both = pb::SetProfileRequest { direction: 0, profile: None, preset: "paper-split".into() };
@@ -354,6 +377,10 @@ async fn profiles_change_at_run_time_and_invalid_ones_are_refused_keeping_the_ol
     assert_eq!(p, want);
     netem.stop().await;
     plant.stop().await.expect("plant stops");
+}
+
+async fn s_time(client: &mut PlantClient<Channel>) -> u64 {
+    client.get_state(pb::GetStateRequest {}).await.expect("get state").into_inner().time_ns
 }
 
 /// Serves a lockstep plant on `addr` (a fixed port, so it can come back at the same address).
@@ -408,8 +435,10 @@ async fn upstream_loss_gives_unavailable_drops_in_flight_with_a_reason_then_reco
     // The plant goes away with the command in flight.
     let _ = stop_plant.send(());
     tokio::time::timeout(PATIENCE, plant_task).await.expect("plant stops").expect("plant task");
-    let err =
-        client.advance(pb::AdvanceRequest { duration_ns: 200_000_000 }).await.expect_err("plant is gone");
+    let err = client
+        .advance(pb::AdvanceRequest { duration_ns: 200_000_000, ..Default::default() })
+        .await
+        .expect_err("plant is gone");
     assert_eq!(err.code(), Code::Unavailable, "{err:?}");
     let stats = control.get_stats(pb::GetStatsRequest {}).await.expect("stats").into_inner();
     assert!(!stats.upstream_connected);
@@ -439,8 +468,11 @@ async fn upstream_loss_gives_unavailable_drops_in_flight_with_a_reason_then_reco
     };
     let start = reset.sample.expect("sample");
     client.apply_command(command(3, &start)).await.expect("apply after recovery");
-    let s =
-        client.advance(pb::AdvanceRequest { duration_ns: 150_000_000 }).await.expect("advance").into_inner();
+    let s = client
+        .advance(pb::AdvanceRequest { duration_ns: 150_000_000, ..Default::default() })
+        .await
+        .expect("advance")
+        .into_inner();
     let lc = s.sample.expect("sample").last_command.expect("lc");
     assert_eq!((lc.command_seq, lc.applied_time_ns), (3, 100_000_000));
     let stats = control.get_stats(pb::GetStatsRequest {}).await.expect("stats").into_inner();

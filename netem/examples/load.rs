@@ -1,0 +1,316 @@
+//! Load benchmarks of netem on loopback (recorded in BENCHMARKS.md). Run in release:
+//!
+//! ```text
+//! cargo run --release -p netem --example load -- throughput --messages 200000
+//! cargo run --release -p netem --example load -- commands --messages 20000
+//! cargo run --release -p netem --example load -- real-time --seconds 60 --rate-hz 1000 --delay-ms 20
+//! ```
+//!
+//! The upstream is a minimal in-process Plant ("echo plant") that answers at once and streams
+//! samples as fast as asked, so the numbers measure netem and gRPC, not the MAV simulation.
+//! Nothing here asserts timings; the program prints what it measured and exits non-zero only
+//! if a message was lost.
+
+use std::pin::Pin;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use clap::{Parser, Subcommand};
+use delay::{DirectionProfile, Distribution};
+use hilbench_proto::pb;
+use hilbench_proto::pb::netem_control_client::NetemControlClient;
+use hilbench_proto::pb::plant_client::PlantClient;
+use tokio::sync::{mpsc, oneshot};
+use tokio_stream::StreamExt;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::transport::{Channel, Server};
+use tonic::{Request, Response, Status};
+
+#[derive(Debug, Parser)]
+struct Args {
+    #[command(subcommand)]
+    bench: Bench,
+}
+
+#[derive(Debug, Subcommand)]
+enum Bench {
+    /// State samples streamed through netem as fast as they go (zero delay).
+    Throughput {
+        #[arg(long, default_value_t = 200_000)]
+        messages: u64,
+    },
+    /// Commands (unary ApplyCommand, zero delay, FIFO) from concurrent controllers.
+    Commands {
+        #[arg(long, default_value_t = 20_000)]
+        messages: u64,
+        #[arg(long, default_value_t = 8)]
+        clients: u64,
+    },
+    /// Samples streamed and commands sent at a fixed rate with a constant delay both ways.
+    RealTime {
+        #[arg(long, default_value_t = 60.0)]
+        seconds: f64,
+        #[arg(long, default_value_t = 1000.0)]
+        rate_hz: f64,
+        #[arg(long, default_value_t = 20.0)]
+        delay_ms: f64,
+    },
+}
+
+/// The echo plant: real-time, answers at once, streams `period_ns`-spaced samples (or as
+/// fast as the reader takes them when the period is 0), `limit` samples per stream.
+#[derive(Clone)]
+struct EchoPlant {
+    limit: Arc<AtomicU64>,
+    applied: Arc<AtomicU64>,
+}
+
+fn sample(seq: u64) -> pb::StateSample {
+    pb::StateSample {
+        seq,
+        time_ns: seq,
+        state: Some(pb::MavState { x: vec![0.0; 8] }),
+        last_command: Some(pb::AppliedCommand::default()),
+        ..Default::default()
+    }
+}
+
+type Samples = Pin<Box<dyn tokio_stream::Stream<Item = Result<pb::StateSample, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl pb::plant_server::Plant for EchoPlant {
+    async fn reset(&self, _r: Request<pb::ResetRequest>) -> Result<Response<pb::ResetResponse>, Status> {
+        Ok(Response::new(pb::ResetResponse { description: None, sample: Some(sample(0)) }))
+    }
+    type StreamStateStream = Samples;
+    async fn stream_state(&self, r: Request<pb::StreamStateRequest>) -> Result<Response<Samples>, Status> {
+        let period = r.into_inner().period_ns;
+        let limit = self.limit.load(AtomicOrdering::Relaxed);
+        let (tx, rx) = mpsc::channel(1024);
+        tokio::spawn(async move {
+            let mut tick = (period > 0).then(|| tokio::time::interval(Duration::from_nanos(period)));
+            for seq in 0..limit {
+                if let Some(t) = &mut tick {
+                    t.tick().await;
+                }
+                if tx.send(Ok(sample(seq))).await.is_err() {
+                    return;
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+    async fn get_state(&self, _r: Request<pb::GetStateRequest>) -> Result<Response<pb::StateSample>, Status> {
+        Ok(Response::new(sample(0)))
+    }
+    async fn apply_command(
+        &self,
+        r: Request<pb::Command>,
+    ) -> Result<Response<pb::ApplyCommandResponse>, Status> {
+        self.applied.fetch_add(1, AtomicOrdering::Relaxed);
+        let c = r.into_inner();
+        Ok(Response::new(pb::ApplyCommandResponse {
+            applied: Some(pb::AppliedCommand {
+                input: c.input,
+                command_seq: c.command_seq,
+                ..Default::default()
+            }),
+        }))
+    }
+    async fn advance(
+        &self,
+        _r: Request<pb::AdvanceRequest>,
+    ) -> Result<Response<pb::AdvanceResponse>, Status> {
+        Err(Status::failed_precondition("real time"))
+    }
+    async fn step(&self, _r: Request<pb::StepRequest>) -> Result<Response<pb::AdvanceResponse>, Status> {
+        Err(Status::failed_precondition("real time"))
+    }
+    async fn describe(
+        &self,
+        _r: Request<pb::DescribeRequest>,
+    ) -> Result<Response<pb::PlantDescription>, Status> {
+        Ok(Response::new(pb::PlantDescription {
+            time_mode: pb::TimeMode::RealTime as i32,
+            implementation: "netem load echo plant".into(),
+            ..Default::default()
+        }))
+    }
+}
+
+struct Rig {
+    plant: EchoPlant,
+    netem: Channel,
+    stops: Vec<oneshot::Sender<()>>,
+}
+
+async fn rig(delay_s: f64, limit: u64) -> anyhow::Result<Rig> {
+    let plant = EchoPlant { limit: Arc::new(AtomicU64::new(limit)), applied: Arc::new(AtomicU64::new(0)) };
+    let pl = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+    let plant_addr = pl.local_addr()?;
+    let (stop_p, stopped_p) = oneshot::channel::<()>();
+    let svc = pb::plant_server::PlantServer::new(plant.clone());
+    tokio::spawn(async move {
+        let incoming = tonic::transport::server::TcpIncoming::from(pl).with_nodelay(Some(true));
+        let _ = Server::builder()
+            .add_service(svc)
+            .serve_with_incoming_shutdown(incoming, async {
+                let _ = stopped_p.await;
+            })
+            .await;
+    });
+    let mut config = netem::Config::new(plant_addr.to_string());
+    config.time_mode = netem::TimeModeSetting::RealTime;
+    let profile = DirectionProfile::with_delay(Distribution::Constant { delay_s }, 42);
+    config.plant_to_controller = profile.clone();
+    config.controller_to_plant = profile;
+    let nl = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+    let netem_addr = nl.local_addr()?;
+    let (stop_n, stopped_n) = oneshot::channel::<()>();
+    tokio::spawn(async move {
+        if let Err(e) = netem::serve(nl, config, async {
+            let _ = stopped_n.await;
+        })
+        .await
+        {
+            eprintln!("netem failed: {e}");
+        }
+    });
+    let netem = Channel::from_shared(format!("http://{netem_addr}"))?.tcp_nodelay(true).connect().await?;
+    Ok(Rig { plant, netem, stops: vec![stop_n, stop_p] })
+}
+
+async fn stats(ch: &Channel) -> anyhow::Result<pb::NetemStats> {
+    Ok(NetemControlClient::new(ch.clone()).get_stats(pb::GetStatsRequest {}).await?.into_inner())
+}
+
+fn print_dir(name: &str, d: &pb::DirectionStats) {
+    println!(
+        "  {name}: sent {} delivered {} dropped {} in flight {} | delay p50 {:.3} ms p99 {:.3} ms max {:.3} ms | release error p99 {:.1} us max {:.1} us",
+        d.sent,
+        d.delivered,
+        d.dropped,
+        d.in_flight,
+        d.delay_p50_s * 1e3,
+        d.delay_p99_s * 1e3,
+        d.delay_max_s * 1e3,
+        d.release_error_p99_s * 1e6,
+        d.release_error_max_s * 1e6
+    );
+}
+
+fn command(seq: u64) -> pb::Command {
+    pb::Command {
+        input: Some(pb::ControlInput { thrust_mps2: 9.81, roll_rad: 0.0, pitch_rad: 0.0 }),
+        command_seq: seq,
+        ..Default::default()
+    }
+}
+
+#[tokio::main]
+async fn main() -> anyhow::Result<()> {
+    let args = Args::parse();
+    match args.bench {
+        Bench::Throughput { messages } => {
+            let rig = rig(0.0, messages).await?;
+            let mut client = PlantClient::new(rig.netem.clone());
+            let t0 = Instant::now();
+            let mut s = client.stream_state(pb::StreamStateRequest { period_ns: 0 }).await?.into_inner();
+            let mut got = 0u64;
+            while got < messages {
+                match tokio::time::timeout(Duration::from_secs(10), s.next()).await {
+                    Ok(Some(Ok(_))) => got += 1,
+                    other => bail!("stream stopped after {got} samples: {other:?}"),
+                }
+            }
+            let dt = t0.elapsed().as_secs_f64();
+            let st = stats(&rig.netem).await?;
+            println!("throughput: {got} samples through netem in {dt:.3} s = {:.0} msg/s", got as f64 / dt);
+            let p = st.plant_to_controller.context("stats")?;
+            print_dir("plant->controller", &p);
+            if p.dropped != 0 || p.delivered != messages {
+                bail!("lost messages");
+            }
+            drop(rig.stops);
+        }
+        Bench::Commands { messages, clients } => {
+            let rig = rig(0.0, 0).await?;
+            let per = messages / clients;
+            let t0 = Instant::now();
+            let mut tasks = Vec::new();
+            for c in 0..clients {
+                let ch = rig.netem.clone();
+                tasks.push(tokio::spawn(async move {
+                    let mut client = PlantClient::new(ch);
+                    for k in 0..per {
+                        client.apply_command(command(c * per + k)).await?;
+                    }
+                    anyhow::Ok(())
+                }));
+            }
+            for t in tasks {
+                t.await??;
+            }
+            let dt = t0.elapsed().as_secs_f64();
+            let n = per * clients;
+            let st = stats(&rig.netem).await?;
+            println!(
+                "commands: {n} ApplyCommand through netem ({clients} clients) in {dt:.3} s = {:.0} msg/s",
+                n as f64 / dt
+            );
+            let c = st.controller_to_plant.context("stats")?;
+            print_dir("controller->plant", &c);
+            let applied = rig.plant.applied.load(AtomicOrdering::Relaxed);
+            println!("  applied by the plant: {applied}");
+            if c.dropped != 0 || applied != n {
+                bail!("lost messages");
+            }
+            drop(rig.stops);
+        }
+        Bench::RealTime { seconds, rate_hz, delay_ms } => {
+            let n = (seconds * rate_hz).round() as u64;
+            let period = Duration::from_secs_f64(1.0 / rate_hz);
+            let rig = rig(delay_ms / 1e3, n).await?;
+            let mut client = PlantClient::new(rig.netem.clone());
+            let mut s = client
+                .stream_state(pb::StreamStateRequest { period_ns: period.as_nanos() as u64 })
+                .await?
+                .into_inner();
+            let reader = tokio::spawn(async move {
+                let mut got = 0u64;
+                while got < n {
+                    match tokio::time::timeout(Duration::from_secs(10), s.next()).await {
+                        Ok(Some(Ok(_))) => got += 1,
+                        _ => break,
+                    }
+                }
+                got
+            });
+            let mut tick = tokio::time::interval(period);
+            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
+            for k in 0..n {
+                tick.tick().await;
+                client.apply_command(command(k)).await?;
+            }
+            let got = reader.await?;
+            tokio::time::sleep(Duration::from_millis((delay_ms * 3.0) as u64 + 100)).await;
+            let st = stats(&rig.netem).await?;
+            println!(
+                "real time: {seconds} s at {rate_hz} Hz, constant {delay_ms} ms each way; samples received {got}/{n}"
+            );
+            let p = st.plant_to_controller.context("stats")?;
+            let c = st.controller_to_plant.context("stats")?;
+            print_dir("plant->controller", &p);
+            print_dir("controller->plant", &c);
+            let applied = rig.plant.applied.load(AtomicOrdering::Relaxed);
+            println!("  commands applied by the plant: {applied}/{n}");
+            if got != n || applied != n || p.dropped + c.dropped != 0 {
+                bail!("lost messages");
+            }
+            drop(rig.stops);
+        }
+    }
+    Ok(())
+}
