@@ -46,7 +46,8 @@ fn roundtrip(c: &mut Criterion) {
     group.bench_function("step_apply_advance_1ms_read", |b| {
         b.iter(|| {
             seq += 1;
-            let req = pb::StepRequest { command: Some(command(seq)), duration_ns: 1_000_000 };
+            let req =
+                pb::StepRequest { command: Some(command(seq)), duration_ns: 1_000_000, ..Default::default() };
             let r = rt.block_on(client.step(req)).expect("step");
             black_box(r.into_inner());
         })
@@ -56,7 +57,10 @@ fn roundtrip(c: &mut Criterion) {
             seq += 1;
             rt.block_on(async {
                 client.apply_command(command(seq)).await.expect("apply");
-                client.advance(pb::AdvanceRequest { duration_ns: 1_000_000 }).await.expect("advance");
+                client
+                    .advance(pb::AdvanceRequest { duration_ns: 1_000_000, ..Default::default() })
+                    .await
+                    .expect("advance");
                 black_box(client.get_state(pb::GetStateRequest {}).await.expect("state").into_inner());
             })
         })

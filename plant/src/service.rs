@@ -356,6 +356,8 @@ impl pb::plant_server::Plant for PlantService {
         Ok(Response::new(pb::ApplyCommandResponse { applied: Some(applied) }))
     }
 
+    // `wait_for_command_seq` of Advance/Step is already satisfied here: the plant applies every
+    // command on arrival, so no command is ever pending (it matters to a delaying proxy).
     async fn advance(
         &self,
         request: Request<pb::AdvanceRequest>,
@@ -418,12 +420,12 @@ mod tests {
         assert_eq!(applied.applied.map(|a| a.applied_time_ns), Some(2_800_000));
         // Advance is refused, a zero-duration Step (apply and read) is served.
         let err = svc
-            .advance(Request::new(pb::AdvanceRequest { duration_ns: 1_000_000 }))
+            .advance(Request::new(pb::AdvanceRequest { duration_ns: 1_000_000, ..Default::default() }))
             .await
             .expect_err("refused");
         assert_eq!(err.code(), tonic::Code::FailedPrecondition);
         let read = svc
-            .step(Request::new(pb::StepRequest { command: None, duration_ns: 0 }))
+            .step(Request::new(pb::StepRequest { command: None, duration_ns: 0, ..Default::default() }))
             .await
             .expect("ok")
             .into_inner();
@@ -459,7 +461,10 @@ mod tests {
             .await
             .expect("ok")
             .into_inner();
-        let r = svc.advance(Request::new(pb::AdvanceRequest { duration_ns: 6_000_000 })).await.expect("ok");
+        let r = svc
+            .advance(Request::new(pb::AdvanceRequest { duration_ns: 6_000_000, ..Default::default() }))
+            .await
+            .expect("ok");
         let last = r.into_inner().sample.expect("sample");
         svc.close();
         use tokio_stream::StreamExt;
@@ -488,14 +493,19 @@ mod tests {
             .await
             .expect("ok")
             .into_inner();
-        let r = svc.advance(Request::new(pb::AdvanceRequest { duration_ns: 50_000_000 })).await.expect("ok");
+        let r = svc
+            .advance(Request::new(pb::AdvanceRequest { duration_ns: 50_000_000, ..Default::default() }))
+            .await
+            .expect("ok");
         assert_eq!(r.into_inner().sample.map(|s| s.time_ns), Some(50_000_000));
         use tokio_stream::StreamExt;
         let first = stream.next().await.and_then(Result::ok).map(|s| s.time_ns);
         let second = stream.next().await.and_then(Result::ok).map(|s| s.time_ns);
         assert_eq!((first, second), (Some(0), Some(1_000_000)));
         // The queue has room again: the next step is delivered, with a gap in seq.
-        svc.advance(Request::new(pb::AdvanceRequest { duration_ns: 1_000_000 })).await.expect("ok");
+        svc.advance(Request::new(pb::AdvanceRequest { duration_ns: 1_000_000, ..Default::default() }))
+            .await
+            .expect("ok");
         let third = stream.next().await.and_then(Result::ok).expect("sample");
         assert_eq!(third.time_ns, 51_000_000);
         assert!(third.seq > 2);

@@ -523,14 +523,29 @@ mod tests {
 
     #[test]
     fn durations_must_be_positive_and_bounded() {
-        assert_eq!(field(advance_duration_ns(&pb::AdvanceRequest { duration_ns: 0 })), "duration_ns");
-        assert_eq!(field(advance_duration_ns(&pb::AdvanceRequest { duration_ns: u64::MAX })), "duration_ns");
-        assert_eq!(advance_duration_ns(&pb::AdvanceRequest { duration_ns: 1_000_000 }), Ok(1_000_000));
-        let step = Step::try_from(&pb::StepRequest { command: None, duration_ns: 0 }).expect("valid");
+        assert_eq!(
+            field(advance_duration_ns(&pb::AdvanceRequest { duration_ns: 0, ..Default::default() })),
+            "duration_ns"
+        );
+        assert_eq!(
+            field(advance_duration_ns(&pb::AdvanceRequest { duration_ns: u64::MAX, ..Default::default() })),
+            "duration_ns"
+        );
+        assert_eq!(
+            advance_duration_ns(&pb::AdvanceRequest { duration_ns: 1_000_000, ..Default::default() }),
+            Ok(1_000_000)
+        );
+        let step = Step::try_from(&pb::StepRequest { command: None, duration_ns: 0, ..Default::default() })
+            .expect("valid");
         assert_eq!(step, Step { command: None, duration_ns: 0 });
-        let bad = pb::StepRequest { command: Some(cmd(9.81, f64::NAN, 0.0)), duration_ns: 1 };
+        let bad =
+            pb::StepRequest { command: Some(cmd(9.81, f64::NAN, 0.0)), duration_ns: 1, ..Default::default() };
         assert_eq!(field(Step::try_from(&bad)), "command.input.roll_rad");
-        let bad = pb::StepRequest { command: Some(cmd(9.81, 0.0, 0.0)), duration_ns: MAX_ADVANCE_NS + 1 };
+        let bad = pb::StepRequest {
+            command: Some(cmd(9.81, 0.0, 0.0)),
+            duration_ns: MAX_ADVANCE_NS + 1,
+            ..Default::default()
+        };
         assert_eq!(field(Step::try_from(&bad)), "duration_ns");
         assert_eq!(
             StreamState::try_from(&pb::StreamStateRequest { period_ns: 0 }),

@@ -124,7 +124,11 @@ async fn lockstep_over_grpc_is_bit_identical_to_the_in_process_simulation() {
         // Alternate between the one-call Step and ApplyCommand + Advance.
         last = if i % 2 == 0 {
             let r = client
-                .step(pb::StepRequest { command: Some(command(u, seq, &last)), duration_ns })
+                .step(pb::StepRequest {
+                    command: Some(command(u, seq, &last)),
+                    duration_ns,
+                    ..Default::default()
+                })
                 .await
                 .expect("step");
             r.into_inner().sample.expect("sample")
@@ -132,7 +136,10 @@ async fn lockstep_over_grpc_is_bit_identical_to_the_in_process_simulation() {
             let applied = client.apply_command(command(u, seq, &last)).await.expect("apply").into_inner();
             let applied = applied.applied.expect("applied");
             assert_eq!(applied.saturated, u[0] > 19.62 || u[1].abs() > std::f64::consts::PI / 18.0);
-            let r = client.advance(pb::AdvanceRequest { duration_ns }).await.expect("advance");
+            let r = client
+                .advance(pb::AdvanceRequest { duration_ns, ..Default::default() })
+                .await
+                .expect("advance");
             r.into_inner().sample.expect("sample")
         };
         assert_eq!(last.time_ns, sim.time_ns());
@@ -220,11 +227,21 @@ async fn bad_input_is_invalid_argument_naming_the_field_while_the_stream_keeps_g
                 .await,
             "initial_state.x[6]",
         );
-        assert_invalid(client.advance(pb::AdvanceRequest { duration_ns: 0 }).await, "duration_ns");
-        assert_invalid(client.advance(pb::AdvanceRequest { duration_ns: u64::MAX }).await, "duration_ns");
+        assert_invalid(
+            client.advance(pb::AdvanceRequest { duration_ns: 0, ..Default::default() }).await,
+            "duration_ns",
+        );
+        assert_invalid(
+            client.advance(pb::AdvanceRequest { duration_ns: u64::MAX, ..Default::default() }).await,
+            "duration_ns",
+        );
         assert_invalid(
             client
-                .step(pb::StepRequest { command: Some(nan(9.81, f64::NAN, 0.0)), duration_ns: 1_000_000 })
+                .step(pb::StepRequest {
+                    command: Some(nan(9.81, f64::NAN, 0.0)),
+                    duration_ns: 1_000_000,
+                    ..Default::default()
+                })
                 .await,
             "command.input.roll_rad",
         );
@@ -236,7 +253,10 @@ async fn bad_input_is_invalid_argument_naming_the_field_while_the_stream_keeps_g
         assert_eq!(before.last_command.as_ref().map(|c| c.command_seq), Some(1));
 
         // ... and the plant keeps serving: time moves, and the open stream delivers each step.
-        let r = client.advance(pb::AdvanceRequest { duration_ns: 3_000_000 }).await.expect("advance");
+        let r = client
+            .advance(pb::AdvanceRequest { duration_ns: 3_000_000, ..Default::default() })
+            .await
+            .expect("advance");
         sim.advance(3_000_000, |_| {});
         let after = r.into_inner().sample.expect("sample");
         assert_eq!(after.time_ns, (round + 1) * 3_000_000);
@@ -261,7 +281,10 @@ async fn bad_input_is_invalid_argument_naming_the_field_while_the_stream_keeps_g
 async fn reset_to_a_custom_start_restarts_time_and_numbering() {
     let server = start_plant(PlantConfig::default()).await;
     let mut client = server.client().await;
-    client.advance(pb::AdvanceRequest { duration_ns: 5_000_000 }).await.expect("advance");
+    client
+        .advance(pb::AdvanceRequest { duration_ns: 5_000_000, ..Default::default() })
+        .await
+        .expect("advance");
     let start = [1.0, 2.0, 3.0, 0.5, -0.5, 0.0, 0.1, -0.1];
     let r = client
         .reset(pb::ResetRequest {
@@ -313,11 +336,18 @@ async fn real_time_plant_runs_on_its_own_refuses_advance_and_holds_hover_after_t
     let t1 = next_sample(&mut stream).await.time_ns;
     assert!(t1 > t0, "{t1} > {t0}");
 
-    let err = client.advance(pb::AdvanceRequest { duration_ns: 1_000_000 }).await.expect_err("refused");
+    let err = client
+        .advance(pb::AdvanceRequest { duration_ns: 1_000_000, ..Default::default() })
+        .await
+        .expect_err("refused");
     assert_eq!(err.code(), Code::FailedPrecondition);
     let base = get_state(&mut client).await;
     let err = client
-        .step(pb::StepRequest { command: Some(command([12.0, 0.0, 0.0], 1, &base)), duration_ns: 1_000_000 })
+        .step(pb::StepRequest {
+            command: Some(command([12.0, 0.0, 0.0], 1, &base)),
+            duration_ns: 1_000_000,
+            ..Default::default()
+        })
         .await
         .expect_err("refused");
     assert_eq!(err.code(), Code::FailedPrecondition);
@@ -326,7 +356,11 @@ async fn real_time_plant_runs_on_its_own_refuses_advance_and_holds_hover_after_t
 
     // A command (climb) applied now, then silence: the watchdog takes over with hover.
     let applied = client
-        .step(pb::StepRequest { command: Some(command([12.0, 0.0, 0.0], 2, &base)), duration_ns: 0 })
+        .step(pb::StepRequest {
+            command: Some(command([12.0, 0.0, 0.0], 2, &base)),
+            duration_ns: 0,
+            ..Default::default()
+        })
         .await
         .expect("apply and read")
         .into_inner()
