@@ -4,9 +4,6 @@
 //! after the cycle.
 
 use mav::{CommandMeta, DelayModel, Input, PlantSim, Scenario, SimSettings, State, s_to_ns};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-use rand_distr::Distribution;
 
 use crate::delays::{GammaParams, ScenarioWeights, WeightSettings};
 use crate::problem::{ControllerMode, OcpDefinition};
@@ -17,7 +14,7 @@ use crate::solver::{Mpc, MpcError, MpcSettings, SolveBudget, SolveReport, SolveS
 pub enum DelaySource {
     /// `d_k = 0`.
     None,
-    /// `d_k ~ Gamma(shape, scale_s)` from a ChaCha8 generator seeded with `seed`.
+    /// `d_k ~ Gamma(shape, scale_s)`, drawn by `delay::DelayLine` seeded with `seed`.
     Gamma { shape: f64, scale_s: f64, seed: u64 },
     /// A recorded trace, replayed in order and looped.
     Trace(Vec<f64>),
@@ -34,48 +31,26 @@ impl DelaySource {
         }
     }
 
-    fn sampler(&self) -> Result<DelaySampler, MpcError> {
-        Ok(match self {
-            DelaySource::None => DelaySampler::None,
-            DelaySource::Gamma { shape, scale_s, seed } => DelaySampler::Gamma(
-                rand_distr::Gamma::new(*shape, *scale_s)
-                    .map_err(|e| MpcError::InvalidInput { field: "delays".into(), reason: e.to_string() })?,
-                ChaCha8Rng::seed_from_u64(*seed),
-            ),
-            DelaySource::Trace(trace) => {
-                if trace.is_empty() || trace.iter().any(|d| !(d.is_finite() && *d >= 0.0)) {
-                    return Err(MpcError::InvalidInput {
-                        field: "delays.trace".into(),
-                        reason: "must be non-empty, finite and >= 0".into(),
-                    });
-                }
-                DelaySampler::Trace(trace.clone(), 0)
+    /// The command-direction delay line netem's lockstep uses for the same profile and seed,
+    /// so that an in-process run and a run through netem draw the same `d_k`, bit for bit.
+    fn delay_line(&self) -> Result<Option<delay::DelayLine>, MpcError> {
+        let (distribution, seed) = match self {
+            DelaySource::None => return Ok(None),
+            DelaySource::Gamma { shape, scale_s, seed } => {
+                (delay::Distribution::Gamma { shape: *shape, scale_s: *scale_s }, *seed)
             }
-        })
+            DelaySource::Trace(trace) => {
+                (delay::Distribution::Trace { delays_s: trace.clone().into(), looping: true }, 0)
+            }
+        };
+        let profile = delay::DirectionProfile::with_delay(distribution, seed);
+        delay::DelayLine::new(delay::Direction::ControllerToPlant, profile)
+            .map(Some)
+            .map_err(|e| MpcError::InvalidInput { field: format!("delays.{}", e.field), reason: e.reason })
     }
 
     pub fn has_delays(&self) -> bool {
         !matches!(self, DelaySource::None)
-    }
-}
-
-enum DelaySampler {
-    None,
-    Gamma(rand_distr::Gamma<f64>, ChaCha8Rng),
-    Trace(Vec<f64>, usize),
-}
-
-impl DelaySampler {
-    fn next_s(&mut self) -> f64 {
-        match self {
-            DelaySampler::None => 0.0,
-            DelaySampler::Gamma(g, rng) => g.sample(rng),
-            DelaySampler::Trace(t, k) => {
-                let d = t[*k % t.len()];
-                *k += 1;
-                d
-            }
-        }
     }
 }
 
@@ -181,7 +156,7 @@ pub fn run_closed_loop(
 ) -> Result<(RunSummary, Vec<CycleRecord>), MpcError> {
     scenario.validate().map_err(|e| MpcError::InvalidProblem(e.to_string()))?;
     let delays = settings.delays.clone().unwrap_or_else(|| DelaySource::of_scenario(scenario));
-    let mut sampler = delays.sampler()?;
+    let mut delay_line = delays.delay_line()?;
     let def = OcpDefinition::from_scenario(
         scenario,
         settings.mode,
@@ -231,9 +206,16 @@ pub fn run_closed_loop(
         } else {
             Vec::new()
         };
-        let delay_s = sampler.next_s();
-        let delay_ns = s_to_ns(delay_s).unwrap_or(0);
         let sample = sim.sample();
+        let delay_ns = match delay_line.as_mut().map(|line| line.send(sample.time_ns).fate) {
+            None => 0,
+            Some(delay::Fate::Delivered { original, .. }) => original.delay_ns,
+            // A loss profile is not part of paper mode; a lost command leaves the old input on.
+            Some(delay::Fate::Dropped) => u64::MAX,
+        };
+        let lost = delay_ns == u64::MAX;
+        let delay_ns = if lost { 0 } else { delay_ns };
+        let delay_s = mav::ns_to_s(delay_ns);
         sim.advance(delay_ns, |_| {});
         let u = Input::from(command);
         sim.apply(
@@ -263,7 +245,9 @@ pub fn run_closed_loop(
             plan: mpc.solution().to_vec(),
             predictions,
         });
-        u_prev = u;
+        if !lost {
+            u_prev = u;
+        }
         cycle += 1;
     }
     let summary = summarize(scenario, settings.mode, &sim, &records, time_to_goal_s);
