@@ -32,6 +32,10 @@ pub struct ControllerConfig {
     /// Reconnection backoff: first wait, doubled up to `backoff_max`.
     pub backoff_min: Duration,
     pub backoff_max: Duration,
+    /// Telemetry items buffered per subscriber (default 4096, more than the cycles of a
+    /// 60 s paper run); a subscriber that falls further behind loses the oldest items, the
+    /// loop never waits for it.
+    pub telemetry_buffer: usize,
 }
 
 impl ControllerConfig {
@@ -47,6 +51,7 @@ impl ControllerConfig {
             deadline_fraction: 0.5,
             backoff_min: Duration::from_millis(50),
             backoff_max: Duration::from_secs(2),
+            telemetry_buffer: 4096,
         }
     }
 
@@ -62,6 +67,9 @@ impl ControllerConfig {
             && self.deadline_fraction <= 1.0)
         {
             return Err("`deadline_fraction`: must be in (0, 1]".into());
+        }
+        if self.telemetry_buffer == 0 {
+            return Err("`telemetry_buffer`: must be > 0".into());
         }
         if self.backoff_min.is_zero() || self.backoff_max < self.backoff_min {
             return Err("`backoff_min`/`backoff_max`: need 0 < min <= max".into());

@@ -28,9 +28,6 @@ use tonic::transport::{Channel, Endpoint};
 
 use crate::config::{ControllerConfig, TimeModeSetting};
 
-/// Telemetry items buffered per subscriber; a slow subscriber skips (lags), the loop never waits.
-const TELEMETRY_BUFFER: usize = 1024;
-
 /// What the service reports in `GetStatus`.
 #[derive(Debug, Clone, Default)]
 pub struct Status {
@@ -46,6 +43,14 @@ pub struct Status {
     pub reconnects: u64,
     pub last_error: String,
     pub reached: bool,
+    /// Episodes started (0 = none yet).
+    pub episode: u64,
+    /// The current episode has ended and the loop idles until the next request.
+    pub episode_finished: bool,
+    /// Episodes ended.
+    pub episodes_finished: u64,
+    /// Why the last episode ended (`reached`, `time_limit`); empty while one runs.
+    pub finish_reason: String,
 }
 
 /// Requests from the Controller API, taken by the loop at the start of the next cycle.
@@ -72,7 +77,7 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 
 impl Shared {
     pub fn new(config: &ControllerConfig) -> Arc<Self> {
-        let (telemetry, _) = broadcast::channel(TELEMETRY_BUFFER);
+        let (telemetry, _) = broadcast::channel(config.telemetry_buffer.max(1));
         let status = Status {
             scenario: config.scenario.name.clone(),
             mode: config.mode.name().to_string(),
@@ -144,10 +149,17 @@ struct Episode {
     /// Lockstep: the sample the last `Advance` returned.
     pending_sample: Option<pb::StateSample>,
     last_delay_s: f64,
+    /// Number of this episode (1 for the first).
+    number: u64,
 }
 
 impl Episode {
-    fn new(config: &ControllerConfig, scenario: Scenario, mode: ControllerMode) -> Result<Self, String> {
+    fn new(
+        config: &ControllerConfig,
+        scenario: Scenario,
+        mode: ControllerMode,
+        number: u64,
+    ) -> Result<Self, String> {
         let def = OcpDefinition::from_scenario(
             &scenario,
             mode,
@@ -167,6 +179,7 @@ impl Episode {
             cycle: 0,
             pending_sample: None,
             last_delay_s: f64::NAN,
+            number,
         })
     }
 }
@@ -316,7 +329,8 @@ async fn fly(
         TimeModeSetting::Auto => description.time_mode == pb::TimeMode::Lockstep as i32,
     };
     if episode.is_none() {
-        let mut ep = Episode::new(config, scenario.clone(), *mode).map_err(LoopError::Bad)?;
+        let number = shared.status().episode + 1;
+        let mut ep = Episode::new(config, scenario.clone(), *mode, number).map_err(LoopError::Bad)?;
         let sample = if config.reset_plant {
             let reset = pb::ResetRequest { scenario: scenario.name.clone(), initial_state: None };
             client.reset(reset).await?.into_inner().sample
@@ -330,6 +344,9 @@ async fn fly(
             st.goal_m = scenario.goal_m;
             st.cycles = 0;
             st.reached = false;
+            st.episode = number;
+            st.episode_finished = false;
+            st.finish_reason.clear();
             st.sampling_times_s = ep.mpc.definition().sampling_times_s.clone();
         });
         tracing::info!(scenario = %scenario.name, mode = mode.name(), lockstep, "episode started");
@@ -374,24 +391,28 @@ async fn fly(
             _ => client.get_state(pb::GetStateRequest {}).await?.into_inner(),
         };
         let x = state_of(&sample)?;
-        if let Some(last) = &sample.last_command {
-            if last.command_seq > ep.measured_seq && last.command_seq <= ep.command_seq && !last.initial {
-                let d_ns = last.applied_time_ns.saturating_sub(last.based_on_sample_time_ns);
-                ep.last_delay_s = mav::ns_to_s(d_ns);
-                ep.weights.observe(ep.last_delay_s);
-                ep.measured_seq = last.command_seq;
-            }
+        if let Some(last) = &sample.last_command
+            && last.command_seq > ep.measured_seq
+            && last.command_seq <= ep.command_seq
+            && !last.initial
+        {
+            let d_ns = last.applied_time_ns.saturating_sub(last.based_on_sample_time_ns);
+            ep.last_delay_s = mav::ns_to_s(d_ns);
+            ep.weights.observe(ep.last_delay_s);
+            ep.measured_seq = last.command_seq;
         }
         let state = mav::State::from(x);
         if ep.scenario.goal_reached(&state) {
             shared.update(|st| st.reached = true);
             if lockstep {
                 tracing::info!(t_s = mav::ns_to_s(sample.time_ns), cycles = ep.cycle, "goal reached");
+                finish(shared, "reached");
                 return Ok(Outcome::Finished);
             }
         }
         if lockstep && sample.time_ns >= max_ns {
             tracing::info!(cycles = ep.cycle, "time limit reached");
+            finish(shared, "time_limit");
             return Ok(Outcome::Finished);
         }
         let u_prev = applied_input(&sample, hover);
@@ -433,6 +454,15 @@ async fn fly(
         }
         ep.cycle += 1;
     }
+}
+
+/// Marks the current episode as ended (the loop idles until the next request).
+fn finish(shared: &Shared, reason: &str) {
+    shared.update(|st| {
+        st.episode_finished = true;
+        st.episodes_finished += 1;
+        st.finish_reason = reason.to_string();
+    });
 }
 
 fn publish(
@@ -479,6 +509,7 @@ fn publish(
         solver: pb::SolverKind::Panoc as i32,
         predictions,
         measured_delay_s: if ep.last_delay_s.is_finite() { ep.last_delay_s } else { 0.0 },
+        episode: ep.number,
     };
     // No subscriber left is not an error.
     let _ = shared.telemetry.send(item);

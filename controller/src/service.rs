@@ -46,6 +46,10 @@ impl Controller for ControllerService {
             reconnects: s.reconnects,
             last_error: s.last_error,
             reached: s.reached,
+            episode: s.episode,
+            episode_finished: s.episode_finished,
+            episodes_finished: s.episodes_finished,
+            finish_reason: s.finish_reason,
         }))
     }
 

@@ -28,10 +28,10 @@ fn err(field: impl Into<String>, reason: impl Into<String>) -> LineError {
 
 fn numbers(v: &Value, field: &str, len: Option<usize>) -> Result<Vec<f64>, LineError> {
     let arr = v.as_array().ok_or_else(|| err(field, "must be an array of numbers"))?;
-    if let Some(n) = len {
-        if arr.len() != n {
-            return Err(err(field, format!("must hold exactly {n} numbers, got {}", arr.len())));
-        }
+    if let Some(n) = len
+        && arr.len() != n
+    {
+        return Err(err(field, format!("must hold exactly {n} numbers, got {}", arr.len())));
     }
     arr.iter()
         .enumerate()

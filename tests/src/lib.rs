@@ -1,5 +1,7 @@
 //! Helpers shared by the integration tests.
 
+pub mod controller;
 pub mod plant;
 
+pub use controller::{RunningController, start_controller};
 pub use plant::{RunningPlant, start_plant, start_plant_with_clock};

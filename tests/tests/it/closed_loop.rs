@@ -1,1 +1,119 @@
 //! Integration tests: closed_loop.
+//! The whole bench over gRPC (lockstep plant, netem with the scenario's delays, controller, all
+//! on loopback ports, as `hilbench reproduce` runs it) against the in-process closed loop of
+//! `mpc`, which is the contract of SPEC.md's paper mode: same states, commands, weights and
+//! solver iterations at every cycle, compared by f64 bits. And the multi-stage controller's
+//! paper-mode results in process.
+
+use std::time::Duration;
+
+use hilbench::grpc::{GrpcSettings, run_over_grpc};
+use mav::Scenario;
+use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
+
+fn bits<const N: usize>(v: &[f64]) -> Vec<u64> {
+    assert_eq!(v.len(), N, "length");
+    v.iter().map(|x| x.to_bits()).collect()
+}
+
+fn bits_of(v: &[f64]) -> Vec<u64> {
+    v.iter().map(|x| x.to_bits()).collect()
+}
+
+async fn assert_grpc_run_is_bit_identical_to_in_process(name: &str, mode: ControllerMode) {
+    let scenario = Scenario::by_name(name).expect("built-in scenario");
+    let (expected, records) =
+        run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode)).expect("in-process closed loop");
+    let run = run_over_grpc(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(300) })
+        .await
+        .expect("gRPC run");
+    let what = format!("{name} with {}", mode.name());
+    assert!(!records.is_empty(), "{what}: the in-process run has no cycles");
+    assert_eq!(run.telemetry.len(), records.len(), "{what}: number of cycles");
+    for (k, (t, r)) in run.telemetry.iter().zip(&records).enumerate() {
+        assert_eq!(t.cycle, k as u64, "{what}: cycle numbering");
+        let sample = t.sample.as_ref().expect("telemetry carries the sample");
+        assert_eq!(
+            mav::ns_to_s(sample.time_ns).to_bits(),
+            r.t_s.to_bits(),
+            "{what}: cycle {k} starts at {} s over gRPC, {} s in process",
+            mav::ns_to_s(sample.time_ns),
+            r.t_s
+        );
+        let state = sample.state.as_ref().expect("sample has a state");
+        assert_eq!(
+            bits::<8>(&state.x),
+            bits_of(&r.state),
+            "{what}: state at cycle {k} differs: {:?} vs {:?}",
+            state.x,
+            r.state
+        );
+        let c = t.command.as_ref().expect("telemetry carries the command");
+        assert_eq!(
+            bits_of(&[c.thrust_mps2, c.roll_rad, c.pitch_rad]),
+            bits_of(&r.command),
+            "{what}: command at cycle {k} differs"
+        );
+        assert_eq!(
+            bits_of(&t.scenario_weights),
+            bits_of(&r.weights_used),
+            "{what}: weights at cycle {k} differ: {:?} vs {:?}",
+            t.scenario_weights,
+            r.weights_used
+        );
+        let solve = t.solve.as_ref().expect("telemetry carries solve statistics");
+        assert_eq!(solve.iterations as usize, r.report.iterations, "{what}: iterations at cycle {k}");
+        if k > 0 {
+            // The delay the controller measured from plant stamps is the one drawn for the
+            // previous cycle.
+            assert_eq!(
+                t.measured_delay_s.to_bits(),
+                records[k - 1].delay_s.to_bits(),
+                "{what}: delay measured at cycle {k}"
+            );
+        }
+    }
+    let got = &run.summary;
+    assert_eq!(got.reached, expected.reached, "{what}: reached");
+    assert_eq!(got.collided, expected.collided, "{what}: collided");
+    assert_eq!(got.cycles, expected.cycles, "{what}: cycles");
+    assert_eq!(got.end_time_s.to_bits(), expected.end_time_s.to_bits(), "{what}: end time");
+    assert_eq!(
+        got.time_to_goal_s.map(f64::to_bits),
+        expected.time_to_goal_s.map(f64::to_bits),
+        "{what}: time to goal"
+    );
+    assert_eq!(got.path_length_m.to_bits(), expected.path_length_m.to_bits(), "{what}: path length");
+    assert_eq!(got.min_clearance_m.to_bits(), expected.min_clearance_m.to_bits(), "{what}: clearance");
+    assert_eq!(bits_of(&got.final_position_m), bits_of(&expected.final_position_m), "{what}: end position");
+    assert_eq!(got.iterations_median.to_bits(), expected.iterations_median.to_bits(), "{what}: iterations");
+    assert_eq!(got.fallbacks, expected.fallbacks, "{what}: fallbacks");
+    assert_eq!(got.collisions.len(), expected.collisions.len(), "{what}: collision events");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn paper_2_multistage_over_grpc_is_bit_identical_to_the_in_process_closed_loop() {
+    assert_grpc_run_is_bit_identical_to_in_process("paper-2", ControllerMode::Multistage).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn paper_3_nmpc_over_grpc_is_bit_identical_to_the_in_process_closed_loop() {
+    assert_grpc_run_is_bit_identical_to_in_process("paper-3", ControllerMode::Nmpc).await;
+}
+
+#[test]
+fn multistage_reaches_the_goal_of_every_paper_scenario_without_touching_a_cylinder() {
+    for name in Scenario::BUILT_IN {
+        let scenario = Scenario::by_name(name).expect("built-in scenario");
+        let (s, records) = run_closed_loop(&scenario, &ClosedLoopSettings::paper(ControllerMode::Multistage))
+            .expect("closed loop runs");
+        assert!(s.reached, "{name}: multi-stage did not reach the goal (ended at {:?})", s.final_position_m);
+        assert!(!s.collided, "{name}: collided: {:?}", s.collisions);
+        assert!(s.min_clearance_m >= 0.0, "{name}: true min clearance {} m < 0", s.min_clearance_m);
+        let goal = scenario.goal_m;
+        let p = s.final_position_m;
+        let dist = ((p[0] - goal[0]).powi(2) + (p[1] - goal[1]).powi(2) + (p[2] - goal[2]).powi(2)).sqrt();
+        assert!(dist < 0.15, "{name}: ended {dist} m from the goal");
+        assert_eq!(s.cycles as usize, records.len());
+    }
+}

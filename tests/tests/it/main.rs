@@ -2,5 +2,6 @@
 //! real services on loopback ports and talks gRPC to them, or runs the full closed loop.
 
 mod closed_loop;
+mod controller;
 mod netem;
 mod plant;

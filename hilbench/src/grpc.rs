@@ -1,0 +1,379 @@
+//! Paper-mode runs over real gRPC: a lockstep plant, netem and the controller, each served in
+//! this process on its own loopback port, one fresh set of services per run.
+//!
+//! The controller is started idle (`autostart = false`) so that the telemetry subscription
+//! exists before its first cycle; `SetScenario` then starts the episode, and the run ends when
+//! `ControllerStatus.episode_finished` says so. Everything in the [`RunSummary`] comes from
+//! the wire: the trajectory numbers (path length, clearance, collisions, final state) from the
+//! plant's last state sample, the solve statistics from the controller's per-cycle telemetry.
+//!
+//! The delays: the scenario's Gamma model becomes netem's command-direction profile with the
+//! scenario's seed and no delay on samples (netem's `paper` preset for the paper scenarios); a
+//! scenario without delays gets the `none` preset. `mpc::run_closed_loop` draws its `d_k` from
+//! the same `delay::DelayLine`, so both runs are bit-identical.
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, anyhow, bail};
+use hilbench_proto::pb;
+use hilbench_proto::pb::controller_client::ControllerClient;
+use hilbench_proto::pb::plant_client::PlantClient;
+use mav::{DelayModel, Scenario};
+use mpc::ControllerMode;
+use mpc::closed_loop::{CollisionSummary, RunSummary, percentile};
+use tokio::sync::oneshot;
+use tokio::task::JoinHandle;
+use tonic::transport::{Channel, Endpoint};
+
+/// How often the driver polls `GetStatus` while telemetry streams in.
+const STATUS_POLL: Duration = Duration::from_millis(10);
+
+/// One run over gRPC.
+#[derive(Debug, Clone)]
+pub struct GrpcRun {
+    pub summary: RunSummary,
+    /// Every cycle's telemetry, in order (cycle 0 first).
+    pub telemetry: Vec<pb::CycleTelemetry>,
+    /// The plant's state sample when the episode ended.
+    pub final_sample: pb::StateSample,
+    pub timing: RunTiming,
+}
+
+/// Where the wall time of a run went.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+pub struct RunTiming {
+    /// Starting the three services, connecting and subscribing, s.
+    pub setup_s: f64,
+    /// From `SetScenario` to the end of the episode (all cycles), s.
+    pub episode_s: f64,
+    /// Sum of the controller's solve times (from telemetry), s; part of `episode_s`.
+    pub solver_s: f64,
+    /// Stopping the services, s.
+    pub teardown_s: f64,
+}
+
+impl RunTiming {
+    /// The rest of the episode: gRPC round trips, netem, plant integration, telemetry.
+    pub fn loop_overhead_s(&self) -> f64 {
+        (self.episode_s - self.solver_s).max(0.0)
+    }
+
+    pub fn total_s(&self) -> f64 {
+        self.setup_s + self.episode_s + self.teardown_s
+    }
+}
+
+/// Settings of a gRPC run.
+#[derive(Debug, Clone)]
+pub struct GrpcSettings {
+    /// Bound on the whole episode (wall time); a run that takes longer is an error.
+    pub timeout: Duration,
+}
+
+impl Default for GrpcSettings {
+    fn default() -> Self {
+        Self { timeout: Duration::from_secs(600) }
+    }
+}
+
+/// netem's settings for `scenario` in lockstep: its delay model on commands (seeded with the
+/// scenario's seed), none on samples.
+pub fn netem_config(upstream: &str, scenario: &Scenario) -> anyhow::Result<netem::Config> {
+    let mut config = match scenario.delays {
+        DelayModel::None => netem::Config::new(upstream).with_preset("none", scenario.seed)?,
+        DelayModel::Gamma { shape, scale_s } => {
+            let mut c = netem::Config::new(upstream).with_preset("paper", scenario.seed)?;
+            c.controller_to_plant = delay::DirectionProfile::with_delay(
+                delay::Distribution::Gamma { shape, scale_s },
+                scenario.seed,
+            );
+            c
+        }
+    };
+    config.time_mode = netem::TimeModeSetting::Lockstep;
+    Ok(config)
+}
+
+/// A service task with its stop signal.
+struct Running {
+    name: &'static str,
+    addr: SocketAddr,
+    stop: Option<oneshot::Sender<()>>,
+    task: Option<JoinHandle<Result<(), String>>>,
+}
+
+impl Running {
+    async fn stop(mut self) -> anyhow::Result<()> {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+        let Some(task) = self.task.take() else { return Ok(()) };
+        match tokio::time::timeout(Duration::from_secs(10), task).await {
+            Ok(Ok(Ok(()))) => Ok(()),
+            Ok(Ok(Err(e))) => Err(anyhow!("{} failed: {e}", self.name)),
+            Ok(Err(join)) => Err(anyhow!("{} task failed: {join}", self.name)),
+            Err(_) => Err(anyhow!("{} did not stop within 10 s", self.name)),
+        }
+    }
+}
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+    }
+}
+
+async fn bind() -> anyhow::Result<(tokio::net::TcpListener, SocketAddr)> {
+    let listener =
+        tokio::net::TcpListener::bind("127.0.0.1:0").await.context("cannot bind a loopback port")?;
+    let addr = listener.local_addr()?;
+    Ok((listener, addr))
+}
+
+/// Plant (lockstep), netem and controller (idle until `SetScenario`) on loopback.
+pub struct Services {
+    plant: Running,
+    netem: Running,
+    controller: Running,
+}
+
+impl Services {
+    pub async fn start(scenario: &Scenario, mode: ControllerMode) -> anyhow::Result<Self> {
+        let (plant_listener, plant_addr) = bind().await?;
+        let (netem_listener, netem_addr) = bind().await?;
+        let (controller_listener, controller_addr) = bind().await?;
+
+        let (stop, stopped) = oneshot::channel::<()>();
+        let plant_config = plant::PlantConfig::lockstep(scenario.clone());
+        let task = tokio::spawn(async move {
+            plant::serve(plant_listener, plant_config, async {
+                let _ = stopped.await;
+            })
+            .await
+            .map_err(|e| e.to_string())
+        });
+        let plant = Running { name: "plant", addr: plant_addr, stop: Some(stop), task: Some(task) };
+
+        let (stop, stopped) = oneshot::channel::<()>();
+        let netem_config = netem_config(&plant_addr.to_string(), scenario)?;
+        let task = tokio::spawn(async move {
+            netem::serve(netem_listener, netem_config, async {
+                let _ = stopped.await;
+            })
+            .await
+            .map_err(|e| e.to_string())
+        });
+        let netem = Running { name: "netem", addr: netem_addr, stop: Some(stop), task: Some(task) };
+
+        let (stop, stopped) = oneshot::channel::<()>();
+        let mut controller_config =
+            controller::ControllerConfig::new(netem_addr.to_string(), scenario.clone(), mode);
+        controller_config.time_mode = controller::TimeModeSetting::Lockstep;
+        controller_config.autostart = false;
+        let task = tokio::spawn(async move {
+            controller::serve(controller_listener, controller_config, async {
+                let _ = stopped.await;
+            })
+            .await
+            .map_err(|e| e.to_string())
+        });
+        let controller =
+            Running { name: "controller", addr: controller_addr, stop: Some(stop), task: Some(task) };
+        Ok(Self { plant, netem, controller })
+    }
+
+    pub fn plant_addr(&self) -> SocketAddr {
+        self.plant.addr
+    }
+
+    pub fn netem_addr(&self) -> SocketAddr {
+        self.netem.addr
+    }
+
+    pub fn controller_addr(&self) -> SocketAddr {
+        self.controller.addr
+    }
+
+    /// Stops the controller first (it is the client), then netem, then the plant.
+    pub async fn stop(self) -> anyhow::Result<()> {
+        let Self { plant, netem, controller } = self;
+        let c = controller.stop().await;
+        let n = netem.stop().await;
+        let p = plant.stop().await;
+        c.and(n).and(p)
+    }
+}
+
+/// A channel to `addr`, retried until `deadline` (the listener is bound before the server
+/// task runs, so this normally succeeds at once).
+pub async fn connect(addr: SocketAddr, deadline: Instant) -> anyhow::Result<Channel> {
+    let endpoint = Endpoint::from_shared(format!("http://{addr}"))?
+        .connect_timeout(Duration::from_secs(2))
+        .tcp_nodelay(true);
+    loop {
+        match endpoint.connect().await {
+            Ok(c) => return Ok(c),
+            Err(e) if Instant::now() >= deadline => {
+                return Err(anyhow!("cannot connect to {addr}: {e}"));
+            }
+            Err(_) => tokio::time::sleep(Duration::from_millis(10)).await,
+        }
+    }
+}
+
+/// Runs `scenario` with `mode` over gRPC on a fresh set of services.
+pub async fn run_over_grpc(
+    scenario: &Scenario,
+    mode: ControllerMode,
+    settings: &GrpcSettings,
+) -> anyhow::Result<GrpcRun> {
+    let started = Instant::now();
+    let services = Services::start(scenario, mode).await?;
+    let result = drive(&services, scenario, mode, settings, started).await;
+    let stopping = Instant::now();
+    let stopped = services.stop().await;
+    let mut run = result?;
+    stopped?;
+    run.timing.teardown_s = stopping.elapsed().as_secs_f64();
+    Ok(run)
+}
+
+async fn drive(
+    services: &Services,
+    scenario: &Scenario,
+    mode: ControllerMode,
+    settings: &GrpcSettings,
+    started: Instant,
+) -> anyhow::Result<GrpcRun> {
+    let deadline = Instant::now() + settings.timeout;
+    let mut controller = ControllerClient::new(connect(services.controller_addr(), deadline).await?);
+    let mut plant = PlantClient::new(connect(services.plant_addr(), deadline).await?);
+    // Subscribe before the episode starts: the response headers mean the server subscribed.
+    let mut stream = controller
+        .stream_telemetry(pb::StreamTelemetryRequest {})
+        .await
+        .context("controller StreamTelemetry")?
+        .into_inner();
+    let before = controller.get_status(pb::GetStatusRequest {}).await?.into_inner();
+    let setup_s = started.elapsed().as_secs_f64();
+
+    let episode_started = Instant::now();
+    controller
+        .set_scenario(pb::SetScenarioRequest { scenario: scenario.name.clone(), mode: mode.name().into() })
+        .await
+        .context("controller SetScenario")?;
+    let episode = before.episode + 1;
+    let mut telemetry: Vec<pb::CycleTelemetry> = Vec::new();
+    let mut poll = tokio::time::interval(STATUS_POLL);
+    poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let status = loop {
+        if Instant::now() >= deadline {
+            bail!(
+                "{} with {}: the episode did not finish within {:?} ({} cycles seen)",
+                scenario.name,
+                mode.name(),
+                settings.timeout,
+                telemetry.len()
+            );
+        }
+        tokio::select! {
+            item = stream.message() => {
+                let item = item.context("telemetry stream")?
+                    .ok_or_else(|| anyhow!("the controller ended the telemetry stream"))?;
+                if item.episode != episode {
+                    continue;
+                }
+                if item.cycle != telemetry.len() as u64 {
+                    bail!("telemetry gap: expected cycle {}, got {}", telemetry.len(), item.cycle);
+                }
+                telemetry.push(item);
+            }
+            _ = poll.tick() => {
+                let s = controller.get_status(pb::GetStatusRequest {}).await?.into_inner();
+                if s.episode == episode && s.episode_finished && telemetry.len() as u64 >= s.cycles {
+                    break s;
+                }
+                if s.episode > episode {
+                    bail!("another episode ({}) started during the run", s.episode);
+                }
+            }
+        }
+    };
+    let episode_s = episode_started.elapsed().as_secs_f64();
+    if telemetry.len() as u64 != status.cycles {
+        bail!("{} cycles of telemetry, the controller reports {}", telemetry.len(), status.cycles);
+    }
+    let final_sample = plant.get_state(pb::GetStateRequest {}).await.context("plant GetState")?.into_inner();
+    let summary = summarize(scenario, mode, &status, &telemetry, &final_sample)?;
+    let solver_s = telemetry.iter().filter_map(|t| t.solve.as_ref()).map(|s| s.solve_ms * 1e-3).sum();
+    Ok(GrpcRun {
+        summary,
+        telemetry,
+        final_sample,
+        timing: RunTiming { setup_s, episode_s, solver_s, teardown_s: 0.0 },
+    })
+}
+
+/// The spec's per-run numbers from what came over the wire.
+pub fn summarize(
+    scenario: &Scenario,
+    mode: ControllerMode,
+    status: &pb::ControllerStatus,
+    telemetry: &[pb::CycleTelemetry],
+    last: &pb::StateSample,
+) -> anyhow::Result<RunSummary> {
+    let x = last.state.as_ref().map(|s| s.x.as_slice()).unwrap_or_default();
+    if x.len() != 8 {
+        bail!("the plant's last sample has {} state values, not 8", x.len());
+    }
+    let stats: Vec<&pb::SolveStats> = telemetry.iter().filter_map(|t| t.solve.as_ref()).collect();
+    if stats.len() != telemetry.len() {
+        bail!("telemetry without solve statistics");
+    }
+    let mut solve_ms: Vec<f64> = stats.iter().map(|s| s.solve_ms).collect();
+    let mut iterations: Vec<f64> = stats.iter().map(|s| f64::from(s.iterations)).collect();
+    let mean =
+        if solve_ms.is_empty() { f64::NAN } else { solve_ms.iter().sum::<f64>() / solve_ms.len() as f64 };
+    let count = |status: pb::SolveStatus| stats.iter().filter(|s| s.status == status as i32).count() as u64;
+    let reached = status.finish_reason == "reached";
+    let end_time_s = mav::ns_to_s(last.time_ns);
+    Ok(RunSummary {
+        scenario: scenario.name.clone(),
+        controller: mode.name().to_string(),
+        reached,
+        collided: last.collided,
+        time_to_goal_s: reached.then_some(end_time_s),
+        end_time_s,
+        path_length_m: last.path_length_m,
+        min_clearance_m: last.min_clearance_m,
+        cycles: telemetry.len() as u64,
+        solve_ms_mean: mean,
+        solve_ms_median: percentile(&mut solve_ms, 50.0),
+        solve_ms_p95: percentile(&mut solve_ms, 95.0),
+        solve_ms_max: percentile(&mut solve_ms, 100.0),
+        iterations_median: percentile(&mut iterations, 50.0),
+        fallbacks: count(pb::SolveStatus::NumericalFailure),
+        iteration_limits: count(pb::SolveStatus::IterationLimit),
+        final_position_m: [x[0], x[1], x[2]],
+        collisions: last
+            .collisions
+            .iter()
+            .map(|c| {
+                let cylinder = c.kind == pb::CollisionKind::Cylinder as i32;
+                CollisionSummary {
+                    kind: if cylinder { "cylinder" } else { "ground" }.to_string(),
+                    obstacle_index: cylinder.then_some(c.obstacle_index),
+                    time_s: mav::ns_to_s(c.time_ns),
+                    position_m: [
+                        c.position_m.first().copied().unwrap_or(f64::NAN),
+                        c.position_m.get(1).copied().unwrap_or(f64::NAN),
+                        c.position_m.get(2).copied().unwrap_or(f64::NAN),
+                    ],
+                }
+            })
+            .collect(),
+    })
+}
