@@ -11,9 +11,13 @@ pub mod accuracy;
 pub mod closed_loop;
 pub mod delays;
 pub mod problem;
+pub mod qp;
+pub mod safety;
 pub mod solver;
 
 pub use closed_loop::{ClosedLoopSettings, CycleRecord, DelaySource, RunSummary, run_closed_loop};
 pub use delays::{DelayWindow, GammaParams, ScenarioWeights, WeightSettings, WeightSource};
 pub use problem::{ControllerMode, Evaluator, ObstacleFormulation, OcpDefinition};
+pub use qp::{QpBudget, QpFallback, QpReport, QpSettings, QpStatus};
+pub use safety::{Decision, QpSchedule, Rejection, SafetyLayer, SafetySettings, Selection};
 pub use solver::{Mpc, MpcError, MpcSettings, SolveBudget, SolveReport, SolveStatus};

@@ -1,0 +1,1121 @@
+//! The QP-linearized fallback: the problem of [`OcpDefinition`] linearized around a nominal
+//! input sequence, condensed to a convex QP in the `3N` inputs and solved with clarabel's
+//! interior-point method.
+//!
+//! Each scenario's Euler prediction is linearized around the nominal inputs `u_bar` and the
+//! nominal trajectory they produce: `x_k(u) ~ x_k(u_bar) + S_k (u - u_bar)`. The cost is the
+//! spec's objective with that linear model (its Gauss-Newton approximation, convex, with the
+//! multi-stage weights), the inputs keep their box bounds (optionally intersected with a trust
+//! region around `u_bar`), and every cylinder is replaced, at every predicted point of every
+//! scenario, by the half-plane tangent to the inflated cylinder on the side of the nominal
+//! point: `n^T (p_k - c) >= R` with `n` the horizontal unit vector from the axis to the nominal
+//! point. The half-plane lies outside the disc, so a linear prediction that satisfies it is
+//! clear of the inflated cylinder. Only cylinders whose inflated surface is within
+//! `activation_distance_m` of the nominal point get a half-plane, to keep the QP small. An
+//! optional floor adds `z_k >= min_altitude_m`.
+//!
+//! The QP is only as good as the linearization: its solution is evaluated on the nonlinear
+//! model (the spec's objective and the true clearance of every scenario's prediction) and the
+//! report says both, so that a caller (see [`crate::safety`]) never trusts the linear model.
+//!
+//! Condensing: `H = sum_i w_i S_i^T 2Qx S_i + input terms` is built column by column with one
+//! forward sensitivity pass and one adjoint pass per input (`O(M N^2)` small vector
+//! operations, no `8N x 3N` matrix products), the gradient with one adjoint pass per scenario.
+
+use std::time::Duration;
+
+use clarabel::algebra::CscMatrix;
+use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
+
+use crate::problem::{Evaluator, OcpDefinition};
+use crate::solver::MpcError;
+use mav::{Cylinder, InputBounds, ModelParams};
+
+/// Settings of the QP fallback (validated in [`QpFallback::new`]).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct QpSettings {
+    /// A cylinder gets a half-plane at a predicted point when the nominal point is within this
+    /// horizontal distance of its inflated surface (or inside it), m.
+    pub activation_distance_m: f64,
+    /// Optional floor: every predicted point of every scenario keeps `z >= min_altitude_m`, m.
+    /// Off (`None`) in paper mode, which has no floor.
+    pub min_altitude_m: Option<f64>,
+    /// Optional trust region: `|u_j[c] - u_bar_j[c]| <= trust_region[c]` per channel
+    /// (`[m/s^2, rad, rad]`), intersected with the input bounds. `None`: bounds only.
+    pub trust_region: Option<[f64; 3]>,
+    /// Linearize-and-solve rounds per solve: round `k + 1` linearizes around the solution of
+    /// round `k` (a few steps of sequential quadratic programming). 1 is the plain fallback.
+    pub sqp_rounds: usize,
+    /// Interior-point iterations per QP.
+    pub max_iterations: u32,
+    /// Clarabel's absolute and relative duality-gap tolerance.
+    pub gap_tolerance: f64,
+    /// Clarabel's primal/dual feasibility tolerance.
+    pub feasibility_tolerance: f64,
+}
+
+impl Default for QpSettings {
+    fn default() -> Self {
+        Self {
+            activation_distance_m: 2.0,
+            min_altitude_m: None,
+            trust_region: None,
+            sqp_rounds: 1,
+            max_iterations: 100,
+            gap_tolerance: 1e-7,
+            feasibility_tolerance: 1e-8,
+        }
+    }
+}
+
+impl QpSettings {
+    /// Names the first invalid setting.
+    pub fn validate(&self) -> Result<(), MpcError> {
+        let bad = |field: &'static str, reason: &'static str| Err(MpcError::InvalidSetting { field, reason });
+        if !(self.activation_distance_m.is_finite() && self.activation_distance_m >= 0.0) {
+            return bad("activation_distance_m", "must be finite and >= 0");
+        }
+        if self.min_altitude_m.is_some_and(|z| !z.is_finite()) {
+            return bad("min_altitude_m", "must be finite");
+        }
+        if self.trust_region.is_some_and(|tr| tr.iter().any(|v| !(v.is_finite() && *v > 0.0))) {
+            return bad("trust_region", "every channel must be finite and > 0");
+        }
+        if self.sqp_rounds == 0 {
+            return bad("sqp_rounds", "must be > 0");
+        }
+        if self.max_iterations == 0 {
+            return bad("max_iterations", "must be > 0");
+        }
+        if !(self.gap_tolerance.is_finite() && self.gap_tolerance > 0.0) {
+            return bad("gap_tolerance", "must be finite and > 0");
+        }
+        if !(self.feasibility_tolerance.is_finite() && self.feasibility_tolerance > 0.0) {
+            return bad("feasibility_tolerance", "must be finite and > 0");
+        }
+        Ok(())
+    }
+}
+
+/// What one QP solve may spend. Iterations bound a lockstep solve (deterministic); a
+/// wall-clock limit (clarabel's own timer) is added in real time.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct QpBudget {
+    /// Overrides [`QpSettings::max_iterations`] when set.
+    pub max_iterations: Option<u32>,
+    /// Wall-clock limit of each clarabel solve.
+    pub deadline: Option<Duration>,
+}
+
+/// How a QP solve ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum QpStatus {
+    /// Solved to the tolerances.
+    Solved,
+    /// Solved to clarabel's reduced tolerances (its `AlmostSolved`).
+    SolvedReducedAccuracy,
+    /// The linear constraints have no common point (a certificate was found).
+    Infeasible,
+    /// The QP objective is unbounded below on the constraints (a certificate was found).
+    Unbounded,
+    /// The iteration budget ran out.
+    IterationLimit,
+    /// The wall-clock budget ran out.
+    Deadline,
+    /// Numerical trouble: non-finite data, lack of progress, a factorization failure.
+    NumericalError,
+}
+
+impl QpStatus {
+    pub fn name(self) -> &'static str {
+        match self {
+            QpStatus::Solved => "solved",
+            QpStatus::SolvedReducedAccuracy => "solved_reduced_accuracy",
+            QpStatus::Infeasible => "infeasible",
+            QpStatus::Unbounded => "unbounded",
+            QpStatus::IterationLimit => "iteration_limit",
+            QpStatus::Deadline => "deadline",
+            QpStatus::NumericalError => "numerical_error",
+        }
+    }
+
+    /// True when the solve produced inputs (to be checked on the nonlinear model).
+    pub fn has_solution(self) -> bool {
+        matches!(self, QpStatus::Solved | QpStatus::SolvedReducedAccuracy)
+    }
+
+    fn from_clarabel(s: SolverStatus) -> Self {
+        match s {
+            SolverStatus::Solved => QpStatus::Solved,
+            SolverStatus::AlmostSolved => QpStatus::SolvedReducedAccuracy,
+            SolverStatus::PrimalInfeasible | SolverStatus::AlmostPrimalInfeasible => QpStatus::Infeasible,
+            SolverStatus::DualInfeasible | SolverStatus::AlmostDualInfeasible => QpStatus::Unbounded,
+            SolverStatus::MaxIterations => QpStatus::IterationLimit,
+            SolverStatus::MaxTime => QpStatus::Deadline,
+            _ => QpStatus::NumericalError,
+        }
+    }
+}
+
+/// The outcome of one QP solve.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct QpReport {
+    pub status: QpStatus,
+    /// Interior-point iterations, summed over the SQP rounds.
+    pub iterations: u32,
+    /// SQP rounds run (the last one decides the status).
+    pub rounds: usize,
+    /// Clarabel's own measured time (setup + solve), summed over the rounds. The
+    /// linearization and condensing are not included (see the `qp` bench for the total).
+    pub solve_time: Duration,
+    /// Rows of the last QP: bounds (2 per input), half-planes, floor rows.
+    pub num_constraints: usize,
+    /// Half-planes in the last QP.
+    pub num_half_planes: usize,
+    /// The spec's objective `sum_i w_i J_i` of the returned inputs on the nonlinear model
+    /// (NaN without a solution).
+    pub cost: f64,
+    /// Smallest true clearance (no margin) of any nonlinear predicted point of any scenario
+    /// to any cylinder surface, m (+inf without cylinders, NaN without a solution).
+    pub min_clearance_m: f64,
+    /// Lowest nonlinear predicted altitude of any scenario, m (NaN without a solution).
+    pub min_altitude_m: f64,
+    /// Largest violation of the QP's own linear constraints at the returned inputs (0 when
+    /// satisfied; NaN without a solution).
+    pub linear_violation: f64,
+}
+
+/// An inflated cylinder as the half-planes see it.
+#[derive(Debug, Clone, Copy)]
+struct Obstacle {
+    x: f64,
+    y: f64,
+    /// Radius plus the definition's margin.
+    r: f64,
+    top: f64,
+}
+
+/// The QP fallback's workspace: linearization buffers, the QP in CSC form, the last solution.
+///
+/// ## Memory allocation
+/// Allocated in [`QpFallback::new`]: `M (N + 1)` nominal states, `M N` attitude sin/cos
+/// quadruples, position sensitivities (`M N 3N` triples), the dense `3N x 3N` Hessian, a dense
+/// row buffer for up to `6N + M N (n_obs + 1)` constraint rows, and the CSC arrays of `P` and
+/// `A` at their largest size. Clarabel itself allocates its KKT system on every solve: the
+/// set of half-planes changes from cycle to cycle, and clarabel's data updates keep the
+/// sparsity pattern fixed.
+pub struct QpFallback {
+    settings: QpSettings,
+    m: usize,
+    n: usize,
+    params: ModelParams,
+    bounds: InputBounds,
+    dts: Vec<f64>,
+    q_x: [f64; 8],
+    q_u: [f64; 3],
+    q_du: [f64; 3],
+    x_ref: [f64; 8],
+    u_ref: [f64; 3],
+    obstacles: Vec<Obstacle>,
+    cylinders: Vec<Cylinder>,
+    evaluator: Evaluator,
+    // Per-cycle data.
+    x0: [f64; 8],
+    u_prev: [f64; 3],
+    weights: Vec<f64>,
+    // Linearization.
+    nominal: Vec<f64>,
+    states: Vec<[f64; 8]>,
+    trig: Vec<[f64; 4]>,
+    /// d(p_k)/d(u_v) of scenario i at point k = 1..N: index `(i N + k - 1) 3N + v`.
+    sens: Vec<[f64; 3]>,
+    col: Vec<[f64; 8]>,
+    hess: Vec<f64>,
+    grad: Vec<f64>,
+    // The QP: rows `A u <= b` as dense rows first, then CSC.
+    rows: Vec<f64>,
+    b: Vec<f64>,
+    /// Per cylinder, the shared normal of a prediction that passes through it.
+    side: Vec<Option<[f64; 2]>>,
+    num_rows: usize,
+    num_half_planes: usize,
+    p_csc: CscMatrix<f64>,
+    a_csc: CscMatrix<f64>,
+    q: Vec<f64>,
+    // Results.
+    solution: Vec<f64>,
+    has_solution: bool,
+    previous: Vec<f64>,
+    has_previous: bool,
+}
+
+impl QpFallback {
+    pub fn new(def: &OcpDefinition, settings: QpSettings) -> Result<Self, MpcError> {
+        settings.validate()?;
+        if def.horizon == 0 || def.sampling_times_s.is_empty() {
+            return Err(MpcError::InvalidProblem("needs a horizon and at least one sampling time".into()));
+        }
+        if def.sampling_times_s.iter().any(|t| !(t.is_finite() && *t > 0.0)) {
+            return Err(MpcError::InvalidProblem("sampling times must be finite and > 0".into()));
+        }
+        def.bounds.validate().map_err(|f| MpcError::InvalidProblem(format!("input bounds: {f}")))?;
+        let (m, n) = (def.num_scenarios(), def.horizon);
+        let nv = 3 * n;
+        let obstacles: Vec<Obstacle> = def
+            .obstacles
+            .iter()
+            .map(|c| Obstacle { x: c.x_m, y: c.y_m, r: c.radius_m + def.obstacle_margin_m, top: c.height_m })
+            .collect();
+        let max_rows = 2 * nv + m * n * (obstacles.len() + 1);
+        let p_nnz = nv * (nv + 1) / 2;
+        let mut p_csc = CscMatrix::new(nv, nv, vec![0; nv + 1], Vec::new(), Vec::new());
+        p_csc.rowval.reserve(p_nnz);
+        p_csc.nzval.reserve(p_nnz);
+        let mut a_csc = CscMatrix::new(0, nv, vec![0; nv + 1], Vec::new(), Vec::new());
+        a_csc.rowval.reserve(max_rows * nv / 2 + 2 * nv);
+        a_csc.nzval.reserve(max_rows * nv / 2 + 2 * nv);
+        let mut hover = vec![0.0; nv];
+        for j in 0..n {
+            hover[3 * j..3 * j + 3].copy_from_slice(&def.u_ref);
+        }
+        Ok(Self {
+            settings,
+            m,
+            n,
+            params: def.model,
+            bounds: def.bounds,
+            dts: def.sampling_times_s.clone(),
+            q_x: def.q_x,
+            q_u: def.q_u,
+            q_du: def.q_du,
+            x_ref: def.x_ref,
+            u_ref: def.u_ref,
+            obstacles,
+            cylinders: def.obstacles.clone(),
+            evaluator: Evaluator::new(def),
+            x0: [0.0; 8],
+            u_prev: def.u_ref,
+            weights: vec![1.0; m],
+            nominal: hover.clone(),
+            states: vec![[0.0; 8]; m * (n + 1)],
+            trig: vec![[0.0; 4]; m * n],
+            sens: vec![[0.0; 3]; m * n * nv],
+            col: vec![[0.0; 8]; n + 1],
+            hess: vec![0.0; nv * nv],
+            grad: vec![0.0; nv],
+            rows: vec![0.0; max_rows * nv],
+            b: Vec::with_capacity(max_rows),
+            side: vec![None; def.obstacles.len()],
+            num_rows: 0,
+            num_half_planes: 0,
+            p_csc,
+            a_csc,
+            q: vec![0.0; nv],
+            solution: hover.clone(),
+            has_solution: false,
+            previous: hover,
+            has_previous: false,
+        })
+    }
+
+    pub fn settings(&self) -> &QpSettings {
+        &self.settings
+    }
+
+    pub fn num_variables(&self) -> usize {
+        3 * self.n
+    }
+
+    /// The inputs of the last solve when it produced a solution (`N x 3`, flattened, within
+    /// the bounds).
+    pub fn solution(&self) -> Option<&[f64]> {
+        self.has_solution.then_some(&self.solution[..])
+    }
+
+    /// The first input of the last solution, if any.
+    pub fn first_input(&self) -> Option<[f64; 3]> {
+        self.solution().map(|u| [u[0], u[1], u[2]])
+    }
+
+    /// The nominal inputs the last QP was linearized around.
+    pub fn nominal(&self) -> &[f64] {
+        &self.nominal
+    }
+
+    /// Forgets the previous solution: the next solve without a nominal linearizes at hover.
+    pub fn reset(&mut self) {
+        self.has_previous = false;
+        self.has_solution = false;
+    }
+
+    /// Largest violation `max_r (A u - b)_r` (0 when none) of the last QP's linear constraints
+    /// at inputs `u`.
+    pub fn linear_violation(&self, u: &[f64]) -> f64 {
+        let mut ax = vec![0.0; self.num_rows];
+        let a = &self.a_csc;
+        for (c, &uc) in u.iter().enumerate().take(a.n) {
+            for k in a.colptr[c]..a.colptr[c + 1] {
+                ax[a.rowval[k]] += a.nzval[k] * uc;
+            }
+        }
+        ax.iter().zip(&self.b).fold(0.0f64, |acc, (l, r)| acc.max(l - r))
+    }
+
+    fn validate_instance(
+        &self,
+        x0: &[f64; 8],
+        u_prev: &[f64; 3],
+        weights: &[f64],
+        nominal: Option<&[f64]>,
+    ) -> Result<(), MpcError> {
+        let invalid = |field: String, reason: &str| MpcError::InvalidInput { field, reason: reason.into() };
+        if let Some(i) = x0.iter().position(|v| !v.is_finite()) {
+            return Err(invalid(format!("x0[{i}]"), "must be finite"));
+        }
+        if let Some(i) = u_prev.iter().position(|v| !v.is_finite()) {
+            return Err(invalid(format!("u_prev[{i}]"), "must be finite"));
+        }
+        if weights.len() != self.m {
+            return Err(invalid(
+                "weights".into(),
+                &format!("must hold {} values, got {}", self.m, weights.len()),
+            ));
+        }
+        if let Some(i) = weights.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
+            return Err(invalid(format!("weights[{i}]"), "must be finite and >= 0"));
+        }
+        if weights.iter().sum::<f64>() <= 0.0 {
+            return Err(invalid("weights".into(), "must not all be zero"));
+        }
+        if let Some(u) = nominal {
+            if u.len() != 3 * self.n {
+                return Err(invalid("nominal".into(), &format!("must hold {} values", 3 * self.n)));
+            }
+            if let Some(k) = u.iter().position(|v| !v.is_finite()) {
+                return Err(invalid(format!("nominal[{}][{}]", k / 3, k % 3), "must be finite"));
+            }
+        }
+        Ok(())
+    }
+
+    /// Linearizes around `nominal` (or, without one, the previous solution shifted by one
+    /// step, or hover), builds the QP and solves it; repeats for `sqp_rounds`.
+    ///
+    /// `Err` only for invalid input (nothing changes); every solver outcome is in the report.
+    /// The inputs are in [`QpFallback::solution`] only when the status has a solution.
+    pub fn solve(
+        &mut self,
+        x0: &[f64; 8],
+        u_prev: &[f64; 3],
+        weights: &[f64],
+        nominal: Option<&[f64]>,
+        budget: &QpBudget,
+    ) -> Result<QpReport, MpcError> {
+        self.validate_instance(x0, u_prev, weights, nominal)?;
+        self.x0 = *x0;
+        self.u_prev = *u_prev;
+        self.weights.copy_from_slice(weights);
+        let nv = 3 * self.n;
+        match nominal {
+            Some(u) => self.nominal.copy_from_slice(u),
+            None if self.has_previous => {
+                self.nominal[..nv - 3].copy_from_slice(&self.previous[3..]);
+                let last = [self.previous[nv - 3], self.previous[nv - 2], self.previous[nv - 1]];
+                self.nominal[nv - 3..].copy_from_slice(&last);
+            }
+            None => {
+                for j in 0..self.n {
+                    self.nominal[3 * j..3 * j + 3].copy_from_slice(&self.u_ref);
+                }
+            }
+        }
+        for (k, u) in self.nominal.iter_mut().enumerate() {
+            *u = u.clamp(self.bounds.min[k % 3], self.bounds.max[k % 3]);
+        }
+        self.has_solution = false;
+        let mut iterations = 0;
+        let mut solve_time = Duration::ZERO;
+        let mut status = QpStatus::NumericalError;
+        let mut rounds = 0;
+        for round in 0..self.settings.sqp_rounds {
+            if round > 0 {
+                if !status.has_solution() {
+                    break;
+                }
+                let sol = std::mem::take(&mut self.solution);
+                self.nominal.copy_from_slice(&sol);
+                self.solution = sol;
+            }
+            rounds += 1;
+            self.linearize();
+            self.build_qp();
+            let (s, it, t) = self.solve_qp(budget);
+            status = s;
+            iterations += it;
+            solve_time += t;
+        }
+        let nan = f64::NAN;
+        let (mut cost, mut min_clearance_m, mut min_altitude_m, mut linear_violation) = (nan, nan, nan, nan);
+        if status.has_solution() {
+            linear_violation = self.linear_violation(&self.solution).max(0.0);
+            for (k, u) in self.solution.iter_mut().enumerate() {
+                *u = u.clamp(self.bounds.min[k % 3], self.bounds.max[k % 3]);
+            }
+            self.evaluator.set_instance(x0, u_prev, weights);
+            let check = check_on_nonlinear_model(&mut self.evaluator, &self.cylinders, &self.solution);
+            cost = check.cost;
+            min_clearance_m = check.min_clearance_m;
+            min_altitude_m = check.min_altitude_m;
+            self.has_solution = true;
+            self.previous.copy_from_slice(&self.solution);
+            self.has_previous = true;
+        }
+        Ok(QpReport {
+            status,
+            iterations,
+            rounds,
+            solve_time,
+            num_constraints: self.num_rows,
+            num_half_planes: self.num_half_planes,
+            cost,
+            min_clearance_m,
+            min_altitude_m,
+            linear_violation,
+        })
+    }
+
+    /// Nominal trajectories, position sensitivities, Gauss-Newton Hessian and gradient.
+    fn linearize(&mut self) {
+        let (m, n) = (self.m, self.n);
+        let nv = 3 * n;
+        let p = self.params;
+        let (g, ax, ay, az) = (p.gravity_mps2, p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
+        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
+        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
+        let u = &self.nominal;
+        self.hess.iter_mut().for_each(|h| *h = 0.0);
+        self.grad.iter_mut().for_each(|h| *h = 0.0);
+        for i in 0..m {
+            let dt = self.dts[i];
+            let w2 = 2.0 * self.weights[i];
+            let base = i * (n + 1);
+            // Nominal forward pass.
+            let mut x = self.x0;
+            self.states[base] = x;
+            for j in 0..n {
+                let (sr, cr) = x[6].sin_cos();
+                let (sp, cp) = x[7].sin_cos();
+                self.trig[i * n + j] = [sr, cr, sp, cp];
+                let (t, rd, pd) = (u[3 * j], u[3 * j + 1], u[3 * j + 2]);
+                x = [
+                    x[0] + dt * x[3],
+                    x[1] + dt * x[4],
+                    x[2] + dt * x[5],
+                    x[3] + dt * (t * cr * sp - ax * x[3]),
+                    x[4] + dt * (-t * sr - ay * x[4]),
+                    x[5] + dt * (t * cr * cp - g - az * x[5]),
+                    x[6] + dt * (kr * rd - ir * x[6]),
+                    x[7] + dt * (kp * pd - ip * x[7]),
+                ];
+                self.states[base + j + 1] = x;
+            }
+            // Gradient of the state cost at the nominal inputs: one adjoint pass.
+            let mut l = [0.0f64; 8];
+            for j in (0..n).rev() {
+                let xs = &self.states[base + j + 1];
+                for k in 0..8 {
+                    l[k] += w2 * self.q_x[k] * (xs[k] - self.x_ref[k]);
+                }
+                let [sr, cr, sp, cp] = self.trig[i * n + j];
+                let t = u[3 * j];
+                self.grad[3 * j] += dt * (cr * sp * l[3] - sr * l[4] + cr * cp * l[5]);
+                self.grad[3 * j + 1] += dt * kr * l[6];
+                self.grad[3 * j + 2] += dt * kp * l[7];
+                adjoint_step(&mut l, dt, t, [sr, cr, sp, cp], (ax, ay, az, ir, ip));
+            }
+            // Hessian and position sensitivities: per input, a forward sensitivity pass and an
+            // adjoint pass.
+            for v in 0..nv {
+                let (jv, c) = (v / 3, v % 3);
+                let [sr, cr, sp, cp] = self.trig[i * n + jv];
+                // s = d x_{jv+1} / d u_v = dt B_jv e_c
+                let mut s = [0.0f64; 8];
+                match c {
+                    0 => {
+                        s[3] = dt * cr * sp;
+                        s[4] = -dt * sr;
+                        s[5] = dt * cr * cp;
+                    }
+                    1 => s[6] = dt * kr,
+                    _ => s[7] = dt * kp,
+                }
+                // Points before jv + 1 do not depend on u_v (and are never read for it).
+                self.col[jv + 1] = s;
+                self.sens[(i * n + jv) * nv + v] = [s[0], s[1], s[2]];
+                for j in jv + 1..n {
+                    let [sr, cr, sp, cp] = self.trig[i * n + j];
+                    let t = u[3 * j];
+                    s = [
+                        s[0] + dt * s[3],
+                        s[1] + dt * s[4],
+                        s[2] + dt * s[5],
+                        s[3] + dt * (-ax * s[3] - t * sr * sp * s[6] + t * cr * cp * s[7]),
+                        s[4] + dt * (-ay * s[4] - t * cr * s[6]),
+                        s[5] + dt * (-az * s[5] - t * sr * cp * s[6] - t * cr * sp * s[7]),
+                        s[6] - dt * ir * s[6],
+                        s[7] - dt * ip * s[7],
+                    ];
+                    self.col[j + 1] = s;
+                    self.sens[(i * n + j) * nv + v] = [s[0], s[1], s[2]];
+                }
+                // Adjoint: H[(j, c'), v] = B_j^T lambda_{j+1}, lambda_k = A_k^T lambda_{k+1} + 2 w Q s_k.
+                let mut l = [0.0f64; 8];
+                for j in (jv..n).rev() {
+                    let s = &self.col[j + 1];
+                    for k in 0..8 {
+                        l[k] += w2 * self.q_x[k] * s[k];
+                    }
+                    let [sr, cr, sp, cp] = self.trig[i * n + j];
+                    let row = 3 * j;
+                    self.hess[v * nv + row] += dt * (cr * sp * l[3] - sr * l[4] + cr * cp * l[5]);
+                    self.hess[v * nv + row + 1] += dt * kr * l[6];
+                    self.hess[v * nv + row + 2] += dt * kp * l[7];
+                    if j > jv {
+                        adjoint_step(&mut l, dt, u[3 * j], [sr, cr, sp, cp], (ax, ay, az, ir, ip));
+                    }
+                }
+            }
+        }
+        // `hess[v nv + r]` holds H[r][v] for r >= 3 (v / 3): mirror into the upper triangle.
+        for v in 0..nv {
+            for r in (3 * (v / 3))..nv {
+                if r > v {
+                    self.hess[r * nv + v] = self.hess[v * nv + r];
+                }
+            }
+        }
+        // Input cost W sum_j |u_j - u_r|^2_Qu + |u_j - u_{j-1}|^2_Qdu: Hessian and gradient.
+        let wsum: f64 = self.weights.iter().sum();
+        for j in 0..n {
+            for c in 0..3 {
+                let k = 3 * j + c;
+                let uk = u[k];
+                let prev = if j == 0 { self.u_prev[c] } else { u[k - 3] };
+                let mut gk = self.q_u[c] * (uk - self.u_ref[c]) + self.q_du[c] * (uk - prev);
+                let mut diag = self.q_u[c] + self.q_du[c];
+                if j + 1 < n {
+                    gk -= self.q_du[c] * (u[k + 3] - uk);
+                    diag += self.q_du[c];
+                    self.hess[k * nv + k + 3] -= 2.0 * wsum * self.q_du[c];
+                    self.hess[(k + 3) * nv + k] -= 2.0 * wsum * self.q_du[c];
+                }
+                self.grad[k] += 2.0 * wsum * gk;
+                self.hess[k * nv + k] += 2.0 * wsum * diag;
+            }
+        }
+        // QP in u: 1/2 u^T H u + (g - H u_bar)^T u.
+        for r in 0..nv {
+            let hu: f64 = (0..nv).map(|c| self.hess[r * nv + c] * u[c]).sum();
+            self.q[r] = self.grad[r] - hu;
+        }
+    }
+
+    /// Constraint rows `A u <= b` and the CSC forms of `P` (upper triangle) and `A`.
+    fn build_qp(&mut self) {
+        let (m, n) = (self.m, self.n);
+        let nv = 3 * n;
+        self.b.clear();
+        let mut r = 0;
+        // Bounds (and trust region): u_v <= hi, -u_v <= -lo. Kept out of the dense buffer.
+        for v in 0..nv {
+            let c = v % 3;
+            let (mut lo, mut hi) = (self.bounds.min[c], self.bounds.max[c]);
+            if let Some(tr) = self.settings.trust_region {
+                lo = lo.max(self.nominal[v] - tr[c]);
+                hi = hi.min(self.nominal[v] + tr[c]);
+            }
+            self.b.push(hi);
+            self.b.push(-lo);
+        }
+        let n_bound_rows = 2 * nv;
+        let act = self.settings.activation_distance_m;
+        let mut n_half = 0;
+        // Dense rows of the half-planes and the floor, after the bound rows.
+        for i in 0..m {
+            // A nominal prediction that passes through a cylinder would get half-planes facing
+            // backwards before the axis and forwards after it, which no trajectory satisfies.
+            // Its points inside the cylinder share one normal instead: towards the side of
+            // its closest approach (perpendicular to the velocity there when it hits the axis).
+            for (o, ob) in self.obstacles.iter().enumerate() {
+                let mut best = (f64::INFINITY, 0);
+                for k in 1..=n {
+                    let xb = &self.states[i * (n + 1) + k];
+                    let d = (xb[0] - ob.x).hypot(xb[1] - ob.y);
+                    if xb[2] < ob.top && d < best.0 {
+                        best = (d, k);
+                    }
+                }
+                self.side[o] = None;
+                if best.0 < ob.r {
+                    let xb = &self.states[i * (n + 1) + best.1];
+                    let (dx, dy) = (xb[0] - ob.x, xb[1] - ob.y);
+                    let speed = xb[3].hypot(xb[4]);
+                    self.side[o] = Some(if best.0 > 1e-6 {
+                        [dx / best.0, dy / best.0]
+                    } else if speed > 1e-9 {
+                        [-xb[4] / speed, xb[3] / speed]
+                    } else {
+                        [1.0, 0.0]
+                    });
+                }
+            }
+            for k in 1..=n {
+                let xb = self.states[i * (n + 1) + k];
+                let sens = &self.sens[(i * n + k - 1) * nv..(i * n + k) * nv];
+                // Point k depends on inputs 0..k-1 only.
+                let width = 3 * k;
+                for (o, ob) in self.obstacles.iter().enumerate() {
+                    if xb[2] >= ob.top {
+                        continue;
+                    }
+                    let (dx, dy) = (xb[0] - ob.x, xb[1] - ob.y);
+                    let d = dx.hypot(dy);
+                    if d - ob.r > act {
+                        continue;
+                    }
+                    let (nx, ny) = match self.side[o] {
+                        Some([sx, sy]) if d < ob.r => (sx, sy),
+                        _ if d > 1e-9 => (dx / d, dy / d),
+                        _ => (1.0, 0.0),
+                    };
+                    // n^T (p_bar + S (u - u_bar) - c) >= R  <=>  -n^T S u <= n^T (p_bar - c) - R - n^T S u_bar
+                    let row = &mut self.rows[r * nv..(r + 1) * nv];
+                    let mut su = 0.0;
+                    let mut norm = 0.0f64;
+                    for v in 0..width {
+                        let a = -(nx * sens[v][0] + ny * sens[v][1]);
+                        row[v] = a;
+                        su += a * self.nominal[v];
+                        norm = norm.max(a.abs());
+                    }
+                    row[width..].iter_mut().for_each(|a| *a = 0.0);
+                    // A point the inputs cannot move constrains nothing the QP can change.
+                    if norm < 1e-12 {
+                        continue;
+                    }
+                    self.b.push(nx * dx + ny * dy - ob.r + su);
+                    r += 1;
+                    n_half += 1;
+                }
+                if let Some(floor) = self.settings.min_altitude_m {
+                    // z_bar + S_z (u - u_bar) >= floor  <=>  -S_z u <= z_bar - floor - S_z u_bar
+                    let row = &mut self.rows[r * nv..(r + 1) * nv];
+                    let mut su = 0.0;
+                    let mut norm = 0.0f64;
+                    for v in 0..width {
+                        let a = -sens[v][2];
+                        row[v] = a;
+                        su += a * self.nominal[v];
+                        norm = norm.max(a.abs());
+                    }
+                    row[width..].iter_mut().for_each(|a| *a = 0.0);
+                    if norm < 1e-12 {
+                        continue;
+                    }
+                    self.b.push(xb[2] - floor + su);
+                    r += 1;
+                }
+            }
+        }
+        self.num_half_planes = n_half;
+        let n_dense = r;
+        self.num_rows = n_bound_rows + n_dense;
+        // A in CSC, column by column: the two bound rows, then the nonzeros of the dense rows.
+        let a = &mut self.a_csc;
+        a.m = self.num_rows;
+        a.rowval.clear();
+        a.nzval.clear();
+        a.colptr[0] = 0;
+        for v in 0..nv {
+            a.rowval.push(2 * v);
+            a.nzval.push(1.0);
+            a.rowval.push(2 * v + 1);
+            a.nzval.push(-1.0);
+            for rr in 0..n_dense {
+                let val = self.rows[rr * nv + v];
+                if val != 0.0 {
+                    a.rowval.push(n_bound_rows + rr);
+                    a.nzval.push(val);
+                }
+            }
+            a.colptr[v + 1] = a.rowval.len();
+        }
+        // P: upper triangle of the dense Hessian, column by column.
+        let p = &mut self.p_csc;
+        p.rowval.clear();
+        p.nzval.clear();
+        p.colptr[0] = 0;
+        for c in 0..nv {
+            for rr in 0..=c {
+                // average the two halves so that P is exactly symmetric
+                let val = 0.5 * (self.hess[rr * nv + c] + self.hess[c * nv + rr]);
+                p.rowval.push(rr);
+                p.nzval.push(val);
+            }
+            p.colptr[c + 1] = p.rowval.len();
+        }
+    }
+
+    fn solve_qp(&mut self, budget: &QpBudget) -> (QpStatus, u32, Duration) {
+        let finite = self
+            .q
+            .iter()
+            .chain(&self.b)
+            .chain(&self.p_csc.nzval)
+            .chain(&self.a_csc.nzval)
+            .all(|v| v.is_finite());
+        if !finite {
+            return (QpStatus::NumericalError, 0, Duration::ZERO);
+        }
+        let s = &self.settings;
+        let settings = DefaultSettings {
+            verbose: false,
+            max_iter: budget.max_iterations.unwrap_or(s.max_iterations).max(1),
+            time_limit: budget.deadline.map_or(f64::INFINITY, |d| d.as_secs_f64()),
+            tol_gap_abs: s.gap_tolerance,
+            tol_gap_rel: s.gap_tolerance,
+            tol_feas: s.feasibility_tolerance,
+            max_threads: 1,
+            ..DefaultSettings::default()
+        };
+        let cones = [SupportedConeT::NonnegativeConeT(self.num_rows)];
+        let mut solver =
+            match DefaultSolver::new(&self.p_csc, &self.q, &self.a_csc, &self.b, &cones, settings) {
+                Ok(solver) => solver,
+                Err(_) => return (QpStatus::NumericalError, 0, Duration::ZERO),
+            };
+        solver.solve();
+        let mut status = QpStatus::from_clarabel(solver.solution.status);
+        let time = Duration::from_secs_f64(solver.solution.solve_time.max(0.0));
+        if status.has_solution() {
+            if solver.solution.x.iter().all(|v| v.is_finite()) {
+                self.solution.copy_from_slice(&solver.solution.x);
+            } else {
+                status = QpStatus::NumericalError;
+            }
+        }
+        (status, solver.solution.iterations, time)
+    }
+}
+
+/// `l <- (I + dt Fx(x, u))^T l` for the MAV's Euler map (`trig` of `x`, thrust `t`).
+#[inline]
+fn adjoint_step(l: &mut [f64; 8], dt: f64, t: f64, trig: [f64; 4], drag: (f64, f64, f64, f64, f64)) {
+    let [sr, cr, sp, cp] = trig;
+    let (ax, ay, az, ir, ip) = drag;
+    let l6 = l[6] + dt * (-t * sr * sp * l[3] - t * cr * l[4] - t * sr * cp * l[5] - ir * l[6]);
+    let l7 = l[7] + dt * (t * cr * cp * l[3] - t * cr * sp * l[5] - ip * l[7]);
+    l[3] += dt * (l[0] - ax * l[3]);
+    l[4] += dt * (l[1] - ay * l[4]);
+    l[5] += dt * (l[2] - az * l[5]);
+    l[6] = l6;
+    l[7] = l7;
+}
+
+/// An input sequence checked on the nonlinear (Euler) predictions of every scenario.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct NonlinearCheck {
+    /// The spec's objective `sum_i w_i J_i`.
+    pub cost: f64,
+    /// Smallest true clearance (no margin) of predicted points `1..=N` of every scenario, m.
+    pub min_clearance_m: f64,
+    /// Lowest predicted altitude of points `1..=N` of every scenario, m.
+    pub min_altitude_m: f64,
+    /// Every predicted value is finite.
+    pub finite: bool,
+}
+
+/// Evaluates inputs `u` on the instance set in `ev`: objective, true clearance, altitude.
+pub(crate) fn check_on_nonlinear_model(
+    ev: &mut Evaluator,
+    cylinders: &[Cylinder],
+    u: &[f64],
+) -> NonlinearCheck {
+    let cost = ev.objective_at_inputs(u);
+    let mut min_clearance_m = f64::INFINITY;
+    let mut min_altitude_m = f64::INFINITY;
+    let mut finite = cost.is_finite();
+    for i in 0..ev.num_scenarios() {
+        for x in &ev.predicted_states(i)[1..] {
+            finite &= x.iter().all(|v| v.is_finite());
+            let (c, _) = mav::geometry::min_clearance(cylinders, x[0], x[1], x[2]);
+            min_clearance_m = min_clearance_m.min(c);
+            min_altitude_m = min_altitude_m.min(x[2]);
+        }
+    }
+    if !finite {
+        min_clearance_m = f64::NAN;
+        min_altitude_m = f64::NAN;
+    }
+    NonlinearCheck { cost, min_clearance_m, min_altitude_m, finite }
+}
+
+#[cfg(test)]
+#[allow(clippy::needless_range_loop)]
+mod tests {
+    use super::*;
+    use crate::problem::{ControllerMode, ObstacleFormulation};
+    use crate::solver::{Mpc, MpcSettings, SolveBudget};
+    use mav::Scenario;
+    use proptest::prelude::*;
+
+    const W5: [f64; 5] = [0.05, 0.15, 0.45, 0.30, 0.05];
+    const HOVER: [f64; 3] = [9.81, 0.0, 0.0];
+
+    fn paper_def(scenario: &Scenario, mode: ControllerMode) -> OcpDefinition {
+        OcpDefinition::from_scenario(scenario, mode, 0.1, ObstacleFormulation::DistanceAlm)
+    }
+
+    /// paper-3 without cylinders, goal 1 m up: a problem that stays near hover.
+    fn free_space_def() -> OcpDefinition {
+        let mut def = paper_def(&Scenario::paper_3(), ControllerMode::Multistage);
+        def.obstacles.clear();
+        def
+    }
+
+    /// A small problem for brute-force checks.
+    fn small_def() -> OcpDefinition {
+        let mut def = paper_def(&Scenario::paper_2(), ControllerMode::Multistage);
+        def.horizon = 6;
+        def.sampling_times_s = vec![0.05, 0.2];
+        def
+    }
+
+    fn states_of(def: &OcpDefinition, x0: &[f64; 8], u: &[f64], dt: f64) -> Vec<[f64; 8]> {
+        let model = mav::MavModel::new(def.model);
+        let mut x = mav::State::from(*x0);
+        let mut out = Vec::new();
+        for j in 0..def.horizon {
+            x = mav::euler_step(&model, &x, &mav::Input::new(u[3 * j], u[3 * j + 1], u[3 * j + 2]), dt);
+            out.push(std::array::from_fn(|k| x[k]));
+        }
+        out
+    }
+
+    #[test]
+    fn hessian_and_gradient_match_brute_force_gauss_newton() {
+        let def = small_def();
+        let x0 = [3.0, 1.0, 0.5, 0.3, 0.8, -0.2, 0.05, -0.04];
+        let u_prev = [10.0, 0.01, -0.02];
+        let w = [0.3, 0.7];
+        let nv = def.num_variables();
+        let nominal: Vec<f64> = (0..nv).map(|k| [10.5, 0.05, -0.08][k % 3] + 0.004 * (k as f64)).collect();
+        assert!(nominal.iter().enumerate().all(|(k, v)| *v <= def.bounds.max[k % 3]), "inside the bounds");
+        let mut qp = QpFallback::new(&def, QpSettings::default()).expect("valid");
+        qp.solve(&x0, &u_prev, &w, Some(&nominal), &QpBudget::default()).expect("valid");
+        // Brute force: Jacobians by central differences, H = sum_i 2 w_i J_i^T Q J_i + input terms.
+        let mut h = vec![0.0; nv * nv];
+        for (i, &dt) in def.sampling_times_s.iter().enumerate() {
+            let mut jac = vec![vec![[0.0; 8]; def.horizon]; nv];
+            for v in 0..nv {
+                let (mut up, mut um) = (nominal.clone(), nominal.clone());
+                up[v] += 1e-6;
+                um[v] -= 1e-6;
+                let (xp, xm) = (states_of(&def, &x0, &up, dt), states_of(&def, &x0, &um, dt));
+                for k in 0..def.horizon {
+                    for s in 0..8 {
+                        jac[v][k][s] = (xp[k][s] - xm[k][s]) / 2e-6;
+                    }
+                    for s in 0..3 {
+                        let got = qp.sens[(i * def.horizon + k) * nv + v][s];
+                        assert!((got - jac[v][k][s]).abs() < 1e-6, "sensitivity {i} {k} {v} {s}: {got}");
+                    }
+                }
+            }
+            for a in 0..nv {
+                for b in 0..nv {
+                    let mut acc = 0.0;
+                    for k in 0..def.horizon {
+                        for s in 0..8 {
+                            acc += 2.0 * w[i] * def.q_x[s] * jac[a][k][s] * jac[b][k][s];
+                        }
+                    }
+                    h[a * nv + b] += acc;
+                }
+            }
+        }
+        let wsum: f64 = w.iter().sum();
+        for k in 0..nv {
+            let c = k % 3;
+            h[k * nv + k] += 2.0 * wsum * (def.q_u[c] + def.q_du[c] * if k + 3 < nv { 2.0 } else { 1.0 });
+            if k + 3 < nv {
+                h[k * nv + k + 3] -= 2.0 * wsum * def.q_du[c];
+                h[(k + 3) * nv + k] -= 2.0 * wsum * def.q_du[c];
+            }
+        }
+        let scale = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        for k in 0..nv * nv {
+            assert!(
+                (qp.hess[k] - h[k]).abs() < 1e-5 * scale,
+                "H[{}][{}]: {} vs {}",
+                k / nv,
+                k % nv,
+                qp.hess[k],
+                h[k]
+            );
+        }
+        // Gradient at the nominal against finite differences of the nonlinear objective.
+        let mut ev = Evaluator::new(&def);
+        ev.set_instance(&x0, &u_prev, &w);
+        for v in 0..nv {
+            let (mut up, mut um) = (nominal.clone(), nominal.clone());
+            up[v] += 1e-6;
+            um[v] -= 1e-6;
+            let fd = (ev.objective_at_inputs(&up) - ev.objective_at_inputs(&um)) / 2e-6;
+            assert!(
+                (fd - qp.grad[v]).abs() < 1e-4 * (1.0 + fd.abs()),
+                "gradient {v}: {} vs {fd}",
+                qp.grad[v]
+            );
+        }
+    }
+
+    #[test]
+    fn without_obstacles_near_hover_the_qp_agrees_with_panoc() {
+        let def = free_space_def();
+        let mut x0 = [0.0; 8];
+        x0[..3].copy_from_slice(&[3.0, 4.6, 0.7]);
+        let settings = MpcSettings { tolerance: 1e-7, max_inner_iterations: 3000, ..Default::default() };
+        let mut mpc = Mpc::new(def.clone(), settings).expect("valid");
+        let r = mpc.solve(&x0, &HOVER, &W5, &SolveBudget::default()).expect("valid");
+        let mut qp =
+            QpFallback::new(&def, QpSettings { sqp_rounds: 2, ..Default::default() }).expect("valid");
+        let q = qp.solve(&x0, &HOVER, &W5, None, &QpBudget::default()).expect("valid");
+        assert_eq!(q.status, QpStatus::Solved);
+        assert_eq!(q.num_half_planes, 0);
+        let u = qp.solution().expect("solved");
+        let range = [2.0 * 9.81, std::f64::consts::PI / 9.0, std::f64::consts::PI / 9.0];
+        let mut worst = 0.0f64;
+        for (k, (a, b)) in u.iter().zip(mpc.solution()).enumerate() {
+            worst = worst.max((a - b).abs() / range[k % 3]);
+        }
+        assert!(worst < 0.01, "largest input difference {worst} of the range");
+        assert!((q.cost - r.cost).abs() <= 1e-3 * r.cost, "QP cost {} vs PANOC cost {}", q.cost, r.cost);
+    }
+
+    #[test]
+    fn the_qp_solution_satisfies_its_own_linear_constraints() {
+        let s = Scenario::paper_2();
+        // Standard NMPC: from this state the multi-stage problem has points of the 0.2 s and
+        // 0.33 s scenarios that no input keeps outside the inflated cylinder (infeasible).
+        let def = paper_def(&s, ControllerMode::Nmpc);
+        // Heading at the 0.4 m cylinder at (2.8, 3.0).
+        let x0 = [2.9, 1.6, 0.8, 0.0, 0.6, 0.0, 0.0, 0.0];
+        let settings = QpSettings { min_altitude_m: Some(0.2), ..Default::default() };
+        let mut qp = QpFallback::new(&def, settings).expect("valid");
+        let r = qp.solve(&x0, &HOVER, &[1.0], None, &QpBudget::default()).expect("valid");
+        assert_eq!(r.status, QpStatus::Solved);
+        assert!(r.num_half_planes > 50, "half-planes: {}", r.num_half_planes);
+        assert!(r.linear_violation <= 1e-6, "violation {}", r.linear_violation);
+        let u = qp.solution().expect("solved");
+        for (k, v) in u.iter().enumerate() {
+            assert!(*v >= def.bounds.min[k % 3] && *v <= def.bounds.max[k % 3]);
+        }
+        assert!(r.cost.is_finite() && r.min_clearance_m.is_finite() && r.min_altitude_m.is_finite());
+    }
+
+    #[test]
+    fn a_floor_above_reach_is_infeasible_never_a_solution() {
+        let def = paper_def(&Scenario::paper_2(), ControllerMode::Multistage);
+        let settings = QpSettings { min_altitude_m: Some(500.0), ..Default::default() };
+        let mut qp = QpFallback::new(&def, settings).expect("valid");
+        let r = qp.solve(&Scenario::paper_2().start, &HOVER, &W5, None, &QpBudget::default()).expect("valid");
+        assert_eq!(r.status, QpStatus::Infeasible);
+        assert!(qp.solution().is_none() && qp.first_input().is_none());
+        assert!(r.cost.is_nan());
+    }
+
+    #[test]
+    fn contradictory_half_planes_are_infeasible() {
+        // The nominal (hover, drifting at 1.5 m/s) flies straight through the cylinder and a
+        // tiny trust region forbids turning away: the half-planes contradict the box.
+        let def = paper_def(&Scenario::paper_2(), ControllerMode::Nmpc);
+        let x0 = [2.8, 2.0, 0.8, 0.0, 1.5, 0.0, 0.0, 0.0];
+        let settings = QpSettings { trust_region: Some([1e-3, 1e-4, 1e-4]), ..Default::default() };
+        let mut qp = QpFallback::new(&def, settings).expect("valid");
+        let r = qp.solve(&x0, &HOVER, &[1.0], None, &QpBudget::default()).expect("valid");
+        assert_eq!(r.status, QpStatus::Infeasible);
+        assert!(qp.solution().is_none());
+    }
+
+    #[test]
+    fn bad_input_and_settings_are_refused_naming_the_field() {
+        let def = small_def();
+        assert!(matches!(
+            QpFallback::new(&def, QpSettings { sqp_rounds: 0, ..Default::default() }),
+            Err(MpcError::InvalidSetting { field: "sqp_rounds", .. })
+        ));
+        let mut qp = QpFallback::new(&def, QpSettings::default()).expect("valid");
+        let mut x0 = [0.0; 8];
+        x0[3] = f64::NAN;
+        let e = qp.solve(&x0, &HOVER, &[0.5, 0.5], None, &QpBudget::default());
+        assert!(matches!(e, Err(MpcError::InvalidInput { field, .. }) if field == "x0[3]"));
+        let e = qp.solve(&[0.0; 8], &HOVER, &[1.0], None, &QpBudget::default());
+        assert!(matches!(e, Err(MpcError::InvalidInput { field, .. }) if field == "weights"));
+        let e = qp.solve(&[0.0; 8], &HOVER, &[0.5, 0.5], Some(&[1.0; 5]), &QpBudget::default());
+        assert!(matches!(e, Err(MpcError::InvalidInput { field, .. }) if field == "nominal"));
+    }
+
+    fn arb_def() -> impl Strategy<Value = OcpDefinition> {
+        (
+            2usize..=25,
+            prop::collection::vec(0.03f64..0.35, 1..=5),
+            prop::collection::vec((0.5f64..6.0, 0.5f64..6.0, 0.1f64..0.8), 0..=3),
+        )
+            .prop_map(|(n, dts, obs)| {
+                let mut def = paper_def(&Scenario::paper_2(), ControllerMode::Multistage);
+                def.horizon = n;
+                def.sampling_times_s = dts;
+                def.obstacles = obs.into_iter().map(|(x, y, r)| mav::Cylinder::new(x, y, r)).collect();
+                def
+            })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+
+        /// A solution is a solution of the QP, and an infeasible floor is never "solved".
+        #[test]
+        fn the_qp_never_reports_success_on_an_infeasible_problem(
+            def in arb_def(),
+            p in (0.0f64..6.0, 0.0f64..6.0, 0.0f64..3.0),
+            v in (-2.0f64..2.0, -2.0f64..2.0, -1.0f64..1.0),
+            att in (-0.17f64..0.17, -0.17f64..0.17),
+            w in prop::collection::vec(0.01f64..1.0, 5),
+            floor_above in 40.0f64..200.0,
+        ) {
+            let x0 = [p.0, p.1, p.2, v.0, v.1, v.2, att.0, att.1];
+            let w = &w[..def.num_scenarios()];
+            let mut qp = QpFallback::new(&def, QpSettings::default()).expect("valid");
+            let r = qp.solve(&x0, &HOVER, w, None, &QpBudget::default()).expect("valid");
+            if r.status.has_solution() {
+                prop_assert!(r.linear_violation <= 1e-6, "violation {}", r.linear_violation);
+                let u = qp.solution().expect("solution");
+                prop_assert!(u.iter().all(|v| v.is_finite()));
+                prop_assert!(r.cost.is_finite());
+            } else {
+                prop_assert!(qp.solution().is_none());
+            }
+            // A floor far above anything reachable within the horizon (at most 2g up).
+            let horizon_s = def.horizon as f64 * def.sampling_times_s.iter().fold(0.0f64, |a, b| a.max(*b));
+            let reach = p.2 + v.2.abs() * horizon_s + 0.5 * 9.81 * horizon_s * horizon_s;
+            let settings = QpSettings { min_altitude_m: Some(reach + floor_above), ..Default::default() };
+            let mut qp = QpFallback::new(&def, settings).expect("valid");
+            let r = qp.solve(&x0, &HOVER, w, None, &QpBudget::default()).expect("valid");
+            prop_assert!(!r.status.has_solution(), "status {:?} on an infeasible floor", r.status);
+            prop_assert!(qp.solution().is_none());
+        }
+    }
+}
