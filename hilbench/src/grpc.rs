@@ -12,12 +12,14 @@
 //! scenario without delays gets the `none` preset. `mpc::run_closed_loop` draws its `d_k` from
 //! the same `delay::DelayLine`, so both runs are bit-identical.
 
+use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, anyhow, bail};
 use hilbench_proto::pb;
 use hilbench_proto::pb::controller_client::ControllerClient;
+use hilbench_proto::pb::netem_control_client::NetemControlClient;
 use hilbench_proto::pb::plant_client::PlantClient;
 use mav::{DelayModel, Scenario};
 use mpc::ControllerMode;
@@ -98,7 +100,6 @@ pub fn netem_config(upstream: &str, scenario: &Scenario) -> anyhow::Result<netem
 /// A service task with its stop signal.
 struct Running {
     name: &'static str,
-    addr: SocketAddr,
     stop: Option<oneshot::Sender<()>>,
     task: Option<JoinHandle<Result<(), String>>>,
 }
@@ -133,84 +134,161 @@ async fn bind() -> anyhow::Result<(tokio::net::TcpListener, SocketAddr)> {
     Ok((listener, addr))
 }
 
-/// Plant (lockstep), netem and controller (idle until `SetScenario`) on loopback.
+/// Services already running elsewhere (`HOST:PORT` or `http://...`); what is not given is
+/// started in this process.
+///
+/// - no `controller`: a controller is started (idle until `SetScenario`) against `netem`, or
+///   against a netem started here in front of `plant` (started here too when not given);
+/// - a `controller`: nothing is started; it must already be pointed at the Plant API it should
+///   fly (normally the given netem). The final state is read from `plant`, else from `netem`
+///   (an undelayed `GetState`), so one of them is required.
+///
+/// A netem at a given address gets the scenario's profiles (both directions, with the
+/// scenario's seed) through `NetemControl.SetProfile` before the run.
+#[derive(Debug, Clone, Default)]
+pub struct Endpoints {
+    pub plant: Option<String>,
+    pub netem: Option<String>,
+    pub controller: Option<String>,
+}
+
+impl Endpoints {
+    pub fn is_local(&self) -> bool {
+        self.plant.is_none() && self.netem.is_none() && self.controller.is_none()
+    }
+}
+
+/// The services of one run: those started here, and every address.
 pub struct Services {
-    plant: Running,
-    netem: Running,
-    controller: Running,
+    plant: Option<Running>,
+    netem: Option<Running>,
+    controller: Option<Running>,
+    plant_addr: Option<String>,
+    netem_addr: Option<String>,
+    controller_addr: String,
+    /// netem runs elsewhere: give it the scenario's profiles before the run.
+    configure_netem: bool,
 }
 
 impl Services {
+    /// Plant (lockstep), netem and controller (idle until `SetScenario`), all on loopback.
     pub async fn start(scenario: &Scenario, mode: ControllerMode) -> anyhow::Result<Self> {
-        let (plant_listener, plant_addr) = bind().await?;
-        let (netem_listener, netem_addr) = bind().await?;
-        let (controller_listener, controller_addr) = bind().await?;
+        Self::start_missing(scenario, mode, &Endpoints::default()).await
+    }
 
+    /// Starts what `endpoints` does not name (see [`Endpoints`]).
+    pub async fn start_missing(
+        scenario: &Scenario,
+        mode: ControllerMode,
+        endpoints: &Endpoints,
+    ) -> anyhow::Result<Self> {
+        if let Some(controller_addr) = &endpoints.controller {
+            if endpoints.plant.is_none() && endpoints.netem.is_none() {
+                bail!(
+                    "with a controller address, a plant or netem address is needed too (to read the final state)"
+                );
+            }
+            return Ok(Self {
+                plant: None,
+                netem: None,
+                controller: None,
+                plant_addr: endpoints.plant.clone(),
+                netem_addr: endpoints.netem.clone(),
+                controller_addr: controller_addr.clone(),
+                configure_netem: endpoints.netem.is_some(),
+            });
+        }
+        let (plant, plant_addr) = match &endpoints.plant {
+            Some(addr) => (None, addr.clone()),
+            None => {
+                let (listener, addr) = bind().await?;
+                let (stop, stopped) = oneshot::channel::<()>();
+                let config = plant::PlantConfig::lockstep(scenario.clone());
+                let task = tokio::spawn(async move {
+                    plant::serve(listener, config, async {
+                        let _ = stopped.await;
+                    })
+                    .await
+                    .map_err(|e| e.to_string())
+                });
+                (Some(Running { name: "plant", stop: Some(stop), task: Some(task) }), addr.to_string())
+            }
+        };
+        let (netem, netem_addr) = match &endpoints.netem {
+            Some(addr) => (None, addr.clone()),
+            None => {
+                let (listener, addr) = bind().await?;
+                let (stop, stopped) = oneshot::channel::<()>();
+                let config = netem_config(&plant_addr, scenario)?;
+                let task = tokio::spawn(async move {
+                    netem::serve(listener, config, async {
+                        let _ = stopped.await;
+                    })
+                    .await
+                    .map_err(|e| e.to_string())
+                });
+                (Some(Running { name: "netem", stop: Some(stop), task: Some(task) }), addr.to_string())
+            }
+        };
+        let (listener, controller_addr) = bind().await?;
         let (stop, stopped) = oneshot::channel::<()>();
-        let plant_config = plant::PlantConfig::lockstep(scenario.clone());
+        let mut config = controller::ControllerConfig::new(netem_addr.clone(), scenario.clone(), mode);
+        config.time_mode = controller::TimeModeSetting::Lockstep;
+        config.autostart = false;
         let task = tokio::spawn(async move {
-            plant::serve(plant_listener, plant_config, async {
+            controller::serve(listener, config, async {
                 let _ = stopped.await;
             })
             .await
             .map_err(|e| e.to_string())
         });
-        let plant = Running { name: "plant", addr: plant_addr, stop: Some(stop), task: Some(task) };
-
-        let (stop, stopped) = oneshot::channel::<()>();
-        let netem_config = netem_config(&plant_addr.to_string(), scenario)?;
-        let task = tokio::spawn(async move {
-            netem::serve(netem_listener, netem_config, async {
-                let _ = stopped.await;
-            })
-            .await
-            .map_err(|e| e.to_string())
-        });
-        let netem = Running { name: "netem", addr: netem_addr, stop: Some(stop), task: Some(task) };
-
-        let (stop, stopped) = oneshot::channel::<()>();
-        let mut controller_config =
-            controller::ControllerConfig::new(netem_addr.to_string(), scenario.clone(), mode);
-        controller_config.time_mode = controller::TimeModeSetting::Lockstep;
-        controller_config.autostart = false;
-        let task = tokio::spawn(async move {
-            controller::serve(controller_listener, controller_config, async {
-                let _ = stopped.await;
-            })
-            .await
-            .map_err(|e| e.to_string())
-        });
-        let controller =
-            Running { name: "controller", addr: controller_addr, stop: Some(stop), task: Some(task) };
-        Ok(Self { plant, netem, controller })
+        let controller = Running { name: "controller", stop: Some(stop), task: Some(task) };
+        Ok(Self {
+            plant,
+            netem,
+            controller: Some(controller),
+            plant_addr: Some(plant_addr),
+            configure_netem: endpoints.netem.is_some(),
+            netem_addr: Some(netem_addr),
+            controller_addr: controller_addr.to_string(),
+        })
     }
 
-    pub fn plant_addr(&self) -> SocketAddr {
-        self.plant.addr
+    pub fn plant_addr(&self) -> Option<&str> {
+        self.plant_addr.as_deref()
     }
 
-    pub fn netem_addr(&self) -> SocketAddr {
-        self.netem.addr
+    pub fn netem_addr(&self) -> Option<&str> {
+        self.netem_addr.as_deref()
     }
 
-    pub fn controller_addr(&self) -> SocketAddr {
-        self.controller.addr
+    pub fn controller_addr(&self) -> &str {
+        &self.controller_addr
     }
 
-    /// Stops the controller first (it is the client), then netem, then the plant.
+    /// Stops what was started here: the controller first (it is the client), then netem, then
+    /// the plant.
     pub async fn stop(self) -> anyhow::Result<()> {
-        let Self { plant, netem, controller } = self;
-        let c = controller.stop().await;
-        let n = netem.stop().await;
-        let p = plant.stop().await;
-        c.and(n).and(p)
+        let mut result = Ok(());
+        for running in [self.controller, self.netem, self.plant].into_iter().flatten() {
+            let r = running.stop().await;
+            if result.is_ok() {
+                result = r;
+            }
+        }
+        result
     }
+}
+
+fn uri(addr: &str) -> String {
+    if addr.contains("://") { addr.to_string() } else { format!("http://{addr}") }
 }
 
 /// A channel to `addr`, retried until `deadline` (the listener is bound before the server
 /// task runs, so this normally succeeds at once).
-pub async fn connect(addr: SocketAddr, deadline: Instant) -> anyhow::Result<Channel> {
-    let endpoint = Endpoint::from_shared(format!("http://{addr}"))?
+pub async fn connect(addr: &str, deadline: Instant) -> anyhow::Result<Channel> {
+    let endpoint = Endpoint::from_shared(uri(addr))
+        .with_context(|| format!("bad address {addr:?}"))?
         .connect_timeout(Duration::from_secs(2))
         .tcp_nodelay(true);
     loop {
@@ -230,8 +308,18 @@ pub async fn run_over_grpc(
     mode: ControllerMode,
     settings: &GrpcSettings,
 ) -> anyhow::Result<GrpcRun> {
+    run_against(scenario, mode, settings, &Endpoints::default()).await
+}
+
+/// Runs `scenario` with `mode` over gRPC against `endpoints`, starting what they do not name.
+pub async fn run_against(
+    scenario: &Scenario,
+    mode: ControllerMode,
+    settings: &GrpcSettings,
+    endpoints: &Endpoints,
+) -> anyhow::Result<GrpcRun> {
     let started = Instant::now();
-    let services = Services::start(scenario, mode).await?;
+    let services = Services::start_missing(scenario, mode, endpoints).await?;
     let result = drive(&services, scenario, mode, settings, started).await;
     let stopping = Instant::now();
     let stopped = services.stop().await;
@@ -239,6 +327,26 @@ pub async fn run_over_grpc(
     stopped?;
     run.timing.teardown_s = stopping.elapsed().as_secs_f64();
     Ok(run)
+}
+
+/// Gives a netem running elsewhere the scenario's profiles.
+async fn configure_netem(addr: &str, scenario: &Scenario, deadline: Instant) -> anyhow::Result<()> {
+    let config = netem_config(addr, scenario)?;
+    let mut control = NetemControlClient::new(connect(addr, deadline).await?);
+    for (direction, profile) in [
+        (pb::Direction::PlantToController, &config.plant_to_controller),
+        (pb::Direction::ControllerToPlant, &config.controller_to_plant),
+    ] {
+        control
+            .set_profile(pb::SetProfileRequest {
+                direction: direction as i32,
+                profile: Some(pb::DirectionProfile::from(profile)),
+                preset: String::new(),
+            })
+            .await
+            .with_context(|| format!("netem SetProfile at {addr}"))?;
+    }
+    Ok(())
 }
 
 async fn drive(
@@ -249,8 +357,18 @@ async fn drive(
     started: Instant,
 ) -> anyhow::Result<GrpcRun> {
     let deadline = Instant::now() + settings.timeout;
+    if services.configure_netem
+        && let Some(addr) = services.netem_addr()
+    {
+        configure_netem(addr, scenario, deadline).await?;
+    }
     let mut controller = ControllerClient::new(connect(services.controller_addr(), deadline).await?);
-    let mut plant = PlantClient::new(connect(services.plant_addr(), deadline).await?);
+    // The final state: from the plant, else through netem (an undelayed read).
+    let state_addr = services
+        .plant_addr()
+        .or(services.netem_addr())
+        .ok_or_else(|| anyhow!("no plant or netem address to read the final state from"))?;
+    let mut plant = PlantClient::new(connect(state_addr, deadline).await?);
     // Subscribe before the episode starts: the response headers mean the server subscribed.
     let mut stream = controller
         .stream_telemetry(pb::StreamTelemetryRequest {})
@@ -265,39 +383,46 @@ async fn drive(
         .set_scenario(pb::SetScenarioRequest { scenario: scenario.name.clone(), mode: mode.name().into() })
         .await
         .context("controller SetScenario")?;
-    let episode = before.episode + 1;
-    let mut telemetry: Vec<pb::CycleTelemetry> = Vec::new();
+    // The episode that runs this request is the last one started after `before`: one that was
+    // running (or about to start at autostart) is restarted by the request, and a pending
+    // request is taken before an episode can finish.
+    let mut episodes: BTreeMap<u64, Vec<pb::CycleTelemetry>> = BTreeMap::new();
     let mut poll = tokio::time::interval(STATUS_POLL);
     poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let status = loop {
+    let (status, telemetry) = loop {
         if Instant::now() >= deadline {
             bail!(
                 "{} with {}: the episode did not finish within {:?} ({} cycles seen)",
                 scenario.name,
                 mode.name(),
                 settings.timeout,
-                telemetry.len()
+                episodes.values().last().map_or(0, Vec::len)
             );
         }
         tokio::select! {
             item = stream.message() => {
                 let item = item.context("telemetry stream")?
                     .ok_or_else(|| anyhow!("the controller ended the telemetry stream"))?;
-                if item.episode != episode {
+                if item.episode <= before.episode {
                     continue;
                 }
-                if item.cycle != telemetry.len() as u64 {
-                    bail!("telemetry gap: expected cycle {}, got {}", telemetry.len(), item.cycle);
+                let cycles = episodes.entry(item.episode).or_default();
+                if item.cycle != cycles.len() as u64 {
+                    bail!(
+                        "telemetry gap in episode {}: expected cycle {}, got {}",
+                        item.episode,
+                        cycles.len(),
+                        item.cycle
+                    );
                 }
-                telemetry.push(item);
+                cycles.push(item);
             }
             _ = poll.tick() => {
                 let s = controller.get_status(pb::GetStatusRequest {}).await?.into_inner();
-                if s.episode == episode && s.episode_finished && telemetry.len() as u64 >= s.cycles {
-                    break s;
-                }
-                if s.episode > episode {
-                    bail!("another episode ({}) started during the run", s.episode);
+                let seen = episodes.get(&s.episode).map_or(0, Vec::len) as u64;
+                if s.episode > before.episode && s.episode_finished && seen >= s.cycles {
+                    let telemetry = episodes.remove(&s.episode).unwrap_or_default();
+                    break (s, telemetry);
                 }
             }
         }
@@ -305,6 +430,15 @@ async fn drive(
     let episode_s = episode_started.elapsed().as_secs_f64();
     if telemetry.len() as u64 != status.cycles {
         bail!("{} cycles of telemetry, the controller reports {}", telemetry.len(), status.cycles);
+    }
+    if status.scenario != scenario.name || status.mode != mode.name() {
+        bail!(
+            "the controller ran {} with {}, not {} with {}",
+            status.scenario,
+            status.mode,
+            scenario.name,
+            mode.name()
+        );
     }
     let final_sample = plant.get_state(pb::GetStateRequest {}).await.context("plant GetState")?.into_inner();
     let summary = summarize(scenario, mode, &status, &telemetry, &final_sample)?;

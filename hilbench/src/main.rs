@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use hilbench::grpc::{GrpcSettings, RunTiming, run_over_grpc};
+use hilbench::grpc::{Endpoints, GrpcSettings, RunTiming, run_against};
 use hilbench::report;
 use mpc::closed_loop::RunSummary;
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
@@ -38,15 +38,29 @@ enum Command {
         #[arg(long)]
         scenario: Vec<String>,
         /// Run the closed loop in process (`mpc::run_closed_loop`) instead of over gRPC.
-        #[arg(long)]
+        #[arg(long, conflicts_with_all = ["plant", "netem", "controller"])]
         in_process: bool,
+        /// A running plant (HOST:PORT, lockstep) instead of one started here.
+        #[arg(long)]
+        plant: Option<String>,
+        /// A running netem (HOST:PORT) instead of one started here; it gets each scenario's
+        /// delay profiles through NetemControl.
+        #[arg(long)]
+        netem: Option<String>,
+        /// A running controller (HOST:PORT), already pointed at the netem (or plant) it should
+        /// fly; needs --plant or --netem to read the final state.
+        #[arg(long)]
+        controller: Option<String>,
     },
 }
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
-        Command::Reproduce { out, json, scenario, in_process } => reproduce(out, json, &scenario, in_process),
+        Command::Reproduce { out, json, scenario, in_process, plant, netem, controller } => {
+            let endpoints = Endpoints { plant, netem, controller };
+            reproduce(out, json, &scenario, in_process, &endpoints)
+        }
     }
 }
 
@@ -60,7 +74,13 @@ struct TimedRun {
     loop_overhead_s: f64,
 }
 
-fn reproduce(out: Option<PathBuf>, json: bool, only: &[String], in_process: bool) -> anyhow::Result<()> {
+fn reproduce(
+    out: Option<PathBuf>,
+    json: bool,
+    only: &[String],
+    in_process: bool,
+    endpoints: &Endpoints,
+) -> anyhow::Result<()> {
     let started = Instant::now();
     for o in only {
         if !mav::Scenario::BUILT_IN.contains(&o.as_str()) {
@@ -95,7 +115,7 @@ fn reproduce(out: Option<PathBuf>, json: bool, only: &[String], in_process: bool
                 }
                 Some(rt) => {
                     let run = rt
-                        .block_on(run_over_grpc(&scenario, mode, &GrpcSettings::default()))
+                        .block_on(run_against(&scenario, mode, &GrpcSettings::default(), endpoints))
                         .with_context(|| format!("{name} with {} over gRPC", mode.name()))?;
                     timings.push(TimedRun {
                         scenario: name.to_string(),
@@ -152,7 +172,13 @@ fn reproduce(out: Option<PathBuf>, json: bool, only: &[String], in_process: bool
         println!();
         println!(
             "Paper reproduction: SPEC.md paper mode (RK4 plant at 1 ms, Gamma(12, 0.015) round-trip delays, seed 42), lockstep, {}",
-            if in_process { "in process" } else { "over gRPC (plant, netem, controller on loopback)" }
+            if in_process {
+                "in process"
+            } else if endpoints.is_local() {
+                "over gRPC (plant, netem, controller on loopback)"
+            } else {
+                "over gRPC (given services)"
+            }
         );
         println!();
         print!("{}", report::tables(&runs));

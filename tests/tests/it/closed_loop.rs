@@ -7,9 +7,12 @@
 
 use std::time::Duration;
 
-use hilbench::grpc::{GrpcSettings, run_over_grpc};
+use controller::ControllerConfig;
+use hilbench::grpc::{Endpoints, GrpcRun, GrpcSettings, run_against, run_over_grpc};
+use hilbench_tests::{start_controller, start_plant};
 use mav::Scenario;
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
+use plant::PlantConfig;
 
 fn bits<const N: usize>(v: &[f64]) -> Vec<u64> {
     assert_eq!(v.len(), N, "length");
@@ -22,14 +25,18 @@ fn bits_of(v: &[f64]) -> Vec<u64> {
 
 async fn assert_grpc_run_is_bit_identical_to_in_process(name: &str, mode: ControllerMode) {
     let scenario = Scenario::by_name(name).expect("built-in scenario");
-    let (expected, records) =
-        run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode)).expect("in-process closed loop");
     let run = run_over_grpc(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(300) })
         .await
         .expect("gRPC run");
-    let what = format!("{name} with {}", mode.name());
+    assert_bit_identical(&scenario, mode, &run);
+}
+
+/// `run` against `mpc::run_closed_loop` of the same scenario and mode, bit for bit.
+fn assert_bit_identical(scenario: &Scenario, mode: ControllerMode, run: &GrpcRun) {
+    let (expected, records) =
+        run_closed_loop(scenario, &ClosedLoopSettings::paper(mode)).expect("in-process closed loop");
+    let what = format!("{} with {}", scenario.name, mode.name());
     assert!(!records.is_empty(), "{what}: the in-process run has no cycles");
-    assert_eq!(run.telemetry.len(), records.len(), "{what}: number of cycles");
     for (k, (t, r)) in run.telemetry.iter().zip(&records).enumerate() {
         assert_eq!(t.cycle, k as u64, "{what}: cycle numbering");
         let sample = t.sample.as_ref().expect("telemetry carries the sample");
@@ -73,6 +80,8 @@ async fn assert_grpc_run_is_bit_identical_to_in_process(name: &str, mode: Contro
             );
         }
     }
+    // Compared after the cycles, so that a divergence names its first cycle.
+    assert_eq!(run.telemetry.len(), records.len(), "{what}: number of cycles");
     let got = &run.summary;
     assert_eq!(got.reached, expected.reached, "{what}: reached");
     assert_eq!(got.collided, expected.collided, "{what}: collided");
@@ -116,4 +125,46 @@ fn multistage_reaches_the_goal_of_every_paper_scenario_without_touching_a_cylind
         assert!(dist < 0.15, "{name}: ended {dist} m from the goal");
         assert_eq!(s.cycles as usize, records.len());
     }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_run_against_given_services_sets_the_netem_profile_and_is_bit_identical() {
+    let scenario = Scenario::by_name("paper-2").expect("built-in scenario");
+    let mode = ControllerMode::Multistage;
+    let plant = start_plant(PlantConfig::lockstep(scenario.clone())).await;
+    // A netem without delays: the run must give it the scenario's profile.
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind");
+    let netem_addr = listener.local_addr().expect("address");
+    let mut netem_config = netem::Config::new(plant.addr.to_string());
+    netem_config.time_mode = netem::TimeModeSetting::Lockstep;
+    let (stop_netem, netem_stopped) = tokio::sync::oneshot::channel::<()>();
+    let netem_task = tokio::spawn(netem::serve(listener, netem_config, async {
+        let _ = netem_stopped.await;
+    }));
+    // A controller that starts flying on its own (as a deployed one would): the run's request
+    // restarts it or follows its first episode.
+    let ctl = start_controller(ControllerConfig::new(netem_addr.to_string(), scenario.clone(), mode)).await;
+    let endpoints = Endpoints {
+        plant: Some(plant.addr.to_string()),
+        netem: Some(netem_addr.to_string()),
+        controller: Some(ctl.addr.to_string()),
+    };
+    let run = run_against(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(300) }, &endpoints)
+        .await
+        .expect("run against given services");
+    assert_bit_identical(&scenario, mode, &run);
+    // A second run against the same services gives the same trajectory again.
+    let again = run_against(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(300) }, &endpoints)
+        .await
+        .expect("second run");
+    assert_bit_identical(&scenario, mode, &again);
+
+    ctl.stop().await.expect("controller stops cleanly");
+    let _ = stop_netem.send(());
+    match tokio::time::timeout(Duration::from_secs(30), netem_task).await {
+        Ok(Ok(r)) => r.expect("netem served cleanly"),
+        Ok(Err(e)) => panic!("netem task failed: {e}"),
+        Err(_) => panic!("netem did not stop"),
+    }
+    plant.stop().await.expect("plant stops cleanly");
 }
