@@ -138,7 +138,7 @@ pub fn verdicts(runs: &[RunSummary]) -> Vec<String> {
             let shorter = m.path_length_m < n.path_length_m;
             let safe = !m.collided && !n.collided;
             v.push(format!(
-                "{s}, \"multi-stage takes the shorter path\" (paper {paper_m:.2} vs {paper_n:.2} m): {} here ({:.2} vs {:.2} m){}.",
+                "{s}, \"multi-stage takes the shorter path\" (paper {paper_m:.2} vs {paper_n:.2} m): {} here ({:.3} vs {:.3} m){}.",
                 if shorter { "holds" } else { "DOES NOT hold" },
                 m.path_length_m,
                 n.path_length_m,

@@ -188,11 +188,11 @@ impl ScenarioWeights {
             self.source = WeightSource::Nominal;
             return;
         }
-        if let Some(fit) = self.window.fit(self.settings.min_samples) {
-            if weights_from_gamma(&fit, &self.sampling_times_s, &mut self.current) {
-                self.source = WeightSource::Fitted(fit);
-                return;
-            }
+        if let Some(fit) = self.window.fit(self.settings.min_samples)
+            && weights_from_gamma(&fit, &self.sampling_times_s, &mut self.current)
+        {
+            self.source = WeightSource::Fitted(fit);
+            return;
         }
         let prior = self.settings.prior;
         if weights_from_gamma(&prior, &self.sampling_times_s, &mut self.current) {

@@ -7,6 +7,10 @@
 //! No clock is read here except by OpEn's own solve timer and optional wall-clock deadline;
 //! no I/O, no async. Services wrap it.
 
+// The numerical kernels index several arrays with one index (state, reference, weight); that
+// reads closer to the maths than zipped iterators.
+#![allow(clippy::needless_range_loop)]
+
 pub mod accuracy;
 pub mod closed_loop;
 pub mod delays;

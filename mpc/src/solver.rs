@@ -321,7 +321,7 @@ impl Mpc {
         if let Some(i) = weights.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
             return Err(invalid_input(format!("weights[{i}]"), "must be finite and >= 0"));
         }
-        if !(weights.iter().sum::<f64>() > 0.0) {
+        if weights.iter().sum::<f64>() <= 0.0 {
             return Err(invalid_input("weights", "must not all be zero"));
         }
         Ok(())
