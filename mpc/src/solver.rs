@@ -54,7 +54,7 @@ impl Default for MpcSettings {
         Self {
             obstacle_margin_m: 0.1,
             formulation: ObstacleFormulation::DistanceAlm,
-            tolerance: 3e-3,
+            tolerance: 1e-3,
             akkt_tolerance: 1e-2,
             constraint_tolerance: 0.02,
             initial_penalty: 1e3,
