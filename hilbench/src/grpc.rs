@@ -2,10 +2,12 @@
 //! this process on its own loopback port, one fresh set of services per run.
 //!
 //! The controller is started idle (`autostart = false`) so that the telemetry subscription
-//! exists before its first cycle; `SetScenario` then starts the episode, and the run ends when
-//! `ControllerStatus.episode_finished` says so. Everything in the [`RunSummary`] comes from
-//! the wire: the trajectory numbers (path length, clearance, collisions, final state) from the
-//! plant's last state sample, the solve statistics from the controller's per-cycle telemetry.
+//! exists before its first cycle; `SetScenario` then starts the episode (for a scenario from a
+//! file, which the controller was started with, `SetGoal` with the scenario's own goal), and the
+//! run ends when `ControllerStatus.episode_finished` says so. Everything in the [`RunSummary`]
+//! comes from the wire: the trajectory numbers (path length, clearance, collisions, final state)
+//! from the plant's last state sample, the solve statistics from the controller's per-cycle
+//! telemetry.
 //!
 //! The delays: the scenario's Gamma model becomes netem's command-direction profile with the
 //! scenario's seed and no delay on samples (netem's `paper` preset for the paper scenarios); a
@@ -379,10 +381,28 @@ async fn drive(
     let setup_s = started.elapsed().as_secs_f64();
 
     let episode_started = Instant::now();
-    controller
-        .set_scenario(pb::SetScenarioRequest { scenario: scenario.name.clone(), mode: mode.name().into() })
-        .await
-        .context("controller SetScenario")?;
+    if Scenario::by_name(&scenario.name).is_ok_and(|b| b == *scenario) {
+        controller
+            .set_scenario(pb::SetScenarioRequest {
+                scenario: scenario.name.clone(),
+                mode: mode.name().into(),
+            })
+            .await
+            .context("controller SetScenario")?;
+    } else if services.controller.is_some() {
+        // A scenario from a file: `SetScenario` knows built-in names only, but the controller
+        // started here already holds the scenario and the mode, and idles until told; `SetGoal`
+        // with the scenario's own goal starts its episode.
+        controller
+            .set_goal(pb::SetGoalRequest { goal_m: scenario.goal_m.to_vec() })
+            .await
+            .context("controller SetGoal")?;
+    } else {
+        bail!(
+            "{} is not a built-in scenario: a controller at a given address cannot be given it over gRPC",
+            scenario.name
+        );
+    }
     // The episode that runs this request is the last one started after `before`: one that was
     // running (or about to start at autostart) is restarted by the request, and a pending
     // request is taken before an episode can finish.

@@ -1,5 +1,8 @@
-//! The hilbench CLI's library: paper-mode runs over real gRPC ([`grpc`]) and the paper's
+//! The hilbench CLI's library: paper-mode runs over real gRPC ([`grpc`]), runs of scenarios
+//! and their `summary.json` ([`bench`]), scenario files ([`scenario_file`]) and the paper's
 //! tables beside the measured values ([`report`]).
 
+pub mod bench;
 pub mod grpc;
 pub mod report;
+pub mod scenario_file;

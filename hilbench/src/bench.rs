@@ -1,0 +1,315 @@
+//! What `hilbench reproduce` and `hilbench run` share: running (scenario, controller) pairs in
+//! lockstep over gRPC or in process, and the `summary.json` they write (schema in README).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use mav::Scenario;
+use mpc::closed_loop::RunSummary;
+use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
+
+use crate::grpc::{Endpoints, GrpcSettings, RunTiming, run_against};
+use crate::report;
+use crate::scenario_file::{Mode, ScenarioFile};
+
+/// A run to make: a scenario and a controller.
+pub type Job = (Scenario, ControllerMode);
+
+/// `hilbench reproduce`: the built-in scenarios (`only` these, when given), each with the
+/// standard and the multi-stage NMPC.
+pub fn paper_jobs(only: &[String]) -> anyhow::Result<Vec<Job>> {
+    for o in only {
+        if !Scenario::BUILT_IN.contains(&o.as_str()) {
+            anyhow::bail!("--scenario {o:?}: unknown (known: {})", Scenario::BUILT_IN.join(", "));
+        }
+    }
+    let mut jobs = Vec::new();
+    for name in Scenario::BUILT_IN {
+        if !only.is_empty() && !only.iter().any(|o| o == name) {
+            continue;
+        }
+        let scenario = Scenario::by_name(name)?;
+        for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
+            jobs.push((scenario.clone(), mode));
+        }
+    }
+    Ok(jobs)
+}
+
+/// `hilbench run`: the file's scenario with `modes`, or with the file's `run.modes`.
+pub fn file_jobs(file: &ScenarioFile, modes: Option<&[Mode]>) -> Vec<Job> {
+    let modes = modes.unwrap_or(&file.run.modes);
+    modes.iter().map(|m| (file.scenario.clone(), m.controller())).collect()
+}
+
+/// How the runs talk to the plant.
+#[derive(Debug, Clone)]
+pub enum Transport {
+    /// `mpc::run_closed_loop`, no services.
+    InProcess,
+    /// Plant, netem and controller over gRPC; what `Endpoints` does not name is started here.
+    Grpc(Endpoints),
+}
+
+impl Transport {
+    /// The `transport` value of `summary.json`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Transport::InProcess => "in-process",
+            Transport::Grpc(_) => "grpc",
+        }
+    }
+
+    /// One phrase for the printed header.
+    pub fn describe(&self) -> &'static str {
+        match self {
+            Transport::InProcess => "in process",
+            Transport::Grpc(e) if e.is_local() => "over gRPC (plant, netem, controller on loopback)",
+            Transport::Grpc(_) => "over gRPC (given services)",
+        }
+    }
+}
+
+/// Where the time of a run went (gRPC runs only).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct TimedRun {
+    pub scenario: String,
+    pub controller: String,
+    #[serde(flatten)]
+    pub timing: RunTiming,
+    pub loop_overhead_s: f64,
+}
+
+/// The runs of one command.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    pub runs: Vec<RunSummary>,
+    pub timings: Vec<TimedRun>,
+    pub transport: &'static str,
+    pub wall_time_s: f64,
+}
+
+impl Outcome {
+    pub fn any_collided(&self) -> bool {
+        self.runs.iter().any(|r| r.collided)
+    }
+
+    /// Solver time summed over every run, s.
+    pub fn solver_s(&self) -> f64 {
+        self.runs.iter().map(|r| r.solve_ms_mean * r.cycles as f64 * 1e-3).sum()
+    }
+
+    /// `summary.json` (names are stable; see README).
+    pub fn summary_json(&self) -> serde_json::Value {
+        let timing = serde_json::json!({
+            "wall_time_s": self.wall_time_s,
+            "solver_s": self.solver_s(),
+            "setup_s": self.timings.iter().map(|t| t.timing.setup_s).sum::<f64>(),
+            "loop_overhead_s": self.timings.iter().map(|t| t.loop_overhead_s).sum::<f64>(),
+            "teardown_s": self.timings.iter().map(|t| t.timing.teardown_s).sum::<f64>(),
+            "runs": self.timings,
+        });
+        serde_json::json!({
+            "runs": self.runs.iter().map(run_json).collect::<Vec<_>>(),
+            "verdicts": report::verdicts(&self.runs),
+            "transport": self.transport,
+            "wall_time_s": self.wall_time_s,
+            "timing": timing,
+        })
+    }
+}
+
+/// Runs every (scenario, controller) pair in order, in lockstep. `progress` prints a line per
+/// finished run on stderr.
+pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::Result<Outcome> {
+    let started = Instant::now();
+    let runtime = match transport {
+        Transport::InProcess => None,
+        Transport::Grpc(_) => Some(
+            tokio::runtime::Builder::new_multi_thread()
+                .worker_threads(2)
+                .enable_all()
+                .build()
+                .context("cannot start the tokio runtime")?,
+        ),
+    };
+    let mut runs = Vec::with_capacity(jobs.len());
+    let mut timings = Vec::new();
+    for (scenario, mode) in jobs {
+        let name = &scenario.name;
+        let run_started = Instant::now();
+        let summary = match (&runtime, transport) {
+            (Some(rt), Transport::Grpc(endpoints)) => {
+                let run = rt
+                    .block_on(run_against(scenario, *mode, &GrpcSettings::default(), endpoints))
+                    .with_context(|| format!("{name} with {} over gRPC", mode.name()))?;
+                timings.push(TimedRun {
+                    scenario: name.clone(),
+                    controller: mode.name().to_string(),
+                    timing: run.timing,
+                    loop_overhead_s: run.timing.loop_overhead_s(),
+                });
+                run.summary
+            }
+            _ => {
+                run_closed_loop(scenario, &ClosedLoopSettings::paper(*mode))
+                    .with_context(|| format!("{name} with {}", mode.name()))?
+                    .0
+            }
+        };
+        if progress {
+            eprintln!(
+                "  {name} {:<11} done ({} cycles, {:.2} s)",
+                mode.name(),
+                summary.cycles,
+                run_started.elapsed().as_secs_f64()
+            );
+        }
+        runs.push(summary);
+    }
+    Ok(Outcome { runs, timings, transport: transport.name(), wall_time_s: started.elapsed().as_secs_f64() })
+}
+
+/// `runs/<unix time>`.
+pub fn default_out_dir() -> PathBuf {
+    let secs =
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+    PathBuf::from("runs").join(secs.to_string())
+}
+
+/// Writes `summary` as `dir/summary.json` (creating `dir`); returns the file's path.
+pub fn write_summary(dir: &Path, summary: &serde_json::Value) -> anyhow::Result<PathBuf> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let path = dir.join("summary.json");
+    std::fs::write(&path, serde_json::to_string_pretty(summary)?)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(path)
+}
+
+/// One entry of `summary.json` (names are stable; see README).
+pub fn run_json(r: &RunSummary) -> serde_json::Value {
+    serde_json::json!({
+        "scenario": r.scenario,
+        "controller": r.controller,
+        "reached": r.reached,
+        "collided": r.collided,
+        "time_to_goal_s": r.time_to_goal_s,
+        "path_length_m": r.path_length_m,
+        "min_clearance_m": r.min_clearance_m,
+        "cycles": r.cycles,
+        "solve_ms": { "mean": r.solve_ms_mean, "median": r.solve_ms_median, "p95": r.solve_ms_p95, "max": r.solve_ms_max },
+        "iterations_median": r.iterations_median,
+        "fallbacks": r.fallbacks,
+        "collisions": r.collisions,
+        "final_position_m": r.final_position_m,
+    })
+}
+
+/// A short table of the runs of one scenario file.
+pub fn run_table(runs: &[RunSummary]) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{:<16} {:<11} {:>8} {:>9} {:>9} {:>10} {:>7} {:>9} {:>9}",
+        "scenario",
+        "controller",
+        "reached",
+        "time [s]",
+        "path [m]",
+        "clear. [m]",
+        "cycles",
+        "solve ms",
+        "collided"
+    );
+    for r in runs {
+        let time = r.time_to_goal_s.map_or_else(|| "-".to_string(), |t| format!("{t:.2}"));
+        let _ = writeln!(
+            out,
+            "{:<16} {:<11} {:>8} {:>9} {:>9.2} {:>+10.3} {:>7} {:>9.2} {:>9}",
+            r.scenario,
+            r.controller,
+            if r.reached { "yes" } else { "no" },
+            time,
+            r.path_length_m,
+            r.min_clearance_m,
+            r.cycles,
+            r.solve_ms_median,
+            if r.collided { "YES" } else { "no" },
+        );
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+
+    fn load(name: &str) -> ScenarioFile {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios").join(name);
+        ScenarioFile::load(&path).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    /// `summary.json` entries without the wall-clock solve times.
+    fn deterministic(outcome: &Outcome) -> Vec<serde_json::Value> {
+        outcome
+            .runs
+            .iter()
+            .map(|r| {
+                let mut v = run_json(r);
+                if let Some(o) = v.as_object_mut() {
+                    o.remove("solve_ms");
+                }
+                v
+            })
+            .collect()
+    }
+
+    #[test]
+    fn run_of_the_paper_3_file_gives_the_summary_of_reproduce_paper_3() {
+        let grpc = Transport::Grpc(Endpoints::default());
+        let reproduce: Vec<Job> = paper_jobs(&["paper-3".to_string()])
+            .expect("paper-3")
+            .into_iter()
+            .filter(|(_, m)| *m == ControllerMode::Nmpc)
+            .collect();
+        let run = file_jobs(&load("paper-3.toml"), Some(&[Mode::Nmpc]));
+        assert_eq!(run, reproduce);
+        let a = run_all(&reproduce, &grpc, false).expect("reproduce");
+        let b = run_all(&run, &grpc, false).expect("run");
+        assert_eq!(deterministic(&a), deterministic(&b));
+        assert_eq!(b.runs.len(), 1);
+        assert_eq!((b.runs[0].scenario.as_str(), b.runs[0].controller.as_str()), ("paper-3", "nmpc"));
+        assert!(b.runs[0].reached && !b.any_collided());
+        let summary = b.summary_json();
+        for key in ["runs", "verdicts", "transport", "wall_time_s", "timing"] {
+            assert!(summary.get(key).is_some(), "summary.json without {key}");
+        }
+        assert_eq!(summary["transport"], "grpc");
+    }
+
+    #[test]
+    fn a_user_scenario_over_grpc_is_identical_to_the_in_process_run() {
+        // slalom-4 is no built-in: the controller is started with it and `SetGoal` starts it.
+        let file = load("slalom-4.toml");
+        assert!(Scenario::by_name(&file.scenario.name).is_err());
+        let jobs = file_jobs(&file, None);
+        assert_eq!(jobs.len(), 2);
+        let grpc = run_all(&jobs, &Transport::Grpc(Endpoints::default()), false).expect("grpc");
+        let local = run_all(&jobs, &Transport::InProcess, false).expect("in process");
+        assert_eq!(deterministic(&grpc), deterministic(&local));
+        for r in &grpc.runs {
+            assert_eq!(r.scenario, "slalom-4");
+            assert!(r.cycles > 10, "{} cycles", r.cycles);
+        }
+    }
+
+    #[test]
+    fn unknown_paper_scenarios_are_refused() {
+        assert!(paper_jobs(&["paper-9".to_string()]).is_err());
+        assert_eq!(paper_jobs(&[]).expect("all").len(), 6);
+    }
+}

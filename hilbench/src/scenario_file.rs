@@ -1,0 +1,387 @@
+//! Scenario files: one TOML file holds everything of a run of `hilbench run`.
+//!
+//! ```toml
+//! [run]                         # optional; what hilbench does with the scenario
+//! modes = ["nmpc", "multistage"] # controllers to run, in this order (default: both)
+//! time_mode = "lockstep"        # only lockstep for now
+//!
+//! [scenario]                    # exactly `mav::Scenario` (unknown keys are errors)
+//! name = "slalom-4"
+//! ...
+//! ```
+//!
+//! netem's profiles are derived from the scenario's delay model (`scenario.delays`, seeded with
+//! `scenario.seed`): the whole round trip on commands, nothing on samples, as in
+//! [`crate::grpc::netem_config`].
+//!
+//! Every error names the file, the line and the field: parse and type errors through toml's
+//! spans, `Scenario::validate` errors by looking the field's path up in the parsed document.
+
+use std::fmt;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use mav::{Scenario, ScenarioError};
+use mpc::ControllerMode;
+use toml::Spanned;
+use toml::de::{DeTable, DeValue};
+
+/// A controller to run, as written in a file or on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    Nmpc,
+    Multistage,
+}
+
+impl Mode {
+    pub fn controller(self) -> ControllerMode {
+        match self {
+            Mode::Nmpc => ControllerMode::Nmpc,
+            Mode::Multistage => ControllerMode::Multistage,
+        }
+    }
+}
+
+/// How plant time moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TimeMode {
+    /// Deterministic: time moves only through `Advance`/`Step` (paper mode).
+    #[default]
+    Lockstep,
+    /// Wall clock (accepted by the format, not run by `hilbench run` yet).
+    RealTime,
+}
+
+fn default_modes() -> Vec<Mode> {
+    vec![Mode::Nmpc, Mode::Multistage]
+}
+
+/// The `[run]` table: what the bench does with the scenario.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunSection {
+    /// Controllers to run, in order.
+    #[serde(default = "default_modes")]
+    pub modes: Vec<Mode>,
+    /// `lockstep` (only this one for now).
+    #[serde(default)]
+    pub time_mode: TimeMode,
+}
+
+impl Default for RunSection {
+    fn default() -> Self {
+        Self { modes: default_modes(), time_mode: TimeMode::Lockstep }
+    }
+}
+
+/// A whole scenario file.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScenarioFile {
+    #[serde(default)]
+    pub run: RunSection,
+    pub scenario: Scenario,
+}
+
+/// A file that cannot be used, with where and why.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FileError {
+    pub path: PathBuf,
+    /// 1-based line, when the error has a place in the file.
+    pub line: Option<usize>,
+    /// Dotted path of the field, e.g. `scenario.obstacles[0].radius_m`.
+    pub field: Option<String>,
+    pub message: String,
+}
+
+impl fmt::Display for FileError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.path.display())?;
+        if let Some(line) = self.line {
+            write!(f, ":{line}")?;
+        }
+        if let Some(field) = &self.field {
+            write!(f, ": field `{field}`")?;
+        }
+        write!(f, ": {}", self.message)
+    }
+}
+
+impl std::error::Error for FileError {}
+
+impl ScenarioFile {
+    /// Reads, parses and validates `path`.
+    pub fn load(path: &Path) -> Result<Self, FileError> {
+        let text = std::fs::read_to_string(path).map_err(|e| FileError {
+            path: path.to_path_buf(),
+            line: None,
+            field: None,
+            message: format!("cannot read: {e}"),
+        })?;
+        Self::parse(path, &text)
+    }
+
+    /// Parses and validates `text`, read from `path` (named in errors).
+    pub fn parse(path: &Path, text: &str) -> Result<Self, FileError> {
+        let error = |span: Option<Range<usize>>, field: Option<String>, message: String| FileError {
+            path: path.to_path_buf(),
+            line: span.map(|s| line_of(text, s.start)),
+            field,
+            message,
+        };
+        let root = DeTable::parse(text).map_err(|e| error(e.span(), None, e.message().to_string()))?;
+        let file: ScenarioFile = serde::Deserialize::deserialize(toml::Deserializer::from(root.clone()))
+            .map_err(|e| {
+                let field = e.span().and_then(|s| field_at(&root, &s));
+                let span = e.span();
+                error(span, field, e.message().to_string())
+            })?;
+        file.validate().map_err(|(field, message)| {
+            let span = span_of(&root, &field);
+            error(span, Some(field), message)
+        })?;
+        Ok(file)
+    }
+
+    /// The checks serde cannot make: `(field path, reason)` of the first bad field.
+    pub fn validate(&self) -> Result<(), (String, String)> {
+        if self.run.modes.is_empty() {
+            return Err(("run.modes".into(), "must name at least one controller".into()));
+        }
+        for (i, m) in self.run.modes.iter().enumerate() {
+            if self.run.modes[..i].contains(m) {
+                return Err((format!("run.modes[{i}]"), "is listed twice".into()));
+            }
+        }
+        if self.run.time_mode != TimeMode::Lockstep {
+            return Err((
+                "run.time_mode".into(),
+                "only \"lockstep\" is supported by `hilbench run` for now".into(),
+            ));
+        }
+        let s = &self.scenario;
+        if s.name.is_empty() || s.name.len() > 64 || s.name.chars().any(|c| c.is_control()) {
+            return Err(("scenario.name".into(), "must be 1 to 64 printable characters".into()));
+        }
+        if let Err(e) = s.validate() {
+            return Err(match e {
+                ScenarioError::Invalid { field, reason } => (format!("scenario.{field}"), reason),
+                other => ("scenario".into(), other.to_string()),
+            });
+        }
+        // The services name scenarios: a file that takes a built-in name must hold it exactly.
+        if let Ok(built_in) = Scenario::by_name(&s.name)
+            && built_in != *s
+        {
+            return Err((
+                "scenario.name".into(),
+                format!(
+                    "{:?} is a built-in scenario and this file differs from it; give the scenario another name",
+                    s.name
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// 1-based line of byte `offset` in `text`.
+fn line_of(text: &str, offset: usize) -> usize {
+    let end = offset.min(text.len());
+    text.as_bytes()[..end].iter().filter(|b| **b == b'\n').count() + 1
+}
+
+fn contains(outer: &Range<usize>, inner: &Range<usize>) -> bool {
+    outer.start <= inner.start && inner.end <= outer.end && outer.start < outer.end
+}
+
+/// The dotted path of the deepest key or value whose span holds `span`. The whole tree is
+/// searched: the span of a `[table]` does not enclose the keys under its header.
+fn field_at(root: &Spanned<DeTable<'_>>, span: &Range<usize>) -> Option<String> {
+    fn join(path: &str, key: &str) -> String {
+        if path.is_empty() { key.to_string() } else { format!("{path}.{key}") }
+    }
+    fn in_table(t: &DeTable<'_>, span: &Range<usize>, path: &str) -> Option<String> {
+        let mut fallback = None;
+        for (k, v) in t.iter() {
+            let here = join(path, k.get_ref());
+            if contains(&k.span(), span) {
+                return Some(here);
+            }
+            if let Some(found) = in_value(v.get_ref(), span, &here) {
+                return Some(found);
+            }
+            if fallback.is_none() && contains(&v.span(), span) {
+                fallback = Some(here);
+            }
+        }
+        fallback
+    }
+    fn in_value(v: &DeValue<'_>, span: &Range<usize>, path: &str) -> Option<String> {
+        match v {
+            DeValue::Table(t) => in_table(t, span, path),
+            DeValue::Array(a) => {
+                let mut fallback = None;
+                for (i, item) in a.iter().enumerate() {
+                    let here = format!("{path}[{i}]");
+                    if let Some(found) = in_value(item.get_ref(), span, &here) {
+                        return Some(found);
+                    }
+                    if fallback.is_none() && contains(&item.span(), span) {
+                        fallback = Some(here);
+                    }
+                }
+                fallback
+            }
+            _ => None,
+        }
+    }
+    in_table(root.get_ref(), span, "")
+}
+
+/// The span of the field at dotted `path` (`a.b[2].c`), or of its deepest part that is in the
+/// file (a defaulted field points at its table).
+fn span_of(root: &Spanned<DeTable<'_>>, path: &str) -> Option<Range<usize>> {
+    let mut span: Option<Range<usize>> = None;
+    let mut current: Option<&DeValue<'_>> = None;
+    let mut table: &DeTable<'_> = root.get_ref();
+    for part in path.split('.') {
+        let (key, indices) = match part.find('[') {
+            Some(i) => (&part[..i], &part[i..]),
+            None => (part, ""),
+        };
+        if let Some(v) = current {
+            match v {
+                DeValue::Table(t) => table = t,
+                _ => return span,
+            }
+        }
+        let Some(value) = table.get(key) else { return span };
+        span = Some(value.span());
+        let mut value = value.get_ref();
+        for index in indices.split(']').filter(|s| !s.is_empty()) {
+            let Some(item) = index.trim_start_matches('[').parse::<usize>().ok().and_then(|i| value.get(i))
+            else {
+                return span;
+            };
+            span = Some(item.span());
+            value = item.get_ref();
+        }
+        current = Some(value);
+    }
+    span
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn repo_root() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+    }
+
+    #[test]
+    fn paper_files_hold_exactly_the_built_in_scenarios() {
+        for name in Scenario::BUILT_IN {
+            let path = repo_root().join("scenarios").join(format!("{name}.toml"));
+            let file = ScenarioFile::load(&path).unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(file.scenario, Scenario::by_name(name).expect("built in"), "{name}");
+            assert_eq!(file.run, RunSection::default());
+        }
+    }
+
+    #[test]
+    fn every_file_in_scenarios_is_valid() {
+        let dir = repo_root().join("scenarios");
+        let mut n = 0;
+        for entry in std::fs::read_dir(&dir).expect("scenarios/") {
+            let path = entry.expect("entry").path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                ScenarioFile::load(&path).unwrap_or_else(|e| panic!("{e}"));
+                n += 1;
+            }
+        }
+        assert!(n >= 4, "{n} scenario files");
+    }
+
+    /// paper-3 with one line replaced (1-based `line` of the file holding `old`).
+    fn edited(old: &str, new: &str) -> (String, usize) {
+        let text = std::fs::read_to_string(repo_root().join("scenarios/paper-3.toml")).expect("paper-3");
+        let offset = text.find(old).unwrap_or_else(|| panic!("{old:?} not in paper-3.toml"));
+        let line = line_of(&text, offset);
+        (text.replacen(old, new, 1), line)
+    }
+
+    fn error_of(text: &str) -> FileError {
+        match ScenarioFile::parse(Path::new("scenarios/x.toml"), text) {
+            Ok(_) => panic!("accepted"),
+            Err(e) => e,
+        }
+    }
+
+    #[test]
+    fn an_unknown_key_is_named_with_its_line() {
+        let (text, line) = edited("horizon = 40", "horizon = 40\nhorizn = 40");
+        let e = error_of(&text);
+        assert_eq!(e.line, Some(line + 1), "{e}");
+        assert_eq!(e.field.as_deref(), Some("scenario.horizn"), "{e}");
+        assert!(e.message.contains("unknown field"), "{e}");
+        assert!(
+            e.to_string().starts_with(&format!("scenarios/x.toml:{}: field `scenario.horizn`", line + 1))
+        );
+    }
+
+    #[test]
+    fn a_wrong_type_is_named_with_its_line() {
+        let (text, line) = edited("horizon = 40", "horizon = \"forty\"");
+        let e = error_of(&text);
+        assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("scenario.horizon")), "{e}");
+        let (text, line) = edited("radius_m = 0.4", "radius_m = [0.4]");
+        let e = error_of(&text);
+        assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("scenario.obstacles[1].radius_m")), "{e}");
+    }
+
+    #[test]
+    fn negative_and_nan_values_are_caught_by_validation_with_their_line() {
+        let (text, line) = edited("radius_m = 0.4", "radius_m = -1.0");
+        let e = error_of(&text);
+        assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("scenario.obstacles[1].radius_m")), "{e}");
+        let (text, line) = edited("min_cycle_s = 0.05", "min_cycle_s = nan");
+        let e = error_of(&text);
+        assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("scenario.min_cycle_s")), "{e}");
+        let (text, line) = edited("q_u = [20.0, 20.0, 20.0]", "q_u = [20.0, -1.0, 20.0]");
+        let e = error_of(&text);
+        assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("scenario.q_u[1]")), "{e}");
+    }
+
+    #[test]
+    fn run_section_and_names_are_checked() {
+        let (text, line) = edited("time_mode = \"lockstep\"", "time_mode = \"real-time\"");
+        let e = error_of(&text);
+        assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("run.time_mode")), "{e}");
+        let (text, line) = edited("modes = [\"nmpc\", \"multistage\"]", "modes = [\"nmpc\", \"mpc\"]");
+        let e = error_of(&text);
+        assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("run.modes[1]")), "{e}");
+        // A built-in name with other contents would be ambiguous for the services.
+        let (text, _) = edited("seed = 42", "seed = 43");
+        let e = error_of(&text);
+        assert_eq!(e.field.as_deref(), Some("scenario.name"), "{e}");
+        let (text, _) = edited("seed = 42", "seed = 43");
+        let ok =
+            ScenarioFile::parse(Path::new("x.toml"), &text.replace("\"paper-3\"", "\"paper-3-seed-43\""))
+                .expect("renamed");
+        assert_eq!(ok.scenario.seed, 43);
+    }
+
+    #[test]
+    fn a_missing_file_or_bad_toml_is_reported_with_the_file() {
+        let e = ScenarioFile::load(Path::new("scenarios/does-not-exist.toml")).expect_err("missing");
+        assert!(e.to_string().starts_with("scenarios/does-not-exist.toml: cannot read"), "{e}");
+        let e = error_of("[scenario\nname = 1\n");
+        assert_eq!(e.line, Some(1), "{e}");
+        let e = error_of("[run]\n");
+        assert!(e.message.contains("missing field `scenario`"), "{e}");
+    }
+}
