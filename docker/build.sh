@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Builds statically linked release binaries of the services and the CLI (glibc, crt-static)
+# and stages them in docker/bin/ for the FROM-scratch images of compose.yaml.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+target="x86_64-unknown-linux-gnu"
+RUSTFLAGS="-C target-feature=+crt-static" CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-target-static}" \
+    cargo build --release --target "$target" -p plant -p netem -p controller -p hilbench
+mkdir -p docker/bin
+for bin in plant netem controller hilbench; do
+    cp "${CARGO_TARGET_DIR:-target-static}/$target/release/$bin" docker/bin/
+done
+echo "staged: $(ls docker/bin | tr '\n' ' ')"
