@@ -85,6 +85,8 @@ pub struct TimedRun {
 #[derive(Debug, Clone)]
 pub struct Outcome {
     pub runs: Vec<RunSummary>,
+    /// Per-cycle rows of each run, in the order of `runs`.
+    pub cycles: Vec<Vec<crate::cycle_log::CycleRow>>,
     pub timings: Vec<TimedRun>,
     pub transport: &'static str,
     pub wall_time_s: f64,
@@ -135,6 +137,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
         ),
     };
     let mut runs = Vec::with_capacity(jobs.len());
+    let mut cycles = Vec::with_capacity(jobs.len());
     let mut timings = Vec::new();
     for (scenario, mode) in jobs {
         let name = &scenario.name;
@@ -150,12 +153,14 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                     timing: run.timing,
                     loop_overhead_s: run.timing.loop_overhead_s(),
                 });
+                cycles.push(crate::cycle_log::from_telemetry(&run.telemetry));
                 run.summary
             }
             _ => {
-                run_closed_loop(scenario, &ClosedLoopSettings::paper(*mode))
-                    .with_context(|| format!("{name} with {}", mode.name()))?
-                    .0
+                let (summary, records) = run_closed_loop(scenario, &ClosedLoopSettings::paper(*mode))
+                    .with_context(|| format!("{name} with {}", mode.name()))?;
+                cycles.push(crate::cycle_log::from_records(&records));
+                summary
             }
         };
         if progress {
@@ -168,7 +173,13 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
         }
         runs.push(summary);
     }
-    Ok(Outcome { runs, timings, transport: transport.name(), wall_time_s: started.elapsed().as_secs_f64() })
+    Ok(Outcome {
+        runs,
+        cycles,
+        timings,
+        transport: transport.name(),
+        wall_time_s: started.elapsed().as_secs_f64(),
+    })
 }
 
 /// `runs/<unix time>`.
@@ -176,6 +187,16 @@ pub fn default_out_dir() -> PathBuf {
     let secs =
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
     PathBuf::from("runs").join(secs.to_string())
+}
+
+/// Writes the per-cycle CSV log of every run of `outcome` into `dir`.
+pub fn write_cycle_logs(dir: &Path, outcome: &Outcome) -> anyhow::Result<Vec<PathBuf>> {
+    outcome
+        .runs
+        .iter()
+        .zip(&outcome.cycles)
+        .map(|(r, rows)| crate::cycle_log::write(dir, &r.scenario, &r.controller, rows))
+        .collect()
 }
 
 /// Writes `summary` as `dir/summary.json` (creating `dir`); returns the file's path.
@@ -304,6 +325,22 @@ mod tests {
         for r in &grpc.runs {
             assert_eq!(r.scenario, "slalom-4");
             assert!(r.cycles > 10, "{} cycles", r.cycles);
+        }
+        // The per-cycle logs agree row for row, but for the wall-clock solve time.
+        let strip = |o: &Outcome| -> Vec<Vec<crate::cycle_log::CycleRow>> {
+            o.cycles
+                .iter()
+                .map(|rows| {
+                    rows.iter().cloned().map(|r| crate::cycle_log::CycleRow { solve_ms: 0.0, ..r }).collect()
+                })
+                .collect()
+        };
+        assert_eq!(strip(&grpc), strip(&local));
+        for (run, rows) in grpc.runs.iter().zip(&grpc.cycles) {
+            assert_eq!(rows.len() as u64, run.cycles);
+            let csv = crate::cycle_log::to_csv(rows);
+            assert_eq!(csv.lines().count(), rows.len() + 1);
+            assert!(csv.starts_with("cycle,t_s,px_m"));
         }
     }
 

@@ -7,7 +7,8 @@ use std::path::PathBuf;
 
 use clap::{Parser, Subcommand, ValueEnum};
 use hilbench::bench::{
-    Outcome, Transport, default_out_dir, file_jobs, paper_jobs, run_all, run_table, write_summary,
+    Outcome, Transport, default_out_dir, file_jobs, paper_jobs, run_all, run_table, write_cycle_logs,
+    write_summary,
 };
 use hilbench::grpc::Endpoints;
 use hilbench::report;
@@ -112,7 +113,9 @@ fn reproduce(
     let jobs = paper_jobs(only)?;
     let outcome = run_all(&jobs, transport, !json)?;
     let summary = outcome.summary_json();
-    let path = write_summary(&out.unwrap_or_else(default_out_dir), &summary)?;
+    let dir = out.unwrap_or_else(default_out_dir);
+    let path = write_summary(&dir, &summary)?;
+    write_cycle_logs(&dir, &outcome)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
         return Ok(outcome);
@@ -153,7 +156,9 @@ fn run(
     let jobs = file_jobs(&spec, modes.as_deref());
     let outcome = run_all(&jobs, transport, !json)?;
     let summary = outcome.summary_json();
-    let path = write_summary(&out.unwrap_or_else(default_out_dir), &summary)?;
+    let dir = out.unwrap_or_else(default_out_dir);
+    let path = write_summary(&dir, &summary)?;
+    write_cycle_logs(&dir, &outcome)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
         return Ok(outcome);
