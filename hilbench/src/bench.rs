@@ -87,6 +87,8 @@ pub struct Outcome {
     pub runs: Vec<RunSummary>,
     /// Per-cycle rows of each run, in the order of `runs`.
     pub cycles: Vec<Vec<crate::cycle_log::CycleRow>>,
+    /// The goal of each run's scenario, m, in the order of `runs`.
+    pub goals: Vec<[f64; 3]>,
     pub timings: Vec<TimedRun>,
     pub transport: &'static str,
     pub wall_time_s: f64,
@@ -113,7 +115,17 @@ impl Outcome {
             "runs": self.timings,
         });
         serde_json::json!({
-            "runs": self.runs.iter().map(run_json).collect::<Vec<_>>(),
+            "runs": self
+                .runs
+                .iter()
+                .zip(&self.cycles)
+                .zip(&self.goals)
+                .map(|((r, rows), goal)| {
+                    let mut v = run_json(r);
+                    add_cycle_metrics(&mut v, rows, goal);
+                    v
+                })
+                .collect::<Vec<_>>(),
             "verdicts": report::verdicts(&self.runs),
             "transport": self.transport,
             "wall_time_s": self.wall_time_s,
@@ -138,6 +150,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
     };
     let mut runs = Vec::with_capacity(jobs.len());
     let mut cycles = Vec::with_capacity(jobs.len());
+    let mut goals = Vec::with_capacity(jobs.len());
     let mut timings = Vec::new();
     for (scenario, mode) in jobs {
         let name = &scenario.name;
@@ -172,10 +185,12 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
             );
         }
         runs.push(summary);
+        goals.push(scenario.goal_m);
     }
     Ok(Outcome {
         runs,
         cycles,
+        goals,
         timings,
         transport: transport.name(),
         wall_time_s: started.elapsed().as_secs_f64(),
@@ -225,6 +240,39 @@ pub fn run_json(r: &RunSummary) -> serde_json::Value {
         "collisions": r.collisions,
         "final_position_m": r.final_position_m,
     })
+}
+
+/// Adds the keys computed from the per-cycle log to a run's `summary.json` entry:
+/// `deadline_misses` (solves stopped by the wall-clock deadline; always 0 in lockstep),
+/// `end_to_end_latency_ms` (median and p95 of the round-trip delays measured from plant stamps:
+/// command applied minus the time of the sample it came from), and `tracking_rmse_m` (RMS over
+/// cycles of the distance between the plant's position and the scenario's goal, the reference
+/// of the tracking term of the cost).
+pub fn add_cycle_metrics(
+    entry: &mut serde_json::Value,
+    rows: &[crate::cycle_log::CycleRow],
+    goal_m: &[f64; 3],
+) {
+    use mpc::closed_loop::percentile;
+    let deadline_misses = rows.iter().filter(|r| r.status == "deadline").count();
+    // Row k knows the delay of command k-1; row 0 knows none.
+    let mut latency_ms: Vec<f64> = rows.iter().skip(1).map(|r| r.known_delay_s * 1e3).collect();
+    let latency = if latency_ms.is_empty() {
+        serde_json::Value::Null
+    } else {
+        serde_json::json!({
+            "median": percentile(&mut latency_ms, 50.0),
+            "p95": percentile(&mut latency_ms, 95.0),
+        })
+    };
+    let tracking = (!rows.is_empty()).then(|| {
+        let sum: f64 =
+            rows.iter().map(|r| (0..3).map(|k| (r.state[k] - goal_m[k]).powi(2)).sum::<f64>()).sum();
+        (sum / rows.len() as f64).sqrt()
+    });
+    entry["deadline_misses"] = serde_json::json!(deadline_misses);
+    entry["end_to_end_latency_ms"] = latency;
+    entry["tracking_rmse_m"] = serde_json::json!(tracking);
 }
 
 /// A short table of the runs of one scenario file.
@@ -342,6 +390,32 @@ mod tests {
             assert_eq!(csv.lines().count(), rows.len() + 1);
             assert!(csv.starts_with("cycle,t_s,px_m"));
         }
+    }
+
+    #[test]
+    fn cycle_metrics_are_computed_from_the_rows() {
+        let row = |k: u64, delay_s: f64, px: f64, status: &str| crate::cycle_log::CycleRow {
+            cycle: k,
+            t_s: k as f64 * 0.1,
+            state: [px, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            command: [9.81, 0.0, 0.0],
+            known_delay_s: delay_s,
+            weights: vec![1.0],
+            status: status.to_string(),
+            iterations: 3,
+            solve_ms: 0.1,
+            cost: 1.0,
+            constraint_violation: 0.0,
+            predicted_clearance_m: 1.0,
+        };
+        // Positions 3 and 4 m from a goal at the origin (z on target): RMS = sqrt((9 + 16) / 2).
+        let rows = vec![row(0, 0.0, 3.0, "converged"), row(1, 0.2, 4.0, "deadline")];
+        let mut entry = serde_json::json!({});
+        add_cycle_metrics(&mut entry, &rows, &[0.0, 0.0, 1.0]);
+        assert_eq!(entry["deadline_misses"], 1);
+        assert_eq!(entry["end_to_end_latency_ms"]["median"], 200.0);
+        let rmse = entry["tracking_rmse_m"].as_f64().expect("a number");
+        assert!((rmse - 12.5f64.sqrt()).abs() < 1e-12, "{rmse}");
     }
 
     #[test]
