@@ -23,6 +23,10 @@ use hilbench::scenario_file::{Mode, ScenarioFile};
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Print nothing but errors (the summary and logs are still written; the exit code says
+    /// whether a run collided).
+    #[arg(long, global = true)]
+    quiet: bool,
 }
 
 /// `--mode` of `hilbench run`.
@@ -89,12 +93,12 @@ fn main() -> anyhow::Result<()> {
             } else {
                 Transport::Grpc(Endpoints { plant, netem, controller })
             };
-            reproduce(out, json, &scenario, &transport)?
+            reproduce(out, json, cli.quiet, &scenario, &transport)?
         }
         Command::Run { file, mode, out, json, in_process } => {
             let transport =
                 if in_process { Transport::InProcess } else { Transport::Grpc(Endpoints::default()) };
-            run(&file, mode, out, json, &transport)?
+            run(&file, mode, out, json, cli.quiet, &transport)?
         }
     };
     if outcome.any_collided() {
@@ -107,17 +111,21 @@ fn main() -> anyhow::Result<()> {
 fn reproduce(
     out: Option<PathBuf>,
     json: bool,
+    quiet: bool,
     only: &[String],
     transport: &Transport,
 ) -> anyhow::Result<Outcome> {
     let jobs = paper_jobs(only)?;
-    let outcome = run_all(&jobs, transport, !json)?;
+    let outcome = run_all(&jobs, transport, !json && !quiet)?;
     let summary = outcome.summary_json();
     let dir = out.unwrap_or_else(default_out_dir);
     let path = write_summary(&dir, &summary)?;
     write_cycle_logs(&dir, &outcome)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
+        return Ok(outcome);
+    }
+    if quiet {
         return Ok(outcome);
     }
     println!();
@@ -144,6 +152,7 @@ fn run(
     mode: Option<ModeArg>,
     out: Option<PathBuf>,
     json: bool,
+    quiet: bool,
     transport: &Transport,
 ) -> anyhow::Result<Outcome> {
     let spec = ScenarioFile::load(file)?;
@@ -154,13 +163,16 @@ fn run(
         Some(ModeArg::Both) => Some(vec![Mode::Nmpc, Mode::Multistage]),
     };
     let jobs = file_jobs(&spec, modes.as_deref());
-    let outcome = run_all(&jobs, transport, !json)?;
+    let outcome = run_all(&jobs, transport, !json && !quiet)?;
     let summary = outcome.summary_json();
     let dir = out.unwrap_or_else(default_out_dir);
     let path = write_summary(&dir, &summary)?;
     write_cycle_logs(&dir, &outcome)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
+        return Ok(outcome);
+    }
+    if quiet {
         return Ok(outcome);
     }
     println!();
