@@ -108,6 +108,34 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
+/// What both commands do the same way: run the jobs, write `summary.json` and the per-cycle
+/// logs, and print the JSON summary when asked.
+struct Executed {
+    outcome: Outcome,
+    summary: serde_json::Value,
+    path: PathBuf,
+    /// Print the human-readable report (neither `--json` nor `--quiet`).
+    show: bool,
+}
+
+fn execute(
+    jobs: &[hilbench::bench::Job],
+    out: Option<PathBuf>,
+    json: bool,
+    quiet: bool,
+    transport: &Transport,
+) -> anyhow::Result<Executed> {
+    let outcome = run_all(jobs, transport, !json && !quiet)?;
+    let summary = outcome.summary_json();
+    let dir = out.unwrap_or_else(default_out_dir);
+    let path = write_summary(&dir, &summary)?;
+    write_cycle_logs(&dir, &outcome)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    }
+    Ok(Executed { outcome, summary, path, show: !json && !quiet })
+}
+
 fn reproduce(
     out: Option<PathBuf>,
     json: bool,
@@ -116,16 +144,8 @@ fn reproduce(
     transport: &Transport,
 ) -> anyhow::Result<Outcome> {
     let jobs = paper_jobs(only)?;
-    let outcome = run_all(&jobs, transport, !json && !quiet)?;
-    let summary = outcome.summary_json();
-    let dir = out.unwrap_or_else(default_out_dir);
-    let path = write_summary(&dir, &summary)?;
-    write_cycle_logs(&dir, &outcome)?;
-    if json {
-        println!("{}", serde_json::to_string_pretty(&summary)?);
-        return Ok(outcome);
-    }
-    if quiet {
+    let Executed { outcome, summary, path, show } = execute(&jobs, out, json, quiet, transport)?;
+    if !show {
         return Ok(outcome);
     }
     println!();
@@ -163,16 +183,8 @@ fn run(
         Some(ModeArg::Both) => Some(vec![Mode::Nmpc, Mode::Multistage]),
     };
     let jobs = file_jobs(&spec, modes.as_deref());
-    let outcome = run_all(&jobs, transport, !json && !quiet)?;
-    let summary = outcome.summary_json();
-    let dir = out.unwrap_or_else(default_out_dir);
-    let path = write_summary(&dir, &summary)?;
-    write_cycle_logs(&dir, &outcome)?;
-    if json {
-        println!("{}", serde_json::to_string_pretty(&summary)?);
-        return Ok(outcome);
-    }
-    if quiet {
+    let Executed { outcome, summary, path, show } = execute(&jobs, out, json, quiet, transport)?;
+    if !show {
         return Ok(outcome);
     }
     println!();
