@@ -3,7 +3,7 @@
 use std::time::Duration;
 
 use mav::Scenario;
-use mpc::{ControllerMode, MpcSettings};
+use mpc::{ControllerMode, MpcSettings, SafetySettings};
 
 /// Lockstep or real time; `Auto` follows what the plant's `Describe` says.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -22,6 +22,9 @@ pub struct ControllerConfig {
     pub scenario: Scenario,
     pub mode: ControllerMode,
     pub mpc: MpcSettings,
+    /// The safety layer: cross-check of PANOC against the QP fallback and selection of the
+    /// command every cycle; `None` sends PANOC's input as it is (clipped to the bounds).
+    pub safety: Option<SafetySettings>,
     pub time_mode: TimeModeSetting,
     /// Reset the plant to the scenario when an episode starts (not on reconnection).
     pub reset_plant: bool,
@@ -45,6 +48,7 @@ impl ControllerConfig {
             scenario,
             mode,
             mpc: MpcSettings::default(),
+            safety: Some(SafetySettings::default()),
             time_mode: TimeModeSetting::Auto,
             reset_plant: true,
             autostart: true,
@@ -62,6 +66,9 @@ impl ControllerConfig {
         }
         self.scenario.validate().map_err(|e| e.to_string())?;
         self.mpc.validate().map_err(|e| e.to_string())?;
+        if let Some(safety) = &self.safety {
+            safety.validate().map_err(|e| e.to_string())?;
+        }
         if !(self.deadline_fraction.is_finite()
             && self.deadline_fraction > 0.0
             && self.deadline_fraction <= 1.0)

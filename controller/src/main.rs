@@ -9,7 +9,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand, ValueEnum};
 use controller::solve_lines::LineSolver;
 use controller::{ControllerConfig, TimeModeSetting};
-use mpc::{ControllerMode, MpcSettings};
+use mpc::{ControllerMode, MpcSettings, QpSchedule, SafetySettings};
 
 #[derive(Parser, Debug)]
 #[command(name = "controller", version, about = "The multi-stage NMPC controller of hilbench")]
@@ -40,6 +40,24 @@ struct Cli {
     /// Safety margin added to every cylinder radius, m.
     #[arg(long, default_value_t = MpcSettings::default().obstacle_margin_m)]
     margin_m: f64,
+    /// Turn the safety layer off: send PANOC's input as it is (clipped to the bounds), with no
+    /// QP cross-check and no fallback.
+    #[arg(long)]
+    no_safety: bool,
+    /// When the QP fallback runs: every cycle (the cross-check) or only when PANOC's plan is
+    /// rejected.
+    #[arg(long, value_enum, default_value_t = Schedule::EveryCycle)]
+    qp_schedule: Schedule,
+    /// Floor for both solvers: predicted altitudes stay at or above this, m (default: none,
+    /// as in the paper).
+    #[arg(long)]
+    min_altitude_m: Option<f64>,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug)]
+enum Schedule {
+    EveryCycle,
+    WhenNeeded,
 }
 
 #[derive(Subcommand, Debug)]
@@ -84,13 +102,22 @@ fn main() -> anyhow::Result<()> {
         return Ok(());
     }
     hilbench_svc::init_tracing();
-    let scenario = mav::Scenario::by_name(&cli.scenario).context("--scenario")?;
+    let mut scenario = mav::Scenario::by_name(&cli.scenario).context("--scenario")?;
+    scenario.min_altitude_m = cli.min_altitude_m;
+    scenario.validate().context("--min-altitude-m")?;
     let mode = match cli.mode {
         Mode::Nmpc => ControllerMode::Nmpc,
         Mode::Multistage => ControllerMode::Multistage,
     };
     let mut config = ControllerConfig::new(cli.plant.clone(), scenario, mode);
     config.mpc = settings;
+    config.safety = (!cli.no_safety).then(|| SafetySettings {
+        qp_schedule: match cli.qp_schedule {
+            Schedule::EveryCycle => QpSchedule::EveryCycle,
+            Schedule::WhenNeeded => QpSchedule::WhenNeeded,
+        },
+        ..SafetySettings::default()
+    });
     config.reset_plant = !cli.no_reset;
     config.autostart = !cli.no_autostart;
     config.time_mode = match cli.time_mode {

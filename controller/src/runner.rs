@@ -20,8 +20,8 @@ use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
 use mav::{InputBounds, Scenario};
 use mpc::{
-    ControllerMode, GammaParams, Mpc, OcpDefinition, ScenarioWeights, SolveBudget, SolveReport,
-    WeightSettings,
+    ControllerMode, CycleController, CycleOutcome, GammaParams, OcpDefinition, ScenarioWeights, SolveBudget,
+    SolveStatus, WeightSettings,
 };
 use tokio::sync::{Notify, broadcast, watch};
 use tonic::transport::{Channel, Endpoint};
@@ -51,6 +51,12 @@ pub struct Status {
     pub episodes_finished: u64,
     /// Why the last episode ended (`reached`, `time_limit`); empty while one runs.
     pub finish_reason: String,
+    /// Working plant links lost during the current episode (one per outage).
+    pub link_losses: u64,
+    /// Wall time without a plant link during the current episode (ended outages), s.
+    pub link_down_s: f64,
+    /// The longest of those outages, s.
+    pub longest_link_down_s: f64,
 }
 
 /// Requests from the Controller API, taken by the loop at the start of the next cycle.
@@ -68,6 +74,10 @@ pub struct Shared {
     wake: Notify,
     closed: AtomicBool,
     telemetry: broadcast::Sender<pb::CycleTelemetry>,
+    /// Since when the plant link is down (`None` while it works or before it first worked).
+    link_down_since: Mutex<Option<Instant>>,
+    /// The plant API has answered at least once since the last loss.
+    link_up: AtomicBool,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -91,6 +101,8 @@ impl Shared {
             wake: Notify::new(),
             closed: AtomicBool::new(false),
             telemetry,
+            link_down_since: Mutex::new(None),
+            link_up: AtomicBool::new(false),
         })
     }
 
@@ -124,6 +136,26 @@ impl Shared {
     fn update(&self, f: impl FnOnce(&mut Status)) {
         f(&mut lock(&self.status));
     }
+
+    /// The plant API answered: ends an outage (adding it to the episode's link faults).
+    fn link_answered(&self) {
+        self.link_up.store(true, Ordering::SeqCst);
+        if let Some(since) = lock(&self.link_down_since).take() {
+            let down_s = since.elapsed().as_secs_f64();
+            self.update(|st| {
+                st.link_down_s += down_s;
+                st.longest_link_down_s = st.longest_link_down_s.max(down_s);
+            });
+        }
+    }
+
+    /// A working plant link failed: starts an outage (retries of the same outage count once).
+    fn link_lost(&self) {
+        if self.link_up.swap(false, Ordering::SeqCst) {
+            *lock(&self.link_down_since) = Some(Instant::now());
+            self.update(|st| st.link_losses += 1);
+        }
+    }
 }
 
 /// A command that is safe to send: finite and inside the bounds. A non-finite component makes
@@ -141,7 +173,7 @@ pub fn sanitize_command(u: [f64; 3], bounds: &InputBounds, hover: [f64; 3]) -> [
 struct Episode {
     scenario: Scenario,
     mode: ControllerMode,
-    mpc: Mpc,
+    controller: CycleController,
     weights: ScenarioWeights,
     command_seq: u64,
     measured_seq: u64,
@@ -167,12 +199,12 @@ impl Episode {
             config.mpc.formulation,
         );
         let ts = def.sampling_times_s.clone();
-        let mpc = Mpc::new(def, config.mpc).map_err(|e| e.to_string())?;
+        let controller = CycleController::new(def, config.mpc, config.safety).map_err(|e| e.to_string())?;
         let weights = weight_estimator(&scenario, mode, &ts);
         Ok(Self {
             scenario,
             mode,
-            mpc,
+            controller,
             weights,
             command_seq: 0,
             measured_seq: 0,
@@ -279,6 +311,9 @@ pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch:
                 backoff = config.backoff_min;
             }
             Err(e) => {
+                if !matches!(e, LoopError::Bad(_)) {
+                    shared.link_lost();
+                }
                 tracing::warn!(error = %e, retry_in_ms = backoff.as_millis() as u64, "plant link lost; retrying");
                 shared.update(|st| {
                     st.plant_connected = false;
@@ -323,6 +358,7 @@ async fn fly(
     stop: &mut watch::Receiver<bool>,
 ) -> Result<Outcome, LoopError> {
     let description = client.describe(pb::DescribeRequest {}).await?.into_inner();
+    shared.link_answered();
     let lockstep = match config.time_mode {
         TimeModeSetting::Lockstep => true,
         TimeModeSetting::RealTime => false,
@@ -347,7 +383,8 @@ async fn fly(
             st.episode = number;
             st.episode_finished = false;
             st.finish_reason.clear();
-            st.sampling_times_s = ep.mpc.definition().sampling_times_s.clone();
+            (st.link_losses, st.link_down_s, st.longest_link_down_s) = (0, 0.0, 0.0);
+            st.sampling_times_s = ep.controller.definition().sampling_times_s.clone();
         });
         tracing::info!(scenario = %scenario.name, mode = mode.name(), lockstep, "episode started");
         *episode = Some(ep);
@@ -379,7 +416,8 @@ async fn fly(
                 config.mpc.obstacle_margin_m,
                 config.mpc.formulation,
             );
-            ep.mpc = Mpc::new(def, config.mpc).map_err(|e| LoopError::Bad(e.to_string()))?;
+            ep.controller = CycleController::new(def, config.mpc, config.safety)
+                .map_err(|e| LoopError::Bad(e.to_string()))?;
             shared.update(|st| {
                 st.goal_m = goal;
                 st.reached = false;
@@ -425,9 +463,12 @@ async fn fly(
             }
         };
         let weights = ep.weights.weights().to_vec();
-        let report: SolveReport =
-            ep.mpc.solve(&x, &u_prev, &weights, &budget).map_err(|e| LoopError::Bad(e.to_string()))?;
-        let command = sanitize_command(ep.mpc.first_input(), &ep.scenario.bounds, hover);
+        let outcome = ep
+            .controller
+            .step(ep.cycle, &x, &u_prev, &weights, &budget)
+            .map_err(|e| LoopError::Bad(e.to_string()))?;
+        // Finite and inside the bounds by construction; checked again at the edge.
+        let command = sanitize_command(outcome.command, &ep.scenario.bounds, hover);
         ep.command_seq += 1;
         let pb_command = pb::Command {
             input: Some(pb::ControlInput {
@@ -440,7 +481,7 @@ async fn fly(
             based_on_sample_time_ns: sample.time_ns,
         };
         client.apply_command(pb_command).await?;
-        publish(shared, ep, &sample, command, &weights, &report);
+        publish(shared, ep, &sample, command, &weights, &outcome);
         if lockstep {
             let advance =
                 pb::AdvanceRequest { duration_ns: min_cycle_ns, wait_for_command_seq: ep.command_seq };
@@ -465,15 +506,25 @@ fn finish(shared: &Shared, reason: &str) {
     });
 }
 
+/// What the cycle sent, as the wire names it: the safety layer's decision, or without the
+/// layer PANOC (the previous plan shifted when it failed numerically).
+fn solver_kind(outcome: &CycleOutcome) -> pb::SolverKind {
+    match &outcome.selection {
+        Some(s) => s.decision.into(),
+        None if outcome.report.status == SolveStatus::NumericalFailure => pb::SolverKind::ShiftedPlan,
+        None => pb::SolverKind::Panoc,
+    }
+}
+
 fn publish(
     shared: &Shared,
     ep: &Episode,
     sample: &pb::StateSample,
     command: [f64; 3],
     weights: &[f64],
-    report: &SolveReport,
+    outcome: &CycleOutcome,
 ) {
-    let stats = pb::SolveStats::from(report);
+    let stats = pb::SolveStats::from(&outcome.report);
     shared.update(|st| {
         st.cycles = ep.cycle + 1;
         st.weights = weights.to_vec();
@@ -482,9 +533,10 @@ fn publish(
     if shared.telemetry.receiver_count() == 0 {
         return;
     }
-    let ts = &ep.mpc.definition().sampling_times_s;
+    let ts = &ep.controller.definition().sampling_times_s;
     let predictions = ep
-        .mpc
+        .controller
+        .mpc()
         .predictions()
         .iter()
         .zip(ts)
@@ -506,7 +558,10 @@ fn publish(
         command_seq: ep.command_seq,
         scenario_weights: weights.to_vec(),
         solve: Some(stats),
-        solver: pb::SolverKind::Panoc as i32,
+        solver: solver_kind(outcome) as i32,
+        decision_reason: outcome.selection.as_ref().map(|s| s.reason()).unwrap_or_default(),
+        cost_gap: outcome.selection.as_ref().and_then(|s| s.cost_gap),
+        qp: outcome.selection.as_ref().and_then(|s| s.qp_report.as_ref()).map(pb::QpStats::from),
         predictions,
         measured_delay_s: if ep.last_delay_s.is_finite() { ep.last_delay_s } else { 0.0 },
         episode: ep.number,

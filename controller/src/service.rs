@@ -50,6 +50,9 @@ impl Controller for ControllerService {
             episode_finished: s.episode_finished,
             episodes_finished: s.episodes_finished,
             finish_reason: s.finish_reason,
+            link_losses: s.link_losses,
+            link_down_s: s.link_down_s,
+            longest_link_down_s: s.longest_link_down_s,
         }))
     }
 

@@ -81,6 +81,15 @@ pub struct Scenario {
     pub max_duration_s: f64,
     /// Altitude of the ground, m.
     pub ground_z_m: f64,
+    /// Optional floor for the controller: every predicted point keeps `z >= min_altitude_m`,
+    /// m. `None` in paper mode (the paper's problem has none); scenario files turn it on at
+    /// the ground by default.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_altitude_m: Option<f64>,
+    /// Dead-time compensation in the controller's predictions (see `mpc::OcpDefinition`).
+    /// Off in paper mode; scenario files turn it on by default.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub delay_compensation: bool,
 }
 
 impl Scenario {
@@ -122,6 +131,8 @@ impl Scenario {
             goal_speed_tolerance_mps: 0.2,
             max_duration_s: 60.0,
             ground_z_m: 0.0,
+            min_altitude_m: None,
+            delay_compensation: false,
         }
     }
 
@@ -242,6 +253,9 @@ impl Scenario {
         }
         if !self.ground_z_m.is_finite() {
             return Err(invalid("ground_z_m", "must be finite"));
+        }
+        if self.min_altitude_m.is_some_and(|z| !z.is_finite()) {
+            return Err(invalid("min_altitude_m", "must be finite"));
         }
         Ok(())
     }

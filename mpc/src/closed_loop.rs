@@ -5,9 +5,11 @@
 
 use mav::{CommandMeta, DelayModel, Input, PlantSim, Scenario, SimSettings, State, s_to_ns};
 
+use crate::cycle::{CycleController, FaultInjection, PanocFault};
 use crate::delays::{GammaParams, ScenarioWeights, WeightSettings};
 use crate::problem::{ControllerMode, OcpDefinition};
-use crate::solver::{Mpc, MpcError, MpcSettings, SolveBudget, SolveReport, SolveStatus};
+use crate::safety::{Decision, SafetySettings, Selection};
+use crate::solver::{MpcError, MpcSettings, SolveBudget, SolveReport, SolveStatus};
 
 /// Where the round-trip delays of a run come from.
 #[derive(Debug, Clone)]
@@ -65,6 +67,10 @@ pub struct ClosedLoopSettings {
     pub budget: SolveBudget,
     /// Keep the predicted trajectories of every cycle in the records.
     pub record_predictions: bool,
+    /// The safety layer (cross-check and selection); `None` sends PANOC's input as it is.
+    pub safety: Option<SafetySettings>,
+    /// A fault forced on PANOC (tests of the fallbacks).
+    pub fault: Option<FaultInjection>,
 }
 
 impl ClosedLoopSettings {
@@ -75,6 +81,8 @@ impl ClosedLoopSettings {
             delays: None,
             budget: SolveBudget::default(),
             record_predictions: false,
+            safety: Some(SafetySettings::default()),
+            fault: None,
         }
     }
 }
@@ -94,7 +102,12 @@ pub struct CycleRecord {
     /// Scenario weights after this cycle's delay entered the window.
     pub weights: Vec<f64>,
     pub report: SolveReport,
-    /// The whole input plan of this cycle (`N x 3`, flattened).
+    /// The safety layer's decision (`None` when the layer is off).
+    pub selection: Option<Selection>,
+    /// The fault forced on PANOC in this cycle, if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fault: Option<PanocFault>,
+    /// The selected input plan of this cycle (`N x 3`, flattened).
     pub plan: Vec<f64>,
     /// Predicted positions per scenario (when recorded).
     #[serde(skip_serializing_if = "Vec::is_empty")]
@@ -119,13 +132,42 @@ pub struct RunSummary {
     pub solve_ms_p95: f64,
     pub solve_ms_max: f64,
     pub iterations_median: f64,
-    /// Cycles whose solve failed numerically and sent the previous plan shifted instead.
+    /// Cycles that did not send PANOC's plan: the safety layer chose a fallback (or, without
+    /// the layer, PANOC failed numerically).
     pub fallbacks: u64,
+    /// Cycles per decision of the safety layer (`panoc`, `qp`, `shifted_plan`, `brake`).
+    pub decisions: std::collections::BTreeMap<String, u64>,
+    /// QP cost minus PANOC cost on the nonlinear model, over the cycles where both were
+    /// evaluated (positive: PANOC's plan is cheaper).
+    pub cost_gap: GapSummary,
     /// Cycles that stopped at the iteration limit.
     pub iteration_limits: u64,
     pub final_position_m: [f64; 3],
     /// Every entry into a cylinder or the ground: (kind, obstacle index, time s, position).
     pub collisions: Vec<CollisionSummary>,
+}
+
+/// Statistics of the cross-check's cost gap.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct GapSummary {
+    /// Cycles where both costs were evaluated.
+    pub cycles: u64,
+    pub median: Option<f64>,
+    pub min: Option<f64>,
+    pub max: Option<f64>,
+}
+
+impl GapSummary {
+    pub fn of(gaps: &[f64]) -> Self {
+        let mut g = gaps.to_vec();
+        let stat = |g: &mut [f64], p: f64| (!g.is_empty()).then(|| percentile(g, p));
+        Self {
+            cycles: g.len() as u64,
+            median: stat(&mut g, 50.0),
+            min: g.iter().copied().reduce(f64::min),
+            max: stat(&mut g, 100.0),
+        }
+    }
 }
 
 /// One collision event of a run.
@@ -164,7 +206,7 @@ pub fn run_closed_loop(
         settings.mpc.formulation,
     );
     let sampling_times = def.sampling_times_s.clone();
-    let mut mpc = Mpc::new(def, settings.mpc)?;
+    let mut controller = CycleController::new(def, settings.mpc, settings.safety)?.with_fault(settings.fault);
     let (prior_shape, prior_scale) = scenario.prior_gamma;
     let weight_settings = WeightSettings {
         window: scenario.delay_window,
@@ -199,10 +241,15 @@ pub fn run_closed_loop(
         let x0: [f64; 8] = x.into();
         let up: [f64; 3] = u_prev.into();
         let weights_used = weights.weights().to_vec();
-        let report = mpc.solve(&x0, &up, &weights_used, &settings.budget)?;
-        let command = mpc.first_input();
+        let outcome = controller.step(cycle, &x0, &up, &weights_used, &settings.budget)?;
+        let command = outcome.command;
         let predictions = if settings.record_predictions {
-            mpc.predictions().iter().map(|traj| traj.iter().map(|s| [s[0], s[1], s[2]]).collect()).collect()
+            controller
+                .mpc()
+                .predictions()
+                .iter()
+                .map(|traj| traj.iter().map(|s| [s[0], s[1], s[2]]).collect())
+                .collect()
         } else {
             Vec::new()
         };
@@ -241,8 +288,10 @@ pub fn run_closed_loop(
             delay_s,
             weights_used,
             weights: weights.weights().to_vec(),
-            report,
-            plan: mpc.solution().to_vec(),
+            report: outcome.report,
+            selection: outcome.selection,
+            fault: outcome.fault,
+            plan: controller.plan().to_vec(),
             predictions,
         });
         if !lost {
@@ -252,6 +301,30 @@ pub fn run_closed_loop(
     }
     let summary = summarize(scenario, settings.mode, &sim, &records, time_to_goal_s);
     Ok((summary, records))
+}
+
+/// True when the cycle did not send PANOC's plan.
+pub fn is_fallback(selection: Option<&Selection>, report: &SolveReport) -> bool {
+    match selection {
+        Some(s) => s.decision.is_fallback(),
+        None => report.status == SolveStatus::NumericalFailure,
+    }
+}
+
+/// Cycles per decision (every decision listed, zeros included, when the layer was on).
+pub fn decision_counts<'a>(
+    selections: impl Iterator<Item = Option<&'a Selection>>,
+) -> std::collections::BTreeMap<String, u64> {
+    let mut counts = std::collections::BTreeMap::new();
+    for s in selections.flatten() {
+        if counts.is_empty() {
+            for d in [Decision::Panoc, Decision::Qp, Decision::ShiftedPlan, Decision::Brake] {
+                counts.insert(d.name().to_string(), 0);
+            }
+        }
+        *counts.entry(s.decision.name().to_string()).or_insert(0) += 1;
+    }
+    counts
 }
 
 fn summarize(
@@ -281,7 +354,11 @@ fn summarize(
         solve_ms_p95: percentile(&mut solve_ms, 95.0),
         solve_ms_max: percentile(&mut solve_ms, 100.0),
         iterations_median: percentile(&mut iterations, 50.0),
-        fallbacks: records.iter().filter(|r| r.report.status == SolveStatus::NumericalFailure).count() as u64,
+        fallbacks: records.iter().filter(|r| is_fallback(r.selection.as_ref(), &r.report)).count() as u64,
+        decisions: decision_counts(records.iter().map(|r| r.selection.as_ref())),
+        cost_gap: GapSummary::of(
+            &records.iter().filter_map(|r| r.selection.as_ref().and_then(|s| s.cost_gap)).collect::<Vec<_>>(),
+        ),
         iteration_limits: records.iter().filter(|r| r.report.status == SolveStatus::IterationLimit).count()
             as u64,
         final_position_m: [x[0], x[1], x[2]],

@@ -49,6 +49,10 @@ pub enum WeightSource {
     Prior(GammaParams),
     /// Fitted to the window.
     Fitted(GammaParams),
+    /// Every delay in the window is the same (up to rounding): the limit of the Gamma fit as
+    /// its variance goes to zero, all weight on the scenario whose interval holds the delay
+    /// (the last one when the delay is beyond every sampling time).
+    Constant { delay_s: f64 },
 }
 
 /// The last `capacity` observed round-trip delays.
@@ -194,6 +198,20 @@ impl ScenarioWeights {
             self.source = WeightSource::Fitted(fit);
             return;
         }
+        if self.window.len() >= self.settings.min_samples.max(2)
+            && let Some((mean, var)) = self.window.moments()
+            && mean > 0.0
+            && GammaParams::from_moments(mean, var).is_none()
+            && !self.sampling_times_s.is_empty()
+        {
+            // No spread to fit: a Gamma CDF of vanishing variance is a step at the mean.
+            let last = self.sampling_times_s.len() - 1;
+            // (A relative tolerance: a mean of identical delays can round above the delay.)
+            let bin = self.sampling_times_s.iter().position(|&ts| mean <= ts * (1.0 + 1e-9)).unwrap_or(last);
+            self.current.iter_mut().enumerate().for_each(|(i, w)| *w = if i == bin { 1.0 } else { 0.0 });
+            self.source = WeightSource::Constant { delay_s: mean };
+            return;
+        }
         let prior = self.settings.prior;
         if weights_from_gamma(&prior, &self.sampling_times_s, &mut self.current) {
             self.source = WeightSource::Prior(prior);
@@ -274,14 +292,27 @@ mod tests {
     }
 
     #[test]
-    fn prior_until_enough_samples_and_on_degenerate_windows() {
+    fn prior_until_enough_samples_then_the_fit_or_a_point_mass_for_constant_delays() {
         let s = WeightSettings::default();
         let mut sw = ScenarioWeights::new(s, &TS, None);
         assert_eq!(sw.source(), WeightSource::Prior(s.prior));
-        for _ in 0..20 {
-            sw.observe(0.18); // zero variance: degenerate
+        for _ in 0..s.min_samples - 1 {
+            sw.observe(0.18);
         }
         assert_eq!(sw.source(), WeightSource::Prior(s.prior));
+        for _ in s.min_samples - 1..20 {
+            sw.observe(0.18); // zero variance: no Gamma fits, the limit is a step at 0.18 s
+        }
+        assert!(matches!(sw.source(), WeightSource::Constant { delay_s } if (delay_s - 0.18).abs() < 1e-12));
+        assert_eq!(sw.weights(), &[0.0, 0.0, 0.0, 1.0, 0.0]);
+        let mut beyond = ScenarioWeights::new(s, &TS, None);
+        let mut at_first = ScenarioWeights::new(s, &TS, None);
+        for _ in 0..20 {
+            beyond.observe(0.5);
+            at_first.observe(0.05);
+        }
+        assert_eq!(beyond.weights(), &[0.0, 0.0, 0.0, 0.0, 1.0]);
+        assert_eq!(at_first.weights(), &[1.0, 0.0, 0.0, 0.0, 0.0]);
         sw.observe(f64::NAN); // ignored
         assert_eq!(sw.window().len(), 20);
         sw.observe(0.25);

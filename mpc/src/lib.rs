@@ -13,6 +13,7 @@
 
 pub mod accuracy;
 pub mod closed_loop;
+pub mod cycle;
 pub mod delays;
 pub mod problem;
 pub mod qp;
@@ -20,6 +21,7 @@ pub mod safety;
 pub mod solver;
 
 pub use closed_loop::{ClosedLoopSettings, CycleRecord, DelaySource, RunSummary, run_closed_loop};
+pub use cycle::{CycleController, CycleOutcome, FaultInjection, PanocFault};
 pub use delays::{DelayWindow, GammaParams, ScenarioWeights, WeightSettings, WeightSource};
 pub use problem::{ControllerMode, Evaluator, ObstacleFormulation, OcpDefinition};
 pub use qp::{QpBudget, QpFallback, QpReport, QpSettings, QpStatus};

@@ -81,6 +81,15 @@ pub struct OcpDefinition {
     pub q_du: [f64; 3],
     pub x_ref: [f64; 8],
     pub u_ref: [f64; 3],
+    /// Optional floor: every predicted point of every scenario keeps `z >= min_altitude_m`
+    /// (the constraint `min_altitude_m - z <= 0`, in the same formulation as the cylinders).
+    /// `None` in paper mode, whose model has no floor.
+    pub min_altitude_m: Option<f64>,
+    /// Dead-time compensation: scenario `i` first holds the last applied input for its own
+    /// sampling time `ts_i` (the round-trip delay it stands for, during which the previous
+    /// command stays on), then applies the plan. Off in paper mode (the paper predicts from
+    /// the measured state at once).
+    pub delay_compensation: bool,
 }
 
 impl OcpDefinition {
@@ -111,6 +120,8 @@ impl OcpDefinition {
             q_du: scenario.q_du,
             x_ref,
             u_ref: [g, 0.0, 0.0],
+            min_altitude_m: scenario.min_altitude_m,
+            delay_compensation: scenario.delay_compensation,
         }
     }
 
@@ -123,10 +134,15 @@ impl OcpDefinition {
         3 * self.horizon
     }
 
+    /// Constraint values per predicted point: one per cylinder, and the floor when set.
+    pub fn constraints_per_point(&self) -> usize {
+        self.obstacles.len() + usize::from(self.min_altitude_m.is_some())
+    }
+
     /// Number of constraint values (ALM's `F1` or PM's `F2`): one per scenario, predicted point
-    /// and cylinder.
+    /// and cylinder (and the floor).
     pub fn num_constraints(&self) -> usize {
-        self.num_scenarios() * self.horizon * self.obstacles.len()
+        self.num_scenarios() * self.horizon * self.constraints_per_point()
     }
 }
 
@@ -192,8 +208,15 @@ pub struct Evaluator {
     x_ref: [f64; 8],
     u_ref: [f64; 3],
     obstacles: Vec<ObstacleTerm>,
+    min_altitude_m: Option<f64>,
+    /// Constraint values per predicted point (cylinders, then the floor).
+    n_con: usize,
     formulation: ObstacleFormulation,
+    delay_compensation: bool,
     x0: [f64; 8],
+    /// Initial state of each scenario's prediction: `x0`, or with dead-time compensation
+    /// `x0` advanced one Euler step of `ts_i` under `u_prev`.
+    x0s: Vec<[f64; 8]>,
     u_prev: [f64; 3],
     pub(crate) scaling: Scaling,
     /// Per scenario, per channel: hover impulse energies (for the preconditioner).
@@ -238,8 +261,12 @@ impl Evaluator {
             x_ref: def.x_ref,
             u_ref: def.u_ref,
             obstacles,
+            min_altitude_m: def.min_altitude_m,
+            n_con: def.constraints_per_point(),
             formulation: def.formulation,
+            delay_compensation: def.delay_compensation,
             x0: [0.0; 8],
+            x0s: vec![[0.0; 8]; m],
             u_prev: def.u_ref,
             scaling: Scaling { offset: vec![0.0; 3 * n], scale: vec![1.0; 3 * n] },
             impulse_energy,
@@ -273,6 +300,9 @@ impl Evaluator {
     pub fn set_instance(&mut self, x0: &[f64; 8], u_prev: &[f64; 3], weights: &[f64]) {
         self.x0 = *x0;
         self.u_prev = *u_prev;
+        for (x0i, &dt) in self.x0s.iter_mut().zip(&self.dts) {
+            *x0i = if self.delay_compensation { euler_predict(&self.params, x0, u_prev, dt) } else { *x0 };
+        }
         self.weights.copy_from_slice(weights);
         self.weight_sum = weights.iter().sum();
         self.forward_valid = false;
@@ -343,15 +373,16 @@ impl Evaluator {
         let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
         let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
         let n_obs = self.obstacles.len();
+        let n_con = self.n_con;
         let mut objective = 0.0;
         for i in 0..m {
             let dt = self.dts[i];
             let w = self.weights[i];
             let states = &mut self.states[i * (n + 1)..(i + 1) * (n + 1)];
             let trig = &mut self.trig[i * n..(i + 1) * n];
-            let con = &mut self.con[i * n * n_obs..(i + 1) * n * n_obs];
-            let con_grad = &mut self.con_grad[i * n * n_obs..(i + 1) * n * n_obs];
-            let mut x = self.x0;
+            let con = &mut self.con[i * n * n_con..(i + 1) * n * n_con];
+            let con_grad = &mut self.con_grad[i * n * n_con..(i + 1) * n * n_con];
+            let mut x = self.x0s[i];
             states[0] = x;
             let mut state_cost = 0.0;
             for (j, u) in self.u.chunks_exact(3).enumerate() {
@@ -374,7 +405,7 @@ impl Evaluator {
                     let e = xk - rk;
                     state_cost += qk * e * e;
                 }
-                let first = j * n_obs;
+                let first = j * n_con;
                 for ((ob, c), cg) in self
                     .obstacles
                     .iter()
@@ -384,6 +415,11 @@ impl Evaluator {
                     let (value, grad) = constraint(self.formulation, ob, &x);
                     *c = value;
                     *cg = grad;
+                }
+                if let Some(floor) = self.min_altitude_m {
+                    let (value, grad) = floor_constraint(self.formulation, floor, &x);
+                    con[first + n_obs] = value;
+                    con_grad[first + n_obs] = grad;
                 }
             }
             objective += w * state_cost;
@@ -463,7 +499,7 @@ impl Evaluator {
         let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
         let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
         self.input_cost_gradient();
-        let n_obs = self.obstacles.len();
+        let n_con = self.n_con;
         let c = penalty;
         let empty: [f64; 0] = [];
         for i in 0..m {
@@ -472,9 +508,9 @@ impl Evaluator {
             let wq: [f64; 8] = std::array::from_fn(|k| w2 * self.q_x[k]);
             let states = &self.states[i * (n + 1) + 1..(i + 1) * (n + 1)];
             let trig = &self.trig[i * n..(i + 1) * n];
-            let con = &self.con[i * n * n_obs..(i + 1) * n * n_obs];
-            let con_grad = &self.con_grad[i * n * n_obs..(i + 1) * n * n_obs];
-            let y = multipliers.get(i * n * n_obs..(i + 1) * n * n_obs).unwrap_or(&empty);
+            let con = &self.con[i * n * n_con..(i + 1) * n * n_con];
+            let con_grad = &self.con_grad[i * n * n_con..(i + 1) * n * n_con];
+            let y = multipliers.get(i * n * n_con..(i + 1) * n * n_con).unwrap_or(&empty);
             let mut l = [0.0f64; 8];
             for j in (0..n).rev() {
                 // Stage terms at x_{j+1}.
@@ -483,8 +519,8 @@ impl Evaluator {
                     l[k] += wq[k] * (x[k] - self.x_ref[k]);
                 }
                 if c > 0.0 {
-                    let first = j * n_obs;
-                    for o in first..first + n_obs {
+                    let first = j * n_con;
+                    for o in first..first + n_con {
                         let v = c * con[o] + y.get(o).copied().unwrap_or(0.0);
                         if v > 0.0 {
                             let dg = con_grad[o];
@@ -601,6 +637,35 @@ fn constraint(formulation: ObstacleFormulation, ob: &ObstacleTerm, x: &[f64; 8])
             let radial = ob.r - d;
             if radial <= hz { (radial, [-dx / d, -dy / d, 0.0]) } else { (hz, [0.0, 0.0, -1.0]) }
         }
+    }
+}
+
+/// One Euler step of the prediction model (the same arithmetic as the forward pass).
+#[inline]
+pub(crate) fn euler_predict(p: &ModelParams, x: &[f64; 8], u: &[f64; 3], dt: f64) -> [f64; 8] {
+    let (sr, cr) = sin_cos_small(x[6]);
+    let (sp, cp) = sin_cos_small(x[7]);
+    let t = u[0];
+    [
+        x[0] + dt * x[3],
+        x[1] + dt * x[4],
+        x[2] + dt * x[5],
+        x[3] + dt * (t * cr * sp - p.drag_x_per_s * x[3]),
+        x[4] + dt * (-t * sr - p.drag_y_per_s * x[4]),
+        x[5] + dt * (t * cr * cp - p.gravity_mps2 - p.drag_z_per_s * x[5]),
+        x[6] + dt * (p.gain_roll / p.tau_roll_s * u[1] - x[6] / p.tau_roll_s),
+        x[7] + dt * (p.gain_pitch / p.tau_pitch_s * u[2] - x[7] / p.tau_pitch_s),
+    ]
+}
+
+/// The floor constraint `min_altitude_m - z <= 0` and its gradient in `(px, py, pz)`: in metres
+/// for ALM, as a hinge `[min_altitude_m - z]_+ = 0` for the penalty method.
+#[inline]
+fn floor_constraint(formulation: ObstacleFormulation, min_altitude_m: f64, x: &[f64; 8]) -> (f64, [f64; 3]) {
+    let below = min_altitude_m - x[2];
+    match formulation {
+        ObstacleFormulation::PaperPenalty if below <= 0.0 => (0.0, [0.0; 3]),
+        _ => (below, [0.0, 0.0, -1.0]),
     }
 }
 

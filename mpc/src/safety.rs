@@ -118,6 +118,8 @@ pub enum Rejection {
     PanocStatus { status: SolveStatus },
     /// PANOC's solve returned an error (no plan).
     PanocError,
+    /// PANOC ran no iteration (zero budget): its plan is the warm start, not a solution.
+    NoIterations,
     /// The QP had no solution.
     QpStatus { status: QpStatus },
     /// The QP did not run (schedule) or refused the instance.
@@ -141,6 +143,7 @@ impl Rejection {
         let _ = match self {
             Rejection::PanocStatus { status } => write!(out, "status {}", status.name()),
             Rejection::PanocError => write!(out, "solve error"),
+            Rejection::NoIterations => write!(out, "no iterations"),
             Rejection::QpStatus { status } => write!(out, "status {}", status.name()),
             Rejection::NotRun => write!(out, "not run"),
             Rejection::NotFinite => write!(out, "not finite"),
@@ -246,10 +249,15 @@ pub struct SafetyLayer {
     has_plan: bool,
     shifts: usize,
     qp_budget: QpBudget,
+    /// Altitude of the cycle's state (for the floor check).
+    x0_z: f64,
 }
 
 impl SafetyLayer {
+    /// The floor is the problem's (`def.min_altitude_m`) unless the QP settings set one.
     pub fn new(def: &OcpDefinition, settings: SafetySettings) -> Result<Self, MpcError> {
+        let mut settings = settings;
+        settings.qp.min_altitude_m = settings.qp.min_altitude_m.or(def.min_altitude_m);
         settings.validate()?;
         let qp = QpFallback::new(def, settings.qp)?;
         let nv = def.num_variables();
@@ -267,6 +275,7 @@ impl SafetyLayer {
             has_plan: false,
             shifts: 0,
             qp_budget: QpBudget::default(),
+            x0_z: 0.0,
         })
     }
 
@@ -307,12 +316,14 @@ impl SafetyLayer {
         panoc: &Mpc,
         report: &SolveReport,
     ) -> Selection {
-        self.select_plan(x0, u_prev, weights, Ok((panoc.solution(), report.status)))
+        // An iteration budget of zero returns the warm start untouched: not PANOC's answer.
+        let no_iterations = report.iterations == 0 && report.status != SolveStatus::Converged;
+        self.select_inner(x0, u_prev, weights, Ok((panoc.solution(), report.status)), no_iterations)
     }
 
     /// Selects this cycle's command when PANOC's solve returned an error (no plan).
     pub fn select_without_panoc(&mut self, x0: &[f64; 8], u_prev: &[f64; 3], weights: &[f64]) -> Selection {
-        self.select_plan(x0, u_prev, weights, Err(()))
+        self.select_inner(x0, u_prev, weights, Err(()), false)
     }
 
     /// The selection on PANOC's plan `u` (`N x 3`) and status, or `Err` when PANOC failed
@@ -323,6 +334,17 @@ impl SafetyLayer {
         u_prev: &[f64; 3],
         weights: &[f64],
         panoc: Result<(&[f64], SolveStatus), ()>,
+    ) -> Selection {
+        self.select_inner(x0, u_prev, weights, panoc, false)
+    }
+
+    fn select_inner(
+        &mut self,
+        x0: &[f64; 8],
+        u_prev: &[f64; 3],
+        weights: &[f64],
+        panoc: Result<(&[f64], SolveStatus), ()>,
+        no_iterations: bool,
     ) -> Selection {
         let valid = x0.iter().chain(u_prev).chain(weights).all(|v| v.is_finite())
             && weights.len() == self.m
@@ -344,6 +366,7 @@ impl SafetyLayer {
             };
         }
         self.evaluator.set_instance(x0, u_prev, weights);
+        self.x0_z = x0[2];
 
         // 1. PANOC.
         let panoc_check = match panoc {
@@ -358,6 +381,8 @@ impl SafetyLayer {
                 let mut check = self.check_plan(u);
                 if !status_ok {
                     check.rejection = Some(Rejection::PanocStatus { status });
+                } else if no_iterations {
+                    check.rejection = Some(Rejection::NoIterations);
                 }
                 check
             }
@@ -490,7 +515,11 @@ impl SafetyLayer {
             Some(Rejection::NotFinite)
         } else if min_clearance_m < self.settings.required_clearance_m {
             Some(Rejection::Collision { min_clearance_m })
-        } else if self.settings.qp.min_altitude_m.is_some_and(|floor| min_altitude_m < floor - 1e-9) {
+        } else if self.settings.qp.min_altitude_m.is_some_and(|floor| {
+            // A vehicle already below the floor cannot be above it at once: it may not sink
+            // further.
+            min_altitude_m < floor.min(self.x0_z) - 1e-9
+        }) {
             Some(Rejection::BelowFloor { min_altitude_m })
         } else {
             None

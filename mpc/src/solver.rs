@@ -294,15 +294,15 @@ impl Mpc {
         let last = [self.solution[n - 3], self.solution[n - 2], self.solution[n - 1]];
         self.warm[n - 3..].copy_from_slice(&last);
         // Multipliers are laid out per scenario, point and cylinder: shift the points.
-        let n_obs = self.def.obstacles.len();
-        if n_obs > 0 && !self.multipliers.is_empty() {
+        let n_con = self.def.constraints_per_point();
+        if n_con > 0 && !self.multipliers.is_empty() {
             let horizon = self.def.horizon;
             for i in 0..self.def.num_scenarios() {
-                let block = &self.multipliers[i * horizon * n_obs..(i + 1) * horizon * n_obs];
-                let warm = &mut self.warm_multipliers[i * horizon * n_obs..(i + 1) * horizon * n_obs];
-                warm[..(horizon - 1) * n_obs].copy_from_slice(&block[n_obs..]);
-                let last = &block[(horizon - 1) * n_obs..];
-                warm[(horizon - 1) * n_obs..].copy_from_slice(last);
+                let block = &self.multipliers[i * horizon * n_con..(i + 1) * horizon * n_con];
+                let warm = &mut self.warm_multipliers[i * horizon * n_con..(i + 1) * horizon * n_con];
+                warm[..(horizon - 1) * n_con].copy_from_slice(&block[n_con..]);
+                let last = &block[(horizon - 1) * n_con..];
+                warm[(horizon - 1) * n_con..].copy_from_slice(last);
             }
         }
     }
@@ -418,7 +418,8 @@ impl Mpc {
         // multiply the penalty without bound when the violation stalls.
         let s = self.settings;
         let mut c = self.penalty.clamp(s.initial_penalty, s.max_penalty);
-        let max_total = budget.max_inner_iterations.unwrap_or(s.max_inner_iterations).max(1);
+        // A budget of zero runs no iteration: the warm start comes back with `IterationLimit`.
+        let max_total = budget.max_inner_iterations.unwrap_or(s.max_inner_iterations);
         let mut iterations = 0;
         let mut elapsed = Duration::ZERO;
         let mut previous_violation = f64::INFINITY;

@@ -1,7 +1,7 @@
 //! Conversions of the controller API messages (see the module above for the rules).
 
 use mav::Scenario;
-use mpc::{ControllerMode, SolveReport, SolveStatus};
+use mpc::{ControllerMode, Decision, QpReport, SolveReport, SolveStatus};
 
 use super::FieldError;
 use super::plant::MAX_ABS_POSITION_M;
@@ -65,6 +65,42 @@ impl From<&SolveReport> for pb::SolveStats {
     }
 }
 
+impl From<Decision> for pb::SolverKind {
+    fn from(d: Decision) -> Self {
+        match d {
+            Decision::Panoc => Self::Panoc,
+            Decision::Qp => Self::QpFallback,
+            Decision::ShiftedPlan => Self::ShiftedPlan,
+            Decision::Brake => Self::Hover,
+        }
+    }
+}
+
+/// The decision a `SolverKind` on the wire stands for (`None` for `UNSPECIFIED` and unknown
+/// values).
+pub fn decision_from_pb(kind: i32) -> Option<Decision> {
+    match pb::SolverKind::try_from(kind).ok()? {
+        pb::SolverKind::Unspecified => None,
+        pb::SolverKind::Panoc => Some(Decision::Panoc),
+        pb::SolverKind::QpFallback => Some(Decision::Qp),
+        pb::SolverKind::ShiftedPlan => Some(Decision::ShiftedPlan),
+        pb::SolverKind::Hover => Some(Decision::Brake),
+    }
+}
+
+impl From<&QpReport> for pb::QpStats {
+    fn from(r: &QpReport) -> Self {
+        Self {
+            status: r.status.name().to_string(),
+            iterations: r.iterations,
+            solve_ms: r.solve_time.as_secs_f64() * 1e3,
+            cost: r.cost,
+            min_clearance_m: r.min_clearance_m,
+            half_planes: u32::try_from(r.num_half_planes).unwrap_or(u32::MAX),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -90,5 +126,14 @@ mod tests {
         assert_eq!(scenario_from_pb(&r).map_err(|e| e.field), Err("scenario".to_string()));
         let r = pb::SetScenarioRequest { scenario: "paper-1".into(), mode: "fast".into() };
         assert_eq!(scenario_from_pb(&r).map_err(|e| e.field), Err("mode".to_string()));
+    }
+
+    #[test]
+    fn decisions_round_trip_through_the_solver_kind() {
+        for d in [Decision::Panoc, Decision::Qp, Decision::ShiftedPlan, Decision::Brake] {
+            assert_eq!(decision_from_pb(pb::SolverKind::from(d) as i32), Some(d));
+        }
+        assert_eq!(decision_from_pb(0), None);
+        assert_eq!(decision_from_pb(99), None);
     }
 }

@@ -1,0 +1,48 @@
+//! Diagnosis aid: paper-2 under a constant round-trip delay, with and without the safety layer;
+//! prints where the run went and what the layer decided.
+use mpc::{ClosedLoopSettings, ControllerMode, DelaySource, run_closed_loop};
+
+fn main() {
+    let delay_s: f64 = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(0.33);
+    let mut scenario = mav::Scenario::paper_2();
+    scenario.delay_compensation = std::env::var("COMP").is_ok();
+    for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
+        for safety in [false, true] {
+            let mut settings = ClosedLoopSettings::paper(mode);
+            settings.delays = Some(DelaySource::Trace(vec![delay_s]));
+            if !safety {
+                settings.safety = None;
+            }
+            let (s, records) = run_closed_loop(&scenario, &settings).expect("run");
+            println!(
+                "{} safety={safety}: reached={} collided={} clearance={:.3} path={:.2} cycles={} fallbacks={} decisions={:?}",
+                mode.name(),
+                s.reached,
+                s.collided,
+                s.min_clearance_m,
+                s.path_length_m,
+                s.cycles,
+                s.fallbacks,
+                s.decisions
+            );
+            if std::env::var("VERBOSE").is_ok() {
+                for r in &records {
+                    println!(
+                        "  {:3} t={:5.2} p=[{:5.2},{:5.2},{:5.2}] v=[{:5.2},{:5.2},{:5.2}] w={:?} pred_clear={:.3} {}",
+                        r.cycle,
+                        r.t_s,
+                        r.state[0],
+                        r.state[1],
+                        r.state[2],
+                        r.state[3],
+                        r.state[4],
+                        r.state[5],
+                        r.weights_used.iter().map(|w| (w * 100.0).round() / 100.0).collect::<Vec<_>>(),
+                        r.report.min_clearance_m,
+                        r.selection.as_ref().map(|s| s.reason()).unwrap_or_default()
+                    );
+                }
+            }
+        }
+    }
+}

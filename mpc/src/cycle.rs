@@ -1,0 +1,216 @@
+//! One control cycle as the bench runs it: PANOC solves, the safety layer cross-checks and
+//! selects, and the command leaves finite and inside the bounds. The in-process closed loop
+//! and the controller service both call [`CycleController::step`], so that their decisions,
+//! and hence their trajectories, are the same bit for bit.
+
+use crate::problem::OcpDefinition;
+use crate::qp::QpBudget;
+use crate::safety::{SafetyLayer, SafetySettings, Selection, sanitize_command};
+use crate::solver::{Mpc, MpcError, MpcSettings, SolveBudget, SolveReport};
+
+/// A fault forced on PANOC, to test that the fallbacks take over (never on by default).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PanocFault {
+    /// PANOC gets an iteration budget of zero: its plan is the warm start, unsolved.
+    ZeroBudget,
+    /// PANOC's plan is replaced by NaN after the solve (a corrupted solver output).
+    NanPlan,
+}
+
+/// A fault on the cycles `first_cycle..first_cycle + cycles`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct FaultInjection {
+    pub fault: PanocFault,
+    pub first_cycle: u64,
+    pub cycles: u64,
+}
+
+impl FaultInjection {
+    pub fn active(&self, cycle: u64) -> bool {
+        cycle >= self.first_cycle && cycle - self.first_cycle < self.cycles
+    }
+}
+
+/// What one cycle decided.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct CycleOutcome {
+    /// The command to send: finite and inside the input bounds.
+    pub command: [f64; 3],
+    /// PANOC's report.
+    pub report: SolveReport,
+    /// The safety layer's decision and checks (`None` when the layer is off).
+    pub selection: Option<Selection>,
+    /// The fault forced on this cycle, if any.
+    pub fault: Option<PanocFault>,
+}
+
+/// PANOC plus the optional safety layer, with the plan that was actually selected.
+///
+/// ## Memory allocation
+/// The solver's and the layer's workspaces (see [`Mpc`], [`SafetyLayer`]) and two `3N`
+/// buffers, allocated in [`CycleController::new`].
+pub struct CycleController {
+    mpc: Mpc,
+    safety: Option<SafetyLayer>,
+    fault: Option<FaultInjection>,
+    /// The selected plan of the last cycle (`N x 3`).
+    plan: Vec<f64>,
+    scratch: Vec<f64>,
+}
+
+impl CycleController {
+    /// `safety: None` sends PANOC's input as it is (clipped), like the paper's controller.
+    pub fn new(
+        def: OcpDefinition,
+        mpc: MpcSettings,
+        safety: Option<SafetySettings>,
+    ) -> Result<Self, MpcError> {
+        let safety = safety.map(|s| SafetyLayer::new(&def, s)).transpose()?;
+        let mpc = Mpc::new(def, mpc)?;
+        let plan = mpc.solution().to_vec();
+        Ok(Self { scratch: plan.clone(), plan, mpc, safety, fault: None })
+    }
+
+    /// Forces `fault` on PANOC on the given cycles (tests of the fallbacks).
+    pub fn with_fault(mut self, fault: Option<FaultInjection>) -> Self {
+        self.fault = fault;
+        self
+    }
+
+    pub fn mpc(&self) -> &Mpc {
+        &self.mpc
+    }
+
+    pub fn safety(&self) -> Option<&SafetyLayer> {
+        self.safety.as_ref()
+    }
+
+    pub fn definition(&self) -> &OcpDefinition {
+        self.mpc.definition()
+    }
+
+    /// The plan selected in the last cycle (`N x 3`, flattened): PANOC's, or the fallback's.
+    pub fn plan(&self) -> &[f64] {
+        &self.plan
+    }
+
+    /// Solves cycle `cycle` from state `x0` with last applied input `u_prev` and the scenario
+    /// weights, and selects the command. `Err` only for an invalid instance (nothing changes).
+    pub fn step(
+        &mut self,
+        cycle: u64,
+        x0: &[f64; 8],
+        u_prev: &[f64; 3],
+        weights: &[f64],
+        budget: &SolveBudget,
+    ) -> Result<CycleOutcome, MpcError> {
+        let fault = self.fault.filter(|f| f.active(cycle)).map(|f| f.fault);
+        let zero = SolveBudget { max_inner_iterations: Some(0), ..*budget };
+        let budget = if fault == Some(PanocFault::ZeroBudget) { &zero } else { budget };
+        let report = self.mpc.solve(x0, u_prev, weights, budget)?;
+        let def = self.mpc.definition();
+        let Some(layer) = self.safety.as_mut() else {
+            self.plan.copy_from_slice(self.mpc.solution());
+            if fault == Some(PanocFault::NanPlan) {
+                self.plan.iter_mut().for_each(|u| *u = f64::NAN);
+            }
+            let first = [self.plan[0], self.plan[1], self.plan[2]];
+            let command = sanitize_command(&def.model, &def.bounds, first);
+            return Ok(CycleOutcome { command, report, selection: None, fault });
+        };
+        layer.set_qp_budget(QpBudget { max_iterations: None, deadline: budget.deadline });
+        let selection = if fault == Some(PanocFault::NanPlan) {
+            self.scratch.iter_mut().for_each(|u| *u = f64::NAN);
+            layer.select_plan(x0, u_prev, weights, Ok((&self.scratch, report.status)))
+        } else {
+            layer.select(x0, u_prev, weights, &self.mpc, &report)
+        };
+        if let Some(plan) = layer.plan() {
+            self.plan.copy_from_slice(plan);
+        }
+        if selection.decision.is_fallback() {
+            // PANOC starts the next cycle from the plan that was flown, shifted by one step,
+            // not from its own rejected one.
+            let n = self.plan.len();
+            self.scratch[..n - 3].copy_from_slice(&self.plan[3..]);
+            self.scratch[n - 3..].copy_from_slice(&self.plan[n - 3..]);
+            self.mpc.set_warm_start(&self.scratch)?;
+        }
+        Ok(CycleOutcome { command: selection.command, report, selection: Some(selection), fault })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::problem::{ControllerMode, ObstacleFormulation};
+    use crate::safety::Decision;
+    use mav::Scenario;
+
+    const W5: [f64; 5] = [0.05, 0.15, 0.45, 0.30, 0.05];
+
+    fn controller(safety: Option<SafetySettings>) -> CycleController {
+        let s = Scenario::paper_2();
+        let def = OcpDefinition::from_scenario(
+            &s,
+            ControllerMode::Multistage,
+            0.1,
+            ObstacleFormulation::DistanceAlm,
+        );
+        CycleController::new(def, MpcSettings::default(), safety).expect("valid")
+    }
+
+    #[test]
+    fn a_good_panoc_plan_is_selected_and_sent() {
+        let mut c = controller(Some(SafetySettings::default()));
+        let s = Scenario::paper_2();
+        let out = c.step(0, &s.start, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid");
+        let sel = out.selection.expect("layer on");
+        assert_eq!(sel.decision, Decision::Panoc, "{}", sel.reason());
+        assert_eq!(out.command, c.mpc().first_input());
+        assert_eq!(c.plan(), c.mpc().solution());
+    }
+
+    #[test]
+    fn forced_faults_hand_over_to_a_fallback_with_a_bounded_command() {
+        for fault in [PanocFault::ZeroBudget, PanocFault::NanPlan] {
+            let mut c = controller(Some(SafetySettings::default())).with_fault(Some(FaultInjection {
+                fault,
+                first_cycle: 1,
+                cycles: 1,
+            }));
+            let s = Scenario::paper_2();
+            let u = [9.81, 0.0, 0.0];
+            let first = c.step(0, &s.start, &u, &W5, &SolveBudget::default()).expect("valid");
+            assert_eq!(first.fault, None);
+            let out = c.step(1, &s.start, &first.command, &W5, &SolveBudget::default()).expect("valid");
+            assert_eq!(out.fault, Some(fault));
+            let sel = out.selection.expect("layer on");
+            assert!(sel.decision.is_fallback(), "{fault:?}: {}", sel.reason());
+            assert!(sel.verified_safe, "{fault:?}: {}", sel.reason());
+            let b = &s.bounds;
+            assert!(
+                out.command
+                    .iter()
+                    .enumerate()
+                    .all(|(k, v)| v.is_finite() && *v >= b.min[k] && *v <= b.max[k])
+            );
+            // PANOC's next warm start is the flown plan shifted.
+            assert_eq!(&c.plan()[..3], &out.command[..]);
+        }
+    }
+
+    #[test]
+    fn without_the_layer_a_nan_plan_becomes_hover() {
+        let mut c = controller(None).with_fault(Some(FaultInjection {
+            fault: PanocFault::NanPlan,
+            first_cycle: 0,
+            cycles: 1,
+        }));
+        let s = Scenario::paper_2();
+        let out = c.step(0, &s.start, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid");
+        assert_eq!(out.command, [9.81, 0.0, 0.0]);
+        assert!(out.selection.is_none());
+    }
+}
