@@ -1,6 +1,6 @@
 //! The QP-linearized fallback: the problem of [`OcpDefinition`] linearized around a nominal
-//! input sequence, condensed to a convex QP in the `3N` inputs and solved with clarabel's
-//! interior-point method.
+//! input sequence, condensed to a convex QP in the inputs (move-blocked corrections by
+//! default, see below) and solved with clarabel's interior-point method.
 //!
 //! Each scenario's Euler prediction is linearized around the nominal inputs `u_bar` and the
 //! nominal trajectory they produce: `x_k(u) ~ x_k(u_bar) + S_k (u - u_bar)`. The cost is the
@@ -21,6 +21,21 @@
 //! Condensing: `H = sum_i w_i S_i^T 2Qx S_i + input terms` is built column by column with one
 //! forward sensitivity pass and one adjoint pass per input (`O(M N^2)` small vector
 //! operations, no `8N x 3N` matrix products), the gradient with one adjoint pass per scenario.
+//!
+//! Speed (issue 5; measured in `BENCHMARKS.md`). The condensed QP is dense: `H` is a full
+//! matrix and a half-plane at point `k` involves every input before `k`, so each of clarabel's
+//! ~20 KKT factorizations costs about `sum over rows of width^2` with QDLDL's scalar scatter
+//! loop (faer's supernodal LDL is no faster here: every row is its own size-1 supernode). Two
+//! settings cut that work:
+//! - Move blocking ([`QpSettings::unblocked_steps`], [`QpSettings::block_steps`]): the QP's
+//!   variables are the corrections `d` in `u = u_bar + T d`, free for the first steps and held
+//!   over blocks of steps after them; the nominal keeps its own value at every step. Default
+//!   6 + 6: 12 blocks, 36 variables instead of 120 for `N = 40`. This restricts the QP (the
+//!   late corrections are coarser), a fidelity loss measured in the bench; `block_steps = 1`
+//!   is the full QP.
+//! - Lazy rows ([`QpSettings::lazy_slack_m`]): rows whose nominal slack is large start outside
+//!   clarabel's QP and join it only when a solution violates them. This is exact: the QP is
+//!   re-solved until its solution satisfies every row, so the result is the full QP's.
 
 use std::time::Duration;
 
@@ -53,7 +68,25 @@ pub struct QpSettings {
     pub gap_tolerance: f64,
     /// Clarabel's primal/dual feasibility tolerance.
     pub feasibility_tolerance: f64,
+    /// Move blocking: the first `unblocked_steps` steps of the correction `u - u_bar` are free,
+    /// each later block of `block_steps` steps shares one correction (the nominal keeps its own
+    /// value at every step). `block_steps = 1` is the unblocked QP in all `3N` inputs.
+    pub unblocked_steps: usize,
+    /// Steps per block after the unblocked ones (the last block may be shorter); see
+    /// [`QpSettings::unblocked_steps`].
+    pub block_steps: usize,
+    /// Lazy rows: a half-plane or floor row whose nominal slack exceeds this starts outside
+    /// clarabel's QP; when a solution violates such a row, it joins the QP (with every lazy
+    /// row within 0.1 m of violation) and the QP is solved again; m. The returned solution is
+    /// the QP's with every row either way (a solution of a relaxation that satisfies the
+    /// dropped rows is optimal for the whole QP). `f64::INFINITY`: every row from the start.
+    pub lazy_slack_m: f64,
+    /// Solves with a subset of the rows before a solve takes every row.
+    pub max_lazy_rounds: usize,
 }
+
+/// A lazy row within this of violation (m) at a solution joins the QP with the violated ones.
+const LAZY_ADD_MARGIN_M: f64 = 0.1;
 
 impl Default for QpSettings {
     fn default() -> Self {
@@ -65,6 +98,10 @@ impl Default for QpSettings {
             max_iterations: 100,
             gap_tolerance: 1e-7,
             feasibility_tolerance: 1e-8,
+            unblocked_steps: 6,
+            block_steps: 6,
+            lazy_slack_m: 0.2,
+            max_lazy_rounds: 3,
         }
     }
 }
@@ -93,6 +130,12 @@ impl QpSettings {
         }
         if !(self.feasibility_tolerance.is_finite() && self.feasibility_tolerance > 0.0) {
             return bad("feasibility_tolerance", "must be finite and > 0");
+        }
+        if self.block_steps == 0 {
+            return bad("block_steps", "must be > 0");
+        }
+        if self.lazy_slack_m.is_nan() {
+            return bad("lazy_slack_m", "must not be NaN");
         }
         Ok(())
     }
@@ -174,6 +217,12 @@ pub struct QpReport {
     pub num_constraints: usize,
     /// Half-planes in the last QP.
     pub num_half_planes: usize,
+    /// Rows clarabel saw in the last solve: bounds (2 per QP variable) and the selected
+    /// half-plane and floor rows (see [`QpSettings::lazy_slack_m`]).
+    pub num_clarabel_rows: usize,
+    /// Clarabel solves, summed over the SQP rounds (more than one per round when lazy rows
+    /// were violated).
+    pub clarabel_solves: usize,
     /// The spec's objective `sum_i w_i J_i` of the returned inputs on the nonlinear model
     /// (NaN without a solution).
     pub cost: f64,
@@ -201,9 +250,10 @@ struct Obstacle {
 ///
 /// ## Memory allocation
 /// Allocated in [`QpFallback::new`]: `M (N + 1)` nominal states, `M N` attitude sin/cos
-/// quadruples, position sensitivities (`M N 3N` triples), the dense `3N x 3N` Hessian, a dense
-/// row buffer for up to `6N + M N (n_obs + 1)` constraint rows, and the CSC arrays of `P` and
-/// `A` at their largest size. Clarabel itself allocates its KKT system on every solve: the
+/// quadruples, position sensitivities (`M N 3N` triples), the dense `3N x 3N` Hessian and its
+/// blocked forms (`3B x 3N`, `3B x 3B` for `B` blocks), a dense row buffer for up to
+/// `M N (n_obs + 1)` half-plane and floor rows with their slacks, and the CSC arrays of `P`
+/// and `A` at their largest size. Clarabel itself allocates its KKT system on every solve: the
 /// set of half-planes changes from cycle to cycle, and clarabel's data updates keep the
 /// sparsity pattern fixed.
 pub struct QpFallback {
@@ -234,9 +284,23 @@ pub struct QpFallback {
     col: Vec<[f64; 8]>,
     hess: Vec<f64>,
     grad: Vec<f64>,
-    // The QP: rows `A u <= b` as dense rows first, then CSC.
+    /// Step `j`'s correction is the QP variables `3 block_of[j] .. 3 block_of[j] + 3`.
+    block_of: Vec<usize>,
+    num_blocks: usize,
+    /// `T^T H T` (blocked Hessian, dense, `3B x 3B`) and its half-way `T^T H` (`3B x 3N`).
+    hess_b: Vec<f64>,
+    hess_tmp: Vec<f64>,
+    // The constraints in the inputs: `lo <= u <= hi` and the dense rows `A u <= b`.
+    lo: Vec<f64>,
+    hi: Vec<f64>,
     rows: Vec<f64>,
     b: Vec<f64>,
+    /// Per dense row, its nominal slack `b - A u_bar` and whether clarabel sees it.
+    slack: Vec<f64>,
+    selected: Vec<bool>,
+    /// The QP's right-hand side in the blocked corrections: bound rows, then the selected
+    /// rows' slacks.
+    b_qp: Vec<f64>,
     /// Per cylinder, the shared normal of a prediction that passes through it.
     side: Vec<Option<[f64; 2]>>,
     num_rows: usize,
@@ -268,14 +332,22 @@ impl QpFallback {
             .iter()
             .map(|c| Obstacle { x: c.x_m, y: c.y_m, r: c.radius_m + def.obstacle_margin_m, top: c.height_m })
             .collect();
-        let max_rows = 2 * nv + m * n * (obstacles.len() + 1);
-        let p_nnz = nv * (nv + 1) / 2;
-        let mut p_csc = CscMatrix::new(nv, nv, vec![0; nv + 1], Vec::new(), Vec::new());
+        let max_dense = m * n * (obstacles.len() + 1);
+        let block_of: Vec<usize> = (0..n)
+            .map(|j| match j.checked_sub(settings.unblocked_steps) {
+                None => j,
+                Some(late) => settings.unblocked_steps + late / settings.block_steps,
+            })
+            .collect();
+        let num_blocks = block_of.last().map_or(0, |b| b + 1);
+        let nb = 3 * num_blocks;
+        let p_nnz = nb * (nb + 1) / 2;
+        let mut p_csc = CscMatrix::new(nb, nb, vec![0; nb + 1], Vec::new(), Vec::new());
         p_csc.rowval.reserve(p_nnz);
         p_csc.nzval.reserve(p_nnz);
-        let mut a_csc = CscMatrix::new(0, nv, vec![0; nv + 1], Vec::new(), Vec::new());
-        a_csc.rowval.reserve(max_rows * nv / 2 + 2 * nv);
-        a_csc.nzval.reserve(max_rows * nv / 2 + 2 * nv);
+        let mut a_csc = CscMatrix::new(0, nb, vec![0; nb + 1], Vec::new(), Vec::new());
+        a_csc.rowval.reserve(max_dense * nb + 2 * nb);
+        a_csc.nzval.reserve(max_dense * nb + 2 * nb);
         let mut hover = vec![0.0; nv];
         for j in 0..n {
             hover[3 * j..3 * j + 3].copy_from_slice(&def.u_ref);
@@ -305,14 +377,23 @@ impl QpFallback {
             col: vec![[0.0; 8]; n + 1],
             hess: vec![0.0; nv * nv],
             grad: vec![0.0; nv],
-            rows: vec![0.0; max_rows * nv],
-            b: Vec::with_capacity(max_rows),
+            block_of,
+            num_blocks,
+            hess_b: vec![0.0; nb * nb],
+            hess_tmp: vec![0.0; nb * nv],
+            lo: vec![0.0; nv],
+            hi: vec![0.0; nv],
+            rows: vec![0.0; max_dense * nv],
+            b: Vec::with_capacity(max_dense),
+            slack: Vec::with_capacity(max_dense),
+            selected: Vec::with_capacity(max_dense),
+            b_qp: Vec::with_capacity(2 * nb + max_dense),
             side: vec![None; def.obstacles.len()],
             num_rows: 0,
             num_half_planes: 0,
             p_csc,
             a_csc,
-            q: vec![0.0; nv],
+            q: vec![0.0; nb],
             solution: hover.clone(),
             has_solution: false,
             previous: hover,
@@ -324,8 +405,15 @@ impl QpFallback {
         &self.settings
     }
 
+    /// Inputs of a plan (`3N`).
     pub fn num_variables(&self) -> usize {
         3 * self.n
+    }
+
+    /// Variables of the QP clarabel solves: three corrections per input block (see
+    /// [`QpSettings::block_steps`]).
+    pub fn num_qp_variables(&self) -> usize {
+        3 * self.num_blocks
     }
 
     /// The inputs of the last solve when it produced a solution (`N x 3`, flattened, within
@@ -350,17 +438,20 @@ impl QpFallback {
         self.has_solution = false;
     }
 
-    /// Largest violation `max_r (A u - b)_r` (0 when none) of the last QP's linear constraints
-    /// at inputs `u`.
+    /// Largest violation (0 when none) of the last QP's linear constraints in the inputs at
+    /// inputs `u`: the bounds (with the trust region), the half-planes and the floor rows. (The
+    /// move blocking is a restriction of the QP's variables, not a constraint checked here.)
     pub fn linear_violation(&self, u: &[f64]) -> f64 {
-        let mut ax = vec![0.0; self.num_rows];
-        let a = &self.a_csc;
-        for (c, &uc) in u.iter().enumerate().take(a.n) {
-            for k in a.colptr[c]..a.colptr[c + 1] {
-                ax[a.rowval[k]] += a.nzval[k] * uc;
-            }
+        let nv = 3 * self.n;
+        let mut worst = 0.0f64;
+        for (v, &uv) in u.iter().enumerate().take(nv) {
+            worst = worst.max(uv - self.hi[v]).max(self.lo[v] - uv);
         }
-        ax.iter().zip(&self.b).fold(0.0f64, |acc, (l, r)| acc.max(l - r))
+        for (row, b) in self.rows.chunks_exact(nv).zip(&self.b) {
+            let au: f64 = row.iter().zip(u).map(|(a, x)| a * x).sum();
+            worst = worst.max(au - b);
+        }
+        worst
     }
 
     fn validate_instance(
@@ -439,6 +530,7 @@ impl QpFallback {
         let mut solve_time = Duration::ZERO;
         let mut status = QpStatus::NumericalError;
         let mut rounds = 0;
+        let mut clarabel_solves = 0;
         for round in 0..self.settings.sqp_rounds {
             if round > 0 {
                 if !status.has_solution() {
@@ -451,10 +543,23 @@ impl QpFallback {
             rounds += 1;
             self.linearize();
             self.build_qp();
-            let (s, it, t) = self.solve_qp(budget);
-            status = s;
-            iterations += it;
-            solve_time += t;
+            let lazy = self.settings.lazy_slack_m;
+            self.selected.clear();
+            self.selected.extend(self.slack.iter().map(|s| *s <= lazy));
+            for lazy_round in 0.. {
+                self.assemble_constraints();
+                let (s, it, t) = self.solve_qp(budget);
+                status = s;
+                iterations += it;
+                solve_time += t;
+                clarabel_solves += 1;
+                // A subset's infeasibility is the QP's; any other failure ends the solve too.
+                if !status.has_solution()
+                    || !self.add_violated_rows(lazy_round >= self.settings.max_lazy_rounds)
+                {
+                    break;
+                }
+            }
         }
         let nan = f64::NAN;
         let (mut cost, mut min_clearance_m, mut min_altitude_m, mut linear_violation) = (nan, nan, nan, nan);
@@ -477,8 +582,10 @@ impl QpFallback {
             iterations,
             rounds,
             solve_time,
-            num_constraints: self.num_rows,
+            num_constraints: 2 * nv + self.b.len(),
             num_half_planes: self.num_half_planes,
+            num_clarabel_rows: self.num_rows,
+            clarabel_solves,
             cost,
             min_clearance_m,
             min_altitude_m,
@@ -615,20 +722,17 @@ impl QpFallback {
                 self.hess[k * nv + k] += 2.0 * wsum * diag;
             }
         }
-        // QP in u: 1/2 u^T H u + (g - H u_bar)^T u.
-        for r in 0..nv {
-            let hu: f64 = (0..nv).map(|c| self.hess[r * nv + c] * u[c]).sum();
-            self.q[r] = self.grad[r] - hu;
-        }
     }
 
-    /// Constraint rows `A u <= b` and the CSC forms of `P` (upper triangle) and `A`.
+    /// The constraints in the inputs (`lo <= u <= hi`, dense rows `A u <= b`), then the QP in
+    /// the blocked corrections `d` (`u = u_bar + T d`): the CSC forms of `P = T^T H T` (upper
+    /// triangle) and of `A T` below the bound rows, `q = T^T g` and the right-hand sides.
     fn build_qp(&mut self) {
         let (m, n) = (self.m, self.n);
         let nv = 3 * n;
         self.b.clear();
         let mut r = 0;
-        // Bounds (and trust region): u_v <= hi, -u_v <= -lo. Kept out of the dense buffer.
+        // Bounds (and trust region).
         for v in 0..nv {
             let c = v % 3;
             let (mut lo, mut hi) = (self.bounds.min[c], self.bounds.max[c]);
@@ -636,13 +740,12 @@ impl QpFallback {
                 lo = lo.max(self.nominal[v] - tr[c]);
                 hi = hi.min(self.nominal[v] + tr[c]);
             }
-            self.b.push(hi);
-            self.b.push(-lo);
+            self.lo[v] = lo;
+            self.hi[v] = hi;
         }
-        let n_bound_rows = 2 * nv;
         let act = self.settings.activation_distance_m;
         let mut n_half = 0;
-        // Dense rows of the half-planes and the floor, after the bound rows.
+        // Dense rows of the half-planes and the floor.
         for i in 0..m {
             // A nominal prediction that passes through a cylinder would get half-planes facing
             // backwards before the axis and forwards after it, which no trajectory satisfies.
@@ -730,37 +833,39 @@ impl QpFallback {
             }
         }
         self.num_half_planes = n_half;
-        let n_dense = r;
-        self.num_rows = n_bound_rows + n_dense;
-        // A in CSC, column by column: the two bound rows, then the nonzeros of the dense rows.
-        let a = &mut self.a_csc;
-        a.m = self.num_rows;
-        a.rowval.clear();
-        a.nzval.clear();
-        a.colptr[0] = 0;
-        for v in 0..nv {
-            a.rowval.push(2 * v);
-            a.nzval.push(1.0);
-            a.rowval.push(2 * v + 1);
-            a.nzval.push(-1.0);
-            for rr in 0..n_dense {
-                let val = self.rows[rr * nv + v];
-                if val != 0.0 {
-                    a.rowval.push(n_bound_rows + rr);
-                    a.nzval.push(val);
-                }
-            }
-            a.colptr[v + 1] = a.rowval.len();
+        let nb = 3 * self.num_blocks;
+        // The nominal slack of every dense row, `b - A u_bar` (metres: the nominal clearance to
+        // the inflated cylinder, the nominal height above the floor).
+        self.slack.clear();
+        for (row, b) in self.rows.chunks_exact(nv).zip(&self.b) {
+            let au: f64 = row.iter().zip(&self.nominal).map(|(a, u)| a * u).sum();
+            self.slack.push(b - au);
         }
-        // P: upper triangle of the dense Hessian, column by column.
+        // T^T H (rows summed over blocks), then T^T H T (columns summed), and q = T^T g.
+        self.hess_tmp.iter_mut().for_each(|h| *h = 0.0);
+        self.hess_b.iter_mut().for_each(|h| *h = 0.0);
+        self.q.iter_mut().for_each(|h| *h = 0.0);
+        for v in 0..nv {
+            let bv = 3 * self.block_of[v / 3] + v % 3;
+            self.q[bv] += self.grad[v];
+            let (src, dst) = (&self.hess[v * nv..(v + 1) * nv], &mut self.hess_tmp[bv * nv..(bv + 1) * nv]);
+            dst.iter_mut().zip(src).for_each(|(d, h)| *d += h);
+        }
+        for rb in 0..nb {
+            for v in 0..nv {
+                let bv = 3 * self.block_of[v / 3] + v % 3;
+                self.hess_b[rb * nb + bv] += self.hess_tmp[rb * nv + v];
+            }
+        }
+        // P: upper triangle, column by column.
         let p = &mut self.p_csc;
         p.rowval.clear();
         p.nzval.clear();
         p.colptr[0] = 0;
-        for c in 0..nv {
+        for c in 0..nb {
             for rr in 0..=c {
                 // average the two halves so that P is exactly symmetric
-                let val = 0.5 * (self.hess[rr * nv + c] + self.hess[c * nv + rr]);
+                let val = 0.5 * (self.hess_b[rr * nb + c] + self.hess_b[c * nb + rr]);
                 p.rowval.push(rr);
                 p.nzval.push(val);
             }
@@ -768,11 +873,84 @@ impl QpFallback {
         }
     }
 
+    /// After a solve with a subset of the rows: selects the unselected rows that the solution
+    /// violates or nearly violates (every unselected row when `all`). True when rows were added
+    /// and the QP must be solved again.
+    fn add_violated_rows(&mut self, all: bool) -> bool {
+        let nv = 3 * self.n;
+        let u = &self.solution;
+        let excess = |row: &[f64], b: f64| row.iter().zip(u).map(|(a, x)| a * x).sum::<f64>() - b;
+        let mut unselected =
+            self.rows.chunks_exact(nv).zip(&self.b).zip(&self.selected).filter(|(_, sel)| !**sel);
+        if !unselected.any(|((row, b), _)| excess(row, *b) > 0.0) {
+            return false;
+        }
+        for ((row, b), sel) in self.rows.chunks_exact(nv).zip(&self.b).zip(self.selected.iter_mut()) {
+            *sel = *sel || all || excess(row, *b) > -LAZY_ADD_MARGIN_M;
+        }
+        true
+    }
+
+    /// The constraints clarabel sees: the bound rows of the corrections and the selected dense
+    /// rows, in CSC (`A T`) with their right-hand sides.
+    fn assemble_constraints(&mut self) {
+        let n = self.n;
+        let nv = 3 * n;
+        let nb = 3 * self.num_blocks;
+        let n_bound_rows = 2 * nb;
+        self.num_rows = n_bound_rows + self.selected.iter().take(self.b.len()).filter(|s| **s).count();
+        // Right-hand sides in the corrections: per block variable `d <= min(hi - u_bar)` and
+        // `-d <= -max(lo - u_bar)` over its steps (a box containing 0: the nominal is inside the
+        // bounds), then `A T d <= b - A u_bar`.
+        self.b_qp.clear();
+        self.b_qp.resize(n_bound_rows, f64::INFINITY);
+        for v in 0..nv {
+            let col = 3 * self.block_of[v / 3] + v % 3;
+            let (lo, hi) = (self.lo[v] - self.nominal[v], self.hi[v] - self.nominal[v]);
+            self.b_qp[2 * col] = self.b_qp[2 * col].min(hi);
+            self.b_qp[2 * col + 1] = self.b_qp[2 * col + 1].min(-lo);
+        }
+        for (slack, _) in self.slack.iter().zip(&self.selected).filter(|(_, sel)| **sel) {
+            self.b_qp.push(*slack);
+        }
+        // A T in CSC, column by column: the two bound rows, then the selected dense rows summed
+        // over the block's steps.
+        let a = &mut self.a_csc;
+        a.m = self.num_rows;
+        a.rowval.clear();
+        a.nzval.clear();
+        a.colptr[0] = 0;
+        let mut first_step = 0;
+        for blk in 0..self.num_blocks {
+            let mut end_step = first_step;
+            while end_step < n && self.block_of[end_step] == blk {
+                end_step += 1;
+            }
+            for c in 0..3 {
+                let col = 3 * blk + c;
+                a.rowval.push(2 * col);
+                a.nzval.push(1.0);
+                a.rowval.push(2 * col + 1);
+                a.nzval.push(-1.0);
+                let chosen = self.rows.chunks_exact(nv).zip(&self.selected).filter(|(_, sel)| **sel);
+                for (rr, (row, _)) in chosen.enumerate() {
+                    let val: f64 = (first_step..end_step).map(|j| row[3 * j + c]).sum();
+                    if val != 0.0 {
+                        a.rowval.push(n_bound_rows + rr);
+                        a.nzval.push(val);
+                    }
+                }
+                a.colptr[col + 1] = a.rowval.len();
+            }
+            first_step = end_step;
+        }
+    }
+
     fn solve_qp(&mut self, budget: &QpBudget) -> (QpStatus, u32, Duration) {
         let finite = self
             .q
             .iter()
-            .chain(&self.b)
+            .chain(&self.b_qp)
             .chain(&self.p_csc.nzval)
             .chain(&self.a_csc.nzval)
             .all(|v| v.is_finite());
@@ -792,7 +970,7 @@ impl QpFallback {
         };
         let cones = [SupportedConeT::NonnegativeConeT(self.num_rows)];
         let mut solver =
-            match DefaultSolver::new(&self.p_csc, &self.q, &self.a_csc, &self.b, &cones, settings) {
+            match DefaultSolver::new(&self.p_csc, &self.q, &self.a_csc, &self.b_qp, &cones, settings) {
                 Ok(solver) => solver,
                 Err(_) => return (QpStatus::NumericalError, 0, Duration::ZERO),
             };
@@ -801,7 +979,10 @@ impl QpFallback {
         let time = Duration::from_secs_f64(solver.solution.solve_time.max(0.0));
         if status.has_solution() {
             if solver.solution.x.iter().all(|v| v.is_finite()) {
-                self.solution.copy_from_slice(&solver.solution.x);
+                // u = u_bar + T d
+                for (v, u) in self.solution.iter_mut().enumerate() {
+                    *u = self.nominal[v] + solver.solution.x[3 * self.block_of[v / 3] + v % 3];
+                }
             } else {
                 status = QpStatus::NumericalError;
             }
@@ -990,19 +1171,99 @@ mod tests {
         let settings = MpcSettings { tolerance: 1e-7, max_inner_iterations: 3000, ..Default::default() };
         let mut mpc = Mpc::new(def.clone(), settings).expect("valid");
         let r = mpc.solve(&x0, &HOVER, &W5, &SolveBudget::default()).expect("valid");
-        let mut qp =
-            QpFallback::new(&def, QpSettings { sqp_rounds: 2, ..Default::default() }).expect("valid");
-        let q = qp.solve(&x0, &HOVER, &W5, None, &QpBudget::default()).expect("valid");
-        assert_eq!(q.status, QpStatus::Solved);
-        assert_eq!(q.num_half_planes, 0);
-        let u = qp.solution().expect("solved");
         let range = [2.0 * 9.81, std::f64::consts::PI / 9.0, std::f64::consts::PI / 9.0];
-        let mut worst = 0.0f64;
-        for (k, (a, b)) in u.iter().zip(mpc.solution()).enumerate() {
-            worst = worst.max((a - b).abs() / range[k % 3]);
+        // The full QP (no move blocking) agrees closely; the default, move-blocked QP is a
+        // restriction of it: its first inputs (the ones applied) and its cost stay close.
+        let full = QpSettings { sqp_rounds: 2, block_steps: 1, ..Default::default() };
+        let blocked = QpSettings { sqp_rounds: 2, ..Default::default() };
+        for (settings, first_steps, input_tol, cost_tol) in [(full, 40, 0.01, 1e-3), (blocked, 6, 0.02, 5e-3)]
+        {
+            let mut qp = QpFallback::new(&def, settings).expect("valid");
+            let q = qp.solve(&x0, &HOVER, &W5, None, &QpBudget::default()).expect("valid");
+            assert_eq!(q.status, QpStatus::Solved);
+            assert_eq!(q.num_half_planes, 0);
+            let u = qp.solution().expect("solved");
+            let mut worst = 0.0f64;
+            for (k, (a, b)) in u.iter().zip(mpc.solution()).enumerate().take(3 * first_steps) {
+                worst = worst.max((a - b).abs() / range[k % 3]);
+            }
+            assert!(
+                worst < input_tol,
+                "block_steps {}: input difference {worst} of the range",
+                settings.block_steps
+            );
+            assert!(
+                (q.cost - r.cost).abs() <= cost_tol * r.cost,
+                "block_steps {}: QP cost {} vs PANOC cost {}",
+                settings.block_steps,
+                q.cost,
+                r.cost
+            );
         }
-        assert!(worst < 0.01, "largest input difference {worst} of the range");
-        assert!((q.cost - r.cost).abs() <= 1e-3 * r.cost, "QP cost {} vs PANOC cost {}", q.cost, r.cost);
+    }
+
+    /// paper-2, standard NMPC, heading between the cylinders: many half-planes.
+    fn between_cylinders() -> (OcpDefinition, [f64; 8]) {
+        let def = paper_def(&Scenario::paper_2(), ControllerMode::Nmpc);
+        (def, [3.3, 2.2, 0.9, 0.0, 0.6, 0.1, 0.0, 0.0])
+    }
+
+    #[test]
+    fn lazy_rows_give_the_solution_of_the_qp_with_every_row() {
+        let (def, x0) = between_cylinders();
+        let eager = QpSettings { lazy_slack_m: f64::INFINITY, ..Default::default() };
+        let mut qp = QpFallback::new(&def, eager).expect("valid");
+        let r_all = qp.solve(&x0, &HOVER, &[1.0], None, &QpBudget::default()).expect("valid");
+        assert_eq!(r_all.status, QpStatus::Solved);
+        assert_eq!(r_all.clarabel_solves, 1);
+        assert_eq!(
+            r_all.num_clarabel_rows,
+            2 * qp.num_qp_variables() + r_all.num_constraints - 2 * qp.num_variables()
+        );
+        let u_all = qp.solution().expect("solved").to_vec();
+        // The default (rows with a large nominal slack start outside), and no rows at first at
+        // all (every row that matters must be found by the re-solves).
+        let none_first =
+            QpSettings { lazy_slack_m: f64::NEG_INFINITY, max_lazy_rounds: 10, ..Default::default() };
+        for settings in [QpSettings::default(), none_first] {
+            let mut qp = QpFallback::new(&def, settings).expect("valid");
+            let r = qp.solve(&x0, &HOVER, &[1.0], None, &QpBudget::default()).expect("valid");
+            assert_eq!(r.status, QpStatus::Solved);
+            assert_eq!(r.num_constraints, r_all.num_constraints);
+            assert!(r.num_clarabel_rows < r_all.num_clarabel_rows, "rows {}", r.num_clarabel_rows);
+            assert!(r.linear_violation <= 1e-6, "violation {}", r.linear_violation);
+            if settings.lazy_slack_m == f64::NEG_INFINITY {
+                assert!(r.clarabel_solves >= 2, "solves {}", r.clarabel_solves);
+            }
+            let u = qp.solution().expect("solved");
+            let worst = u.iter().zip(&u_all).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+            assert!(worst < 1e-4, "lazy {}: largest input difference {worst}", settings.lazy_slack_m);
+            assert!((r.cost - r_all.cost).abs() <= 1e-6 * r_all.cost, "cost {} vs {}", r.cost, r_all.cost);
+        }
+    }
+
+    #[test]
+    fn blocked_corrections_are_constant_over_each_block() {
+        let (def, x0) = between_cylinders();
+        let settings = QpSettings::default();
+        let mut qp = QpFallback::new(&def, settings).expect("valid");
+        // 6 free steps, then ceil(34 / 6) = 6 blocks.
+        assert_eq!(qp.num_qp_variables(), 3 * 12);
+        let nominal: Vec<f64> =
+            (0..qp.num_variables()).map(|k| HOVER[k % 3] + 0.01 * ((k * 7) % 5) as f64).collect();
+        let r = qp.solve(&x0, &HOVER, &[1.0], Some(&nominal), &QpBudget::default()).expect("valid");
+        assert_eq!(r.status, QpStatus::Solved);
+        let u = qp.solution().expect("solved");
+        let d = |j: usize, c: usize| u[3 * j + c] - nominal[3 * j + c];
+        let mut moved = 0.0f64;
+        for j in 0..def.horizon {
+            for c in 0..3 {
+                moved = moved.max(d(j, c).abs());
+                let first = if j < 6 { j } else { 6 + (j - 6) / 6 * 6 };
+                assert!((d(j, c) - d(first, c)).abs() < 1e-12, "step {j} channel {c}");
+            }
+        }
+        assert!(moved > 1e-3, "the QP moved the inputs by {moved}");
     }
 
     #[test]
@@ -1056,6 +1317,14 @@ mod tests {
         assert!(matches!(
             QpFallback::new(&def, QpSettings { sqp_rounds: 0, ..Default::default() }),
             Err(MpcError::InvalidSetting { field: "sqp_rounds", .. })
+        ));
+        assert!(matches!(
+            QpFallback::new(&def, QpSettings { block_steps: 0, ..Default::default() }),
+            Err(MpcError::InvalidSetting { field: "block_steps", .. })
+        ));
+        assert!(matches!(
+            QpFallback::new(&def, QpSettings { lazy_slack_m: f64::NAN, ..Default::default() }),
+            Err(MpcError::InvalidSetting { field: "lazy_slack_m", .. })
         ));
         let mut qp = QpFallback::new(&def, QpSettings::default()).expect("valid");
         let mut x0 = [0.0; 8];
