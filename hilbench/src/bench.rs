@@ -9,7 +9,7 @@ use mav::Scenario;
 use mpc::closed_loop::RunSummary;
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
 
-use crate::grpc::{Endpoints, GrpcSettings, RunTiming, run_against};
+use crate::grpc::{Endpoints, GrpcSettings, LinkFaults, RunTiming, run_against};
 use crate::report;
 use crate::scenario_file::{Mode, ScenarioFile};
 
@@ -90,7 +90,11 @@ pub struct Outcome {
     /// The goal of each run's scenario, m, in the order of `runs`.
     pub goals: Vec<[f64; 3]>,
     pub timings: Vec<TimedRun>,
+    /// Link faults of each run, in the order of `runs` (none in process).
+    pub faults: Vec<LinkFaults>,
     pub transport: &'static str,
+    /// `lockstep` or `real-time`.
+    pub time_mode: &'static str,
     pub wall_time_s: f64,
 }
 
@@ -120,14 +124,17 @@ impl Outcome {
                 .iter()
                 .zip(&self.cycles)
                 .zip(&self.goals)
-                .map(|((r, rows), goal)| {
+                .zip(&self.faults)
+                .map(|(((r, rows), goal), faults)| {
                     let mut v = run_json(r);
                     add_cycle_metrics(&mut v, rows, goal);
+                    faults.add_to(&mut v);
                     v
                 })
                 .collect::<Vec<_>>(),
             "verdicts": report::verdicts(&self.runs),
             "transport": self.transport,
+            "time_mode": self.time_mode,
             "wall_time_s": self.wall_time_s,
             "timing": timing,
         })
@@ -152,6 +159,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
     let mut cycles = Vec::with_capacity(jobs.len());
     let mut goals = Vec::with_capacity(jobs.len());
     let mut timings = Vec::new();
+    let mut faults = Vec::with_capacity(jobs.len());
     for (scenario, mode) in jobs {
         let name = &scenario.name;
         let run_started = Instant::now();
@@ -167,12 +175,14 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                     loop_overhead_s: run.timing.loop_overhead_s(),
                 });
                 cycles.push(crate::cycle_log::from_telemetry(&run.telemetry));
+                faults.push(run.faults);
                 run.summary
             }
             _ => {
                 let (summary, records) = run_closed_loop(scenario, &ClosedLoopSettings::paper(*mode))
                     .with_context(|| format!("{name} with {}", mode.name()))?;
                 cycles.push(crate::cycle_log::from_records(&records));
+                faults.push(LinkFaults::default());
                 summary
             }
         };
@@ -192,7 +202,12 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
         cycles,
         goals,
         timings,
+        faults,
         transport: transport.name(),
+        time_mode: match transport {
+            Transport::Grpc(e) => e.time_mode.name(),
+            Transport::InProcess => "lockstep",
+        },
         wall_time_s: started.elapsed().as_secs_f64(),
     })
 }

@@ -1,5 +1,6 @@
-//! Paper-mode runs over real gRPC: a lockstep plant, netem and the controller, each served in
-//! this process on its own loopback port, one fresh set of services per run.
+//! Runs over real gRPC: a plant, netem and the controller, each served in this process on its
+//! own loopback port (one fresh set of services per run) or running elsewhere ([`Endpoints`]).
+//! Paper mode is lockstep; [`TimeMode::RealTime`] runs the same protocol on the wall clock.
 //!
 //! The controller is started idle (`autostart = false`) so that the telemetry subscription
 //! exists before its first cycle; `SetScenario` then starts the episode (for a scenario from a
@@ -13,22 +14,34 @@
 //! scenario's seed and no delay on samples (netem's `paper` preset for the paper scenarios); a
 //! scenario without delays gets the `none` preset. `mpc::run_closed_loop` draws its `d_k` from
 //! the same `delay::DelayLine`, so both runs are bit-identical.
+//!
+//! Real time: the plant integrates on its clock (with its command watchdog), netem releases
+//! commands on its own thread, and the controller cycles every `min_cycle_s` of wall time and
+//! keeps flying after the goal (it is a service, and a vehicle must not be left uncontrolled),
+//! so the run ends here: at the first telemetry cycle whose sample is at the goal (its plant
+//! time is the time to the goal), or past the scenario's `max_duration_s` of plant time. The
+//! final state is read from the plant just after, so in real time path length and clearance
+//! include the few milliseconds between the two. A lost plant link is reported in the
+//! controller's status ([`LinkFaults`]); the episode goes on when the link comes back.
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, anyhow, bail};
+use hilbench_proto::convert::controller::decision_from_pb;
 use hilbench_proto::pb;
 use hilbench_proto::pb::controller_client::ControllerClient;
 use hilbench_proto::pb::netem_control_client::NetemControlClient;
 use hilbench_proto::pb::plant_client::PlantClient;
 use mav::{DelayModel, Scenario};
-use mpc::ControllerMode;
-use mpc::closed_loop::{CollisionSummary, RunSummary, percentile};
+use mpc::closed_loop::{CollisionSummary, GapSummary, RunSummary, percentile};
+use mpc::{ControllerMode, Decision};
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 use tonic::transport::{Channel, Endpoint};
+
+pub use crate::scenario_file::TimeMode;
 
 /// How often the driver polls `GetStatus` while telemetry streams in.
 const STATUS_POLL: Duration = Duration::from_millis(10);
@@ -42,6 +55,45 @@ pub struct GrpcRun {
     /// The plant's state sample when the episode ended.
     pub final_sample: pb::StateSample,
     pub timing: RunTiming,
+    pub faults: LinkFaults,
+}
+
+/// Faults of a run's plant link, from the controller's status and telemetry (all zero when the
+/// link never failed; the `summary.json` keys of README's schema).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct LinkFaults {
+    /// Times the controller lost a working link to the Plant API during the episode.
+    pub link_losses: u64,
+    /// Wall time without a link, summed over those outages, s.
+    pub link_down_s: f64,
+    /// The longest outage, s.
+    pub longest_link_down_s: f64,
+    /// Cycles that started from a sample in which the plant's watchdog held hover (no command
+    /// for longer than its timeout: in real time, the cycles after an outage until their first
+    /// command has crossed the delays).
+    pub watchdog_cycles: u64,
+}
+
+impl LinkFaults {
+    fn of(status: &pb::ControllerStatus, telemetry: &[pb::CycleTelemetry]) -> Self {
+        Self {
+            link_losses: status.link_losses,
+            link_down_s: status.link_down_s,
+            longest_link_down_s: status.longest_link_down_s,
+            watchdog_cycles: telemetry
+                .iter()
+                .filter(|t| t.sample.as_ref().is_some_and(|s| s.watchdog_hover))
+                .count() as u64,
+        }
+    }
+
+    /// Adds the keys to a run's `summary.json` entry.
+    pub fn add_to(&self, entry: &mut serde_json::Value) {
+        entry["link_losses"] = serde_json::json!(self.link_losses);
+        entry["link_down_s"] = serde_json::json!(self.link_down_s);
+        entry["longest_link_down_s"] = serde_json::json!(self.longest_link_down_s);
+        entry["watchdog_cycles"] = serde_json::json!(self.watchdog_cycles);
+    }
 }
 
 /// Where the wall time of a run went.
@@ -81,9 +133,13 @@ impl Default for GrpcSettings {
     }
 }
 
-/// netem's settings for `scenario` in lockstep: its delay model on commands (seeded with the
-/// scenario's seed), none on samples.
-pub fn netem_config(upstream: &str, scenario: &Scenario) -> anyhow::Result<netem::Config> {
+/// netem's settings for `scenario`: its delay model on commands (seeded with the scenario's
+/// seed), none on samples, in `time_mode`.
+pub fn netem_config(
+    upstream: &str,
+    scenario: &Scenario,
+    time_mode: TimeMode,
+) -> anyhow::Result<netem::Config> {
     let mut config = match scenario.delays {
         DelayModel::None => netem::Config::new(upstream).with_preset("none", scenario.seed)?,
         DelayModel::Gamma { shape, scale_s } => {
@@ -95,7 +151,10 @@ pub fn netem_config(upstream: &str, scenario: &Scenario) -> anyhow::Result<netem
             c
         }
     };
-    config.time_mode = netem::TimeModeSetting::Lockstep;
+    config.time_mode = match time_mode {
+        TimeMode::Lockstep => netem::TimeModeSetting::Lockstep,
+        TimeMode::RealTime => netem::TimeModeSetting::RealTime,
+    };
     Ok(config)
 }
 
@@ -147,11 +206,37 @@ async fn bind() -> anyhow::Result<(tokio::net::TcpListener, SocketAddr)> {
 ///
 /// A netem at a given address gets the scenario's profiles (both directions, with the
 /// scenario's seed) through `NetemControl.SetProfile` before the run.
+///
+/// `time_mode` is how the services started here run; given ones must run the same way (the
+/// plant's, or netem's, `Describe` is checked before the run).
 #[derive(Debug, Clone, Default)]
 pub struct Endpoints {
     pub plant: Option<String>,
     pub netem: Option<String>,
     pub controller: Option<String>,
+    pub time_mode: TimeMode,
+}
+
+/// `--plant`, `--netem`, `--controller` of the CLI: services already running.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct EndpointArgs {
+    /// A running plant (HOST:PORT) instead of one started here.
+    #[arg(long)]
+    pub plant: Option<String>,
+    /// A running netem (HOST:PORT) instead of one started here; it gets each scenario's
+    /// delay profiles through NetemControl.
+    #[arg(long)]
+    pub netem: Option<String>,
+    /// A running controller (HOST:PORT), already pointed at the netem (or plant) it should
+    /// fly; needs --plant or --netem to read the final state, and a built-in scenario.
+    #[arg(long)]
+    pub controller: Option<String>,
+}
+
+impl EndpointArgs {
+    pub fn endpoints(self, time_mode: TimeMode) -> Endpoints {
+        Endpoints { plant: self.plant, netem: self.netem, controller: self.controller, time_mode }
+    }
 }
 
 impl Endpoints {
@@ -170,6 +255,7 @@ pub struct Services {
     controller_addr: String,
     /// netem runs elsewhere: give it the scenario's profiles before the run.
     configure_netem: bool,
+    time_mode: TimeMode,
 }
 
 impl Services {
@@ -198,6 +284,7 @@ impl Services {
                 netem_addr: endpoints.netem.clone(),
                 controller_addr: controller_addr.clone(),
                 configure_netem: endpoints.netem.is_some(),
+                time_mode: endpoints.time_mode,
             });
         }
         let (plant, plant_addr) = match &endpoints.plant {
@@ -205,7 +292,10 @@ impl Services {
             None => {
                 let (listener, addr) = bind().await?;
                 let (stop, stopped) = oneshot::channel::<()>();
-                let config = plant::PlantConfig::lockstep(scenario.clone());
+                let config = match endpoints.time_mode {
+                    TimeMode::Lockstep => plant::PlantConfig::lockstep(scenario.clone()),
+                    TimeMode::RealTime => plant::PlantConfig::real_time(scenario.clone()),
+                };
                 let task = tokio::spawn(async move {
                     plant::serve(listener, config, async {
                         let _ = stopped.await;
@@ -221,7 +311,7 @@ impl Services {
             None => {
                 let (listener, addr) = bind().await?;
                 let (stop, stopped) = oneshot::channel::<()>();
-                let config = netem_config(&plant_addr, scenario)?;
+                let config = netem_config(&plant_addr, scenario, endpoints.time_mode)?;
                 let task = tokio::spawn(async move {
                     netem::serve(listener, config, async {
                         let _ = stopped.await;
@@ -235,7 +325,10 @@ impl Services {
         let (listener, controller_addr) = bind().await?;
         let (stop, stopped) = oneshot::channel::<()>();
         let mut config = controller::ControllerConfig::new(netem_addr.clone(), scenario.clone(), mode);
-        config.time_mode = controller::TimeModeSetting::Lockstep;
+        config.time_mode = match endpoints.time_mode {
+            TimeMode::Lockstep => controller::TimeModeSetting::Lockstep,
+            TimeMode::RealTime => controller::TimeModeSetting::RealTime,
+        };
         config.autostart = false;
         let task = tokio::spawn(async move {
             controller::serve(listener, config, async {
@@ -253,6 +346,7 @@ impl Services {
             configure_netem: endpoints.netem.is_some(),
             netem_addr: Some(netem_addr),
             controller_addr: controller_addr.to_string(),
+            time_mode: endpoints.time_mode,
         })
     }
 
@@ -332,8 +426,13 @@ pub async fn run_against(
 }
 
 /// Gives a netem running elsewhere the scenario's profiles.
-async fn configure_netem(addr: &str, scenario: &Scenario, deadline: Instant) -> anyhow::Result<()> {
-    let config = netem_config(addr, scenario)?;
+async fn configure_netem(
+    addr: &str,
+    scenario: &Scenario,
+    time_mode: TimeMode,
+    deadline: Instant,
+) -> anyhow::Result<()> {
+    let config = netem_config(addr, scenario, time_mode)?;
     let mut control = NetemControlClient::new(connect(addr, deadline).await?);
     for (direction, profile) in [
         (pb::Direction::PlantToController, &config.plant_to_controller),
@@ -362,7 +461,7 @@ async fn drive(
     if services.configure_netem
         && let Some(addr) = services.netem_addr()
     {
-        configure_netem(addr, scenario, deadline).await?;
+        configure_netem(addr, scenario, services.time_mode, deadline).await?;
     }
     let mut controller = ControllerClient::new(connect(services.controller_addr(), deadline).await?);
     // The final state: from the plant, else through netem (an undelayed read).
@@ -371,6 +470,16 @@ async fn drive(
         .or(services.netem_addr())
         .ok_or_else(|| anyhow!("no plant or netem address to read the final state from"))?;
     let mut plant = PlantClient::new(connect(state_addr, deadline).await?);
+    let real_time = services.time_mode == TimeMode::RealTime;
+    let described = plant.describe(pb::DescribeRequest {}).await.context("plant Describe")?.into_inner();
+    let wanted = if real_time { pb::TimeMode::RealTime } else { pb::TimeMode::Lockstep };
+    if described.time_mode != wanted as i32 {
+        bail!(
+            "the plant at {state_addr} runs in {:?}, this run needs {:?}",
+            pb::TimeMode::try_from(described.time_mode).unwrap_or(pb::TimeMode::Unspecified),
+            wanted
+        );
+    }
     // Subscribe before the episode starts: the response headers mean the server subscribed.
     let mut stream = controller
         .stream_telemetry(pb::StreamTelemetryRequest {})
@@ -409,6 +518,9 @@ async fn drive(
     let mut episodes: BTreeMap<u64, Vec<pb::CycleTelemetry>> = BTreeMap::new();
     let mut poll = tokio::time::interval(STATUS_POLL);
     poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    // Real time: the episode whose telemetry ended the run, and the plant time of its goal.
+    let mut real_time_end: Option<(u64, Option<u64>)> = None;
+    let max_ns = mav::s_to_ns(scenario.max_duration_s).unwrap_or(u64::MAX);
     let (status, telemetry) = loop {
         if Instant::now() >= deadline {
             bail!(
@@ -426,6 +538,9 @@ async fn drive(
                 if item.episode <= before.episode {
                     continue;
                 }
+                if real_time && real_time_end.is_none() {
+                    real_time_end = real_time_outcome(scenario, &item, max_ns)?.map(|t| (item.episode, t));
+                }
                 let cycles = episodes.entry(item.episode).or_default();
                 if item.cycle != cycles.len() as u64 {
                     bail!(
@@ -439,8 +554,14 @@ async fn drive(
             }
             _ = poll.tick() => {
                 let s = controller.get_status(pb::GetStatusRequest {}).await?.into_inner();
+                if let Some((episode, _)) = real_time_end
+                    && s.episode == episode
+                {
+                    let telemetry = episodes.remove(&episode).unwrap_or_default();
+                    break (s, telemetry);
+                }
                 let seen = episodes.get(&s.episode).map_or(0, Vec::len) as u64;
-                if s.episode > before.episode && s.episode_finished && seen >= s.cycles {
+                if !real_time && s.episode > before.episode && s.episode_finished && seen >= s.cycles {
                     let telemetry = episodes.remove(&s.episode).unwrap_or_default();
                     break (s, telemetry);
                 }
@@ -448,7 +569,7 @@ async fn drive(
         }
     };
     let episode_s = episode_started.elapsed().as_secs_f64();
-    if telemetry.len() as u64 != status.cycles {
+    if !real_time && telemetry.len() as u64 != status.cycles {
         bail!("{} cycles of telemetry, the controller reports {}", telemetry.len(), status.cycles);
     }
     if status.scenario != scenario.name || status.mode != mode.name() {
@@ -461,21 +582,63 @@ async fn drive(
         );
     }
     let final_sample = plant.get_state(pb::GetStateRequest {}).await.context("plant GetState")?.into_inner();
-    let summary = summarize(scenario, mode, &status, &telemetry, &final_sample)?;
+    let time_to_goal_ns = match real_time_end {
+        Some((_, goal)) => goal,
+        None => (status.finish_reason == "reached").then_some(final_sample.time_ns),
+    };
+    let summary = summarize(scenario, mode, time_to_goal_ns, &telemetry, &final_sample)?;
+    let faults = LinkFaults::of(&status, &telemetry);
     let solver_s = telemetry.iter().filter_map(|t| t.solve.as_ref()).map(|s| s.solve_ms * 1e-3).sum();
     Ok(GrpcRun {
         summary,
         telemetry,
         final_sample,
         timing: RunTiming { setup_s, episode_s, solver_s, teardown_s: 0.0 },
+        faults,
     })
 }
 
-/// The spec's per-run numbers from what came over the wire.
+/// Real time: whether the cycle of `item` ends the run: `Some(Some(t))` when its sample is at
+/// the goal (plant time `t`), `Some(None)` past the time limit, `None` to go on.
+fn real_time_outcome(
+    scenario: &Scenario,
+    item: &pb::CycleTelemetry,
+    max_ns: u64,
+) -> anyhow::Result<Option<Option<u64>>> {
+    let sample =
+        item.sample.as_ref().ok_or_else(|| anyhow!("telemetry cycle {} without a sample", item.cycle))?;
+    let x = sample.state.as_ref().map(|s| s.x.as_slice()).unwrap_or_default();
+    let x: [f64; 8] = x
+        .try_into()
+        .map_err(|_| anyhow!("telemetry cycle {}: {} state values, not 8", item.cycle, x.len()))?;
+    if scenario.goal_reached(&mav::State::from(x)) {
+        return Ok(Some(Some(sample.time_ns)));
+    }
+    Ok((sample.time_ns >= max_ns).then_some(None))
+}
+
+/// Cycles per decision from the telemetry's `solver` field, the same map as
+/// `mpc::closed_loop::decision_counts` (empty when the layer was off: no cycle has a reason).
+fn telemetry_decisions(telemetry: &[pb::CycleTelemetry]) -> BTreeMap<String, u64> {
+    let mut counts = BTreeMap::new();
+    if telemetry.iter().all(|t| t.decision_reason.is_empty()) {
+        return counts;
+    }
+    for d in [Decision::Panoc, Decision::Qp, Decision::ShiftedPlan, Decision::Brake] {
+        counts.insert(d.name().to_string(), 0);
+    }
+    for d in telemetry.iter().filter_map(|t| decision_from_pb(t.solver)) {
+        *counts.entry(d.name().to_string()).or_insert(0) += 1;
+    }
+    counts
+}
+
+/// The spec's per-run numbers from what came over the wire; `time_to_goal_ns` is the plant
+/// time at which the goal was reached (`None`: not reached).
 pub fn summarize(
     scenario: &Scenario,
     mode: ControllerMode,
-    status: &pb::ControllerStatus,
+    time_to_goal_ns: Option<u64>,
     telemetry: &[pb::CycleTelemetry],
     last: &pb::StateSample,
 ) -> anyhow::Result<RunSummary> {
@@ -492,14 +655,14 @@ pub fn summarize(
     let mean =
         if solve_ms.is_empty() { f64::NAN } else { solve_ms.iter().sum::<f64>() / solve_ms.len() as f64 };
     let count = |status: pb::SolveStatus| stats.iter().filter(|s| s.status == status as i32).count() as u64;
-    let reached = status.finish_reason == "reached";
+    let reached = time_to_goal_ns.is_some();
     let end_time_s = mav::ns_to_s(last.time_ns);
     Ok(RunSummary {
         scenario: scenario.name.clone(),
         controller: mode.name().to_string(),
         reached,
         collided: last.collided,
-        time_to_goal_s: reached.then_some(end_time_s),
+        time_to_goal_s: time_to_goal_ns.map(mav::ns_to_s),
         end_time_s,
         path_length_m: last.path_length_m,
         min_clearance_m: last.min_clearance_m,
@@ -509,7 +672,12 @@ pub fn summarize(
         solve_ms_p95: percentile(&mut solve_ms, 95.0),
         solve_ms_max: percentile(&mut solve_ms, 100.0),
         iterations_median: percentile(&mut iterations, 50.0),
-        fallbacks: count(pb::SolveStatus::NumericalFailure),
+        fallbacks: telemetry
+            .iter()
+            .filter(|t| decision_from_pb(t.solver).is_none_or(|d| d.is_fallback()))
+            .count() as u64,
+        decisions: telemetry_decisions(telemetry),
+        cost_gap: GapSummary::of(&telemetry.iter().filter_map(|t| t.cost_gap).collect::<Vec<_>>()),
         iteration_limits: count(pb::SolveStatus::IterationLimit),
         final_position_m: [x[0], x[1], x[2]],
         collisions: last

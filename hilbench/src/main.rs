@@ -10,7 +10,7 @@ use hilbench::bench::{
     Outcome, Transport, default_out_dir, file_jobs, paper_jobs, run_all, run_table, write_cycle_logs,
     write_summary,
 };
-use hilbench::grpc::Endpoints;
+use hilbench::grpc::{EndpointArgs, Endpoints, TimeMode};
 use hilbench::report;
 use hilbench::scenario_file::{Mode, ScenarioFile};
 
@@ -65,7 +65,7 @@ enum Command {
         #[arg(long)]
         controller: Option<String>,
     },
-    /// Run one scenario file (TOML, see scenarios/) in lockstep over gRPC.
+    /// Run one scenario file (TOML, see scenarios/) over gRPC, in lockstep or real time.
     Run {
         /// The scenario file.
         file: PathBuf,
@@ -79,8 +79,13 @@ enum Command {
         #[arg(long)]
         json: bool,
         /// Run the closed loop in process (`mpc::run_closed_loop`) instead of over gRPC.
-        #[arg(long)]
+        #[arg(long, conflicts_with_all = ["plant", "netem", "controller", "time_mode"])]
         in_process: bool,
+        /// How plant time moves (default: the file's `run.time_mode`).
+        #[arg(long, value_enum)]
+        time_mode: Option<TimeMode>,
+        #[command(flatten)]
+        services: EndpointArgs,
     },
 }
 
@@ -91,14 +96,13 @@ fn main() -> anyhow::Result<()> {
             let transport = if in_process {
                 Transport::InProcess
             } else {
-                Transport::Grpc(Endpoints { plant, netem, controller })
+                Transport::Grpc(Endpoints { plant, netem, controller, ..Endpoints::default() })
             };
             reproduce(out, json, cli.quiet, &scenario, &transport)?
         }
-        Command::Run { file, mode, out, json, in_process } => {
-            let transport =
-                if in_process { Transport::InProcess } else { Transport::Grpc(Endpoints::default()) };
-            run(&file, mode, out, json, cli.quiet, &transport)?
+        Command::Run { file, mode, out, json, in_process, time_mode, services } => {
+            let transport = (!in_process).then_some((services, time_mode));
+            run(&file, mode, out, json, cli.quiet, transport)?
         }
     };
     if outcome.any_collided() {
@@ -173,9 +177,16 @@ fn run(
     out: Option<PathBuf>,
     json: bool,
     quiet: bool,
-    transport: &Transport,
+    services: Option<(EndpointArgs, Option<TimeMode>)>,
 ) -> anyhow::Result<Outcome> {
     let spec = ScenarioFile::load(file)?;
+    let transport = &match services {
+        Some((args, time_mode)) => Transport::Grpc(args.endpoints(time_mode.unwrap_or(spec.run.time_mode))),
+        None if spec.run.time_mode == TimeMode::RealTime => {
+            anyhow::bail!("{}: real time needs the services (not --in-process)", file.display())
+        }
+        None => Transport::InProcess,
+    };
     let modes = match mode {
         None => None,
         Some(ModeArg::Nmpc) => Some(vec![Mode::Nmpc]),
@@ -188,7 +199,7 @@ fn run(
         return Ok(outcome);
     }
     println!();
-    println!("{} ({}): lockstep, {}", spec.scenario.name, file.display(), transport.describe());
+    println!("{} ({}): {}, {}", spec.scenario.name, file.display(), outcome.time_mode, transport.describe());
     println!();
     print!("{}", run_table(&outcome.runs));
     println!();

@@ -3,7 +3,7 @@
 //! ```toml
 //! [run]                         # optional; what hilbench does with the scenario
 //! modes = ["nmpc", "multistage"] # controllers to run, in this order (default: both)
-//! time_mode = "lockstep"        # only lockstep for now
+//! time_mode = "lockstep"        # or "real-time" (the wall clock)
 //!
 //! [scenario]                    # exactly `mav::Scenario` (unknown keys are errors)
 //! name = "slalom-4"
@@ -44,14 +44,27 @@ impl Mode {
 }
 
 /// How plant time moves.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum TimeMode {
     /// Deterministic: time moves only through `Advance`/`Step` (paper mode).
     #[default]
     Lockstep,
-    /// Wall clock (accepted by the format, not run by `hilbench run` yet).
+    /// The wall clock: the plant integrates in real time (with its command watchdog), netem
+    /// releases on its own thread, the controller solves under a deadline once per cycle.
     RealTime,
+}
+
+impl TimeMode {
+    /// As written in files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            TimeMode::Lockstep => "lockstep",
+            TimeMode::RealTime => "real-time",
+        }
+    }
 }
 
 fn default_modes() -> Vec<Mode> {
@@ -65,14 +78,24 @@ pub struct RunSection {
     /// Controllers to run, in order.
     #[serde(default = "default_modes")]
     pub modes: Vec<Mode>,
-    /// `lockstep` (only this one for now).
+    /// `lockstep` (deterministic, the default) or `real-time`.
     #[serde(default)]
     pub time_mode: TimeMode,
+    /// Keep the controller's predictions above a floor: `scenario.min_altitude_m` when given,
+    /// else the ground. On by default, because under delays a controller can otherwise dive
+    /// through the ground on its way round an obstacle; the paper files turn it off (the
+    /// paper's problem has no floor).
+    #[serde(default = "default_floor")]
+    pub floor: bool,
+}
+
+fn default_floor() -> bool {
+    true
 }
 
 impl Default for RunSection {
     fn default() -> Self {
-        Self { modes: default_modes(), time_mode: TimeMode::Lockstep }
+        Self { modes: default_modes(), time_mode: TimeMode::Lockstep, floor: default_floor() }
     }
 }
 
@@ -132,7 +155,7 @@ impl ScenarioFile {
             message,
         };
         let root = DeTable::parse(text).map_err(|e| error(e.span(), None, e.message().to_string()))?;
-        let file: ScenarioFile = serde::Deserialize::deserialize(toml::Deserializer::from(root.clone()))
+        let mut file: ScenarioFile = serde::Deserialize::deserialize(toml::Deserializer::from(root.clone()))
             .map_err(|e| {
                 let field = e.span().and_then(|s| field_at(&root, &s));
                 let span = e.span();
@@ -142,6 +165,11 @@ impl ScenarioFile {
             let span = span_of(&root, &field);
             error(span, Some(field), message)
         })?;
+        if !file.run.floor {
+            file.scenario.min_altitude_m = None;
+        } else if file.scenario.min_altitude_m.is_none() {
+            file.scenario.min_altitude_m = Some(file.scenario.ground_z_m);
+        }
         Ok(file)
     }
 
@@ -154,12 +182,6 @@ impl ScenarioFile {
             if self.run.modes[..i].contains(m) {
                 return Err((format!("run.modes[{i}]"), "is listed twice".into()));
             }
-        }
-        if self.run.time_mode != TimeMode::Lockstep {
-            return Err((
-                "run.time_mode".into(),
-                "only \"lockstep\" is supported by `hilbench run` for now".into(),
-            ));
         }
         let s = &self.scenario;
         if s.name.is_empty() || s.name.len() > 64 || s.name.chars().any(|c| c.is_control()) {
@@ -288,8 +310,22 @@ mod tests {
             let path = repo_root().join("scenarios").join(format!("{name}.toml"));
             let file = ScenarioFile::load(&path).unwrap_or_else(|e| panic!("{e}"));
             assert_eq!(file.scenario, Scenario::by_name(name).expect("built in"), "{name}");
-            assert_eq!(file.run, RunSection::default());
+            assert_eq!(file.run, RunSection { floor: false, ..RunSection::default() });
         }
+    }
+
+    #[test]
+    fn the_floor_defaults_to_the_ground_and_can_be_set_or_turned_off() {
+        let path = repo_root().join("scenarios").join("slalom-4.toml");
+        let text = std::fs::read_to_string(&path).expect("slalom-4.toml");
+        let file = ScenarioFile::parse(&path, &text).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(file.scenario.min_altitude_m, Some(file.scenario.ground_z_m));
+        let set = text.replacen("ground_z_m = 0.0", "ground_z_m = 0.0\nmin_altitude_m = 0.25", 1);
+        let file = ScenarioFile::parse(&path, &set).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(file.scenario.min_altitude_m, Some(0.25));
+        let off = text.replacen("time_mode = \"lockstep\"", "time_mode = \"lockstep\"\nfloor = false", 1);
+        let file = ScenarioFile::parse(&path, &off).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(file.scenario.min_altitude_m, None);
     }
 
     #[test]
@@ -358,9 +394,12 @@ mod tests {
 
     #[test]
     fn run_section_and_names_are_checked() {
-        let (text, line) = edited("time_mode = \"lockstep\"", "time_mode = \"real-time\"");
+        let (text, line) = edited("time_mode = \"lockstep\"", "time_mode = \"realtime\"");
         let e = error_of(&text);
         assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("run.time_mode")), "{e}");
+        let (text, _) = edited("time_mode = \"lockstep\"", "time_mode = \"real-time\"");
+        let file = ScenarioFile::parse(Path::new("x.toml"), &text).expect("real time");
+        assert_eq!(file.run.time_mode, TimeMode::RealTime);
         let (text, line) = edited("modes = [\"nmpc\", \"multistage\"]", "modes = [\"nmpc\", \"mpc\"]");
         let e = error_of(&text);
         assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("run.modes[1]")), "{e}");

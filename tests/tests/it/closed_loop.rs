@@ -148,6 +148,7 @@ async fn a_run_against_given_services_sets_the_netem_profile_and_is_bit_identica
         plant: Some(plant.addr.to_string()),
         netem: Some(netem_addr.to_string()),
         controller: Some(ctl.addr.to_string()),
+        ..Endpoints::default()
     };
     let run = run_against(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(300) }, &endpoints)
         .await

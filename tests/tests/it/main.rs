@@ -3,5 +3,6 @@
 
 mod closed_loop;
 mod controller;
+mod fault;
 mod netem;
 mod plant;
