@@ -3,13 +3,22 @@
 use mpc::{ClosedLoopSettings, ControllerMode, DelaySource, run_closed_loop};
 
 fn main() {
-    let delay_s: f64 = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(0.33);
+    // A constant delay in seconds, or a trace file (one delay per line).
+    let arg = std::env::args().nth(1).unwrap_or_else(|| "0.33".into());
+    let trace = match arg.parse::<f64>() {
+        Ok(d) => vec![d],
+        Err(_) => delay::parse_trace(&std::fs::read_to_string(&arg).expect("trace file")).expect("trace"),
+    };
     let mut scenario = mav::Scenario::paper_2();
     scenario.delay_compensation = std::env::var("COMP").is_ok();
+    scenario.min_altitude_m = std::env::var("FLOOR").ok().and_then(|z| z.parse().ok());
     for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
         for safety in [false, true] {
             let mut settings = ClosedLoopSettings::paper(mode);
-            settings.delays = Some(DelaySource::Trace(vec![delay_s]));
+            if let Some(m) = std::env::var("MARGIN").ok().and_then(|m| m.parse().ok()) {
+                settings.mpc.obstacle_margin_m = m;
+            }
+            settings.delays = Some(DelaySource::Trace(trace.clone()));
             if !safety {
                 settings.safety = None;
             }

@@ -53,6 +53,10 @@ pub struct SafetySettings {
     pub max_plan_shifts: usize,
     /// Gain of the braking command: desired acceleration `-gain * v`, 1/s.
     pub brake_gain_per_s: f64,
+    /// When no candidate passes the checks, not even braking (held over the horizon), send
+    /// the candidate whose predictions come closest to passing (largest clearance, floor
+    /// included) instead of braking blindly. The selection says so (`verified_safe: false`).
+    pub best_effort: bool,
 }
 
 impl Default for SafetySettings {
@@ -65,6 +69,7 @@ impl Default for SafetySettings {
             required_clearance_m: 0.0,
             max_plan_shifts: 10,
             brake_gain_per_s: 1.0,
+            best_effort: true,
         }
     }
 }
@@ -192,10 +197,13 @@ pub struct Selection {
     pub qp_report: Option<QpReport>,
     /// The shifted previous plan's check (`NotRun` when a better candidate was accepted).
     pub shifted: CandidateCheck,
+    /// The braking command held over the horizon (`NotRun` when a better candidate was
+    /// accepted).
+    pub brake: CandidateCheck,
     /// QP cost minus PANOC cost, both on the nonlinear model (positive: PANOC is better);
     /// `None` unless both were evaluated.
     pub cost_gap: Option<f64>,
-    /// True when the selected plan passed the checks (every decision but `Brake`).
+    /// True when the selected plan passed the checks.
     pub verified_safe: bool,
 }
 
@@ -204,13 +212,19 @@ impl Selection {
     pub fn reason(&self) -> String {
         let mut out = String::from(self.decision.name());
         let mut parts = Vec::new();
-        let candidates = [("panoc", &self.panoc), ("qp", &self.qp), ("shifted", &self.shifted)];
+        let candidates =
+            [("panoc", &self.panoc), ("qp", &self.qp), ("shifted", &self.shifted), ("brake", &self.brake)];
+        // The rejected candidates before the selected one; every one when none passed.
         let skip = match self.decision {
+            _ if !self.verified_safe => 4,
             Decision::Panoc => 0,
             Decision::Qp => 1,
             Decision::ShiftedPlan => 2,
             Decision::Brake => 3,
         };
+        if !self.verified_safe {
+            out.push_str(" best effort");
+        }
         for (name, c) in candidates.iter().take(skip) {
             let mut s = format!("{name}: ");
             match &c.rejection {
@@ -361,6 +375,7 @@ impl SafetyLayer {
                 qp: invalid,
                 qp_report: None,
                 shifted: invalid,
+                brake: invalid,
                 cost_gap: None,
                 verified_safe: false,
             };
@@ -421,6 +436,9 @@ impl SafetyLayer {
 
         // 3. The previous plan shifted; 4. braking.
         let mut shifted_check = CandidateCheck::rejected(Rejection::NotRun);
+        let mut brake_check = CandidateCheck::rejected(Rejection::NotRun);
+        let brake_command = braking_command(&self.params, &self.bounds, x0, self.settings.brake_gain_per_s);
+        let mut verified_safe = true;
         let decision = if panoc_check.accepted() {
             Decision::Panoc
         } else if qp_check.accepted() {
@@ -433,7 +451,33 @@ impl SafetyLayer {
             } else {
                 CandidateCheck::rejected(Rejection::NoPlan)
             };
-            if shifted_check.accepted() { Decision::ShiftedPlan } else { Decision::Brake }
+            if shifted_check.accepted() {
+                Decision::ShiftedPlan
+            } else {
+                let brake_plan: Vec<f64> = (0..3 * self.n).map(|k| brake_command[k % 3]).collect();
+                brake_check = self.check_plan(&brake_plan);
+                if brake_check.accepted() {
+                    Decision::Brake
+                } else {
+                    verified_safe = false;
+                    let candidates = [
+                        (Decision::Brake, &brake_check),
+                        (Decision::Panoc, &panoc_check),
+                        (Decision::Qp, &qp_check),
+                        (Decision::ShiftedPlan, &shifted_check),
+                    ];
+                    let mut best = (Decision::Brake, self.safety_score(&brake_check));
+                    if self.settings.best_effort {
+                        for (d, c) in candidates.iter().skip(1) {
+                            let score = self.safety_score(c);
+                            if score > best.1 {
+                                best = (*d, score);
+                            }
+                        }
+                    }
+                    best.0
+                }
+            }
         };
 
         let command = match decision {
@@ -458,9 +502,8 @@ impl SafetyLayer {
                 self.first()
             }
             Decision::Brake => {
-                let command = braking_command(&self.params, &self.bounds, x0, self.settings.brake_gain_per_s);
-                self.store_brake_plan(command);
-                command
+                self.store_brake_plan(brake_command);
+                brake_command
             }
         };
         Selection {
@@ -470,9 +513,28 @@ impl SafetyLayer {
             qp: qp_check,
             qp_report,
             shifted: shifted_check,
+            brake: brake_check,
             cost_gap,
-            verified_safe: decision != Decision::Brake,
+            verified_safe,
         }
+    }
+
+    /// How close a checked candidate comes to passing: its smallest margin over the required
+    /// clearance and the floor, m (`-inf` when it was not evaluated or is not finite).
+    fn safety_score(&self, c: &CandidateCheck) -> f64 {
+        // Only plans that are solutions and fail nothing but the safety checks compete (and
+        // braking, always): not a failed solve's warm start, not a non-finite plan.
+        let competes =
+            matches!(c.rejection, None | Some(Rejection::Collision { .. } | Rejection::BelowFloor { .. }));
+        if !competes || c.min_clearance_m.is_nan() {
+            return f64::NEG_INFINITY;
+        }
+        let clearance = c.min_clearance_m - self.settings.required_clearance_m;
+        let floor = match self.settings.qp.min_altitude_m {
+            Some(z) if c.min_altitude_m.is_finite() => c.min_altitude_m - z.min(self.x0_z),
+            _ => f64::INFINITY,
+        };
+        clearance.min(floor)
     }
 
     fn first(&self) -> [f64; 3] {
