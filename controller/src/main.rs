@@ -44,10 +44,13 @@ struct Cli {
     /// QP cross-check and no fallback.
     #[arg(long)]
     no_safety: bool,
-    /// When the QP fallback runs: every cycle (the cross-check) or only when PANOC's plan is
-    /// rejected.
-    #[arg(long, value_enum, default_value_t = Schedule::EveryCycle)]
+    /// When the QP fallback runs besides when PANOC's plan is rejected: every cycle, every
+    /// n-th (`--qp-every`), or only when needed.
+    #[arg(long, value_enum, default_value_t = Schedule::EveryNth)]
     qp_schedule: Schedule,
+    /// n of `--qp-schedule every-nth`.
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..))]
+    qp_every: u32,
     /// Floor for both solvers: predicted altitudes stay at or above this, m (default: none,
     /// as in the paper).
     #[arg(long)]
@@ -57,6 +60,7 @@ struct Cli {
 #[derive(ValueEnum, Clone, Copy, Debug)]
 enum Schedule {
     EveryCycle,
+    EveryNth,
     WhenNeeded,
 }
 
@@ -114,6 +118,7 @@ fn main() -> anyhow::Result<()> {
     config.safety = (!cli.no_safety).then(|| SafetySettings {
         qp_schedule: match cli.qp_schedule {
             Schedule::EveryCycle => QpSchedule::EveryCycle,
+            Schedule::EveryNth => QpSchedule::EveryNth(cli.qp_every),
             Schedule::WhenNeeded => QpSchedule::WhenNeeded,
         },
         ..SafetySettings::default()

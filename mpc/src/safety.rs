@@ -24,14 +24,32 @@ use crate::qp::{
 };
 use crate::solver::{Mpc, MpcError, SolveReport, SolveStatus};
 
-/// When the QP runs.
+/// When the QP runs. Whatever the schedule, it also runs when PANOC's plan is rejected.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum QpSchedule {
     /// Every cycle, so that the cost gap is always known (the cross-check).
     EveryCycle,
+    /// Every `n`-th cycle (the first included): the cross-check at a fraction of its cost.
+    EveryNth(u32),
     /// Only when PANOC's plan is rejected (saves the QP's time on good cycles).
     WhenNeeded,
+}
+
+impl QpSchedule {
+    /// The default: the QP (5-10 ms here, against PANOC's 0.2 ms median; see BENCHMARKS.md)
+    /// every cycle would be most of a 50 ms cycle's budget on one core, so the cross-check
+    /// runs every 5th cycle, and the fallback whenever it is needed.
+    pub const DEFAULT: QpSchedule = QpSchedule::EveryNth(5);
+
+    /// Whether the cross-check is due on the `k`-th cycle of an episode (0-based).
+    pub fn due(self, k: u64) -> bool {
+        match self {
+            QpSchedule::EveryCycle => true,
+            QpSchedule::EveryNth(n) => k % u64::from(n.max(1)) == 0,
+            QpSchedule::WhenNeeded => false,
+        }
+    }
 }
 
 /// Settings of the safety layer (validated in [`SafetyLayer::new`]).
@@ -63,7 +81,7 @@ impl Default for SafetySettings {
     fn default() -> Self {
         Self {
             qp: QpSettings::default(),
-            qp_schedule: QpSchedule::EveryCycle,
+            qp_schedule: QpSchedule::DEFAULT,
             accept_iteration_limit: true,
             accept_deadline: true,
             required_clearance_m: 0.0,
@@ -81,6 +99,9 @@ impl SafetySettings {
         let bad = |field: &'static str, reason: &'static str| Err(MpcError::InvalidSetting { field, reason });
         if !self.required_clearance_m.is_finite() {
             return bad("required_clearance_m", "must be finite");
+        }
+        if self.qp_schedule == QpSchedule::EveryNth(0) {
+            return bad("qp_schedule", "every n-th cycle needs n > 0");
         }
         if !(self.brake_gain_per_s.is_finite() && self.brake_gain_per_s >= 0.0) {
             return bad("brake_gain_per_s", "must be finite and >= 0");
@@ -265,6 +286,8 @@ pub struct SafetyLayer {
     qp_budget: QpBudget,
     /// Altitude of the cycle's state (for the floor check).
     x0_z: f64,
+    /// Selections made since the last reset (for the QP's schedule).
+    cycles: u64,
 }
 
 impl SafetyLayer {
@@ -290,6 +313,7 @@ impl SafetyLayer {
             shifts: 0,
             qp_budget: QpBudget::default(),
             x0_z: 0.0,
+            cycles: 0,
         })
     }
 
@@ -318,6 +342,7 @@ impl SafetyLayer {
     pub fn reset(&mut self) {
         self.has_plan = false;
         self.shifts = 0;
+        self.cycles = 0;
         self.qp.reset();
     }
 
@@ -404,7 +429,8 @@ impl SafetyLayer {
         };
 
         // 2. The QP, linearized around the previous plan shifted (hover without one).
-        let run_qp = self.settings.qp_schedule == QpSchedule::EveryCycle || !panoc_check.accepted();
+        let run_qp = self.settings.qp_schedule.due(self.cycles) || !panoc_check.accepted();
+        self.cycles += 1;
         let mut qp_report = None;
         let qp_check = if run_qp {
             let nominal = if self.has_plan {
@@ -673,7 +699,7 @@ mod tests {
         assert_eq!(sel.decision, Decision::Panoc, "{}", sel.reason());
         assert_eq!(sel.command, mpc.first_input());
         assert!(sel.verified_safe && sel.panoc.min_clearance_m >= 0.0);
-        assert!(sel.qp_report.is_some(), "every cycle by default");
+        assert!(sel.qp_report.is_some(), "the first cycle is always cross-checked");
         assert!(sel.reason().starts_with("panoc"));
         assert_eq!(layer.plan(), Some(mpc.solution()));
     }
@@ -769,6 +795,27 @@ mod tests {
         let sel = layer.select(&x0, &HOVER, &W5, &mpc, &r);
         assert_eq!(sel.decision, Decision::Brake, "{}", sel.reason());
         assert!(in_bounds(&def.bounds, sel.command));
+    }
+
+    #[test]
+    fn the_qp_runs_on_schedule_and_whenever_panoc_is_rejected() {
+        assert!((0..10).all(|k| QpSchedule::EveryCycle.due(k)));
+        assert_eq!((0..10).filter(|&k| QpSchedule::EveryNth(5).due(k)).collect::<Vec<_>>(), vec![0, 5]);
+        assert!((0..10).all(|k| !QpSchedule::WhenNeeded.due(k)));
+        let bad = SafetySettings { qp_schedule: QpSchedule::EveryNth(0), ..Default::default() };
+        assert!(bad.validate().is_err());
+
+        let s = Scenario::paper_3();
+        let def = def_of(&s, ControllerMode::Nmpc);
+        let settings = SafetySettings { qp_schedule: QpSchedule::WhenNeeded, ..Default::default() };
+        let mut layer = SafetyLayer::new(&def, settings).expect("valid");
+        let mut mpc = Mpc::new(def.clone(), MpcSettings::default()).expect("valid");
+        let r = mpc.solve(&s.start, &HOVER, &[1.0], &SolveBudget::default()).expect("valid");
+        let sel = layer.select(&s.start, &HOVER, &[1.0], &mpc, &r);
+        assert_eq!(sel.decision, Decision::Panoc);
+        assert!(sel.qp_report.is_none() && sel.cost_gap.is_none());
+        let sel = layer.select_without_panoc(&s.start, &HOVER, &[1.0]);
+        assert!(sel.qp_report.is_some(), "a rejected PANOC plan always brings the QP in");
     }
 
     #[test]
