@@ -46,7 +46,7 @@ impl QpSchedule {
     pub fn due(self, k: u64) -> bool {
         match self {
             QpSchedule::EveryCycle => true,
-            QpSchedule::EveryNth(n) => k % u64::from(n.max(1)) == 0,
+            QpSchedule::EveryNth(n) => k.is_multiple_of(u64::from(n.max(1))),
             QpSchedule::WhenNeeded => false,
         }
     }
