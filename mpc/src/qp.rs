@@ -81,7 +81,9 @@ pub struct QpSettings {
     /// the QP's with every row either way (a solution of a relaxation that satisfies the
     /// dropped rows is optimal for the whole QP). `f64::INFINITY`: every row from the start.
     pub lazy_slack_m: f64,
-    /// Solves with a subset of the rows before a solve takes every row.
+    /// Re-solves that add only the violated (and nearly violated) lazy rows; if a solution
+    /// still violates a lazy row after them, the next re-solve takes every row. Each re-solve
+    /// is a full clarabel solve under the same [`QpBudget`].
     pub max_lazy_rounds: usize,
 }
 
