@@ -141,8 +141,8 @@ impl Outcome {
     }
 }
 
-/// Runs every (scenario, controller) pair in order, in lockstep. `progress` prints a line per
-/// finished run on stderr.
+/// Runs every (scenario, controller) pair in order, in lockstep. `progress` shows a progress
+/// bar and a line per finished run on stderr when it is a terminal.
 pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::Result<Outcome> {
     let started = Instant::now();
     let runtime = match transport {
@@ -160,8 +160,10 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
     let mut goals = Vec::with_capacity(jobs.len());
     let mut timings = Vec::new();
     let mut faults = Vec::with_capacity(jobs.len());
+    let bar = crate::progress::bar(jobs.len() as u64, "runs", progress);
     for (scenario, mode) in jobs {
         let name = &scenario.name;
+        bar.set_message(format!("{name} with {}", mode.name()));
         let run_started = Instant::now();
         let summary = match (&runtime, transport) {
             (Some(rt), Transport::Grpc(endpoints)) => {
@@ -186,17 +188,17 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                 summary
             }
         };
-        if progress {
-            eprintln!(
-                "  {name} {:<11} done ({} cycles, {:.2} s)",
-                mode.name(),
-                summary.cycles,
-                run_started.elapsed().as_secs_f64()
-            );
-        }
+        bar.println(format!(
+            "  {name} {:<11} done ({} cycles, {:.2} s)",
+            mode.name(),
+            summary.cycles,
+            run_started.elapsed().as_secs_f64()
+        ));
+        bar.inc(1);
         runs.push(summary);
         goals.push(scenario.goal_m);
     }
+    bar.finish_and_clear();
     Ok(Outcome {
         runs,
         cycles,

@@ -1,9 +1,13 @@
 //! The hilbench CLI's library: paper-mode runs over real gRPC ([`grpc`]), runs of scenarios
-//! and their `summary.json` ([`bench`]), scenario files ([`scenario_file`]), per-cycle CSV logs ([`cycle_log`]) and the paper's
-//! tables beside the measured values ([`report`]).
+//! and their `summary.json` ([`bench`]), scenario files ([`scenario_file`]), per-cycle CSV logs ([`cycle_log`]), the paper's
+//! tables beside the measured values ([`report`]), plots ([`plots`]), progress bars ([`progress`])
+//! and `report.md` ([`report_md`]).
 
 pub mod bench;
 pub mod cycle_log;
 pub mod grpc;
+pub mod plots;
+pub mod progress;
 pub mod report;
+pub mod report_md;
 pub mod scenario_file;

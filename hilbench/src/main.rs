@@ -4,7 +4,9 @@
 //! measures. `hilbench run SCENARIO.toml` does the same for one scenario file.
 
 use std::path::PathBuf;
+use std::time::Instant;
 
+use anyhow::Context;
 use clap::{Parser, Subcommand, ValueEnum};
 use hilbench::bench::{
     Outcome, Transport, default_out_dir, file_jobs, paper_jobs, run_all, run_table, write_cycle_logs,
@@ -12,6 +14,7 @@ use hilbench::bench::{
 };
 use hilbench::grpc::{EndpointArgs, Endpoints, TimeMode};
 use hilbench::report;
+use hilbench::report_md::{self, ReportText};
 use hilbench::scenario_file::{Mode, ScenarioFile};
 
 #[derive(Parser, Debug)]
@@ -27,6 +30,9 @@ struct Cli {
     /// whether a run collided).
     #[arg(long, global = true)]
     quiet: bool,
+    /// Do not draw the plots (PNG and SVG under OUT/plots/).
+    #[arg(long, global = true)]
+    no_plots: bool,
 }
 
 /// `--mode` of `hilbench run`.
@@ -90,7 +96,9 @@ enum Command {
 }
 
 fn main() -> anyhow::Result<()> {
+    let started = Instant::now();
     let cli = Cli::parse();
+    let opts = Options { quiet: cli.quiet, plots: !cli.no_plots, started };
     let outcome = match cli.command {
         Command::Reproduce { out, json, scenario, in_process, plant, netem, controller } => {
             let transport = if in_process {
@@ -98,11 +106,11 @@ fn main() -> anyhow::Result<()> {
             } else {
                 Transport::Grpc(Endpoints { plant, netem, controller, ..Endpoints::default() })
             };
-            reproduce(out, json, cli.quiet, &scenario, &transport)?
+            reproduce(out, json, &opts, &scenario, &transport)?
         }
         Command::Run { file, mode, out, json, in_process, time_mode, services } => {
             let transport = (!in_process).then_some((services, time_mode));
-            run(&file, mode, out, json, cli.quiet, transport)?
+            run(&file, mode, out, json, &opts, transport)?
         }
     };
     if outcome.any_collided() {
@@ -112,12 +120,28 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// What both commands do the same way: run the jobs, write `summary.json` and the per-cycle
-/// logs, and print the JSON summary when asked.
+/// Flags both commands share.
+struct Options {
+    quiet: bool,
+    plots: bool,
+    /// When the command started (for the total wall time).
+    started: Instant,
+}
+
+/// What `report.md` says besides the runs (owned; see `ReportText`).
+struct ReportParts {
+    title: String,
+    header: String,
+    tables: Option<String>,
+    verdicts: Vec<String>,
+}
+
+/// What both commands do the same way: run the jobs, draw the plots, write `summary.json`, the
+/// per-cycle logs and `report.md`, and print the JSON summary when asked.
 struct Executed {
     outcome: Outcome,
     summary: serde_json::Value,
-    path: PathBuf,
+    dir: PathBuf,
     /// Print the human-readable report (neither `--json` nor `--quiet`).
     show: bool,
 }
@@ -126,37 +150,66 @@ fn execute(
     jobs: &[hilbench::bench::Job],
     out: Option<PathBuf>,
     json: bool,
-    quiet: bool,
+    opts: &Options,
     transport: &Transport,
+    report: impl Fn(&Outcome) -> ReportParts,
 ) -> anyhow::Result<Executed> {
-    let outcome = run_all(jobs, transport, !json && !quiet)?;
-    let summary = outcome.summary_json();
+    let show = !json && !opts.quiet;
+    let outcome = run_all(jobs, transport, show)?;
     let dir = out.unwrap_or_else(default_out_dir);
-    let path = write_summary(&dir, &summary)?;
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let mut plotting_s = None;
+    if opts.plots {
+        let plotting = Instant::now();
+        let bar = hilbench::progress::bar(1, "plot sets", show);
+        bar.set_message("drawing the plots");
+        hilbench::plots::write_outcome(&dir, jobs, &outcome)?;
+        bar.finish_and_clear();
+        plotting_s = Some(plotting.elapsed().as_secs_f64());
+    }
+    let mut summary = outcome.summary_json();
+    summary["timing"]["plotting_s"] = serde_json::json!(plotting_s);
+    write_summary(&dir, &summary)?;
     write_cycle_logs(&dir, &outcome)?;
+    let parts = report(&outcome);
+    let text = ReportText {
+        title: &parts.title,
+        header: &parts.header,
+        tables: parts.tables.as_deref(),
+        verdicts: &parts.verdicts,
+    };
+    let facts: Vec<_> = outcome.runs.iter().map(hilbench::plots::RunFacts::from).collect();
+    report_md::write(&dir, &text, &facts, outcome.transport, &summary)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     }
-    Ok(Executed { outcome, summary, path, show: !json && !quiet })
+    Ok(Executed { outcome, summary, dir, show })
 }
 
 fn reproduce(
     out: Option<PathBuf>,
     json: bool,
-    quiet: bool,
+    opts: &Options,
     only: &[String],
     transport: &Transport,
 ) -> anyhow::Result<Outcome> {
     let jobs = paper_jobs(only)?;
-    let Executed { outcome, summary, path, show } = execute(&jobs, out, json, quiet, transport)?;
+    let header = format!(
+        "Paper reproduction: SPEC.md paper mode (RK4 plant at 1 ms, Gamma(12, 0.015) round-trip delays, seed 42), lockstep, {}",
+        transport.describe()
+    );
+    let Executed { outcome, summary, dir, show } =
+        execute(&jobs, out, json, opts, transport, |o| ReportParts {
+            title: "Paper reproduction".to_string(),
+            header: header.clone(),
+            tables: Some(report::tables(&o.runs)),
+            verdicts: report::verdicts(&o.runs),
+        })?;
     if !show {
         return Ok(outcome);
     }
     println!();
-    println!(
-        "Paper reproduction: SPEC.md paper mode (RK4 plant at 1 ms, Gamma(12, 0.015) round-trip delays, seed 42), lockstep, {}",
-        transport.describe()
-    );
+    println!("{header}");
     println!();
     print!("{}", report::tables(&outcome.runs));
     println!();
@@ -166,8 +219,8 @@ fn reproduce(
     }
     println!();
     println!();
-    print_time(&outcome, &summary);
-    println!("Summary: {}", path.display());
+    print_time(&summary, opts);
+    print_outputs(&dir);
     Ok(outcome)
 }
 
@@ -176,7 +229,7 @@ fn run(
     mode: Option<ModeArg>,
     out: Option<PathBuf>,
     json: bool,
-    quiet: bool,
+    opts: &Options,
     services: Option<(EndpointArgs, Option<TimeMode>)>,
 ) -> anyhow::Result<Outcome> {
     let spec = ScenarioFile::load(file)?;
@@ -194,32 +247,51 @@ fn run(
         Some(ModeArg::Both) => Some(vec![Mode::Nmpc, Mode::Multistage]),
     };
     let jobs = file_jobs(&spec, modes.as_deref());
-    let Executed { outcome, summary, path, show } = execute(&jobs, out, json, quiet, transport)?;
+    let header = |o: &Outcome| {
+        format!("{} ({}): {}, {}", spec.scenario.name, file.display(), o.time_mode, transport.describe())
+    };
+    let Executed { outcome, summary, dir, show } =
+        execute(&jobs, out, json, opts, transport, |o| ReportParts {
+            title: format!("hilbench run {}", file.display()),
+            header: header(o),
+            tables: None,
+            verdicts: Vec::new(),
+        })?;
     if !show {
         return Ok(outcome);
     }
     println!();
-    println!("{} ({}): {}, {}", spec.scenario.name, file.display(), outcome.time_mode, transport.describe());
+    println!("{}", header(&outcome));
     println!();
     print!("{}", run_table(&outcome.runs));
     println!();
-    print_time(&outcome, &summary);
-    println!("Summary: {}", path.display());
+    print_time(&summary, opts);
+    print_outputs(&dir);
     Ok(outcome)
 }
 
-fn print_time(outcome: &Outcome, summary: &serde_json::Value) {
+/// Where the wall time went: the runs (solver, gRPC, services), the plots, and the command.
+fn print_time(summary: &serde_json::Value, opts: &Options) {
     let timing = &summary["timing"];
-    let wall = outcome.wall_time_s;
-    let solver = outcome.solver_s();
-    if outcome.transport == "in-process" {
-        println!("Time: {wall:.2} s wall, of which {solver:.2} s in the solver");
+    let secs = |key: &str| timing[key].as_f64().map_or_else(|| "-".to_string(), |s| format!("{s:.2} s"));
+    let runs = if summary["transport"] == "grpc" {
+        format!(
+            "runs {} (solver {}, gRPC loop: round trips, netem, plant RK4, telemetry {}, service start {}, stop {})",
+            secs("wall_time_s"),
+            secs("solver_s"),
+            secs("loop_overhead_s"),
+            secs("setup_s"),
+            secs("teardown_s"),
+        )
     } else {
-        println!(
-            "Time: {wall:.2} s wall; solver {solver:.2} s, gRPC loop (round trips, netem, plant RK4, telemetry) {:.2} s, service start {:.2} s, stop {:.2} s",
-            timing["loop_overhead_s"].as_f64().unwrap_or(f64::NAN),
-            timing["setup_s"].as_f64().unwrap_or(f64::NAN),
-            timing["teardown_s"].as_f64().unwrap_or(f64::NAN),
-        );
-    }
+        format!("runs {} (solver {})", secs("wall_time_s"), secs("solver_s"))
+    };
+    let plots = if opts.plots { format!(", plotting {}", secs("plotting_s")) } else { String::new() };
+    println!("Time: {:.2} s wall in all; {runs}{plots}", opts.started.elapsed().as_secs_f64());
+}
+
+/// The files a command wrote.
+fn print_outputs(dir: &std::path::Path) {
+    println!("Report: {}", dir.join("report.md").display());
+    println!("Summary: {}", dir.join("summary.json").display());
 }

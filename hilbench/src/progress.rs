@@ -1,0 +1,22 @@
+//! Progress on stderr for long runs: drawn only when asked (neither `--quiet` nor `--json`)
+//! and when stderr is a terminal, so scripts and logs never see it.
+
+use std::io::IsTerminal;
+use std::time::Duration;
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+/// A progress bar of `len` steps of `unit` on stderr, or a hidden one (which prints nothing,
+/// `println` included) unless `show` is set and stderr is a terminal.
+pub fn bar(len: u64, unit: &str, show: bool) -> ProgressBar {
+    if !show || !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr());
+    let template = format!("{{spinner}} [{{elapsed_precise}}] {{bar:30}} {{pos}}/{{len}} {unit}  {{msg}}");
+    if let Ok(style) = ProgressStyle::with_template(&template) {
+        bar.set_style(style);
+    }
+    bar.enable_steady_tick(Duration::from_millis(120));
+    bar
+}
