@@ -254,6 +254,8 @@ pub fn run_json(r: &RunSummary) -> serde_json::Value {
         "solve_ms": { "mean": r.solve_ms_mean, "median": r.solve_ms_median, "p95": r.solve_ms_p95, "max": r.solve_ms_max },
         "iterations_median": r.iterations_median,
         "fallbacks": r.fallbacks,
+        "decisions": r.decisions,
+        "cost_gap": r.cost_gap,
         "collisions": r.collisions,
         "final_position_m": r.final_position_m,
     })
@@ -424,6 +426,8 @@ mod tests {
             cost: 1.0,
             constraint_violation: 0.0,
             predicted_clearance_m: 1.0,
+            decision: "panoc".to_string(),
+            cost_gap: f64::NAN,
         };
         // Positions 3 and 4 m from a goal at the origin (z on target): RMS = sqrt((9 + 16) / 2).
         let rows = vec![row(0, 0.0, 3.0, "converged"), row(1, 0.2, 4.0, "deadline")];

@@ -7,6 +7,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use hilbench_proto::convert::controller::decision_from_pb;
 use hilbench_proto::pb;
 use mpc::closed_loop::CycleRecord;
 
@@ -28,6 +29,11 @@ pub struct CycleRow {
     pub cost: f64,
     pub constraint_violation: f64,
     pub predicted_clearance_m: f64,
+    /// What the safety layer sent: `panoc`, `qp`, `shifted_plan`, `brake` (empty when the
+    /// layer is off).
+    pub decision: String,
+    /// QP cost minus PANOC cost on the nonlinear model, when the cross-check ran (else NaN).
+    pub cost_gap: f64,
 }
 
 /// Rows of an in-process run.
@@ -48,6 +54,8 @@ pub fn from_records(records: &[CycleRecord]) -> Vec<CycleRow> {
             cost: r.report.cost,
             constraint_violation: r.report.constraint_violation,
             predicted_clearance_m: r.report.min_clearance_m,
+            decision: r.selection.map_or(String::new(), |s| s.decision.name().to_string()),
+            cost_gap: r.selection.and_then(|s| s.cost_gap).unwrap_or(f64::NAN),
         })
         .collect()
 }
@@ -94,6 +102,12 @@ pub fn from_telemetry(telemetry: &[pb::CycleTelemetry]) -> Vec<CycleRow> {
                 } else {
                     solve.min_clearance_m
                 },
+                decision: if t.decision_reason.is_empty() {
+                    String::new()
+                } else {
+                    decision_from_pb(t.solver).map_or("unspecified", |d| d.name()).to_string()
+                },
+                cost_gap: t.cost_gap.unwrap_or(f64::NAN),
             }
         })
         .collect()
@@ -108,7 +122,9 @@ pub fn to_csv(rows: &[CycleRow]) -> String {
     for i in 0..m {
         let _ = write!(out, ",w{i}");
     }
-    out.push_str(",status,iterations,solve_ms,cost,constraint_violation,predicted_clearance_m\n");
+    out.push_str(
+        ",status,iterations,solve_ms,cost,constraint_violation,predicted_clearance_m,decision,cost_gap\n",
+    );
     for r in rows {
         let _ = write!(out, "{},{}", r.cycle, r.t_s);
         for v in r.state.iter().chain(&r.command) {
@@ -120,8 +136,15 @@ pub fn to_csv(rows: &[CycleRow]) -> String {
         }
         let _ = writeln!(
             out,
-            ",{},{},{},{},{},{}",
-            r.status, r.iterations, r.solve_ms, r.cost, r.constraint_violation, r.predicted_clearance_m
+            ",{},{},{},{},{},{},{},{}",
+            r.status,
+            r.iterations,
+            r.solve_ms,
+            r.cost,
+            r.constraint_violation,
+            r.predicted_clearance_m,
+            r.decision,
+            r.cost_gap
         );
     }
     out

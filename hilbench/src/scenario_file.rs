@@ -87,6 +87,12 @@ pub struct RunSection {
     /// paper's problem has no floor).
     #[serde(default = "default_floor")]
     pub floor: bool,
+    /// Dead-time compensation in the controller's predictions (each scenario holds the last
+    /// applied input for its own sampling time before the plan starts). On by default: with
+    /// delays up to 0.33 s the paper's prediction, which lets the new input act at once,
+    /// collides under a constant 0.33 s delay; the paper files turn it off.
+    #[serde(default = "default_floor")]
+    pub delay_compensation: bool,
 }
 
 fn default_floor() -> bool {
@@ -95,7 +101,12 @@ fn default_floor() -> bool {
 
 impl Default for RunSection {
     fn default() -> Self {
-        Self { modes: default_modes(), time_mode: TimeMode::Lockstep, floor: default_floor() }
+        Self {
+            modes: default_modes(),
+            time_mode: TimeMode::Lockstep,
+            floor: default_floor(),
+            delay_compensation: default_floor(),
+        }
     }
 }
 
@@ -165,6 +176,7 @@ impl ScenarioFile {
             let span = span_of(&root, &field);
             error(span, Some(field), message)
         })?;
+        file.scenario.delay_compensation = file.run.delay_compensation;
         if !file.run.floor {
             file.scenario.min_altitude_m = None;
         } else if file.scenario.min_altitude_m.is_none() {
@@ -310,22 +322,33 @@ mod tests {
             let path = repo_root().join("scenarios").join(format!("{name}.toml"));
             let file = ScenarioFile::load(&path).unwrap_or_else(|e| panic!("{e}"));
             assert_eq!(file.scenario, Scenario::by_name(name).expect("built in"), "{name}");
-            assert_eq!(file.run, RunSection { floor: false, ..RunSection::default() });
+            assert_eq!(
+                file.run,
+                RunSection { floor: false, delay_compensation: false, ..RunSection::default() }
+            );
         }
     }
 
     #[test]
-    fn the_floor_defaults_to_the_ground_and_can_be_set_or_turned_off() {
+    fn floor_and_delay_compensation_default_on_and_can_be_set_or_turned_off() {
         let path = repo_root().join("scenarios").join("slalom-4.toml");
         let text = std::fs::read_to_string(&path).expect("slalom-4.toml");
         let file = ScenarioFile::parse(&path, &text).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(file.scenario.min_altitude_m, Some(file.scenario.ground_z_m));
+        assert!(file.scenario.delay_compensation);
         let set = text.replacen("ground_z_m = 0.0", "ground_z_m = 0.0\nmin_altitude_m = 0.25", 1);
         let file = ScenarioFile::parse(&path, &set).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(file.scenario.min_altitude_m, Some(0.25));
         let off = text.replacen("time_mode = \"lockstep\"", "time_mode = \"lockstep\"\nfloor = false", 1);
         let file = ScenarioFile::parse(&path, &off).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(file.scenario.min_altitude_m, None);
+        let paper = text.replacen(
+            "time_mode = \"lockstep\"",
+            "time_mode = \"lockstep\"\ndelay_compensation = false",
+            1,
+        );
+        let file = ScenarioFile::parse(&path, &paper).unwrap_or_else(|e| panic!("{e}"));
+        assert!(!file.scenario.delay_compensation);
     }
 
     #[test]
