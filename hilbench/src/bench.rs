@@ -427,7 +427,7 @@ mod tests {
             constraint_violation: 0.0,
             predicted_clearance_m: 1.0,
             decision: "panoc".to_string(),
-            cost_gap: f64::NAN,
+            cost_gap: None,
         };
         // Positions 3 and 4 m from a goal at the origin (z on target): RMS = sqrt((9 + 16) / 2).
         let rows = vec![row(0, 0.0, 3.0, "converged"), row(1, 0.2, 4.0, "deadline")];

@@ -32,8 +32,8 @@ pub struct CycleRow {
     /// What the safety layer sent: `panoc`, `qp`, `shifted_plan`, `brake` (empty when the
     /// layer is off).
     pub decision: String,
-    /// QP cost minus PANOC cost on the nonlinear model, when the cross-check ran (else NaN).
-    pub cost_gap: f64,
+    /// QP cost minus PANOC cost on the nonlinear model, when the cross-check ran.
+    pub cost_gap: Option<f64>,
 }
 
 /// Rows of an in-process run.
@@ -55,7 +55,7 @@ pub fn from_records(records: &[CycleRecord]) -> Vec<CycleRow> {
             constraint_violation: r.report.constraint_violation,
             predicted_clearance_m: r.report.min_clearance_m,
             decision: r.selection.map_or(String::new(), |s| s.decision.name().to_string()),
-            cost_gap: r.selection.and_then(|s| s.cost_gap).unwrap_or(f64::NAN),
+            cost_gap: r.selection.and_then(|s| s.cost_gap),
         })
         .collect()
 }
@@ -107,7 +107,7 @@ pub fn from_telemetry(telemetry: &[pb::CycleTelemetry]) -> Vec<CycleRow> {
                 } else {
                     decision_from_pb(t.solver).map_or("unspecified", |d| d.name()).to_string()
                 },
-                cost_gap: t.cost_gap.unwrap_or(f64::NAN),
+                cost_gap: t.cost_gap,
             }
         })
         .collect()
@@ -144,7 +144,7 @@ pub fn to_csv(rows: &[CycleRow]) -> String {
             r.constraint_violation,
             r.predicted_clearance_m,
             r.decision,
-            r.cost_gap
+            r.cost_gap.map_or(String::new(), |g| g.to_string())
         );
     }
     out

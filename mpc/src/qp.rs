@@ -274,6 +274,8 @@ pub struct QpFallback {
     cylinders: Vec<Cylinder>,
     evaluator: Evaluator,
     // Per-cycle data.
+    /// Dead-time compensation (see [`OcpDefinition::delay_compensation`]).
+    delay_compensation: bool,
     x0: [f64; 8],
     u_prev: [f64; 3],
     weights: Vec<f64>,
@@ -369,6 +371,7 @@ impl QpFallback {
             obstacles,
             cylinders: def.obstacles.clone(),
             evaluator: Evaluator::new(def),
+            delay_compensation: def.delay_compensation,
             x0: [0.0; 8],
             u_prev: def.u_ref,
             weights: vec![1.0; m],
@@ -610,8 +613,12 @@ impl QpFallback {
             let dt = self.dts[i];
             let w2 = 2.0 * self.weights[i];
             let base = i * (n + 1);
-            // Nominal forward pass.
-            let mut x = self.x0;
+            // Nominal forward pass (from the state after the dead time, with compensation).
+            let mut x = if self.delay_compensation {
+                crate::problem::euler_predict(&self.params, &self.x0, &self.u_prev, dt)
+            } else {
+                self.x0
+            };
             self.states[base] = x;
             for j in 0..n {
                 let (sr, cr) = x[6].sin_cos();
