@@ -317,6 +317,19 @@ fn panel_font() -> TextStyle<'static> {
 }
 
 /// Finite `(min, max)` of `values`, or `fallback` when there is none.
+/// The range of horizontal coordinate `axis` (0: x, 1: y) that shows the paths, every
+/// cylinder whole, the start and the goal.
+fn horizontal_extent(paths: &[Vec<[f64; 3]>], scenario: &Scenario, axis: usize) -> (f64, f64) {
+    let centre = |c: &mav::Cylinder| if axis == 0 { c.x_m } else { c.y_m };
+    let values = paths
+        .iter()
+        .flatten()
+        .map(|p| p[axis])
+        .chain(scenario.obstacles.iter().flat_map(|c| [centre(c) - c.radius_m, centre(c) + c.radius_m]))
+        .chain([scenario.start[axis], scenario.goal_m[axis]]);
+    extent(values, (-1.0, 1.0))
+}
+
 fn extent(values: impl Iterator<Item = f64>, fallback: (f64, f64)) -> (f64, f64) {
     let (lo, hi) = values
         .filter(|v| v.is_finite())
@@ -376,20 +389,8 @@ fn draw_top<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, group: &[&RunData
     let (_, h) = root.dim_in_pixel();
     let (root, legend_area) = root.split_vertically(h.saturating_sub(legend_h));
     let paths: Vec<Vec<[f64; 3]>> = group.iter().map(|r| path(r)).collect();
-    let xs = paths
-        .iter()
-        .flatten()
-        .map(|p| p[0])
-        .chain(scenario.obstacles.iter().flat_map(|c| [c.x_m - c.radius_m, c.x_m + c.radius_m]))
-        .chain([scenario.start[0], scenario.goal_m[0]]);
-    let ys = paths
-        .iter()
-        .flatten()
-        .map(|p| p[1])
-        .chain(scenario.obstacles.iter().flat_map(|c| [c.y_m - c.radius_m, c.y_m + c.radius_m]))
-        .chain([scenario.start[1], scenario.goal_m[1]]);
-    let x = pad(extent(xs, (-1.0, 1.0)), 0.05, 0.5);
-    let y = pad(extent(ys, (-1.0, 1.0)), 0.05, 0.5);
+    let x = pad(horizontal_extent(&paths, scenario, 0), 0.05, 0.5);
+    let y = pad(horizontal_extent(&paths, scenario, 1), 0.05, 0.5);
     // Equal aspect: widen the shorter range to the plotting area's proportions.
     fn builder<'a, 'b, DB: DrawingBackend>(area: &'a DrawingArea<DB, Shift>) -> ChartBuilder<'a, 'b, DB> {
         let mut b = ChartBuilder::on(area);
@@ -486,21 +487,9 @@ fn draw_3d<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, group: &[&RunData<
     let root =
         root.titled(&format!("{}: paths in 3D (x, y, z in m; z stretched)", scenario.name), title_font())?;
     let paths: Vec<Vec<[f64; 3]>> = group.iter().map(|r| path(r)).collect();
-    let xs = paths
-        .iter()
-        .flatten()
-        .map(|p| p[0])
-        .chain(scenario.obstacles.iter().flat_map(|c| [c.x_m - c.radius_m, c.x_m + c.radius_m]))
-        .chain([scenario.start[0], scenario.goal_m[0]]);
-    let ys = paths
-        .iter()
-        .flatten()
-        .map(|p| p[1])
-        .chain(scenario.obstacles.iter().flat_map(|c| [c.y_m - c.radius_m, c.y_m + c.radius_m]))
-        .chain([scenario.start[1], scenario.goal_m[1]]);
     let zs = paths.iter().flatten().map(|p| p[2]).chain([0.0, scenario.start[2], scenario.goal_m[2]]);
-    let x = pad(extent(xs, (-1.0, 1.0)), 0.05, 0.3);
-    let y = pad(extent(ys, (-1.0, 1.0)), 0.05, 0.3);
+    let x = pad(horizontal_extent(&paths, scenario, 0), 0.05, 0.3);
+    let y = pad(horizontal_extent(&paths, scenario, 1), 0.05, 0.3);
     // The same span in x and y, so that the cylinders stay round.
     let half = (x.end - x.start).max(y.end - y.start) / 2.0;
     let (cx, cy) = ((x.start + x.end) / 2.0, (y.start + y.end) / 2.0);
