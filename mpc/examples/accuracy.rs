@@ -1,6 +1,7 @@
 //! Tuning aid: the closed loop's own warm-started solves against the careful reference.
 //! Usage: accuracy [stride]; settings from env MPC_TOL, MPC_AKKT, MPC_MEM, MPC_CTOL, MPC_C0,
-//! MPC_CMAX, MPC_OUTER, MPC_INNER.
+//! MPC_CMAX, MPC_OUTER, MPC_INNER, MPC_PSLACK (< 0: no penalty preconditioner),
+//! MPC_PER_OUTER (0: no cap), MPC_YMAX.
 use mpc::{ControllerMode, MpcSettings, OcpDefinition, accuracy, closed_loop::percentile};
 
 fn env(name: &str, default: f64) -> f64 {
@@ -19,15 +20,38 @@ fn main() {
         max_penalty: env("MPC_CMAX", d.max_penalty),
         max_outer_iterations: env("MPC_OUTER", d.max_outer_iterations as f64) as usize,
         max_inner_iterations: env("MPC_INNER", d.max_inner_iterations as f64) as usize,
+        penalty_preconditioner_slack_m: match env(
+            "MPC_PSLACK",
+            d.penalty_preconditioner_slack_m.unwrap_or(-1.0),
+        ) {
+            v if v < 0.0 => None,
+            v => Some(v),
+        },
+        max_inner_iterations_per_outer: match env(
+            "MPC_PER_OUTER",
+            d.max_inner_iterations_per_outer.unwrap_or(0) as f64,
+        ) as usize
+        {
+            0 => None,
+            v => Some(v),
+        },
+        max_multiplier: env("MPC_YMAX", d.max_multiplier),
         ..d
     };
     println!("{s:?}");
     for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
         let (mut times, mut iters, mut gaps, mut unsafe_count) = (Vec::new(), Vec::new(), Vec::new(), 0);
+        let (mut passes, mut limits, mut outers) = ((0u64, 0u64), 0, 0);
         for name in mav::Scenario::BUILT_IN {
             let scenario = mav::Scenario::by_name(name).expect("built in");
             let def = OcpDefinition::from_scenario(&scenario, mode, s.obstacle_margin_m, s.formulation);
+            let before = mpc::problem::pass_counts();
             let solves = accuracy::loop_solves(&scenario, mode, &s).expect("loop");
+            let after = mpc::problem::pass_counts();
+            passes.0 += after.0 - before.0;
+            passes.1 += after.1 - before.1;
+            limits += solves.iter().filter(|l| l.report.status == mpc::SolveStatus::IterationLimit).count();
+            outers += solves.iter().map(|l| l.report.outer_iterations).sum::<usize>();
             for (k, ls) in solves.iter().enumerate() {
                 times.push(ls.report.solve_time.as_secs_f64() * 1e3);
                 iters.push(ls.report.iterations as f64);
@@ -63,6 +87,14 @@ fn main() {
             percentile(&mut iters.clone(), 50.0),
             percentile(&mut iters, 99.0),
             unsafe_count
+        );
+        let solves = times.len() as f64;
+        println!(
+            "  iterations total {}; at the iteration limit {limits}; outer per solve {:.2}; per solve (whole loop) forward {:.1} adjoint {:.1}",
+            iters.iter().sum::<f64>(),
+            outers as f64 / solves,
+            passes.0 as f64 / solves,
+            passes.1 as f64 / solves
         );
     }
 }

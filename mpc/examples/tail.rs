@@ -2,7 +2,7 @@
 use mpc::{ControllerMode, MpcSettings, accuracy};
 
 fn main() {
-    let s = MpcSettings { tolerance: 3e-3, constraint_tolerance: 0.02, ..MpcSettings::default() };
+    let s = MpcSettings::default();
     for name in mav::Scenario::BUILT_IN {
         let scenario = mav::Scenario::by_name(name).expect("built in");
         let solves = accuracy::loop_solves(&scenario, ControllerMode::Multistage, &s).expect("loop");

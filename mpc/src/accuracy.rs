@@ -29,6 +29,9 @@ pub fn reference_settings(fast: &MpcSettings) -> MpcSettings {
         max_inner_iterations: 100_000,
         max_penalty: 1e9,
         lbfgs_memory: 30,
+        max_multiplier: crate::solver::MAX_MULTIPLIER,
+        penalty_preconditioner_slack_m: None,
+        max_inner_iterations_per_outer: None,
         ..*fast
     }
 }

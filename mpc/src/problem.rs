@@ -8,7 +8,19 @@
 //! curvature differs by orders of magnitude between variables, and PANOC's fixed-point
 //! residual test stops far from the optimum (see ARCHITECTURE.md).
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use mav::{Cylinder, InputBounds, ModelParams, Scenario};
+
+/// Forward (prediction) and adjoint passes of every evaluator in the process, for tuning aids
+/// (`examples/solve_stats.rs`): deterministic, unlike wall times.
+static FORWARD_PASSES: AtomicU64 = AtomicU64::new(0);
+static ADJOINT_PASSES: AtomicU64 = AtomicU64::new(0);
+
+/// `(forward passes, adjoint passes)` run so far by every [`Evaluator`] of the process.
+pub fn pass_counts() -> (u64, u64) {
+    (FORWARD_PASSES.load(Ordering::Relaxed), ADJOINT_PASSES.load(Ordering::Relaxed))
+}
 
 /// Which controller of the paper.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
@@ -153,14 +165,18 @@ pub(crate) struct Scaling {
     pub scale: Vec<f64>,
 }
 
-/// Impulse-response energy of each input channel through the hover linearisation:
-/// `energy[c][n-1] = sum_{m=1..n} |s_m|^2_{2 Qx}` with `s_1 = B e_c`, `s_{m+1} = A s_m`.
-pub(crate) fn hover_impulse_energy(def: &OcpDefinition, dt: f64) -> [Vec<f64>; 3] {
+/// Impulse responses of each input channel through the hover linearisation, with
+/// `s_1 = B e_c`, `s_{m+1} = A s_m`: the energy `energy[c][n-1] = sum_{m=1..n} |s_m|^2_{2 Qx}`,
+/// and the squared position response along the channel's own axis (z for thrust, y for roll,
+/// x for pitch: the only one at hover), `position[c][m-1] = s_m[axis]^2`.
+pub(crate) fn hover_impulse_response(def: &OcpDefinition, dt: f64) -> ([Vec<f64>; 3], [Vec<f64>; 3]) {
     let p = &def.model;
     let g = p.gravity_mps2;
     let n = def.horizon;
     let mut out = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
-    for (c, energy) in out.iter_mut().enumerate() {
+    let mut position = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
+    for (c, (energy, pos)) in out.iter_mut().zip(position.iter_mut()).enumerate() {
+        let axis = [2, 1, 0][c];
         // s = B e_c for the Euler map at hover (T = g, phi = theta = 0).
         let mut s = [0.0f64; 8];
         match c {
@@ -169,9 +185,10 @@ pub(crate) fn hover_impulse_energy(def: &OcpDefinition, dt: f64) -> [Vec<f64>; 3
             _ => s[7] = dt * p.gain_pitch / p.tau_pitch_s,
         }
         let mut acc = 0.0;
-        for e in energy.iter_mut() {
+        for (e, r) in energy.iter_mut().zip(pos.iter_mut()) {
             acc += (0..8).map(|k| 2.0 * def.q_x[k] * s[k] * s[k]).sum::<f64>();
             *e = acc;
+            *r = s[axis] * s[axis];
             // s <- A s, A = I + dt * Fx(hover)
             let next = [
                 s[0] + dt * s[3],
@@ -186,7 +203,7 @@ pub(crate) fn hover_impulse_energy(def: &OcpDefinition, dt: f64) -> [Vec<f64>; 3
             s = next;
         }
     }
-    out
+    (out, position)
 }
 
 /// The cost, penalty and gradient of one problem instance, with every buffer allocated once.
@@ -219,16 +236,22 @@ pub struct Evaluator {
     x0s: Vec<[f64; 8]>,
     u_prev: [f64; 3],
     pub(crate) scaling: Scaling,
+    /// The preconditioner's Hessian diagonal, `1 / scale^2`.
+    diagonal: Vec<f64>,
     /// Per scenario, per channel: hover impulse energies (for the preconditioner).
     impulse_energy: Vec<[Vec<f64>; 3]>,
+    /// Per scenario, per channel: squared hover position responses (for the preconditioner's
+    /// penalty part).
+    position_response: Vec<[Vec<f64>; 3]>,
     // Work buffers.
     u: Vec<f64>,
     states: Vec<[f64; 8]>,
     trig: Vec<[f64; 4]>,
     grad_u: Vec<f64>,
-    /// Constraint value and its gradient in (px, py, pz), per scenario, point and cylinder.
+    /// Constraint value per scenario, point and cylinder (the gradient in (px, py, pz) is
+    /// recomputed in the adjoint pass where the penalty is active: most forward passes are
+    /// PANOC's cost-only evaluations, and most constraints are inactive).
     con: Vec<f64>,
-    con_grad: Vec<[f64; 3]>,
     // Cache of the last forward pass, keyed by the bits of `z`.
     last_z: Vec<f64>,
     forward_valid: bool,
@@ -247,7 +270,8 @@ impl Evaluator {
                 ObstacleTerm { xo: c.x_m, yo: c.y_m, r2: r * r, zo: c.height_m, r }
             })
             .collect();
-        let impulse_energy = def.sampling_times_s.iter().map(|&dt| hover_impulse_energy(def, dt)).collect();
+        let (impulse_energy, position_response) =
+            def.sampling_times_s.iter().map(|&dt| hover_impulse_response(def, dt)).unzip();
         let mut ev = Self {
             m,
             n,
@@ -269,13 +293,14 @@ impl Evaluator {
             x0s: vec![[0.0; 8]; m],
             u_prev: def.u_ref,
             scaling: Scaling { offset: vec![0.0; 3 * n], scale: vec![1.0; 3 * n] },
+            diagonal: vec![1.0; 3 * n],
             impulse_energy,
+            position_response,
             u: vec![0.0; 3 * n],
             states: vec![[0.0; 8]; m * (n + 1)],
             trig: vec![[0.0; 4]; m * n],
             grad_u: vec![0.0; 3 * n],
             con: vec![0.0; def.num_constraints()],
-            con_grad: vec![[0.0; 3]; def.num_constraints()],
             last_z: vec![0.0; 3 * n],
             forward_valid: false,
             objective: 0.0,
@@ -322,9 +347,50 @@ impl Evaluator {
                 let rate_terms = if j + 1 < n { 2.0 } else { 1.0 };
                 h += 2.0 * self.weight_sum * (self.q_u[c] + self.q_du[c] * rate_terms);
                 let k = 3 * j + c;
+                self.diagonal[k] = h;
                 self.scaling.scale[k] = if h > 1e-12 { 1.0 / h.sqrt() } else { 1.0 };
                 self.scaling.offset[k] = self.u_ref[c];
             }
+        }
+        self.forward_valid = false;
+    }
+
+    /// Adds the penalty's Gauss-Newton diagonal to the hover preconditioner: for every
+    /// constraint of the last forward pass that is active or nearly so (`g + y / c > -slack_m`),
+    /// `c (dg/du)^2` with `dg/du` from the constraint's gradient in position and the hover
+    /// position response of each channel along its own axis. With the penalty at 1e3..1e4 this
+    /// term dominates the curvature of the inputs that move an active point, which the
+    /// objective's diagonal alone misses by orders of magnitude.
+    pub(crate) fn update_scaling_with_penalty(&mut self, penalty: f64, multipliers: &[f64], slack_m: f64) {
+        self.update_scaling();
+        let (m, n, n_con) = (self.m, self.n, self.n_con);
+        if penalty > 0.0 && n_con > 0 {
+            for i in 0..m {
+                for jj in 0..n {
+                    for o in 0..n_con {
+                        let k = (i * n + jj) * n_con + o;
+                        let v = self.con[k] + multipliers.get(k).map_or(0.0, |y| y / penalty);
+                        if v <= -slack_m {
+                            continue;
+                        }
+                        let x = &self.states[i * (n + 1) + jj + 1];
+                        let dg = self.constraint_gradient(o, x);
+                        for (c, axis) in [2usize, 1, 0].into_iter().enumerate() {
+                            let a = penalty * dg[axis] * dg[axis];
+                            if a == 0.0 {
+                                continue;
+                            }
+                            let response = &self.position_response[i][c];
+                            for j in 0..=jj {
+                                self.diagonal[3 * j + c] += a * response[jj - j];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        for (s, h) in self.scaling.scale.iter_mut().zip(&self.diagonal) {
+            *s = if *h > 1e-12 { 1.0 / h.sqrt() } else { 1.0 };
         }
         self.forward_valid = false;
     }
@@ -367,6 +433,7 @@ impl Evaluator {
     /// Forward pass on `self.u`: predictions of every scenario, the objective, and every
     /// constraint value with its gradient.
     fn forward_inputs(&mut self) {
+        FORWARD_PASSES.fetch_add(1, Ordering::Relaxed);
         let (m, n) = (self.m, self.n);
         let p = self.params;
         let (g, ax, ay, az) = (p.gravity_mps2, p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
@@ -381,7 +448,6 @@ impl Evaluator {
             let states = &mut self.states[i * (n + 1)..(i + 1) * (n + 1)];
             let trig = &mut self.trig[i * n..(i + 1) * n];
             let con = &mut self.con[i * n * n_con..(i + 1) * n * n_con];
-            let con_grad = &mut self.con_grad[i * n * n_con..(i + 1) * n * n_con];
             let mut x = self.x0s[i];
             states[0] = x;
             let mut state_cost = 0.0;
@@ -406,20 +472,11 @@ impl Evaluator {
                     state_cost += qk * e * e;
                 }
                 let first = j * n_con;
-                for ((ob, c), cg) in self
-                    .obstacles
-                    .iter()
-                    .zip(&mut con[first..first + n_obs])
-                    .zip(&mut con_grad[first..first + n_obs])
-                {
-                    let (value, grad) = constraint(self.formulation, ob, &x);
-                    *c = value;
-                    *cg = grad;
+                for (ob, c) in self.obstacles.iter().zip(&mut con[first..first + n_obs]) {
+                    *c = constraint_value(self.formulation, ob, &x);
                 }
                 if let Some(floor) = self.min_altitude_m {
-                    let (value, grad) = floor_constraint(self.formulation, floor, &x);
-                    con[first + n_obs] = value;
-                    con_grad[first + n_obs] = grad;
+                    con[first + n_obs] = floor_constraint(self.formulation, floor, &x).0;
                 }
             }
             objective += w * state_cost;
@@ -493,6 +550,7 @@ impl Evaluator {
     /// Gradient of `psi(z; c, y)` with respect to the scaled variables.
     pub fn gradient(&mut self, z: &[f64], penalty: f64, multipliers: &[f64], grad: &mut [f64]) {
         self.ensure_forward(z);
+        ADJOINT_PASSES.fetch_add(1, Ordering::Relaxed);
         let (m, n) = (self.m, self.n);
         let p = self.params;
         let (ax, ay, az) = (p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
@@ -509,7 +567,6 @@ impl Evaluator {
             let states = &self.states[i * (n + 1) + 1..(i + 1) * (n + 1)];
             let trig = &self.trig[i * n..(i + 1) * n];
             let con = &self.con[i * n * n_con..(i + 1) * n * n_con];
-            let con_grad = &self.con_grad[i * n * n_con..(i + 1) * n * n_con];
             let y = multipliers.get(i * n * n_con..(i + 1) * n * n_con).unwrap_or(&empty);
             let mut l = [0.0f64; 8];
             for j in (0..n).rev() {
@@ -523,7 +580,7 @@ impl Evaluator {
                     for o in first..first + n_con {
                         let v = c * con[o] + y.get(o).copied().unwrap_or(0.0);
                         if v > 0.0 {
-                            let dg = con_grad[o];
+                            let dg = self.constraint_gradient(o - first, x);
                             l[0] += v * dg[0];
                             l[1] += v * dg[1];
                             l[2] += v * dg[2];
@@ -549,6 +606,16 @@ impl Evaluator {
         }
         for k in 0..grad.len() {
             grad[k] = self.grad_u[k] * self.scaling.scale[k];
+        }
+    }
+
+    /// Gradient in `(px, py, pz)` of constraint `o` of a point (cylinders, then the floor) at
+    /// state `x`.
+    #[inline]
+    fn constraint_gradient(&self, o: usize, x: &[f64; 8]) -> [f64; 3] {
+        match self.obstacles.get(o) {
+            Some(ob) => constraint(self.formulation, ob, x).1,
+            None => floor_constraint(self.formulation, self.min_altitude_m.unwrap_or(0.0), x).1,
         }
     }
 
@@ -615,6 +682,25 @@ pub(crate) fn sin_cos_small(x: f64) -> (f64, f64) {
                         + x2 * (-1.0 / 3_628_800.0
                             + x2 * (1.0 / 479_001_600.0 + x2 * (-1.0 / 87_178_291_200.0)))))));
     (s, c)
+}
+
+/// One constraint value alone: the same arithmetic as [`constraint`] without the gradient's
+/// divisions.
+#[inline]
+fn constraint_value(formulation: ObstacleFormulation, ob: &ObstacleTerm, x: &[f64; 8]) -> f64 {
+    let (dx, dy) = (x[0] - ob.xo, x[1] - ob.yo);
+    let hz = ob.zo - x[2];
+    match formulation {
+        ObstacleFormulation::PaperPenalty => {
+            let hc = ob.r2 - dx * dx - dy * dy;
+            if hc > 0.0 && hz > 0.0 { hc * hz } else { 0.0 }
+        }
+        ObstacleFormulation::DistanceAlm => {
+            let d = (dx * dx + dy * dy).sqrt().max(1e-9);
+            let radial = ob.r - d;
+            if radial <= hz { radial } else { hz }
+        }
+    }
 }
 
 /// One constraint value and its gradient with respect to `(px, py, pz)`.
@@ -802,6 +888,27 @@ mod tests {
             assert!((c - x.cos()).abs() <= 2e-16, "cos({x})");
         }
         assert_eq!(sin_cos_small(2.0), 2.0f64.sin_cos());
+    }
+
+    #[test]
+    fn the_penalty_preconditioner_adds_curvature_only_for_active_constraints() {
+        // Far from every cylinder: nothing active, the hover scaling is unchanged.
+        let x0 = [0.0, 8.0, 1.5, 0.0, 0.0, 0.0, 0.0, 0.0];
+        let mut ev = evaluator(ControllerMode::Multistage, ObstacleFormulation::DistanceAlm, x0, &[0.2; 5]);
+        let hover = ev.scaling.scale.clone();
+        let u: Vec<f64> = (0..120).map(|k| [9.81, 0.0, 0.0][k % 3]).collect();
+        ev.objective_at_inputs(&u);
+        ev.update_scaling_with_penalty(1e3, &[], 0.0);
+        assert_eq!(ev.scaling.scale, hover);
+        // Heading into the 0.4 m cylinder: the inputs before an active point get stiffer.
+        let x0 = [2.8, 2.0, 0.8, 0.0, 1.5, 0.0, 0.0, 0.0];
+        let mut ev = evaluator(ControllerMode::Multistage, ObstacleFormulation::DistanceAlm, x0, &[0.2; 5]);
+        let hover = ev.scaling.scale.clone();
+        ev.objective_at_inputs(&u);
+        assert!(ev.constraint_values().iter().any(|g| *g > 0.0));
+        ev.update_scaling_with_penalty(1e3, &[], 0.0);
+        assert!(ev.scaling.scale.iter().zip(&hover).all(|(a, b)| a <= b));
+        assert!(ev.scaling.scale.iter().zip(&hover).any(|(a, b)| a < b));
     }
 
     #[test]

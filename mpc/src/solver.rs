@@ -12,8 +12,9 @@ use optimization_engine::{FunctionCallResult, SolverError};
 
 use crate::problem::{Evaluator, ObstacleFormulation, OcpDefinition};
 
-/// Upper bound of the multiplier box `Y` OpEn's ALM requires (compact, inside the dual cone).
-const MAX_MULTIPLIER: f64 = 1e9;
+/// Default upper bound of the multiplier box `Y` OpEn's ALM requires (compact, inside the dual
+/// cone).
+pub const MAX_MULTIPLIER: f64 = 1e9;
 
 /// Settings of the solver (validated in [`Mpc::new`]).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -47,6 +48,22 @@ pub struct MpcSettings {
     pub max_inner_iterations: usize,
     /// L-BFGS memory of PANOC.
     pub lbfgs_memory: usize,
+    /// PANOC iterations per outer iteration; `None`: whatever is left of the solve's budget.
+    /// Measured (BENCHMARKS.md, issue 3): caps of 20-100 did not reduce the solves that stop
+    /// at the budget.
+    pub max_inner_iterations_per_outer: Option<usize>,
+    /// Upper bound of every ALM multiplier (the box `Y`), in units of the cost per metre of
+    /// violation. Where a point of a long-horizon scenario stays inside an inflated cylinder
+    /// whatever the inputs, its multiplier grows every outer iteration and cycle up to this
+    /// bound; measured (BENCHMARKS.md, issue 3), a bound of 100 halves the solves that stop at
+    /// the iteration budget but lets standard NMPC cut deeper into the cylinders.
+    pub max_multiplier: f64,
+    /// Adds the penalty's Gauss-Newton diagonal of the constraints that are active or within
+    /// this distance of active at the warm start (and at each outer iteration's start) to the
+    /// preconditioner, m; `None` keeps the objective's hover diagonal alone. Measured
+    /// (BENCHMARKS.md, issue 3): with the hover sensitivities it made multi-stage solves slower,
+    /// so it is off by default.
+    pub penalty_preconditioner_slack_m: Option<f64>,
 }
 
 impl Default for MpcSettings {
@@ -63,6 +80,9 @@ impl Default for MpcSettings {
             max_outer_iterations: 8,
             max_inner_iterations: 200,
             lbfgs_memory: 10,
+            max_inner_iterations_per_outer: None,
+            max_multiplier: MAX_MULTIPLIER,
+            penalty_preconditioner_slack_m: None,
         }
     }
 }
@@ -95,6 +115,15 @@ impl MpcSettings {
         }
         if self.max_outer_iterations == 0 {
             return bad("max_outer_iterations", "must be > 0");
+        }
+        if self.penalty_preconditioner_slack_m.is_some_and(|v| !v.is_finite()) {
+            return bad("penalty_preconditioner_slack_m", "must be finite");
+        }
+        if !pos(self.max_multiplier) {
+            return bad("max_multiplier", "must be finite and > 0");
+        }
+        if self.max_inner_iterations_per_outer == Some(0) {
+            return bad("max_inner_iterations_per_outer", "must be > 0");
         }
         if self.lbfgs_memory == 0 {
             return bad("lbfgs_memory", "must be > 0");
@@ -234,7 +263,7 @@ impl Mpc {
             multipliers: vec![0.0; n1],
             warm_multipliers: vec![0.0; n1],
             lagrange_box_lo: vec![0.0; n1],
-            lagrange_box_hi: vec![MAX_MULTIPLIER; n1],
+            lagrange_box_hi: vec![settings.max_multiplier; n1],
             c_set_hi: vec![0.0; n1],
             has_solution: false,
             penalty: settings.initial_penalty,
@@ -384,16 +413,27 @@ impl Mpc {
         weights: &[f64],
         budget: &SolveBudget,
     ) -> Result<(SolveStatus, usize, usize, Duration, f64), SolverError> {
+        let s = self.settings;
+        let mut c = self.penalty.clamp(s.initial_penalty, s.max_penalty);
+        let nc = self.def.num_constraints();
+        let alm_multipliers = self.def.formulation == ObstacleFormulation::DistanceAlm;
         {
             let mut ev = self.evaluator.borrow_mut();
             ev.set_instance(x0, u_prev, weights);
-            ev.scaled_bounds(&self.def.bounds, &mut self.lo, &mut self.hi);
-            ev.to_scaled(&self.warm, &mut self.z);
+            let y: &[f64] = if alm_multipliers { &self.warm_multipliers } else { &[] };
+            let slack = s.penalty_preconditioner_slack_m;
+            rescale(
+                &mut ev,
+                &self.def.bounds,
+                slack,
+                y,
+                &self.warm,
+                c,
+                &mut self.z,
+                &mut self.lo,
+                &mut self.hi,
+            );
         }
-        for ((z, lo), hi) in self.z.iter_mut().zip(&self.lo).zip(&self.hi) {
-            *z = z.clamp(*lo, *hi);
-        }
-        let nc = self.def.num_constraints();
         let alm = self.def.formulation == ObstacleFormulation::DistanceAlm && nc > 0;
         let pm = self.def.formulation == ObstacleFormulation::PaperPenalty && nc > 0;
         let evaluator = &self.evaluator;
@@ -416,8 +456,6 @@ impl Mpc {
         // The outer loop is driven here, one OpEn ALM/PM outer step per call, so that the
         // penalty stays capped while the multipliers keep improving: OpEn's own loop would
         // multiply the penalty without bound when the violation stalls.
-        let s = self.settings;
-        let mut c = self.penalty.clamp(s.initial_penalty, s.max_penalty);
         // A budget of zero runs no iteration: the warm start comes back with `IterationLimit`.
         let max_total = budget.max_inner_iterations.unwrap_or(s.max_inner_iterations);
         let mut iterations = 0;
@@ -427,7 +465,8 @@ impl Mpc {
         let mut outer = 0;
         while outer < s.max_outer_iterations && iterations < max_total {
             outer += 1;
-            let max_inner = max_total - iterations;
+            let max_inner =
+                (max_total - iterations).min(s.max_inner_iterations_per_outer.unwrap_or(usize::MAX));
             let remaining = match budget.deadline {
                 Some(d) => match d.checked_sub(elapsed) {
                     Some(r) if !r.is_zero() => Some(r),
@@ -508,6 +547,24 @@ impl Mpc {
                 c = (c * s.penalty_update_factor).min(s.max_penalty);
             }
             previous_violation = violation;
+            if s.penalty_preconditioner_slack_m.is_some() {
+                // Each outer iteration restarts PANOC: rescale for the new active set.
+                let mut ev = evaluator.borrow_mut();
+                ev.to_inputs(&self.z, &mut self.solution);
+                let y: &[f64] = if alm_multipliers { &self.warm_multipliers } else { &[] };
+                let slack = s.penalty_preconditioner_slack_m;
+                rescale(
+                    &mut ev,
+                    &self.def.bounds,
+                    slack,
+                    y,
+                    &self.solution,
+                    c,
+                    &mut self.z,
+                    &mut self.lo,
+                    &mut self.hi,
+                );
+            }
         }
         if self.z.iter().any(|v| !v.is_finite()) {
             return Err(SolverError::NotFiniteComputation("solution"));
@@ -548,6 +605,31 @@ impl Mpc {
 
     pub fn has_solution(&self) -> bool {
         self.has_solution
+    }
+}
+
+/// Sets the preconditioner for inputs `u` and penalty `c` (with the penalty part when
+/// `slack_m` is set), and the scaled variables `z` and their bounds to match.
+#[allow(clippy::too_many_arguments)]
+fn rescale(
+    ev: &mut Evaluator,
+    bounds: &mav::InputBounds,
+    slack_m: Option<f64>,
+    multipliers: &[f64],
+    u: &[f64],
+    c: f64,
+    z: &mut [f64],
+    lo: &mut [f64],
+    hi: &mut [f64],
+) {
+    if let Some(slack) = slack_m {
+        ev.objective_at_inputs(u);
+        ev.update_scaling_with_penalty(c, multipliers, slack);
+    }
+    ev.scaled_bounds(bounds, lo, hi);
+    ev.to_scaled(u, z);
+    for ((z, lo), hi) in z.iter_mut().zip(lo.iter()).zip(hi.iter()) {
+        *z = z.clamp(*lo, *hi);
     }
 }
 

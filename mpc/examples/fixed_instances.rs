@@ -1,0 +1,73 @@
+//! Tuning aid: solver settings compared on the *same* problems. The instances (state, last
+//! input, weights, warm start) are those of the in-process paper closed loops with the default
+//! settings; each configuration solves them in order on one `Mpc` (so multipliers and penalty
+//! carry over as in the controller). Unlike `accuracy`, a configuration cannot change which
+//! states are visited, so iteration and pass counts compare like with like.
+//! Usage: fixed_instances; settings from the same environment variables as `accuracy`.
+use mpc::{ControllerMode, Mpc, MpcSettings, OcpDefinition, SolveBudget, SolveStatus, accuracy};
+
+fn env(name: &str, default: f64) -> f64 {
+    std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+fn main() {
+    let d = MpcSettings::default();
+    let s = MpcSettings {
+        tolerance: env("MPC_TOL", d.tolerance),
+        akkt_tolerance: env("MPC_AKKT", d.akkt_tolerance),
+        lbfgs_memory: env("MPC_MEM", d.lbfgs_memory as f64) as usize,
+        constraint_tolerance: env("MPC_CTOL", d.constraint_tolerance),
+        initial_penalty: env("MPC_C0", d.initial_penalty),
+        max_penalty: env("MPC_CMAX", d.max_penalty),
+        max_outer_iterations: env("MPC_OUTER", d.max_outer_iterations as f64) as usize,
+        max_inner_iterations: env("MPC_INNER", d.max_inner_iterations as f64) as usize,
+        penalty_preconditioner_slack_m: match env(
+            "MPC_PSLACK",
+            d.penalty_preconditioner_slack_m.unwrap_or(-1.0),
+        ) {
+            v if v < 0.0 => None,
+            v => Some(v),
+        },
+        max_inner_iterations_per_outer: match env("MPC_PER_OUTER", 0.0) as usize {
+            0 => None,
+            v => Some(v),
+        },
+        max_multiplier: env("MPC_YMAX", d.max_multiplier),
+        ..d
+    };
+    for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
+        let (mut iters, mut limits, mut cost, mut times) = (Vec::new(), 0, 0.0, Vec::new());
+        let before = mpc::problem::pass_counts();
+        for name in mav::Scenario::BUILT_IN {
+            let scenario = mav::Scenario::by_name(name).expect("built in");
+            let def = OcpDefinition::from_scenario(&scenario, mode, s.obstacle_margin_m, s.formulation);
+            let solves = accuracy::loop_solves(&scenario, mode, &MpcSettings::default()).expect("loop");
+            let mut mpc = Mpc::new(def, s).expect("valid");
+            for ls in &solves[1..] {
+                let i = &ls.instance;
+                mpc.set_warm_start(&i.warm_start).expect("valid");
+                let r = mpc.solve(&i.x0, &i.u_prev, &i.weights, &SolveBudget::default()).expect("valid");
+                iters.push(r.iterations as f64);
+                times.push(r.solve_time.as_secs_f64() * 1e3);
+                limits += usize::from(r.status == SolveStatus::IterationLimit);
+                // Relative to the closed loop's own solve of the same instance.
+                cost += (r.cost - ls.report.cost) / ls.report.cost.abs().max(1e-12);
+            }
+        }
+        let after = mpc::problem::pass_counts();
+        let n = iters.len() as f64;
+        println!(
+            "{}: {} instances; iterations total {} median {} p99 {}; at the limit {limits}; mean cost change {:+.3} %; ms median {:.3} p99 {:.3}; passes (incl. loop replay) fwd {} adj {}",
+            mode.name(),
+            iters.len(),
+            iters.iter().sum::<f64>(),
+            mpc::closed_loop::percentile(&mut iters.clone(), 50.0),
+            mpc::closed_loop::percentile(&mut iters, 99.0),
+            cost / n * 100.0,
+            mpc::closed_loop::percentile(&mut times.clone(), 50.0),
+            mpc::closed_loop::percentile(&mut times, 99.0),
+            after.0 - before.0,
+            after.1 - before.1,
+        );
+    }
+}
