@@ -50,8 +50,20 @@ fn main() {
                     t
                 }
             };
+            // ONLY=kind:seed runs one trace and prints its cycles (what the controller decided).
+            let only = std::env::var("ONLY").ok();
+            if only.as_ref().is_some_and(|o| *o != format!("{kind}:{seed}")) {
+                continue;
+            }
             settings.delays = Some(DelaySource::Trace(trace));
-            let (s, _) = run_closed_loop(&scenario, &settings).expect("run");
+            let (s, records) = run_closed_loop(&scenario, &settings).expect("run");
+            if only.is_some() {
+                for r in &records {
+                    let p = &r.state;
+                    let reason = r.selection.as_ref().map(|s| s.reason()).unwrap_or_default();
+                    println!("{:4} t={:6.2} p=[{:5.2},{:5.2},{:5.2}] d={:.3} {reason}", r.cycle, r.t_s, p[0], p[1], p[2], r.delay_s);
+                }
+            }
             if s.collided || !s.reached {
                 let mean = trace_mean(settings.delays.as_ref());
                 println!(
