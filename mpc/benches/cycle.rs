@@ -11,7 +11,10 @@ fn closed_loop_per_cycle(c: &mut Criterion) {
     let variants: [(&str, Option<SafetySettings>); 3] = [
         ("safety_off", None),
         ("qp_every_5th", Some(SafetySettings::default())),
-        ("qp_every_cycle", Some(SafetySettings { qp_schedule: QpSchedule::EveryCycle, ..Default::default() })),
+        (
+            "qp_every_cycle",
+            Some(SafetySettings { qp_schedule: QpSchedule::EveryCycle, ..Default::default() }),
+        ),
     ];
     let mut group = c.benchmark_group("closed_loop/paper-2/multistage");
     group.sample_size(10);

@@ -279,6 +279,10 @@ pub struct SafetyLayer {
     n: usize,
     qp: QpFallback,
     evaluator: Evaluator,
+    /// Sampling times of the scenarios, s.
+    dts: Vec<f64>,
+    /// The braking plan of the cycle (`N x 3`).
+    brake_plan: Vec<f64>,
     plan: Vec<f64>,
     shifted: Vec<f64>,
     has_plan: bool,
@@ -307,6 +311,8 @@ impl SafetyLayer {
             n: def.horizon,
             qp,
             evaluator: Evaluator::new(def),
+            dts: def.sampling_times_s.clone(),
+            brake_plan: vec![0.0; def.num_variables()],
             plan: vec![0.0; nv],
             shifted: vec![0.0; nv],
             has_plan: false,
@@ -480,7 +486,8 @@ impl SafetyLayer {
             if shifted_check.accepted() {
                 Decision::ShiftedPlan
             } else {
-                let brake_plan: Vec<f64> = (0..3 * self.n).map(|k| brake_command[k % 3]).collect();
+                self.fill_brake_plan(x0, weights);
+                let brake_plan = self.brake_plan.clone();
                 brake_check = self.check_plan(&brake_plan);
                 if brake_check.accepted() {
                     Decision::Brake
@@ -527,6 +534,13 @@ impl SafetyLayer {
                 self.shifts += 1;
                 self.first()
             }
+            Decision::Brake if brake_check.rejection != Some(Rejection::NotRun) => {
+                // The plan that was checked: brake, then hold.
+                self.plan.copy_from_slice(&self.brake_plan);
+                self.has_plan = true;
+                self.shifts = 0;
+                brake_command
+            }
             Decision::Brake => {
                 self.store_brake_plan(brake_command);
                 brake_command
@@ -572,6 +586,22 @@ impl SafetyLayer {
             *p = v.clamp(self.bounds.min[k % 3], self.bounds.max[k % 3]);
         }
         self.has_plan = true;
+    }
+
+    /// The braking candidate: the braking law applied along the Euler prediction of the
+    /// most likely scenario (so it brakes, then holds position and altitude), as an input
+    /// sequence. Holding the first braking command for the whole horizon instead reverses the
+    /// motion and, with 0.33 s steps, predicts a descent of metres.
+    fn fill_brake_plan(&mut self, x0: &[f64; 8], weights: &[f64]) {
+        let likely =
+            weights.iter().enumerate().fold(0, |best, (i, w)| if *w > weights[best] { i } else { best });
+        let dt = self.dts[likely];
+        let mut x = *x0;
+        for j in 0..self.n {
+            let u = braking_command(&self.params, &self.bounds, &x, self.settings.brake_gain_per_s);
+            self.brake_plan[3 * j..3 * j + 3].copy_from_slice(&u);
+            x = crate::problem::euler_predict(&self.params, &x, &u, dt);
+        }
     }
 
     /// After braking the plan is the braking command held (re-checked before any reuse).
