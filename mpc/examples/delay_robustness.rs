@@ -61,7 +61,10 @@ fn main() {
                 for r in &records {
                     let p = &r.state;
                     let reason = r.selection.as_ref().map(|s| s.reason()).unwrap_or_default();
-                    println!("{:4} t={:6.2} p=[{:5.2},{:5.2},{:5.2}] d={:.3} {reason}", r.cycle, r.t_s, p[0], p[1], p[2], r.delay_s);
+                    println!(
+                        "{:4} t={:6.2} p=[{:5.2},{:5.2},{:5.2}] d={:.3} {reason}",
+                        r.cycle, r.t_s, p[0], p[1], p[2], r.delay_s
+                    );
                 }
             }
             if s.collided || !s.reached {

@@ -28,7 +28,10 @@ fn check_gradient(ev: &mut Evaluator, z: &[f64], c: f64, y: &[f64]) -> Result<()
         zp[k] = z[k];
         let fd = (fp - fm) / (2.0 * h);
         if (fd - grad[k]).abs() > 2e-5 * scale {
-            return Err(format!("variable {k}: adjoint {} vs finite difference {fd} (scale {scale})", grad[k]));
+            return Err(format!(
+                "variable {k}: adjoint {} vs finite difference {fd} (scale {scale})",
+                grad[k]
+            ));
         }
     }
     Ok(())
