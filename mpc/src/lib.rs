@@ -1,11 +1,13 @@
 //! `mpc` owns the paper's controller as pure numerics: the multi-stage nonlinear MPC whose
 //! scenario tree branches over sampling times (standard NMPC is the same code with one
 //! scenario), solved with PANOC inside OpEn's penalty method; the hand-derived adjoint
-//! gradient; the delay statistics that weight the scenarios; and the deterministic in-process
-//! closed loop of `SPEC.md`'s paper mode.
+//! gradient; the delay statistics that weight the scenarios; the QP-linearised fallback
+//! (clarabel) and the safety layer that cross-checks PANOC against it and picks each cycle's
+//! command (`cycle::CycleController`, shared by the in-process loop and the controller
+//! service); and the deterministic in-process closed loop of `SPEC.md`'s paper mode.
 //!
-//! No clock is read here except by OpEn's own solve timer and optional wall-clock deadline;
-//! no I/O, no async. Services wrap it.
+//! No clock is read here except by the solvers' own timers and optional wall-clock deadlines
+//! (OpEn's, clarabel's); no I/O, no async. Services wrap it.
 
 // The numerical kernels index several arrays with one index (state, reference, weight); that
 // reads closer to the maths than zipped iterators.
