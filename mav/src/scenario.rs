@@ -90,6 +90,10 @@ pub struct Scenario {
     /// Off in paper mode; scenario files turn it on by default.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub delay_compensation: bool,
+    /// Safety margin the controller adds to every cylinder radius for this scenario, m.
+    /// `None`: the controller's own setting (0.1 m by default, as in paper mode).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub obstacle_margin_m: Option<f64>,
 }
 
 impl Scenario {
@@ -133,6 +137,7 @@ impl Scenario {
             ground_z_m: 0.0,
             min_altitude_m: None,
             delay_compensation: false,
+            obstacle_margin_m: None,
         }
     }
 
@@ -256,6 +261,9 @@ impl Scenario {
         }
         if self.min_altitude_m.is_some_and(|z| !z.is_finite()) {
             return Err(invalid("min_altitude_m", "must be finite"));
+        }
+        if self.obstacle_margin_m.is_some_and(|m| !(m.is_finite() && (0.0..=10.0).contains(&m))) {
+            return Err(invalid("obstacle_margin_m", "must be in [0, 10]"));
         }
         Ok(())
     }

@@ -105,7 +105,8 @@ pub struct OcpDefinition {
 }
 
 impl OcpDefinition {
-    /// The problem of `scenario` for `mode`.
+    /// The problem of `scenario` for `mode`, with the controller's `obstacle_margin_m` unless
+    /// the scenario pins its own.
     pub fn from_scenario(
         scenario: &Scenario,
         mode: ControllerMode,
@@ -123,7 +124,8 @@ impl OcpDefinition {
             model: scenario.model,
             bounds: scenario.bounds,
             obstacles: scenario.obstacles.clone(),
-            obstacle_margin_m,
+            // A scenario may pin its own margin (scenario files do, with dead-time compensation).
+            obstacle_margin_m: scenario.obstacle_margin_m.unwrap_or(obstacle_margin_m),
             formulation,
             horizon: scenario.horizon,
             sampling_times_s,
