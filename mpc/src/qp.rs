@@ -85,6 +85,12 @@ pub struct QpSettings {
     /// still violates a lazy row after them, the next re-solve takes every row. Each re-solve
     /// is a full clarabel solve under the same [`QpBudget`].
     pub max_lazy_rounds: usize,
+    /// Clarabel's iterative refinement of each KKT solve. Off by default: it was a quarter of
+    /// the QP's instructions (a KKT product and a triangular solve per refinement step) and
+    /// changed neither the iteration counts nor the solutions of the benchmark problems beyond
+    /// the solver's tolerances (BENCHMARKS.md); clarabel's termination tests use the true
+    /// residuals either way.
+    pub iterative_refinement: bool,
 }
 
 /// A lazy row within this of violation (m) at a solution joins the QP with the violated ones.
@@ -104,6 +110,7 @@ impl Default for QpSettings {
             block_steps: 6,
             lazy_slack_m: 0.2,
             max_lazy_rounds: 3,
+            iterative_refinement: false,
         }
     }
 }
@@ -975,6 +982,7 @@ impl QpFallback {
             tol_gap_rel: s.gap_tolerance,
             tol_feas: s.feasibility_tolerance,
             max_threads: 1,
+            iterative_refinement_enable: s.iterative_refinement,
             ..DefaultSettings::default()
         };
         let cones = [SupportedConeT::NonnegativeConeT(self.num_rows)];
