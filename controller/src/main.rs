@@ -9,7 +9,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand, ValueEnum};
 use controller::solve_lines::LineSolver;
 use controller::{ControllerConfig, TimeModeSetting};
-use mpc::{ControllerMode, MpcSettings, QpSchedule, SafetySettings};
+use mpc::{ControllerMode, MpcSettings, QpSchedule, QpSettings, SafetySettings};
 
 #[derive(Parser, Debug)]
 #[command(name = "controller", version, about = "The multi-stage NMPC controller of hilbench")]
@@ -55,6 +55,11 @@ struct Cli {
     /// as in the paper).
     #[arg(long)]
     min_altitude_m: Option<f64>,
+    /// Make the QP fallback's rows that its nominal already violates elastic, at this cost
+    /// per metre of remaining violation (e.g. 1e5), so that it returns a plan where the hard
+    /// QP is infeasible (default: hard rows; see BENCHMARKS.md for the trade-off).
+    #[arg(long)]
+    qp_elastic_penalty: Option<f64>,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug)]
@@ -121,8 +126,12 @@ fn main() -> anyhow::Result<()> {
             Schedule::EveryNth => QpSchedule::EveryNth(cli.qp_every),
             Schedule::WhenNeeded => QpSchedule::WhenNeeded,
         },
+        qp: QpSettings { elastic_penalty_per_m: cli.qp_elastic_penalty, ..QpSettings::default() },
         ..SafetySettings::default()
     });
+    if let Some(safety) = &config.safety {
+        safety.validate().context("--qp-elastic-penalty")?;
+    }
     config.reset_plant = !cli.no_reset;
     config.autostart = !cli.no_autostart;
     config.time_mode = match cli.time_mode {

@@ -97,6 +97,7 @@ impl From<&QpReport> for pb::QpStats {
             cost: r.cost,
             min_clearance_m: r.min_clearance_m,
             half_planes: u32::try_from(r.num_half_planes).unwrap_or(u32::MAX),
+            elastic_violation_m: r.elastic_violation_m,
         }
     }
 }
