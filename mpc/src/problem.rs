@@ -208,6 +208,35 @@ pub(crate) fn hover_impulse_response(def: &OcpDefinition, dt: f64) -> ([Vec<f64>
     (out, position)
 }
 
+/// A constraint the penalty's gradient sees: `c g + y > 0` at a step of a scenario.
+#[derive(Debug, Clone, Copy)]
+struct ActiveTerm {
+    step: usize,
+    constraint: usize,
+    value: f64,
+}
+
+/// Most scenarios the lane-parallel passes process together (see
+/// [`Evaluator::forward_lanes`]); more form several groups.
+const MAX_LANES: usize = 8;
+
+/// `$self.$method::<L>(args)` with the const `L` equal to `$width`, one of `1..=MAX_LANES`.
+macro_rules! with_lanes {
+    ($width:expr, $self:ident . $method:ident ( $($arg:expr),* )) => {
+        match $width {
+            1 => $self.$method::<1>($($arg),*),
+            2 => $self.$method::<2>($($arg),*),
+            3 => $self.$method::<3>($($arg),*),
+            4 => $self.$method::<4>($($arg),*),
+            5 => $self.$method::<5>($($arg),*),
+            6 => $self.$method::<6>($($arg),*),
+            7 => $self.$method::<7>($($arg),*),
+            8 => $self.$method::<8>($($arg),*),
+            w => unreachable!("scenario group of {w}"),
+        }
+    };
+}
+
 /// The cost, penalty and gradient of one problem instance, with every buffer allocated once.
 ///
 /// ## Memory allocation
@@ -248,7 +277,20 @@ pub struct Evaluator {
     // Work buffers.
     u: Vec<f64>,
     states: Vec<[f64; 8]>,
-    trig: Vec<[f64; 4]>,
+    /// `(sin phi, cos phi, sin theta, cos theta)` per scenario and step, in the lane layout of
+    /// the scenario groups (see [`Evaluator::forward_lanes`]): group `first..first + L` holds
+    /// `trig[4 N first ..][(4 j + q) L + lane]`.
+    trig: Vec<f64>,
+    /// `x_{j+1} - x_ref` per scenario and step, in the lane layout of `trig` with 8 values in
+    /// place of 4: the adjoint pass's stage terms, read in its lane order.
+    residual: Vec<f64>,
+    /// `J_i` without the input terms, per scenario, of the last forward pass.
+    state_costs: Vec<f64>,
+    /// The constraints the adjoint pass adds (see [`Evaluator::collect_active`]); capacity for
+    /// all of them, so pushes never allocate.
+    active: Vec<ActiveTerm>,
+    /// Where each scenario's entries of `active` begin, and the end: `M + 1` values.
+    active_start: Vec<usize>,
     grad_u: Vec<f64>,
     /// Constraint value per scenario, point and cylinder (the gradient in (px, py, pz) is
     /// recomputed in the adjoint pass where the penalty is active: most forward passes are
@@ -300,7 +342,11 @@ impl Evaluator {
             position_response,
             u: vec![0.0; 3 * n],
             states: vec![[0.0; 8]; m * (n + 1)],
-            trig: vec![[0.0; 4]; m * n],
+            trig: vec![0.0; 4 * m * n],
+            residual: vec![0.0; 8 * m * n],
+            state_costs: vec![0.0; m],
+            active: Vec::with_capacity(def.num_constraints()),
+            active_start: vec![0; m + 1],
             grad_u: vec![0.0; 3 * n],
             con: vec![0.0; def.num_constraints()],
             last_z: vec![0.0; 3 * n],
@@ -433,58 +479,130 @@ impl Evaluator {
     }
 
     /// Forward pass on `self.u`: predictions of every scenario, the objective, and every
-    /// constraint value with its gradient.
+    /// constraint value.
     fn forward_inputs(&mut self) {
         FORWARD_PASSES.fetch_add(1, Ordering::Relaxed);
-        let (m, n) = (self.m, self.n);
-        let p = self.params;
-        let (g, ax, ay, az) = (p.gravity_mps2, p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
-        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
-        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
-        let n_obs = self.obstacles.len();
-        let n_con = self.n_con;
+        let mut first = 0;
+        while first < self.m {
+            let width = self.group_width(first);
+            with_lanes!(width, self.forward_lanes(first));
+            first += width;
+        }
+        // Scenario 0 first, as the sum has always been taken.
         let mut objective = 0.0;
-        for i in 0..m {
-            let dt = self.dts[i];
-            let w = self.weights[i];
-            let states = &mut self.states[i * (n + 1)..(i + 1) * (n + 1)];
-            let trig = &mut self.trig[i * n..(i + 1) * n];
-            let con = &mut self.con[i * n * n_con..(i + 1) * n * n_con];
-            let mut x = self.x0s[i];
-            states[0] = x;
-            let mut state_cost = 0.0;
-            for (j, u) in self.u.chunks_exact(3).enumerate() {
-                let (sr, cr) = sin_cos_small(x[6]);
-                let (sp, cp) = sin_cos_small(x[7]);
-                trig[j] = [sr, cr, sp, cp];
-                let (t, rd, pd) = (u[0], u[1], u[2]);
-                x = [
-                    x[0] + dt * x[3],
-                    x[1] + dt * x[4],
-                    x[2] + dt * x[5],
-                    x[3] + dt * (t * cr * sp - ax * x[3]),
-                    x[4] + dt * (-t * sr - ay * x[4]),
-                    x[5] + dt * (t * cr * cp - g - az * x[5]),
-                    x[6] + dt * (kr * rd - ir * x[6]),
-                    x[7] + dt * (kp * pd - ip * x[7]),
-                ];
-                states[j + 1] = x;
-                for ((xk, rk), qk) in x.iter().zip(&self.x_ref).zip(&self.q_x) {
-                    let e = xk - rk;
-                    state_cost += qk * e * e;
-                }
-                let first = j * n_con;
-                for (ob, c) in self.obstacles.iter().zip(&mut con[first..first + n_obs]) {
-                    *c = constraint_value(self.formulation, ob, &x);
-                }
-                if let Some(floor) = self.min_altitude_m {
-                    con[first + n_obs] = floor_constraint(self.formulation, floor, &x).0;
-                }
-            }
+        for (w, state_cost) in self.weights.iter().zip(&self.state_costs) {
             objective += w * state_cost;
         }
         objective += self.weight_sum * self.input_cost();
         self.objective = objective;
+    }
+
+    /// Scenarios `first..first + width` form the next group of the lane-parallel passes: at
+    /// most [`MAX_LANES`].
+    fn group_width(&self, first: usize) -> usize {
+        (self.m - first).min(MAX_LANES)
+    }
+
+    /// Forward pass of scenarios `first..first + L` together, step-outer and scenario-inner.
+    ///
+    /// The scenarios are independent chains (own `dt` and `x0`) driven by the same inputs.
+    /// One scenario at a time, each step waits on the previous one (the series of `sin` and
+    /// `cos` alone is a chain of some 20 dependent operations); with the scenarios of a group
+    /// in the lanes of `[f64; L]` arrays, LLVM vectorizes each step's arithmetic across them
+    /// and their chains overlap. Every lane does exactly the operations of the scalar
+    /// recursion in the same order (Rust never contracts `a * b + c` into an FMA), so the
+    /// results are bit-identical to one scenario at a time.
+    fn forward_lanes<const L: usize>(&mut self, first: usize) {
+        // Fields as locals: the stores into the outputs would otherwise make LLVM reload every
+        // field of `self` after each of them.
+        let Self {
+            n,
+            params,
+            dts,
+            x0s,
+            x_ref,
+            q_x,
+            obstacles,
+            formulation,
+            min_altitude_m,
+            n_con,
+            u,
+            states,
+            trig,
+            residual,
+            con,
+            state_costs,
+            ..
+        } = self;
+        let (n, n_con, x_ref, q_x, formulation) = (*n, *n_con, *x_ref, *q_x, *formulation);
+        let p = *params;
+        let (g, ax, ay, az) = (p.gravity_mps2, p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
+        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
+        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
+        let n_obs = obstacles.len();
+        let dt: [f64; L] = lanes(|l| dts[first + l]);
+        let mut x: [[f64; L]; 8] = std::array::from_fn(|k| lanes(|l| x0s[first + l][k]));
+        // Scenario `first + l`'s predictions are `states[l * (n + 1)..]`.
+        let states = &mut states[first * (n + 1)..(first + L) * (n + 1)];
+        for l in 0..L {
+            states[l * (n + 1)] = x0s[first + l];
+        }
+        // Scenario `first + l`'s constraint values are `con[l * n * n_con..]`.
+        let con = &mut con[first * n * n_con..(first + L) * n * n_con];
+        let mut state_cost = [0.0f64; L];
+        let trig = trig[4 * n * first..4 * n * (first + L)].chunks_exact_mut(4 * L);
+        let residual = residual[8 * n * first..8 * n * (first + L)].chunks_exact_mut(8 * L);
+        for (j, (u, (trig, residual))) in u.chunks_exact(3).zip(trig.zip(residual)).enumerate() {
+            let (sr, cr) = sin_cos_lanes(&x[6]);
+            let (sp, cp) = sin_cos_lanes(&x[7]);
+            for (q, v) in [sr, cr, sp, cp].iter().enumerate() {
+                trig[q * L..(q + 1) * L].copy_from_slice(v);
+            }
+            let (t, rd, pd) = (u[0], u[1], u[2]);
+            x = [
+                lanes(|l| x[0][l] + dt[l] * x[3][l]),
+                lanes(|l| x[1][l] + dt[l] * x[4][l]),
+                lanes(|l| x[2][l] + dt[l] * x[5][l]),
+                lanes(|l| x[3][l] + dt[l] * (t * cr[l] * sp[l] - ax * x[3][l])),
+                lanes(|l| x[4][l] + dt[l] * (-t * sr[l] - ay * x[4][l])),
+                lanes(|l| x[5][l] + dt[l] * (t * cr[l] * cp[l] - g - az * x[5][l])),
+                lanes(|l| x[6][l] + dt[l] * (kr * rd - ir * x[6][l])),
+                lanes(|l| x[7][l] + dt[l] * (kp * pd - ip * x[7][l])),
+            ];
+            for l in 0..L {
+                states[l * (n + 1) + j + 1] = std::array::from_fn(|k| x[k][l]);
+            }
+            for k in 0..8 {
+                for l in 0..L {
+                    let e = x[k][l] - x_ref[k];
+                    state_cost[l] += q_x[k] * e * e;
+                    residual[k * L + l] = e;
+                }
+            }
+            // `con` keeps its layout (scenario, point, constraint): OpEn reads it as F1, and
+            // the penalty sums it in that order.
+            let point = |l: usize| (l * n + j) * n_con;
+            for (o, ob) in obstacles.iter().enumerate() {
+                // One arm per formulation, so that the lane loops are branch-free.
+                let value: [f64; L] = match formulation {
+                    ObstacleFormulation::PaperPenalty => lanes(|l| {
+                        constraint_value(ObstacleFormulation::PaperPenalty, ob, x[0][l], x[1][l], x[2][l])
+                    }),
+                    ObstacleFormulation::DistanceAlm => lanes(|l| {
+                        constraint_value(ObstacleFormulation::DistanceAlm, ob, x[0][l], x[1][l], x[2][l])
+                    }),
+                };
+                for (l, v) in value.into_iter().enumerate() {
+                    con[point(l) + o] = v;
+                }
+            }
+            if let Some(floor) = *min_altitude_m {
+                for l in 0..L {
+                    con[point(l) + n_obs] = floor_value(formulation, floor, x[2][l]);
+                }
+            }
+        }
+        state_costs[first..first + L].copy_from_slice(&state_cost);
     }
 
     fn input_cost(&self) -> f64 {
@@ -553,61 +671,152 @@ impl Evaluator {
     pub fn gradient(&mut self, z: &[f64], penalty: f64, multipliers: &[f64], grad: &mut [f64]) {
         self.ensure_forward(z);
         ADJOINT_PASSES.fetch_add(1, Ordering::Relaxed);
-        let (m, n) = (self.m, self.n);
-        let p = self.params;
-        let (ax, ay, az) = (p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
-        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
-        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
         self.input_cost_gradient();
-        let n_con = self.n_con;
-        let c = penalty;
-        let empty: [f64; 0] = [];
-        for i in 0..m {
-            let dt = self.dts[i];
-            let w2 = 2.0 * self.weights[i];
-            let wq: [f64; 8] = std::array::from_fn(|k| w2 * self.q_x[k]);
-            let states = &self.states[i * (n + 1) + 1..(i + 1) * (n + 1)];
-            let trig = &self.trig[i * n..(i + 1) * n];
-            let con = &self.con[i * n * n_con..(i + 1) * n * n_con];
-            let y = multipliers.get(i * n * n_con..(i + 1) * n * n_con).unwrap_or(&empty);
-            let mut l = [0.0f64; 8];
-            for j in (0..n).rev() {
-                // Stage terms at x_{j+1}.
-                let x = &states[j];
-                for k in 0..8 {
-                    l[k] += wq[k] * (x[k] - self.x_ref[k]);
-                }
-                if c > 0.0 {
-                    let first = j * n_con;
-                    for o in first..first + n_con {
-                        let v = c * con[o] + y.get(o).copied().unwrap_or(0.0);
-                        if v > 0.0 {
-                            let dg = self.constraint_gradient(o - first, x);
-                            l[0] += v * dg[0];
-                            l[1] += v * dg[1];
-                            l[2] += v * dg[2];
-                        }
-                    }
-                }
-                // Input sensitivity of x_{j+1} = x_j + dt f(x_j, u_j).
-                let [sr, cr, sp, cp] = trig[j];
-                let t = self.u[3 * j];
-                let g = &mut self.grad_u[3 * j..3 * j + 3];
-                g[0] += dt * (cr * sp * l[3] - sr * l[4] + cr * cp * l[5]);
-                g[1] += dt * kr * l[6];
-                g[2] += dt * kp * l[7];
-                // Adjoint: l_j = (I + dt Fx(x_j, u_j))^T l_{j+1}.
-                let l6 = l[6] + dt * (-t * sr * sp * l[3] - t * cr * l[4] - t * sr * cp * l[5] - ir * l[6]);
-                let l7 = l[7] + dt * (t * cr * cp * l[3] - t * cr * sp * l[5] - ip * l[7]);
-                l[3] += dt * (l[0] - ax * l[3]);
-                l[4] += dt * (l[1] - ay * l[4]);
-                l[5] += dt * (l[2] - az * l[5]);
-                l[6] = l6;
-                l[7] = l7;
-            }
+        self.collect_active(penalty, multipliers);
+        let mut first = 0;
+        while first < self.m {
+            let width = self.group_width(first);
+            with_lanes!(width, self.adjoint_lanes(first));
+            first += width;
         }
         for k in 0..grad.len() {
             grad[k] = self.grad_u[k] * self.scaling.scale[k];
+        }
+    }
+
+    /// Lists the constraints with `c g + y > 0` (those the penalty's gradient sees) with that
+    /// value, scenario by scenario in `con` order; scenario `i`'s are
+    /// `active[active_start[i]..active_start[i + 1]]`. Most are inactive: one contiguous pass
+    /// here spares the adjoint pass a test per point.
+    fn collect_active(&mut self, c: f64, multipliers: &[f64]) {
+        let Self { m, n, n_con, con, active, active_start, .. } = self;
+        let (m, n_con) = (*m, *n_con);
+        let block = *n * n_con;
+        active.clear();
+        for i in 0..m {
+            active_start[i] = active.len();
+            if c <= 0.0 {
+                continue;
+            }
+            let values = &con[i * block..(i + 1) * block];
+            let mut push = |k: usize, v: f64| {
+                if v > 0.0 {
+                    active.push(ActiveTerm { step: k / n_con, constraint: k % n_con, value: v });
+                }
+            };
+            match multipliers.get(i * block..(i + 1) * block) {
+                Some(y) => values.iter().zip(y).enumerate().for_each(|(k, (g, y))| push(k, c * g + y)),
+                None => values.iter().enumerate().for_each(|(k, g)| push(k, c * g + 0.0)),
+            }
+        }
+        active_start[m] = active.len();
+    }
+
+    /// Adjoint pass of scenarios `first..first + L` together, adding their input sensitivities
+    /// to `grad_u`: backward over the steps, lane-parallel over the scenarios as in
+    /// [`Evaluator::forward_lanes`], with the same operations per lane as one scenario at a
+    /// time. The scenarios' contributions to each input are added in scenario order, which is
+    /// the order of the scalar pass, so `grad_u` is bit-identical too.
+    fn adjoint_lanes<const L: usize>(&mut self, first: usize) {
+        // Fields as locals, as in `forward_lanes`; `grad_u` is the only output.
+        let Self {
+            n,
+            params,
+            dts,
+            weights,
+            q_x,
+            u,
+            states,
+            trig,
+            residual,
+            grad_u,
+            active,
+            active_start,
+            obstacles,
+            formulation,
+            min_altitude_m,
+            ..
+        } = self;
+        let (n, q_x) = (*n, *q_x);
+        let p = *params;
+        let (ax, ay, az) = (p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
+        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
+        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
+        let dt: [f64; L] = lanes(|l| dts[first + l]);
+        let wq: [[f64; L]; 8] = std::array::from_fn(|k| lanes(|l| 2.0 * weights[first + l] * q_x[k]));
+        let trig = &trig[4 * n * first..4 * n * (first + L)];
+        let residual = &residual[8 * n * first..8 * n * (first + L)];
+        // Per lane, the active constraints of the steps not yet visited (they run backward) are
+        // `active[start..end]`, and `next` is the step of the last of them (`n`: none).
+        let start: [usize; L] = std::array::from_fn(|l| active_start[first + l]);
+        let mut end: [usize; L] = std::array::from_fn(|l| active_start[first + l + 1]);
+        let mut next: [usize; L] =
+            std::array::from_fn(|l| if end[l] > start[l] { active[end[l] - 1].step } else { n });
+        // The adjoint state `l` of each scenario, as `lam[k][lane]`.
+        let mut lam = [[0.0f64; L]; 8];
+        let steps = u.chunks_exact(3).zip(grad_u.chunks_exact_mut(3)).zip(trig.chunks_exact(4 * L));
+        for (j, (((u, grad_u), trig), residual)) in steps.zip(residual.chunks_exact(8 * L)).enumerate().rev()
+        {
+            // Stage terms at x_{j+1}.
+            for k in 0..8 {
+                for l in 0..L {
+                    lam[k][l] += wq[k][l] * residual[k * L + l];
+                }
+            }
+            // The active constraints at x_{j+1} (usually none), in constraint order.
+            for l in 0..L {
+                if next[l] != j {
+                    continue;
+                }
+                let mut lo = end[l];
+                while lo > start[l] && active[lo - 1].step == j {
+                    lo -= 1;
+                }
+                let x = &states[(first + l) * (n + 1) + j + 1];
+                for term in &active[lo..end[l]] {
+                    let dg =
+                        constraint_gradient(obstacles, *formulation, *min_altitude_m, term.constraint, x);
+                    lam[0][l] += term.value * dg[0];
+                    lam[1][l] += term.value * dg[1];
+                    lam[2][l] += term.value * dg[2];
+                }
+                end[l] = lo;
+                next[l] = if lo > start[l] { active[lo - 1].step } else { n };
+            }
+            // Input sensitivity of x_{j+1} = x_j + dt f(x_j, u_j).
+            let [sr, cr, sp, cp]: [[f64; L]; 4] = std::array::from_fn(|q| lanes(|l| trig[q * L + l]));
+            let t = u[0];
+            let g0 = lanes::<L>(|l| {
+                dt[l] * (cr[l] * sp[l] * lam[3][l] - sr[l] * lam[4][l] + cr[l] * cp[l] * lam[5][l])
+            });
+            let g1 = lanes::<L>(|l| dt[l] * kr * lam[6][l]);
+            let g2 = lanes::<L>(|l| dt[l] * kp * lam[7][l]);
+            // In scenario order, as the sum has always been taken.
+            for l in 0..L {
+                grad_u[0] += g0[l];
+                grad_u[1] += g1[l];
+                grad_u[2] += g2[l];
+            }
+            // Adjoint: l_j = (I + dt Fx(x_j, u_j))^T l_{j+1}.
+            let l6 = lanes::<L>(|l| {
+                lam[6][l]
+                    + dt[l]
+                        * (-t * sr[l] * sp[l] * lam[3][l]
+                            - t * cr[l] * lam[4][l]
+                            - t * sr[l] * cp[l] * lam[5][l]
+                            - ir * lam[6][l])
+            });
+            let l7 = lanes::<L>(|l| {
+                lam[7][l]
+                    + dt[l] * (t * cr[l] * cp[l] * lam[3][l] - t * cr[l] * sp[l] * lam[5][l] - ip * lam[7][l])
+            });
+            for l in 0..L {
+                lam[3][l] += dt[l] * (lam[0][l] - ax * lam[3][l]);
+                lam[4][l] += dt[l] * (lam[1][l] - ay * lam[4][l]);
+                lam[5][l] += dt[l] * (lam[2][l] - az * lam[5][l]);
+            }
+            lam[6] = l6;
+            lam[7] = l7;
         }
     }
 
@@ -615,10 +824,7 @@ impl Evaluator {
     /// state `x`.
     #[inline]
     fn constraint_gradient(&self, o: usize, x: &[f64; 8]) -> [f64; 3] {
-        match self.obstacles.get(o) {
-            Some(ob) => constraint(self.formulation, ob, x).1,
-            None => floor_constraint(self.formulation, self.min_altitude_m.unwrap_or(0.0), x).1,
-        }
+        constraint_gradient(&self.obstacles, self.formulation, self.min_altitude_m, o, x)
     }
 
     /// Overwrites `grad_u` with the gradient of `W * input_cost`.
@@ -668,30 +874,71 @@ pub(crate) fn sin_cos_small(x: f64) -> (f64, f64) {
     if x.abs() > 0.5 {
         return x.sin_cos();
     }
+    (sin_series(x), cos_series(x))
+}
+
+/// [`sin_cos_small`] of every lane: the series everywhere, then libm in the rare lanes out of
+/// the series' range. The same values lane by lane. The range test is one branch for all
+/// lanes: with a branch per lane, LLVM moves the series into each lane's branch, and it no
+/// longer vectorizes.
+#[inline(always)]
+fn sin_cos_lanes<const L: usize>(x: &[f64; L]) -> ([f64; L], [f64; L]) {
+    let mut s = lanes(|l| sin_series(x[l]));
+    let mut c = lanes(|l| cos_series(x[l]));
+    // `max` skips NaN, as `sin_cos_small`'s test does.
+    if x.iter().fold(0.0f64, |m, v| m.max(v.abs())) > 0.5 {
+        sin_cos_large_lanes(x, &mut s, &mut c);
+    }
+    (s, c)
+}
+
+/// libm's `(sin, cos)` in the lanes out of the series' range (see [`sin_cos_lanes`]).
+#[cold]
+#[inline(never)]
+fn sin_cos_large_lanes<const L: usize>(x: &[f64; L], s: &mut [f64; L], c: &mut [f64; L]) {
+    for l in 0..L {
+        if x[l].abs() > 0.5 {
+            (s[l], c[l]) = x[l].sin_cos();
+        }
+    }
+}
+
+/// The Taylor series of `sin` to x^13 (see [`sin_cos_small`]).
+#[inline(always)]
+fn sin_series(x: f64) -> f64 {
     let x2 = x * x;
-    let s = x
-        * (1.0
-            + x2 * (-1.0 / 6.0
-                + x2 * (1.0 / 120.0
-                    + x2 * (-1.0 / 5040.0
-                        + x2 * (1.0 / 362_880.0
-                            + x2 * (-1.0 / 39_916_800.0 + x2 * (1.0 / 6_227_020_800.0)))))));
-    let c = 1.0
-        + x2 * (-0.5
+    x * (1.0
+        + x2 * (-1.0 / 6.0
+            + x2 * (1.0 / 120.0
+                + x2 * (-1.0 / 5040.0
+                    + x2 * (1.0 / 362_880.0 + x2 * (-1.0 / 39_916_800.0 + x2 * (1.0 / 6_227_020_800.0)))))))
+}
+
+/// The Taylor series of `cos` to x^14 (see [`sin_cos_small`]).
+#[inline(always)]
+fn cos_series(x: f64) -> f64 {
+    let x2 = x * x;
+    1.0 + x2
+        * (-0.5
             + x2 * (1.0 / 24.0
                 + x2 * (-1.0 / 720.0
                     + x2 * (1.0 / 40_320.0
                         + x2 * (-1.0 / 3_628_800.0
-                            + x2 * (1.0 / 479_001_600.0 + x2 * (-1.0 / 87_178_291_200.0)))))));
-    (s, c)
+                            + x2 * (1.0 / 479_001_600.0 + x2 * (-1.0 / 87_178_291_200.0)))))))
 }
 
-/// One constraint value alone: the same arithmetic as [`constraint`] without the gradient's
-/// divisions.
-#[inline]
-fn constraint_value(formulation: ObstacleFormulation, ob: &ObstacleTerm, x: &[f64; 8]) -> f64 {
-    let (dx, dy) = (x[0] - ob.xo, x[1] - ob.yo);
-    let hz = ob.zo - x[2];
+/// `[f(0), .., f(L - 1)]`: one value per lane (scenario of a group) of the lane-parallel passes.
+#[inline(always)]
+fn lanes<const L: usize>(f: impl FnMut(usize) -> f64) -> [f64; L] {
+    std::array::from_fn(f)
+}
+
+/// One constraint value alone at position `(px, py, pz)`: the same arithmetic as
+/// [`constraint`] without the gradient's divisions.
+#[inline(always)]
+fn constraint_value(formulation: ObstacleFormulation, ob: &ObstacleTerm, px: f64, py: f64, pz: f64) -> f64 {
+    let (dx, dy) = (px - ob.xo, py - ob.yo);
+    let hz = ob.zo - pz;
     match formulation {
         ObstacleFormulation::PaperPenalty => {
             let hc = ob.r2 - dx * dx - dy * dy;
@@ -702,6 +949,21 @@ fn constraint_value(formulation: ObstacleFormulation, ob: &ObstacleTerm, x: &[f6
             let radial = ob.r - d;
             if radial <= hz { radial } else { hz }
         }
+    }
+}
+
+/// [`Evaluator::constraint_gradient`] from the fields it reads.
+#[inline]
+fn constraint_gradient(
+    obstacles: &[ObstacleTerm],
+    formulation: ObstacleFormulation,
+    min_altitude_m: Option<f64>,
+    o: usize,
+    x: &[f64; 8],
+) -> [f64; 3] {
+    match obstacles.get(o) {
+        Some(ob) => constraint(formulation, ob, x).1,
+        None => floor_constraint(formulation, min_altitude_m.unwrap_or(0.0), x).1,
     }
 }
 
@@ -754,6 +1016,16 @@ fn floor_constraint(formulation: ObstacleFormulation, min_altitude_m: f64, x: &[
     match formulation {
         ObstacleFormulation::PaperPenalty if below <= 0.0 => (0.0, [0.0; 3]),
         _ => (below, [0.0, 0.0, -1.0]),
+    }
+}
+
+/// The floor constraint's value alone at altitude `pz`: the same as [`floor_constraint`].
+#[inline(always)]
+fn floor_value(formulation: ObstacleFormulation, min_altitude_m: f64, pz: f64) -> f64 {
+    let below = min_altitude_m - pz;
+    match formulation {
+        ObstacleFormulation::PaperPenalty if below <= 0.0 => 0.0,
+        _ => below,
     }
 }
 
