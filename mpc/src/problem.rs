@@ -633,12 +633,8 @@ impl Evaluator {
             return 0.0;
         }
         let mut acc = 0.0;
-        for (k, g) in self.con.iter().enumerate() {
-            let v = g + y.get(k).map_or(0.0, |y| y / c);
-            if v > 0.0 {
-                acc += v * v;
-            }
-        }
+        // Past the end of `y`, `g + 0 / c` is `g + 0`: `c > 0`.
+        for_each_positive(&self.con, y, |g, y| g + y / c, |_, v| acc += v * v);
         0.5 * c * acc
     }
 
@@ -676,7 +672,7 @@ impl Evaluator {
         let mut first = 0;
         while first < self.m {
             let width = self.group_width(first);
-            with_lanes!(width, self.adjoint_lanes(first));
+            with_lanes!(width, self.adjoint_group(first));
             first += width;
         }
         for k in 0..grad.len() {
@@ -698,26 +694,36 @@ impl Evaluator {
             if c <= 0.0 {
                 continue;
             }
-            let values = &con[i * block..(i + 1) * block];
-            let mut push = |k: usize, v: f64| {
-                if v > 0.0 {
-                    active.push(ActiveTerm { step: k / n_con, constraint: k % n_con, value: v });
-                }
-            };
-            match multipliers.get(i * block..(i + 1) * block) {
-                Some(y) => values.iter().zip(y).enumerate().for_each(|(k, (g, y))| push(k, c * g + y)),
-                None => values.iter().enumerate().for_each(|(k, g)| push(k, c * g + 0.0)),
-            }
+            // Without multipliers for the whole scenario, none (`c g + 0`).
+            let y = multipliers.get(i * block..(i + 1) * block).unwrap_or(&[]);
+            for_each_positive(
+                &con[i * block..(i + 1) * block],
+                y,
+                |g, y| c * g + y,
+                |k, v| active.push(ActiveTerm { step: k / n_con, constraint: k % n_con, value: v }),
+            );
         }
         active_start[m] = active.len();
     }
 
-    /// Adjoint pass of scenarios `first..first + L` together, adding their input sensitivities
-    /// to `grad_u`: backward over the steps, lane-parallel over the scenarios as in
-    /// [`Evaluator::forward_lanes`], with the same operations per lane as one scenario at a
-    /// time. The scenarios' contributions to each input are added in scenario order, which is
-    /// the order of the scalar pass, so `grad_u` is bit-identical too.
-    fn adjoint_lanes<const L: usize>(&mut self, first: usize) {
+    /// Adjoint pass of the forward pass's group `first..first + G`, two scenarios at a time:
+    /// with more lanes, the adjoint states and their weights no longer fit in the 16 SSE
+    /// registers, and the spills cost more than the lanes save (callgrind).
+    fn adjoint_group<const G: usize>(&mut self, first: usize) {
+        for offset in 0..G {
+            self.adjoint_lanes::<G, 1>(first, offset);
+        }
+    }
+
+    /// Adjoint pass of scenarios `group + offset..group + offset + L` of the forward group
+    /// `group..group + G` together, adding their input sensitivities to `grad_u`: backward
+    /// over the steps, lane-parallel over the scenarios as in [`Evaluator::forward_lanes`],
+    /// with the same operations per lane as one scenario at a time. The scenarios'
+    /// contributions to each input are added in scenario order (the sub-groups of a group in
+    /// order, the lanes of a sub-group in order), the order of the scalar pass, so `grad_u` is
+    /// bit-identical too.
+    fn adjoint_lanes<const G: usize, const L: usize>(&mut self, group: usize, offset: usize) {
+        let first = group + offset;
         // Fields as locals, as in `forward_lanes`; `grad_u` is the only output.
         let Self {
             n,
@@ -744,8 +750,9 @@ impl Evaluator {
         let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
         let dt: [f64; L] = lanes(|l| dts[first + l]);
         let wq: [[f64; L]; 8] = std::array::from_fn(|k| lanes(|l| 2.0 * weights[first + l] * q_x[k]));
-        let trig = &trig[4 * n * first..4 * n * (first + L)];
-        let residual = &residual[8 * n * first..8 * n * (first + L)];
+        // The forward pass's layout: lane `l` here is lane `offset + l` of its group.
+        let trig = &trig[4 * n * group..4 * n * (group + G)];
+        let residual = &residual[8 * n * group..8 * n * (group + G)];
         // Per lane, the active constraints of the steps not yet visited (they run backward) are
         // `active[start..end]`, and `next` is the step of the last of them (`n`: none).
         let start: [usize; L] = std::array::from_fn(|l| active_start[first + l]);
@@ -754,13 +761,13 @@ impl Evaluator {
             std::array::from_fn(|l| if end[l] > start[l] { active[end[l] - 1].step } else { n });
         // The adjoint state `l` of each scenario, as `lam[k][lane]`.
         let mut lam = [[0.0f64; L]; 8];
-        let steps = u.chunks_exact(3).zip(grad_u.chunks_exact_mut(3)).zip(trig.chunks_exact(4 * L));
-        for (j, (((u, grad_u), trig), residual)) in steps.zip(residual.chunks_exact(8 * L)).enumerate().rev()
+        let steps = u.chunks_exact(3).zip(grad_u.chunks_exact_mut(3)).zip(trig.chunks_exact(4 * G));
+        for (j, (((u, grad_u), trig), residual)) in steps.zip(residual.chunks_exact(8 * G)).enumerate().rev()
         {
             // Stage terms at x_{j+1}.
             for k in 0..8 {
                 for l in 0..L {
-                    lam[k][l] += wq[k][l] * residual[k * L + l];
+                    lam[k][l] += wq[k][l] * residual[k * G + offset + l];
                 }
             }
             // The active constraints at x_{j+1} (usually none), in constraint order.
@@ -784,7 +791,8 @@ impl Evaluator {
                 next[l] = if lo > start[l] { active[lo - 1].step } else { n };
             }
             // Input sensitivity of x_{j+1} = x_j + dt f(x_j, u_j).
-            let [sr, cr, sp, cp]: [[f64; L]; 4] = std::array::from_fn(|q| lanes(|l| trig[q * L + l]));
+            let [sr, cr, sp, cp]: [[f64; L]; 4] =
+                std::array::from_fn(|q| lanes(|l| trig[q * G + offset + l]));
             let t = u[0];
             let g0 = lanes::<L>(|l| {
                 dt[l] * (cr[l] * sp[l] * lam[3][l] - sr[l] * lam[4][l] + cr[l] * cp[l] * lam[5][l])
@@ -890,6 +898,44 @@ fn sin_cos_lanes<const L: usize>(x: &[f64; L]) -> ([f64; L], [f64; L]) {
         sin_cos_large_lanes(x, &mut s, &mut c);
     }
     (s, c)
+}
+
+/// `visit(k, v)`, in increasing `k`, for every `k` with `v = value(g[k], y[k]) > 0`, where
+/// `y[k]` is 0 past the end of `y`. The values are computed four at a time (vectorized) and
+/// tested with one branch, as most are not positive; the values and the visits are the same,
+/// in the same order, as one `k` at a time.
+#[inline(always)]
+fn for_each_positive(
+    g: &[f64],
+    y: &[f64],
+    value: impl Fn(f64, f64) -> f64,
+    mut visit: impl FnMut(usize, f64),
+) {
+    let (g_y, g_alone) = g.split_at(y.len().min(g.len()));
+    let y = &y[..g_y.len()];
+    let mut visit_positive = |k: usize, v: f64| {
+        if v > 0.0 {
+            visit(k, v);
+        }
+    };
+    let (g4, y4) = (g_y.chunks_exact(4), y.chunks_exact(4));
+    let (g_rest, y_rest) = (g4.remainder(), y4.remainder());
+    for (chunk, (g, y)) in g4.zip(y4).enumerate() {
+        let v: [f64; 4] = std::array::from_fn(|t| value(g[t], y[t]));
+        // `max` skips NaN, which is not positive either.
+        if v[0].max(v[1]).max(v[2].max(v[3])) > 0.0 {
+            for (t, v) in v.into_iter().enumerate() {
+                visit_positive(4 * chunk + t, v);
+            }
+        }
+    }
+    let rest = g_y.len() - g_rest.len();
+    for (t, (g, y)) in g_rest.iter().zip(y_rest).enumerate() {
+        visit_positive(rest + t, value(*g, *y));
+    }
+    for (t, g) in g_alone.iter().enumerate() {
+        visit_positive(g_y.len() + t, value(*g, 0.0));
+    }
 }
 
 /// libm's `(sin, cos)` in the lanes out of the series' range (see [`sin_cos_lanes`]).
