@@ -282,7 +282,7 @@ pub struct Evaluator {
     /// `trig[4 N first ..][(4 j + q) L + lane]`.
     trig: Vec<f64>,
     /// `x_{j+1} - x_ref` per scenario and step, in the lane layout of `trig` with 8 values in
-    /// place of 4: the adjoint pass's stage terms, read in its lane order.
+    /// place of 4: the adjoint pass's stage terms, for groups of several scenarios.
     residual: Vec<f64>,
     /// `J_i` without the input terms, per scenario, of the last forward pass.
     state_costs: Vec<f64>,
@@ -576,29 +576,51 @@ impl Evaluator {
                 for l in 0..L {
                     let e = x[k][l] - x_ref[k];
                     state_cost[l] += q_x[k] * e * e;
-                    residual[k * L + l] = e;
+                    // For one scenario the adjoint pass reads the states instead: these stores
+                    // would be all overhead. For several, they also make LLVM vectorize this
+                    // loop over the lanes (it does not without them: callgrind).
+                    if L > 1 {
+                        residual[k * L + l] = e;
+                    }
                 }
             }
             // `con` keeps its layout (scenario, point, constraint): OpEn reads it as F1, and
             // the penalty sums it in that order.
-            let point = |l: usize| (l * n + j) * n_con;
-            for (o, ob) in obstacles.iter().enumerate() {
-                // One arm per formulation, so that the lane loops are branch-free.
-                let value: [f64; L] = match formulation {
-                    ObstacleFormulation::PaperPenalty => lanes(|l| {
-                        constraint_value(ObstacleFormulation::PaperPenalty, ob, x[0][l], x[1][l], x[2][l])
+            if L == 1 {
+                // One scenario: a point's values are contiguous, and LLVM vectorizes over the
+                // cylinders, as it did before the lanes.
+                let row = &mut con[j * n_con..(j + 1) * n_con];
+                let (px, py, pz) = (x[0][0], x[1][0], x[2][0]);
+                let cylinders = obstacles.iter().zip(&mut row[..n_obs]);
+                match formulation {
+                    ObstacleFormulation::PaperPenalty => cylinders.for_each(|(ob, c)| {
+                        *c = constraint_value(ObstacleFormulation::PaperPenalty, ob, px, py, pz);
                     }),
-                    ObstacleFormulation::DistanceAlm => lanes(|l| {
-                        constraint_value(ObstacleFormulation::DistanceAlm, ob, x[0][l], x[1][l], x[2][l])
+                    ObstacleFormulation::DistanceAlm => cylinders.for_each(|(ob, c)| {
+                        *c = constraint_value(ObstacleFormulation::DistanceAlm, ob, px, py, pz);
                     }),
-                };
-                for (l, v) in value.into_iter().enumerate() {
-                    con[point(l) + o] = v;
+                }
+            } else {
+                // Several: over the lanes, cylinder by cylinder (fewer instructions, callgrind).
+                let point = |l: usize| (l * n + j) * n_con;
+                for (o, ob) in obstacles.iter().enumerate() {
+                    // One arm per formulation, so that the lane loops are branch-free.
+                    let value: [f64; L] = match formulation {
+                        ObstacleFormulation::PaperPenalty => lanes(|l| {
+                            constraint_value(ObstacleFormulation::PaperPenalty, ob, x[0][l], x[1][l], x[2][l])
+                        }),
+                        ObstacleFormulation::DistanceAlm => lanes(|l| {
+                            constraint_value(ObstacleFormulation::DistanceAlm, ob, x[0][l], x[1][l], x[2][l])
+                        }),
+                    };
+                    for (l, v) in value.into_iter().enumerate() {
+                        con[point(l) + o] = v;
+                    }
                 }
             }
             if let Some(floor) = *min_altitude_m {
                 for l in 0..L {
-                    con[point(l) + n_obs] = floor_value(formulation, floor, x[2][l]);
+                    con[(l * n + j) * n_con + n_obs] = floor_value(formulation, floor, x[2][l]);
                 }
             }
         }
@@ -731,6 +753,7 @@ impl Evaluator {
             dts,
             weights,
             q_x,
+            x_ref,
             u,
             states,
             trig,
@@ -743,7 +766,7 @@ impl Evaluator {
             min_altitude_m,
             ..
         } = self;
-        let (n, q_x) = (*n, *q_x);
+        let (n, q_x, x_ref) = (*n, *q_x, *x_ref);
         let p = *params;
         let (ax, ay, az) = (p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
         let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
@@ -764,10 +787,17 @@ impl Evaluator {
         let steps = u.chunks_exact(3).zip(grad_u.chunks_exact_mut(3)).zip(trig.chunks_exact(4 * G));
         for (j, (((u, grad_u), trig), residual)) in steps.zip(residual.chunks_exact(8 * G)).enumerate().rev()
         {
-            // Stage terms at x_{j+1}.
-            for k in 0..8 {
-                for l in 0..L {
-                    lam[k][l] += wq[k][l] * residual[k * G + offset + l];
+            // Stage terms at x_{j+1}: `x - x_ref` as the forward pass computed it.
+            if G == 1 {
+                let x = &states[first * (n + 1) + j + 1];
+                for k in 0..8 {
+                    lam[k][0] += wq[k][0] * (x[k] - x_ref[k]);
+                }
+            } else {
+                for k in 0..8 {
+                    for l in 0..L {
+                        lam[k][l] += wq[k][l] * residual[k * G + offset + l];
+                    }
                 }
             }
             // The active constraints at x_{j+1} (usually none), in constraint order.
@@ -837,18 +867,21 @@ impl Evaluator {
 
     /// Overwrites `grad_u` with the gradient of `W * input_cost`.
     fn input_cost_gradient(&mut self) {
-        let n = self.n;
-        let w2 = 2.0 * self.weight_sum;
-        for j in 0..n {
+        // Fields as locals (see `forward_lanes`), and the inputs step by step without indexing.
+        let Self { u, u_prev, u_ref, q_u, q_du, grad_u, weight_sum, .. } = self;
+        let (u_ref, q_u, q_du) = (*u_ref, *q_u, *q_du);
+        let w2 = 2.0 * *weight_sum;
+        let mut prev = *u_prev;
+        let mut next_inputs = u.chunks_exact(3).skip(1);
+        for (g, u) in grad_u.chunks_exact_mut(3).zip(u.chunks_exact(3)) {
+            let next = next_inputs.next();
             for c in 0..3 {
-                let k = 3 * j + c;
-                let u = self.u[k];
-                let prev = if j == 0 { self.u_prev[c] } else { self.u[k - 3] };
-                let mut g = self.q_u[c] * (u - self.u_ref[c]) + self.q_du[c] * (u - prev);
-                if j + 1 < n {
-                    g -= self.q_du[c] * (self.u[k + 3] - u);
+                let mut gc = q_u[c] * (u[c] - u_ref[c]) + q_du[c] * (u[c] - prev[c]);
+                if let Some(next) = next {
+                    gc -= q_du[c] * (next[c] - u[c]);
                 }
-                self.grad_u[k] = w2 * g;
+                g[c] = w2 * gc;
+                prev[c] = u[c];
             }
         }
     }
