@@ -240,8 +240,9 @@ macro_rules! with_lanes {
 /// The cost, penalty and gradient of one problem instance, with every buffer allocated once.
 ///
 /// ## Memory allocation
-/// `M (N + 1)` states of 8 values, `M N` attitude sin/cos quadruples, and a handful of
-/// `3 N` vectors; all allocated in [`Evaluator::new`], none in the solve loop.
+/// `M (N + 1)` states of 8 values, `M N` attitude sin/cos quadruples and state residuals of
+/// 8 values, room for every constraint as active, and a handful of `3 N` vectors; all
+/// allocated in [`Evaluator::new`], none in the solve loop.
 #[derive(Debug, Clone)]
 pub struct Evaluator {
     m: usize,
@@ -506,12 +507,12 @@ impl Evaluator {
     /// Forward pass of scenarios `first..first + L` together, step-outer and scenario-inner.
     ///
     /// The scenarios are independent chains (own `dt` and `x0`) driven by the same inputs.
-    /// One scenario at a time, each step waits on the previous one (the series of `sin` and
-    /// `cos` alone is a chain of some 20 dependent operations); with the scenarios of a group
-    /// in the lanes of `[f64; L]` arrays, LLVM vectorizes each step's arithmetic across them
-    /// and their chains overlap. Every lane does exactly the operations of the scalar
-    /// recursion in the same order (Rust never contracts `a * b + c` into an FMA), so the
-    /// results are bit-identical to one scenario at a time.
+    /// With the scenarios of a group in the lanes of `[f64; L]` arrays, LLVM vectorizes each
+    /// step's arithmetic across them (SSE2: two lanes per instruction), which matters because
+    /// the pass is bound by instruction throughput, not by the chains' latency. Every lane
+    /// does exactly the operations of the scalar recursion in the same order (Rust never
+    /// contracts `a * b + c` into an FMA), so the results are bit-identical to one scenario
+    /// at a time.
     fn forward_lanes<const L: usize>(&mut self, first: usize) {
         // Fields as locals: the stores into the outputs would otherwise make LLVM reload every
         // field of `self` after each of them.
@@ -728,9 +729,11 @@ impl Evaluator {
         active_start[m] = active.len();
     }
 
-    /// Adjoint pass of the forward pass's group `first..first + G`, two scenarios at a time:
-    /// with more lanes, the adjoint states and their weights no longer fit in the 16 SSE
-    /// registers, and the spills cost more than the lanes save (callgrind).
+    /// Adjoint pass of the forward pass's group `first..first + G`, one scenario at a time:
+    /// with two or more lanes (SSE2 holds two), the adjoint states and their weights no longer
+    /// fit in the 16 registers, and the spills cost more than the lanes save (callgrind:
+    /// 2 lanes as many instructions as 1, 5 lanes 30 % more). `adjoint_lanes` keeps the lanes
+    /// for wider vectors.
     fn adjoint_group<const G: usize>(&mut self, first: usize) {
         for offset in 0..G {
             self.adjoint_lanes::<G, 1>(first, offset);
@@ -1280,5 +1283,200 @@ mod tests {
         let mut u_lo = vec![0.0; 120];
         ev.to_inputs(&lo, &mut u_lo);
         assert!((u_lo[0] - 0.0).abs() < 1e-12 && (u_lo[1] + std::f64::consts::PI / 18.0).abs() < 1e-12);
+    }
+
+    /// The evaluator's passes one scenario at a time, as they were before the lane-parallel
+    /// ones (the oracle of `lane_parallel_passes_are_bit_identical_to_one_scenario_at_a_time`):
+    /// `(cost, gradient in z, constraint values, predicted states)` at inputs `ev.u`.
+    fn scalar_reference(ev: &Evaluator, c: f64, y: &[f64]) -> (f64, Vec<f64>, Vec<f64>, Vec<[f64; 8]>) {
+        let (m, n, n_con) = (ev.m, ev.n, ev.n_con);
+        let p = ev.params;
+        let (g, ax, ay, az) = (p.gravity_mps2, p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
+        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
+        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
+        let n_obs = ev.obstacles.len();
+        let mut states = vec![[0.0; 8]; m * (n + 1)];
+        let mut trig = vec![[0.0; 4]; m * n];
+        let mut con = vec![0.0; m * n * n_con];
+        // Forward pass.
+        let mut objective = 0.0;
+        for i in 0..m {
+            let dt = ev.dts[i];
+            let states = &mut states[i * (n + 1)..(i + 1) * (n + 1)];
+            let trig = &mut trig[i * n..(i + 1) * n];
+            let con = &mut con[i * n * n_con..(i + 1) * n * n_con];
+            let mut x = ev.x0s[i];
+            states[0] = x;
+            let mut state_cost = 0.0;
+            for (j, u) in ev.u.chunks_exact(3).enumerate() {
+                let (sr, cr) = sin_cos_small(x[6]);
+                let (sp, cp) = sin_cos_small(x[7]);
+                trig[j] = [sr, cr, sp, cp];
+                let (t, rd, pd) = (u[0], u[1], u[2]);
+                x = [
+                    x[0] + dt * x[3],
+                    x[1] + dt * x[4],
+                    x[2] + dt * x[5],
+                    x[3] + dt * (t * cr * sp - ax * x[3]),
+                    x[4] + dt * (-t * sr - ay * x[4]),
+                    x[5] + dt * (t * cr * cp - g - az * x[5]),
+                    x[6] + dt * (kr * rd - ir * x[6]),
+                    x[7] + dt * (kp * pd - ip * x[7]),
+                ];
+                states[j + 1] = x;
+                for ((xk, rk), qk) in x.iter().zip(&ev.x_ref).zip(&ev.q_x) {
+                    let e = xk - rk;
+                    state_cost += qk * e * e;
+                }
+                for (ob, c) in ev.obstacles.iter().zip(&mut con[j * n_con..j * n_con + n_obs]) {
+                    *c = constraint(ev.formulation, ob, &x).0;
+                }
+                if let Some(floor) = ev.min_altitude_m {
+                    con[j * n_con + n_obs] = floor_constraint(ev.formulation, floor, &x).0;
+                }
+            }
+            objective += ev.weights[i] * state_cost;
+        }
+        objective += ev.weight_sum * ev.input_cost();
+        let mut penalty = 0.0;
+        if c > 0.0 {
+            for (k, g) in con.iter().enumerate() {
+                let v = g + y.get(k).map_or(0.0, |y| y / c);
+                if v > 0.0 {
+                    penalty += v * v;
+                }
+            }
+            penalty *= 0.5 * c;
+        }
+        // Adjoint pass.
+        let w2 = 2.0 * ev.weight_sum;
+        let mut grad_u = vec![0.0; 3 * n];
+        for j in 0..n {
+            for ch in 0..3 {
+                let k = 3 * j + ch;
+                let u = ev.u[k];
+                let prev = if j == 0 { ev.u_prev[ch] } else { ev.u[k - 3] };
+                let mut gk = ev.q_u[ch] * (u - ev.u_ref[ch]) + ev.q_du[ch] * (u - prev);
+                if j + 1 < n {
+                    gk -= ev.q_du[ch] * (ev.u[k + 3] - u);
+                }
+                grad_u[k] = w2 * gk;
+            }
+        }
+        for i in 0..m {
+            let dt = ev.dts[i];
+            let w2 = 2.0 * ev.weights[i];
+            let wq: [f64; 8] = std::array::from_fn(|k| w2 * ev.q_x[k]);
+            let states = &states[i * (n + 1) + 1..(i + 1) * (n + 1)];
+            let con = &con[i * n * n_con..(i + 1) * n * n_con];
+            let y = y.get(i * n * n_con..(i + 1) * n * n_con).unwrap_or(&[]);
+            let mut l = [0.0f64; 8];
+            for j in (0..n).rev() {
+                let x = &states[j];
+                for k in 0..8 {
+                    l[k] += wq[k] * (x[k] - ev.x_ref[k]);
+                }
+                if c > 0.0 {
+                    for o in j * n_con..(j + 1) * n_con {
+                        let v = c * con[o] + y.get(o).copied().unwrap_or(0.0);
+                        if v > 0.0 {
+                            let dg = ev.constraint_gradient(o - j * n_con, x);
+                            l[0] += v * dg[0];
+                            l[1] += v * dg[1];
+                            l[2] += v * dg[2];
+                        }
+                    }
+                }
+                let [sr, cr, sp, cp] = trig[i * n + j];
+                let t = ev.u[3 * j];
+                grad_u[3 * j] += dt * (cr * sp * l[3] - sr * l[4] + cr * cp * l[5]);
+                grad_u[3 * j + 1] += dt * kr * l[6];
+                grad_u[3 * j + 2] += dt * kp * l[7];
+                let l6 = l[6] + dt * (-t * sr * sp * l[3] - t * cr * l[4] - t * sr * cp * l[5] - ir * l[6]);
+                let l7 = l[7] + dt * (t * cr * cp * l[3] - t * cr * sp * l[5] - ip * l[7]);
+                l[3] += dt * (l[0] - ax * l[3]);
+                l[4] += dt * (l[1] - ay * l[4]);
+                l[5] += dt * (l[2] - az * l[5]);
+                l[6] = l6;
+                l[7] = l7;
+            }
+        }
+        let grad = grad_u.iter().zip(&ev.scaling.scale).map(|(g, s)| g * s).collect();
+        (objective + penalty, grad, con, states)
+    }
+
+    /// Every scenario count from 1 to past a group (`MAX_LANES`), both formulations, with and
+    /// without the floor, dead-time compensation and multipliers, attitudes in and out of the
+    /// series' range, and active constraints: the same bits as one scenario at a time.
+    #[test]
+    fn lane_parallel_passes_are_bit_identical_to_one_scenario_at_a_time() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for m in [1usize, 2, 3, 4, 5, 7, 8, 9, 13] {
+            for (form, floor, compensation) in [
+                (ObstacleFormulation::DistanceAlm, None, false),
+                (ObstacleFormulation::DistanceAlm, Some(0.4), true),
+                (ObstacleFormulation::PaperPenalty, None, true),
+                (ObstacleFormulation::PaperPenalty, Some(0.4), false),
+            ] {
+                let mut def =
+                    OcpDefinition::from_scenario(&Scenario::paper_2(), ControllerMode::Multistage, 0.1, form);
+                def.sampling_times_s = (0..m).map(|i| 0.05 + 0.025 * i as f64).collect();
+                def.min_altitude_m = floor;
+                def.delay_compensation = compensation;
+                let mut ev = Evaluator::new(&def);
+                let n = ev.num_variables();
+                for point in 0..4 {
+                    // Heading at the cylinders (active constraints); attitudes beyond 0.5 rad
+                    // (libm's sin and cos) in every other point.
+                    let angle = if point % 2 == 1 { 0.8 } else { 0.1 };
+                    let x0 = [
+                        rng.random_range(2.6..3.4),
+                        rng.random_range(1.0..3.0),
+                        rng.random_range(0.3..1.0),
+                        0.0,
+                        rng.random_range(0.5..1.5),
+                        0.0,
+                        rng.random_range(-angle..angle),
+                        rng.random_range(-angle..angle),
+                    ];
+                    let weights: Vec<f64> = (0..m).map(|_| rng.random_range(0.0..1.0)).collect();
+                    ev.set_instance(&x0, &[9.81, 0.01, -0.02], &weights);
+                    let z: Vec<f64> = (0..n).map(|_| rng.random_range(-3.0..3.0)).collect();
+                    let y: Vec<f64> = match point {
+                        0 => Vec::new(),
+                        _ => (0..def.num_constraints()).map(|_| rng.random_range(0.0..20.0)).collect(),
+                    };
+                    for c in [0.0, 1e3] {
+                        let mut grad = vec![0.0; n];
+                        let mut con = vec![0.0; def.num_constraints()];
+                        let cost = ev.cost(&z, c, &y);
+                        ev.gradient(&z, c, &y, &mut grad);
+                        ev.constraints(&z, &mut con);
+                        let (ref_cost, ref_grad, ref_con, ref_states) = scalar_reference(&ev, c, &y);
+                        let case = format!(
+                            "M = {m}, {form:?}, floor {floor:?}, compensation {compensation}, point {point}, c = {c}"
+                        );
+                        assert_eq!(cost.to_bits(), ref_cost.to_bits(), "cost: {case}");
+                        assert_eq!(bits(&grad), bits(&ref_grad), "gradient: {case}");
+                        assert_eq!(bits(&con), bits(&ref_con), "constraints: {case}");
+                        for i in 0..m {
+                            let states = &ref_states[i * (n / 3 + 1)..(i + 1) * (n / 3 + 1)];
+                            let state_bits =
+                                |s: &[[f64; 8]]| s.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+                            assert_eq!(
+                                state_bits(ev.predicted_states(i)),
+                                state_bits(states),
+                                "states of scenario {i}: {case}"
+                            );
+                        }
+                        if point == 2 && c > 0.0 && m == 5 {
+                            assert!(con.iter().any(|g| *g > 0.0), "some constraint active: {case}");
+                        }
+                    }
+                }
+            }
+        }
     }
 }
