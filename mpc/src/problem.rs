@@ -929,8 +929,8 @@ pub(crate) fn sin_cos_small(x: f64) -> (f64, f64) {
 fn sin_cos_lanes<const L: usize>(x: &[f64; L]) -> ([f64; L], [f64; L]) {
     let mut s = lanes(|l| sin_series(x[l]));
     let mut c = lanes(|l| cos_series(x[l]));
-    // `max` skips NaN, as `sin_cos_small`'s test does.
-    if x.iter().fold(0.0f64, |m, v| m.max(v.abs())) > 0.5 {
+    // `|` rather than `||`: no branch per lane.
+    if x.iter().fold(false, |out, v| out | (v.abs() > 0.5)) {
         sin_cos_large_lanes(x, &mut s, &mut c);
     }
     (s, c)
