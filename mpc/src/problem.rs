@@ -208,11 +208,41 @@ pub(crate) fn hover_impulse_response(def: &OcpDefinition, dt: f64) -> ([Vec<f64>
     (out, position)
 }
 
+/// A constraint the penalty's gradient sees: `c g + y > 0` at a step of a scenario.
+#[derive(Debug, Clone, Copy)]
+struct ActiveTerm {
+    step: usize,
+    constraint: usize,
+    value: f64,
+}
+
+/// Most scenarios the lane-parallel passes process together (see
+/// [`Evaluator::forward_lanes`]); more form several groups.
+const MAX_LANES: usize = 8;
+
+/// `$self.$method::<L>(args)` with the const `L` equal to `$width`, one of `1..=MAX_LANES`.
+macro_rules! with_lanes {
+    ($width:expr, $self:ident . $method:ident ( $($arg:expr),* )) => {
+        match $width {
+            1 => $self.$method::<1>($($arg),*),
+            2 => $self.$method::<2>($($arg),*),
+            3 => $self.$method::<3>($($arg),*),
+            4 => $self.$method::<4>($($arg),*),
+            5 => $self.$method::<5>($($arg),*),
+            6 => $self.$method::<6>($($arg),*),
+            7 => $self.$method::<7>($($arg),*),
+            8 => $self.$method::<8>($($arg),*),
+            w => unreachable!("scenario group of {w}"),
+        }
+    };
+}
+
 /// The cost, penalty and gradient of one problem instance, with every buffer allocated once.
 ///
 /// ## Memory allocation
-/// `M (N + 1)` states of 8 values, `M N` attitude sin/cos quadruples, and a handful of
-/// `3 N` vectors; all allocated in [`Evaluator::new`], none in the solve loop.
+/// `M (N + 1)` states of 8 values, `M N` attitude sin/cos quadruples and state residuals of
+/// 8 values, room for every constraint as active, and a handful of `3 N` vectors; all
+/// allocated in [`Evaluator::new`], none in the solve loop.
 #[derive(Debug, Clone)]
 pub struct Evaluator {
     m: usize,
@@ -248,7 +278,20 @@ pub struct Evaluator {
     // Work buffers.
     u: Vec<f64>,
     states: Vec<[f64; 8]>,
-    trig: Vec<[f64; 4]>,
+    /// `(sin phi, cos phi, sin theta, cos theta)` per scenario and step, in the lane layout of
+    /// the scenario groups (see [`Evaluator::forward_lanes`]): group `first..first + L` holds
+    /// `trig[4 N first ..][(4 j + q) L + lane]`.
+    trig: Vec<f64>,
+    /// `x_{j+1} - x_ref` per scenario and step, in the lane layout of `trig` with 8 values in
+    /// place of 4: the adjoint pass's stage terms, for groups of several scenarios.
+    residual: Vec<f64>,
+    /// `J_i` without the input terms, per scenario, of the last forward pass.
+    state_costs: Vec<f64>,
+    /// The constraints the adjoint pass adds (see [`Evaluator::collect_active`]); capacity for
+    /// all of them, so pushes never allocate.
+    active: Vec<ActiveTerm>,
+    /// Where each scenario's entries of `active` begin, and the end: `M + 1` values.
+    active_start: Vec<usize>,
     grad_u: Vec<f64>,
     /// Constraint value per scenario, point and cylinder (the gradient in (px, py, pz) is
     /// recomputed in the adjoint pass where the penalty is active: most forward passes are
@@ -300,7 +343,11 @@ impl Evaluator {
             position_response,
             u: vec![0.0; 3 * n],
             states: vec![[0.0; 8]; m * (n + 1)],
-            trig: vec![[0.0; 4]; m * n],
+            trig: vec![0.0; 4 * m * n],
+            residual: vec![0.0; 8 * m * n],
+            state_costs: vec![0.0; m],
+            active: Vec::with_capacity(def.num_constraints()),
+            active_start: vec![0; m + 1],
             grad_u: vec![0.0; 3 * n],
             con: vec![0.0; def.num_constraints()],
             last_z: vec![0.0; 3 * n],
@@ -433,58 +480,152 @@ impl Evaluator {
     }
 
     /// Forward pass on `self.u`: predictions of every scenario, the objective, and every
-    /// constraint value with its gradient.
+    /// constraint value.
     fn forward_inputs(&mut self) {
         FORWARD_PASSES.fetch_add(1, Ordering::Relaxed);
-        let (m, n) = (self.m, self.n);
-        let p = self.params;
-        let (g, ax, ay, az) = (p.gravity_mps2, p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
-        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
-        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
-        let n_obs = self.obstacles.len();
-        let n_con = self.n_con;
+        let mut first = 0;
+        while first < self.m {
+            let width = self.group_width(first);
+            with_lanes!(width, self.forward_lanes(first));
+            first += width;
+        }
+        // Scenario 0 first, as the sum has always been taken.
         let mut objective = 0.0;
-        for i in 0..m {
-            let dt = self.dts[i];
-            let w = self.weights[i];
-            let states = &mut self.states[i * (n + 1)..(i + 1) * (n + 1)];
-            let trig = &mut self.trig[i * n..(i + 1) * n];
-            let con = &mut self.con[i * n * n_con..(i + 1) * n * n_con];
-            let mut x = self.x0s[i];
-            states[0] = x;
-            let mut state_cost = 0.0;
-            for (j, u) in self.u.chunks_exact(3).enumerate() {
-                let (sr, cr) = sin_cos_small(x[6]);
-                let (sp, cp) = sin_cos_small(x[7]);
-                trig[j] = [sr, cr, sp, cp];
-                let (t, rd, pd) = (u[0], u[1], u[2]);
-                x = [
-                    x[0] + dt * x[3],
-                    x[1] + dt * x[4],
-                    x[2] + dt * x[5],
-                    x[3] + dt * (t * cr * sp - ax * x[3]),
-                    x[4] + dt * (-t * sr - ay * x[4]),
-                    x[5] + dt * (t * cr * cp - g - az * x[5]),
-                    x[6] + dt * (kr * rd - ir * x[6]),
-                    x[7] + dt * (kp * pd - ip * x[7]),
-                ];
-                states[j + 1] = x;
-                for ((xk, rk), qk) in x.iter().zip(&self.x_ref).zip(&self.q_x) {
-                    let e = xk - rk;
-                    state_cost += qk * e * e;
-                }
-                let first = j * n_con;
-                for (ob, c) in self.obstacles.iter().zip(&mut con[first..first + n_obs]) {
-                    *c = constraint_value(self.formulation, ob, &x);
-                }
-                if let Some(floor) = self.min_altitude_m {
-                    con[first + n_obs] = floor_constraint(self.formulation, floor, &x).0;
-                }
-            }
+        for (w, state_cost) in self.weights.iter().zip(&self.state_costs) {
             objective += w * state_cost;
         }
         objective += self.weight_sum * self.input_cost();
         self.objective = objective;
+    }
+
+    /// Scenarios `first..first + width` form the next group of the lane-parallel passes: at
+    /// most [`MAX_LANES`].
+    fn group_width(&self, first: usize) -> usize {
+        (self.m - first).min(MAX_LANES)
+    }
+
+    /// Forward pass of scenarios `first..first + L` together, step-outer and scenario-inner.
+    ///
+    /// The scenarios are independent chains (own `dt` and `x0`) driven by the same inputs.
+    /// With the scenarios of a group in the lanes of `[f64; L]` arrays, LLVM vectorizes each
+    /// step's arithmetic across them (SSE2: two lanes per instruction), which matters because
+    /// the pass is bound by instruction throughput, not by the chains' latency. Every lane
+    /// does exactly the operations of the scalar recursion in the same order (Rust never
+    /// contracts `a * b + c` into an FMA), so the results are bit-identical to one scenario
+    /// at a time.
+    fn forward_lanes<const L: usize>(&mut self, first: usize) {
+        // Fields as locals: the stores into the outputs would otherwise make LLVM reload every
+        // field of `self` after each of them.
+        let Self {
+            n,
+            params,
+            dts,
+            x0s,
+            x_ref,
+            q_x,
+            obstacles,
+            formulation,
+            min_altitude_m,
+            n_con,
+            u,
+            states,
+            trig,
+            residual,
+            con,
+            state_costs,
+            ..
+        } = self;
+        let (n, n_con, x_ref, q_x, formulation) = (*n, *n_con, *x_ref, *q_x, *formulation);
+        let p = *params;
+        let (g, ax, ay, az) = (p.gravity_mps2, p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
+        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
+        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
+        let n_obs = obstacles.len();
+        let dt: [f64; L] = lanes(|l| dts[first + l]);
+        let mut x: [[f64; L]; 8] = std::array::from_fn(|k| lanes(|l| x0s[first + l][k]));
+        // Scenario `first + l`'s predictions are `states[l * (n + 1)..]`.
+        let states = &mut states[first * (n + 1)..(first + L) * (n + 1)];
+        for l in 0..L {
+            states[l * (n + 1)] = x0s[first + l];
+        }
+        // Scenario `first + l`'s constraint values are `con[l * n * n_con..]`.
+        let con = &mut con[first * n * n_con..(first + L) * n * n_con];
+        let mut state_cost = [0.0f64; L];
+        let trig = trig[4 * n * first..4 * n * (first + L)].chunks_exact_mut(4 * L);
+        let residual = residual[8 * n * first..8 * n * (first + L)].chunks_exact_mut(8 * L);
+        for (j, (u, (trig, residual))) in u.chunks_exact(3).zip(trig.zip(residual)).enumerate() {
+            let (sr, cr) = sin_cos_lanes(&x[6]);
+            let (sp, cp) = sin_cos_lanes(&x[7]);
+            for (q, v) in [sr, cr, sp, cp].iter().enumerate() {
+                trig[q * L..(q + 1) * L].copy_from_slice(v);
+            }
+            let (t, rd, pd) = (u[0], u[1], u[2]);
+            x = [
+                lanes(|l| x[0][l] + dt[l] * x[3][l]),
+                lanes(|l| x[1][l] + dt[l] * x[4][l]),
+                lanes(|l| x[2][l] + dt[l] * x[5][l]),
+                lanes(|l| x[3][l] + dt[l] * (t * cr[l] * sp[l] - ax * x[3][l])),
+                lanes(|l| x[4][l] + dt[l] * (-t * sr[l] - ay * x[4][l])),
+                lanes(|l| x[5][l] + dt[l] * (t * cr[l] * cp[l] - g - az * x[5][l])),
+                lanes(|l| x[6][l] + dt[l] * (kr * rd - ir * x[6][l])),
+                lanes(|l| x[7][l] + dt[l] * (kp * pd - ip * x[7][l])),
+            ];
+            for l in 0..L {
+                states[l * (n + 1) + j + 1] = std::array::from_fn(|k| x[k][l]);
+            }
+            for k in 0..8 {
+                for l in 0..L {
+                    let e = x[k][l] - x_ref[k];
+                    state_cost[l] += q_x[k] * e * e;
+                    // For one scenario the adjoint pass reads the states instead: these stores
+                    // would be all overhead. For several, they also make LLVM vectorize this
+                    // loop over the lanes (it does not without them: callgrind).
+                    if L > 1 {
+                        residual[k * L + l] = e;
+                    }
+                }
+            }
+            // `con` keeps its layout (scenario, point, constraint): OpEn reads it as F1, and
+            // the penalty sums it in that order.
+            if L == 1 {
+                // One scenario: a point's values are contiguous, and LLVM vectorizes over the
+                // cylinders, as it did before the lanes.
+                let row = &mut con[j * n_con..(j + 1) * n_con];
+                let (px, py, pz) = (x[0][0], x[1][0], x[2][0]);
+                let cylinders = obstacles.iter().zip(&mut row[..n_obs]);
+                match formulation {
+                    ObstacleFormulation::PaperPenalty => cylinders.for_each(|(ob, c)| {
+                        *c = constraint_value(ObstacleFormulation::PaperPenalty, ob, px, py, pz);
+                    }),
+                    ObstacleFormulation::DistanceAlm => cylinders.for_each(|(ob, c)| {
+                        *c = constraint_value(ObstacleFormulation::DistanceAlm, ob, px, py, pz);
+                    }),
+                }
+            } else {
+                // Several: over the lanes, cylinder by cylinder (fewer instructions, callgrind).
+                let point = |l: usize| (l * n + j) * n_con;
+                for (o, ob) in obstacles.iter().enumerate() {
+                    // One arm per formulation, so that the lane loops are branch-free.
+                    let value: [f64; L] = match formulation {
+                        ObstacleFormulation::PaperPenalty => lanes(|l| {
+                            constraint_value(ObstacleFormulation::PaperPenalty, ob, x[0][l], x[1][l], x[2][l])
+                        }),
+                        ObstacleFormulation::DistanceAlm => lanes(|l| {
+                            constraint_value(ObstacleFormulation::DistanceAlm, ob, x[0][l], x[1][l], x[2][l])
+                        }),
+                    };
+                    for (l, v) in value.into_iter().enumerate() {
+                        con[point(l) + o] = v;
+                    }
+                }
+            }
+            if let Some(floor) = *min_altitude_m {
+                for l in 0..L {
+                    con[(l * n + j) * n_con + n_obs] = floor_value(formulation, floor, x[2][l]);
+                }
+            }
+        }
+        state_costs[first..first + L].copy_from_slice(&state_cost);
     }
 
     fn input_cost(&self) -> f64 {
@@ -515,12 +656,8 @@ impl Evaluator {
             return 0.0;
         }
         let mut acc = 0.0;
-        for (k, g) in self.con.iter().enumerate() {
-            let v = g + y.get(k).map_or(0.0, |y| y / c);
-            if v > 0.0 {
-                acc += v * v;
-            }
-        }
+        // Past the end of `y`, `g + 0 / c` is `g + 0`: `c > 0`.
+        for_each_positive(&self.con, y, |g, y| g + y / c, |_, v| acc += v * v);
         0.5 * c * acc
     }
 
@@ -553,61 +690,174 @@ impl Evaluator {
     pub fn gradient(&mut self, z: &[f64], penalty: f64, multipliers: &[f64], grad: &mut [f64]) {
         self.ensure_forward(z);
         ADJOINT_PASSES.fetch_add(1, Ordering::Relaxed);
-        let (m, n) = (self.m, self.n);
-        let p = self.params;
-        let (ax, ay, az) = (p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
-        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
-        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
         self.input_cost_gradient();
-        let n_con = self.n_con;
-        let c = penalty;
-        let empty: [f64; 0] = [];
-        for i in 0..m {
-            let dt = self.dts[i];
-            let w2 = 2.0 * self.weights[i];
-            let wq: [f64; 8] = std::array::from_fn(|k| w2 * self.q_x[k]);
-            let states = &self.states[i * (n + 1) + 1..(i + 1) * (n + 1)];
-            let trig = &self.trig[i * n..(i + 1) * n];
-            let con = &self.con[i * n * n_con..(i + 1) * n * n_con];
-            let y = multipliers.get(i * n * n_con..(i + 1) * n * n_con).unwrap_or(&empty);
-            let mut l = [0.0f64; 8];
-            for j in (0..n).rev() {
-                // Stage terms at x_{j+1}.
-                let x = &states[j];
-                for k in 0..8 {
-                    l[k] += wq[k] * (x[k] - self.x_ref[k]);
-                }
-                if c > 0.0 {
-                    let first = j * n_con;
-                    for o in first..first + n_con {
-                        let v = c * con[o] + y.get(o).copied().unwrap_or(0.0);
-                        if v > 0.0 {
-                            let dg = self.constraint_gradient(o - first, x);
-                            l[0] += v * dg[0];
-                            l[1] += v * dg[1];
-                            l[2] += v * dg[2];
-                        }
-                    }
-                }
-                // Input sensitivity of x_{j+1} = x_j + dt f(x_j, u_j).
-                let [sr, cr, sp, cp] = trig[j];
-                let t = self.u[3 * j];
-                let g = &mut self.grad_u[3 * j..3 * j + 3];
-                g[0] += dt * (cr * sp * l[3] - sr * l[4] + cr * cp * l[5]);
-                g[1] += dt * kr * l[6];
-                g[2] += dt * kp * l[7];
-                // Adjoint: l_j = (I + dt Fx(x_j, u_j))^T l_{j+1}.
-                let l6 = l[6] + dt * (-t * sr * sp * l[3] - t * cr * l[4] - t * sr * cp * l[5] - ir * l[6]);
-                let l7 = l[7] + dt * (t * cr * cp * l[3] - t * cr * sp * l[5] - ip * l[7]);
-                l[3] += dt * (l[0] - ax * l[3]);
-                l[4] += dt * (l[1] - ay * l[4]);
-                l[5] += dt * (l[2] - az * l[5]);
-                l[6] = l6;
-                l[7] = l7;
-            }
+        self.collect_active(penalty, multipliers);
+        let mut first = 0;
+        while first < self.m {
+            let width = self.group_width(first);
+            with_lanes!(width, self.adjoint_group(first));
+            first += width;
         }
         for k in 0..grad.len() {
             grad[k] = self.grad_u[k] * self.scaling.scale[k];
+        }
+    }
+
+    /// Lists the constraints with `c g + y > 0` (those the penalty's gradient sees) with that
+    /// value, scenario by scenario in `con` order; scenario `i`'s are
+    /// `active[active_start[i]..active_start[i + 1]]`. Most are inactive: one contiguous pass
+    /// here spares the adjoint pass a test per point.
+    fn collect_active(&mut self, c: f64, multipliers: &[f64]) {
+        let Self { m, n, n_con, con, active, active_start, .. } = self;
+        let (m, n_con) = (*m, *n_con);
+        let block = *n * n_con;
+        active.clear();
+        for i in 0..m {
+            active_start[i] = active.len();
+            if c <= 0.0 {
+                continue;
+            }
+            // Without multipliers for the whole scenario, none (`c g + 0`).
+            let y = multipliers.get(i * block..(i + 1) * block).unwrap_or(&[]);
+            for_each_positive(
+                &con[i * block..(i + 1) * block],
+                y,
+                |g, y| c * g + y,
+                |k, v| active.push(ActiveTerm { step: k / n_con, constraint: k % n_con, value: v }),
+            );
+        }
+        active_start[m] = active.len();
+    }
+
+    /// Adjoint pass of the forward pass's group `first..first + G`, one scenario at a time:
+    /// with two or more lanes (SSE2 holds two), the adjoint states and their weights no longer
+    /// fit in the 16 registers, and the spills cost more than the lanes save (callgrind:
+    /// 2 lanes as many instructions as 1, 5 lanes 30 % more). `adjoint_lanes` keeps the lanes
+    /// for wider vectors.
+    fn adjoint_group<const G: usize>(&mut self, first: usize) {
+        for offset in 0..G {
+            self.adjoint_lanes::<G, 1>(first, offset);
+        }
+    }
+
+    /// Adjoint pass of scenarios `group + offset..group + offset + L` of the forward group
+    /// `group..group + G` together, adding their input sensitivities to `grad_u`: backward
+    /// over the steps, lane-parallel over the scenarios as in [`Evaluator::forward_lanes`],
+    /// with the same operations per lane as one scenario at a time. The scenarios'
+    /// contributions to each input are added in scenario order (the sub-groups of a group in
+    /// order, the lanes of a sub-group in order), the order of the scalar pass, so `grad_u` is
+    /// bit-identical too.
+    fn adjoint_lanes<const G: usize, const L: usize>(&mut self, group: usize, offset: usize) {
+        let first = group + offset;
+        // Fields as locals, as in `forward_lanes`; `grad_u` is the only output.
+        let Self {
+            n,
+            params,
+            dts,
+            weights,
+            q_x,
+            x_ref,
+            u,
+            states,
+            trig,
+            residual,
+            grad_u,
+            active,
+            active_start,
+            obstacles,
+            formulation,
+            min_altitude_m,
+            ..
+        } = self;
+        let (n, q_x, x_ref) = (*n, *q_x, *x_ref);
+        let p = *params;
+        let (ax, ay, az) = (p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
+        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
+        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
+        let dt: [f64; L] = lanes(|l| dts[first + l]);
+        let wq: [[f64; L]; 8] = std::array::from_fn(|k| lanes(|l| 2.0 * weights[first + l] * q_x[k]));
+        // The forward pass's layout: lane `l` here is lane `offset + l` of its group.
+        let trig = &trig[4 * n * group..4 * n * (group + G)];
+        let residual = &residual[8 * n * group..8 * n * (group + G)];
+        // Per lane, the active constraints of the steps not yet visited (they run backward) are
+        // `active[start..end]`, and `next` is the step of the last of them (`n`: none).
+        let start: [usize; L] = std::array::from_fn(|l| active_start[first + l]);
+        let mut end: [usize; L] = std::array::from_fn(|l| active_start[first + l + 1]);
+        let mut next: [usize; L] =
+            std::array::from_fn(|l| if end[l] > start[l] { active[end[l] - 1].step } else { n });
+        // The adjoint state `l` of each scenario, as `lam[k][lane]`.
+        let mut lam = [[0.0f64; L]; 8];
+        let steps = u.chunks_exact(3).zip(grad_u.chunks_exact_mut(3)).zip(trig.chunks_exact(4 * G));
+        for (j, (((u, grad_u), trig), residual)) in steps.zip(residual.chunks_exact(8 * G)).enumerate().rev()
+        {
+            // Stage terms at x_{j+1}: `x - x_ref` as the forward pass computed it.
+            if G == 1 {
+                let x = &states[first * (n + 1) + j + 1];
+                for k in 0..8 {
+                    lam[k][0] += wq[k][0] * (x[k] - x_ref[k]);
+                }
+            } else {
+                for k in 0..8 {
+                    for l in 0..L {
+                        lam[k][l] += wq[k][l] * residual[k * G + offset + l];
+                    }
+                }
+            }
+            // The active constraints at x_{j+1} (usually none), in constraint order.
+            for l in 0..L {
+                if next[l] != j {
+                    continue;
+                }
+                let mut lo = end[l];
+                while lo > start[l] && active[lo - 1].step == j {
+                    lo -= 1;
+                }
+                let x = &states[(first + l) * (n + 1) + j + 1];
+                for term in &active[lo..end[l]] {
+                    let dg =
+                        constraint_gradient(obstacles, *formulation, *min_altitude_m, term.constraint, x);
+                    lam[0][l] += term.value * dg[0];
+                    lam[1][l] += term.value * dg[1];
+                    lam[2][l] += term.value * dg[2];
+                }
+                end[l] = lo;
+                next[l] = if lo > start[l] { active[lo - 1].step } else { n };
+            }
+            // Input sensitivity of x_{j+1} = x_j + dt f(x_j, u_j).
+            let [sr, cr, sp, cp]: [[f64; L]; 4] =
+                std::array::from_fn(|q| lanes(|l| trig[q * G + offset + l]));
+            let t = u[0];
+            let g0 = lanes::<L>(|l| {
+                dt[l] * (cr[l] * sp[l] * lam[3][l] - sr[l] * lam[4][l] + cr[l] * cp[l] * lam[5][l])
+            });
+            let g1 = lanes::<L>(|l| dt[l] * kr * lam[6][l]);
+            let g2 = lanes::<L>(|l| dt[l] * kp * lam[7][l]);
+            // In scenario order, as the sum has always been taken.
+            for l in 0..L {
+                grad_u[0] += g0[l];
+                grad_u[1] += g1[l];
+                grad_u[2] += g2[l];
+            }
+            // Adjoint: l_j = (I + dt Fx(x_j, u_j))^T l_{j+1}.
+            let l6 = lanes::<L>(|l| {
+                lam[6][l]
+                    + dt[l]
+                        * (-t * sr[l] * sp[l] * lam[3][l]
+                            - t * cr[l] * lam[4][l]
+                            - t * sr[l] * cp[l] * lam[5][l]
+                            - ir * lam[6][l])
+            });
+            let l7 = lanes::<L>(|l| {
+                lam[7][l]
+                    + dt[l] * (t * cr[l] * cp[l] * lam[3][l] - t * cr[l] * sp[l] * lam[5][l] - ip * lam[7][l])
+            });
+            for l in 0..L {
+                lam[3][l] += dt[l] * (lam[0][l] - ax * lam[3][l]);
+                lam[4][l] += dt[l] * (lam[1][l] - ay * lam[4][l]);
+                lam[5][l] += dt[l] * (lam[2][l] - az * lam[5][l]);
+            }
+            lam[6] = l6;
+            lam[7] = l7;
         }
     }
 
@@ -615,26 +865,26 @@ impl Evaluator {
     /// state `x`.
     #[inline]
     fn constraint_gradient(&self, o: usize, x: &[f64; 8]) -> [f64; 3] {
-        match self.obstacles.get(o) {
-            Some(ob) => constraint(self.formulation, ob, x).1,
-            None => floor_constraint(self.formulation, self.min_altitude_m.unwrap_or(0.0), x).1,
-        }
+        constraint_gradient(&self.obstacles, self.formulation, self.min_altitude_m, o, x)
     }
 
     /// Overwrites `grad_u` with the gradient of `W * input_cost`.
     fn input_cost_gradient(&mut self) {
-        let n = self.n;
-        let w2 = 2.0 * self.weight_sum;
-        for j in 0..n {
+        // Fields as locals (see `forward_lanes`), and the inputs step by step without indexing.
+        let Self { u, u_prev, u_ref, q_u, q_du, grad_u, weight_sum, .. } = self;
+        let (u_ref, q_u, q_du) = (*u_ref, *q_u, *q_du);
+        let w2 = 2.0 * *weight_sum;
+        let mut prev = *u_prev;
+        let mut next_inputs = u.chunks_exact(3).skip(1);
+        for (g, u) in grad_u.chunks_exact_mut(3).zip(u.chunks_exact(3)) {
+            let next = next_inputs.next();
             for c in 0..3 {
-                let k = 3 * j + c;
-                let u = self.u[k];
-                let prev = if j == 0 { self.u_prev[c] } else { self.u[k - 3] };
-                let mut g = self.q_u[c] * (u - self.u_ref[c]) + self.q_du[c] * (u - prev);
-                if j + 1 < n {
-                    g -= self.q_du[c] * (self.u[k + 3] - u);
+                let mut gc = q_u[c] * (u[c] - u_ref[c]) + q_du[c] * (u[c] - prev[c]);
+                if let Some(next) = next {
+                    gc -= q_du[c] * (next[c] - u[c]);
                 }
-                self.grad_u[k] = w2 * g;
+                g[c] = w2 * gc;
+                prev[c] = u[c];
             }
         }
     }
@@ -668,30 +918,109 @@ pub(crate) fn sin_cos_small(x: f64) -> (f64, f64) {
     if x.abs() > 0.5 {
         return x.sin_cos();
     }
+    (sin_series(x), cos_series(x))
+}
+
+/// [`sin_cos_small`] of every lane: the series everywhere, then libm in the rare lanes out of
+/// the series' range. The same values lane by lane. The range test is one branch for all
+/// lanes: with a branch per lane, LLVM moves the series into each lane's branch, and it no
+/// longer vectorizes.
+#[inline(always)]
+fn sin_cos_lanes<const L: usize>(x: &[f64; L]) -> ([f64; L], [f64; L]) {
+    let mut s = lanes(|l| sin_series(x[l]));
+    let mut c = lanes(|l| cos_series(x[l]));
+    // `|` rather than `||`: no branch per lane.
+    if x.iter().fold(false, |out, v| out | (v.abs() > 0.5)) {
+        sin_cos_large_lanes(x, &mut s, &mut c);
+    }
+    (s, c)
+}
+
+/// `visit(k, v)`, in increasing `k`, for every `k` with `v = value(g[k], y[k]) > 0`, where
+/// `y[k]` is 0 past the end of `y`. The values are computed four at a time (vectorized) and
+/// tested with one branch, as most are not positive; the values and the visits are the same,
+/// in the same order, as one `k` at a time.
+#[inline(always)]
+fn for_each_positive(
+    g: &[f64],
+    y: &[f64],
+    value: impl Fn(f64, f64) -> f64,
+    mut visit: impl FnMut(usize, f64),
+) {
+    let (g_y, g_alone) = g.split_at(y.len().min(g.len()));
+    let y = &y[..g_y.len()];
+    let mut visit_positive = |k: usize, v: f64| {
+        if v > 0.0 {
+            visit(k, v);
+        }
+    };
+    let (g4, y4) = (g_y.chunks_exact(4), y.chunks_exact(4));
+    let (g_rest, y_rest) = (g4.remainder(), y4.remainder());
+    for (chunk, (g, y)) in g4.zip(y4).enumerate() {
+        let v: [f64; 4] = std::array::from_fn(|t| value(g[t], y[t]));
+        // `max` skips NaN, which is not positive either.
+        if v[0].max(v[1]).max(v[2].max(v[3])) > 0.0 {
+            for (t, v) in v.into_iter().enumerate() {
+                visit_positive(4 * chunk + t, v);
+            }
+        }
+    }
+    let rest = g_y.len() - g_rest.len();
+    for (t, (g, y)) in g_rest.iter().zip(y_rest).enumerate() {
+        visit_positive(rest + t, value(*g, *y));
+    }
+    for (t, g) in g_alone.iter().enumerate() {
+        visit_positive(g_y.len() + t, value(*g, 0.0));
+    }
+}
+
+/// libm's `(sin, cos)` in the lanes out of the series' range (see [`sin_cos_lanes`]).
+#[cold]
+#[inline(never)]
+fn sin_cos_large_lanes<const L: usize>(x: &[f64; L], s: &mut [f64; L], c: &mut [f64; L]) {
+    for l in 0..L {
+        if x[l].abs() > 0.5 {
+            (s[l], c[l]) = x[l].sin_cos();
+        }
+    }
+}
+
+/// The Taylor series of `sin` to x^13 (see [`sin_cos_small`]).
+#[inline(always)]
+fn sin_series(x: f64) -> f64 {
     let x2 = x * x;
-    let s = x
-        * (1.0
-            + x2 * (-1.0 / 6.0
-                + x2 * (1.0 / 120.0
-                    + x2 * (-1.0 / 5040.0
-                        + x2 * (1.0 / 362_880.0
-                            + x2 * (-1.0 / 39_916_800.0 + x2 * (1.0 / 6_227_020_800.0)))))));
-    let c = 1.0
-        + x2 * (-0.5
+    x * (1.0
+        + x2 * (-1.0 / 6.0
+            + x2 * (1.0 / 120.0
+                + x2 * (-1.0 / 5040.0
+                    + x2 * (1.0 / 362_880.0 + x2 * (-1.0 / 39_916_800.0 + x2 * (1.0 / 6_227_020_800.0)))))))
+}
+
+/// The Taylor series of `cos` to x^14 (see [`sin_cos_small`]).
+#[inline(always)]
+fn cos_series(x: f64) -> f64 {
+    let x2 = x * x;
+    1.0 + x2
+        * (-0.5
             + x2 * (1.0 / 24.0
                 + x2 * (-1.0 / 720.0
                     + x2 * (1.0 / 40_320.0
                         + x2 * (-1.0 / 3_628_800.0
-                            + x2 * (1.0 / 479_001_600.0 + x2 * (-1.0 / 87_178_291_200.0)))))));
-    (s, c)
+                            + x2 * (1.0 / 479_001_600.0 + x2 * (-1.0 / 87_178_291_200.0)))))))
 }
 
-/// One constraint value alone: the same arithmetic as [`constraint`] without the gradient's
-/// divisions.
-#[inline]
-fn constraint_value(formulation: ObstacleFormulation, ob: &ObstacleTerm, x: &[f64; 8]) -> f64 {
-    let (dx, dy) = (x[0] - ob.xo, x[1] - ob.yo);
-    let hz = ob.zo - x[2];
+/// `[f(0), .., f(L - 1)]`: one value per lane (scenario of a group) of the lane-parallel passes.
+#[inline(always)]
+fn lanes<const L: usize>(f: impl FnMut(usize) -> f64) -> [f64; L] {
+    std::array::from_fn(f)
+}
+
+/// One constraint value alone at position `(px, py, pz)`: the same arithmetic as
+/// [`constraint`] without the gradient's divisions.
+#[inline(always)]
+fn constraint_value(formulation: ObstacleFormulation, ob: &ObstacleTerm, px: f64, py: f64, pz: f64) -> f64 {
+    let (dx, dy) = (px - ob.xo, py - ob.yo);
+    let hz = ob.zo - pz;
     match formulation {
         ObstacleFormulation::PaperPenalty => {
             let hc = ob.r2 - dx * dx - dy * dy;
@@ -702,6 +1031,21 @@ fn constraint_value(formulation: ObstacleFormulation, ob: &ObstacleTerm, x: &[f6
             let radial = ob.r - d;
             if radial <= hz { radial } else { hz }
         }
+    }
+}
+
+/// [`Evaluator::constraint_gradient`] from the fields it reads.
+#[inline]
+fn constraint_gradient(
+    obstacles: &[ObstacleTerm],
+    formulation: ObstacleFormulation,
+    min_altitude_m: Option<f64>,
+    o: usize,
+    x: &[f64; 8],
+) -> [f64; 3] {
+    match obstacles.get(o) {
+        Some(ob) => constraint(formulation, ob, x).1,
+        None => floor_constraint(formulation, min_altitude_m.unwrap_or(0.0), x).1,
     }
 }
 
@@ -754,6 +1098,16 @@ fn floor_constraint(formulation: ObstacleFormulation, min_altitude_m: f64, x: &[
     match formulation {
         ObstacleFormulation::PaperPenalty if below <= 0.0 => (0.0, [0.0; 3]),
         _ => (below, [0.0, 0.0, -1.0]),
+    }
+}
+
+/// The floor constraint's value alone at altitude `pz`: the same as [`floor_constraint`].
+#[inline(always)]
+fn floor_value(formulation: ObstacleFormulation, min_altitude_m: f64, pz: f64) -> f64 {
+    let below = min_altitude_m - pz;
+    match formulation {
+        ObstacleFormulation::PaperPenalty if below <= 0.0 => 0.0,
+        _ => below,
     }
 }
 
@@ -929,5 +1283,200 @@ mod tests {
         let mut u_lo = vec![0.0; 120];
         ev.to_inputs(&lo, &mut u_lo);
         assert!((u_lo[0] - 0.0).abs() < 1e-12 && (u_lo[1] + std::f64::consts::PI / 18.0).abs() < 1e-12);
+    }
+
+    /// The evaluator's passes one scenario at a time, as they were before the lane-parallel
+    /// ones (the oracle of `lane_parallel_passes_are_bit_identical_to_one_scenario_at_a_time`):
+    /// `(cost, gradient in z, constraint values, predicted states)` at inputs `ev.u`.
+    fn scalar_reference(ev: &Evaluator, c: f64, y: &[f64]) -> (f64, Vec<f64>, Vec<f64>, Vec<[f64; 8]>) {
+        let (m, n, n_con) = (ev.m, ev.n, ev.n_con);
+        let p = ev.params;
+        let (g, ax, ay, az) = (p.gravity_mps2, p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
+        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
+        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
+        let n_obs = ev.obstacles.len();
+        let mut states = vec![[0.0; 8]; m * (n + 1)];
+        let mut trig = vec![[0.0; 4]; m * n];
+        let mut con = vec![0.0; m * n * n_con];
+        // Forward pass.
+        let mut objective = 0.0;
+        for i in 0..m {
+            let dt = ev.dts[i];
+            let states = &mut states[i * (n + 1)..(i + 1) * (n + 1)];
+            let trig = &mut trig[i * n..(i + 1) * n];
+            let con = &mut con[i * n * n_con..(i + 1) * n * n_con];
+            let mut x = ev.x0s[i];
+            states[0] = x;
+            let mut state_cost = 0.0;
+            for (j, u) in ev.u.chunks_exact(3).enumerate() {
+                let (sr, cr) = sin_cos_small(x[6]);
+                let (sp, cp) = sin_cos_small(x[7]);
+                trig[j] = [sr, cr, sp, cp];
+                let (t, rd, pd) = (u[0], u[1], u[2]);
+                x = [
+                    x[0] + dt * x[3],
+                    x[1] + dt * x[4],
+                    x[2] + dt * x[5],
+                    x[3] + dt * (t * cr * sp - ax * x[3]),
+                    x[4] + dt * (-t * sr - ay * x[4]),
+                    x[5] + dt * (t * cr * cp - g - az * x[5]),
+                    x[6] + dt * (kr * rd - ir * x[6]),
+                    x[7] + dt * (kp * pd - ip * x[7]),
+                ];
+                states[j + 1] = x;
+                for ((xk, rk), qk) in x.iter().zip(&ev.x_ref).zip(&ev.q_x) {
+                    let e = xk - rk;
+                    state_cost += qk * e * e;
+                }
+                for (ob, c) in ev.obstacles.iter().zip(&mut con[j * n_con..j * n_con + n_obs]) {
+                    *c = constraint(ev.formulation, ob, &x).0;
+                }
+                if let Some(floor) = ev.min_altitude_m {
+                    con[j * n_con + n_obs] = floor_constraint(ev.formulation, floor, &x).0;
+                }
+            }
+            objective += ev.weights[i] * state_cost;
+        }
+        objective += ev.weight_sum * ev.input_cost();
+        let mut penalty = 0.0;
+        if c > 0.0 {
+            for (k, g) in con.iter().enumerate() {
+                let v = g + y.get(k).map_or(0.0, |y| y / c);
+                if v > 0.0 {
+                    penalty += v * v;
+                }
+            }
+            penalty *= 0.5 * c;
+        }
+        // Adjoint pass.
+        let w2 = 2.0 * ev.weight_sum;
+        let mut grad_u = vec![0.0; 3 * n];
+        for j in 0..n {
+            for ch in 0..3 {
+                let k = 3 * j + ch;
+                let u = ev.u[k];
+                let prev = if j == 0 { ev.u_prev[ch] } else { ev.u[k - 3] };
+                let mut gk = ev.q_u[ch] * (u - ev.u_ref[ch]) + ev.q_du[ch] * (u - prev);
+                if j + 1 < n {
+                    gk -= ev.q_du[ch] * (ev.u[k + 3] - u);
+                }
+                grad_u[k] = w2 * gk;
+            }
+        }
+        for i in 0..m {
+            let dt = ev.dts[i];
+            let w2 = 2.0 * ev.weights[i];
+            let wq: [f64; 8] = std::array::from_fn(|k| w2 * ev.q_x[k]);
+            let states = &states[i * (n + 1) + 1..(i + 1) * (n + 1)];
+            let con = &con[i * n * n_con..(i + 1) * n * n_con];
+            let y = y.get(i * n * n_con..(i + 1) * n * n_con).unwrap_or(&[]);
+            let mut l = [0.0f64; 8];
+            for j in (0..n).rev() {
+                let x = &states[j];
+                for k in 0..8 {
+                    l[k] += wq[k] * (x[k] - ev.x_ref[k]);
+                }
+                if c > 0.0 {
+                    for o in j * n_con..(j + 1) * n_con {
+                        let v = c * con[o] + y.get(o).copied().unwrap_or(0.0);
+                        if v > 0.0 {
+                            let dg = ev.constraint_gradient(o - j * n_con, x);
+                            l[0] += v * dg[0];
+                            l[1] += v * dg[1];
+                            l[2] += v * dg[2];
+                        }
+                    }
+                }
+                let [sr, cr, sp, cp] = trig[i * n + j];
+                let t = ev.u[3 * j];
+                grad_u[3 * j] += dt * (cr * sp * l[3] - sr * l[4] + cr * cp * l[5]);
+                grad_u[3 * j + 1] += dt * kr * l[6];
+                grad_u[3 * j + 2] += dt * kp * l[7];
+                let l6 = l[6] + dt * (-t * sr * sp * l[3] - t * cr * l[4] - t * sr * cp * l[5] - ir * l[6]);
+                let l7 = l[7] + dt * (t * cr * cp * l[3] - t * cr * sp * l[5] - ip * l[7]);
+                l[3] += dt * (l[0] - ax * l[3]);
+                l[4] += dt * (l[1] - ay * l[4]);
+                l[5] += dt * (l[2] - az * l[5]);
+                l[6] = l6;
+                l[7] = l7;
+            }
+        }
+        let grad = grad_u.iter().zip(&ev.scaling.scale).map(|(g, s)| g * s).collect();
+        (objective + penalty, grad, con, states)
+    }
+
+    /// Every scenario count from 1 to past a group (`MAX_LANES`), both formulations, with and
+    /// without the floor, dead-time compensation and multipliers, attitudes in and out of the
+    /// series' range, and active constraints: the same bits as one scenario at a time.
+    #[test]
+    fn lane_parallel_passes_are_bit_identical_to_one_scenario_at_a_time() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for m in [1usize, 2, 3, 4, 5, 7, 8, 9, 13] {
+            for (form, floor, compensation) in [
+                (ObstacleFormulation::DistanceAlm, None, false),
+                (ObstacleFormulation::DistanceAlm, Some(0.4), true),
+                (ObstacleFormulation::PaperPenalty, None, true),
+                (ObstacleFormulation::PaperPenalty, Some(0.4), false),
+            ] {
+                let mut def =
+                    OcpDefinition::from_scenario(&Scenario::paper_2(), ControllerMode::Multistage, 0.1, form);
+                def.sampling_times_s = (0..m).map(|i| 0.05 + 0.025 * i as f64).collect();
+                def.min_altitude_m = floor;
+                def.delay_compensation = compensation;
+                let mut ev = Evaluator::new(&def);
+                let n = ev.num_variables();
+                for point in 0..4 {
+                    // Heading at the cylinders (active constraints); attitudes beyond 0.5 rad
+                    // (libm's sin and cos) in every other point.
+                    let angle = if point % 2 == 1 { 0.8 } else { 0.1 };
+                    let x0 = [
+                        rng.random_range(2.6..3.4),
+                        rng.random_range(1.0..3.0),
+                        rng.random_range(0.3..1.0),
+                        0.0,
+                        rng.random_range(0.5..1.5),
+                        0.0,
+                        rng.random_range(-angle..angle),
+                        rng.random_range(-angle..angle),
+                    ];
+                    let weights: Vec<f64> = (0..m).map(|_| rng.random_range(0.0..1.0)).collect();
+                    ev.set_instance(&x0, &[9.81, 0.01, -0.02], &weights);
+                    let z: Vec<f64> = (0..n).map(|_| rng.random_range(-3.0..3.0)).collect();
+                    let y: Vec<f64> = match point {
+                        0 => Vec::new(),
+                        _ => (0..def.num_constraints()).map(|_| rng.random_range(0.0..20.0)).collect(),
+                    };
+                    for c in [0.0, 1e3] {
+                        let mut grad = vec![0.0; n];
+                        let mut con = vec![0.0; def.num_constraints()];
+                        let cost = ev.cost(&z, c, &y);
+                        ev.gradient(&z, c, &y, &mut grad);
+                        ev.constraints(&z, &mut con);
+                        let (ref_cost, ref_grad, ref_con, ref_states) = scalar_reference(&ev, c, &y);
+                        let case = format!(
+                            "M = {m}, {form:?}, floor {floor:?}, compensation {compensation}, point {point}, c = {c}"
+                        );
+                        assert_eq!(cost.to_bits(), ref_cost.to_bits(), "cost: {case}");
+                        assert_eq!(bits(&grad), bits(&ref_grad), "gradient: {case}");
+                        assert_eq!(bits(&con), bits(&ref_con), "constraints: {case}");
+                        for i in 0..m {
+                            let states = &ref_states[i * (n / 3 + 1)..(i + 1) * (n / 3 + 1)];
+                            let state_bits =
+                                |s: &[[f64; 8]]| s.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+                            assert_eq!(
+                                state_bits(ev.predicted_states(i)),
+                                state_bits(states),
+                                "states of scenario {i}: {case}"
+                            );
+                        }
+                        if point == 2 && c > 0.0 && m == 5 {
+                            assert!(con.iter().any(|g| *g > 0.0), "some constraint active: {case}");
+                        }
+                    }
+                }
+            }
+        }
     }
 }
