@@ -12,6 +12,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use mav::{Cylinder, InputBounds, ModelParams, Scenario};
 
+use crate::solver::{MpcError, invalid_input};
+
 /// Forward (prediction) and adjoint passes of every evaluator in the process, for tuning aids
 /// (`examples/solve_stats.rs`): deterministic, unlike wall times.
 static FORWARD_PASSES: AtomicU64 = AtomicU64::new(0);
@@ -160,6 +162,33 @@ impl OcpDefinition {
     }
 }
 
+/// Checks the per-cycle data of a problem with `m` scenarios: the state, the last applied
+/// input and the scenario weights. Shared by [`crate::Mpc`] and [`crate::QpFallback`], so both
+/// reject the same inputs with errors naming the same fields.
+pub(crate) fn validate_instance(
+    m: usize,
+    x0: &[f64; 8],
+    u_prev: &[f64; 3],
+    weights: &[f64],
+) -> Result<(), MpcError> {
+    if let Some(i) = x0.iter().position(|v| !v.is_finite()) {
+        return Err(invalid_input(format!("x0[{i}]"), "must be finite"));
+    }
+    if let Some(i) = u_prev.iter().position(|v| !v.is_finite()) {
+        return Err(invalid_input(format!("u_prev[{i}]"), "must be finite"));
+    }
+    if weights.len() != m {
+        return Err(invalid_input("weights", format!("must hold {m} values, got {}", weights.len())));
+    }
+    if let Some(i) = weights.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
+        return Err(invalid_input(format!("weights[{i}]"), "must be finite and >= 0"));
+    }
+    if weights.iter().sum::<f64>() <= 0.0 {
+        return Err(invalid_input("weights", "must not all be zero"));
+    }
+    Ok(())
+}
+
 /// Per-variable affine scaling `u = offset + scale * z`.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Scaling {
@@ -245,23 +274,24 @@ macro_rules! with_lanes {
 /// allocated in [`Evaluator::new`], none in the solve loop.
 #[derive(Debug, Clone)]
 pub struct Evaluator {
-    m: usize,
-    n: usize,
-    params: ModelParams,
-    dts: Vec<f64>,
+    // The definition's data, read by the QP fallback's linearization as well.
+    pub(crate) m: usize,
+    pub(crate) n: usize,
+    pub(crate) params: ModelParams,
+    pub(crate) dts: Vec<f64>,
     weights: Vec<f64>,
     weight_sum: f64,
-    q_x: [f64; 8],
-    q_u: [f64; 3],
-    q_du: [f64; 3],
-    x_ref: [f64; 8],
-    u_ref: [f64; 3],
+    pub(crate) q_x: [f64; 8],
+    pub(crate) q_u: [f64; 3],
+    pub(crate) q_du: [f64; 3],
+    pub(crate) x_ref: [f64; 8],
+    pub(crate) u_ref: [f64; 3],
     obstacles: Vec<ObstacleTerm>,
     min_altitude_m: Option<f64>,
     /// Constraint values per predicted point (cylinders, then the floor).
     n_con: usize,
     formulation: ObstacleFormulation,
-    delay_compensation: bool,
+    pub(crate) delay_compensation: bool,
     x0: [f64; 8],
     /// Initial state of each scenario's prediction: `x0`, or with dead-time compensation
     /// `x0` advanced one Euler step of `ts_i` under `u_prev`.
@@ -1290,10 +1320,8 @@ mod tests {
     /// `(cost, gradient in z, constraint values, predicted states)` at inputs `ev.u`.
     fn scalar_reference(ev: &Evaluator, c: f64, y: &[f64]) -> (f64, Vec<f64>, Vec<f64>, Vec<[f64; 8]>) {
         let (m, n, n_con) = (ev.m, ev.n, ev.n_con);
-        let p = ev.params;
-        let (g, ax, ay, az) = (p.gravity_mps2, p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
-        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
-        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
+        let e = crate::qp::EulerCoeffs::new(&ev.params);
+        let (kr, kp) = (e.kr, e.kp);
         let n_obs = ev.obstacles.len();
         let mut states = vec![[0.0; 8]; m * (n + 1)];
         let mut trig = vec![[0.0; 4]; m * n];
@@ -1312,17 +1340,7 @@ mod tests {
                 let (sr, cr) = sin_cos_small(x[6]);
                 let (sp, cp) = sin_cos_small(x[7]);
                 trig[j] = [sr, cr, sp, cp];
-                let (t, rd, pd) = (u[0], u[1], u[2]);
-                x = [
-                    x[0] + dt * x[3],
-                    x[1] + dt * x[4],
-                    x[2] + dt * x[5],
-                    x[3] + dt * (t * cr * sp - ax * x[3]),
-                    x[4] + dt * (-t * sr - ay * x[4]),
-                    x[5] + dt * (t * cr * cp - g - az * x[5]),
-                    x[6] + dt * (kr * rd - ir * x[6]),
-                    x[7] + dt * (kp * pd - ip * x[7]),
-                ];
+                x = e.step(&x, u, dt, [sr, cr, sp, cp]);
                 states[j + 1] = x;
                 for ((xk, rk), qk) in x.iter().zip(&ev.x_ref).zip(&ev.q_x) {
                     let e = xk - rk;
@@ -1392,13 +1410,7 @@ mod tests {
                 grad_u[3 * j] += dt * (cr * sp * l[3] - sr * l[4] + cr * cp * l[5]);
                 grad_u[3 * j + 1] += dt * kr * l[6];
                 grad_u[3 * j + 2] += dt * kp * l[7];
-                let l6 = l[6] + dt * (-t * sr * sp * l[3] - t * cr * l[4] - t * sr * cp * l[5] - ir * l[6]);
-                let l7 = l[7] + dt * (t * cr * cp * l[3] - t * cr * sp * l[5] - ip * l[7]);
-                l[3] += dt * (l[0] - ax * l[3]);
-                l[4] += dt * (l[1] - ay * l[4]);
-                l[5] += dt * (l[2] - az * l[5]);
-                l[6] = l6;
-                l[7] = l7;
+                e.adjoint_step(&mut l, dt, t, [sr, cr, sp, cp]);
             }
         }
         let grad = grad_u.iter().zip(&ev.scaling.scale).map(|(g, s)| g * s).collect();

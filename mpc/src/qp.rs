@@ -50,8 +50,8 @@ use std::time::Duration;
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
 
-use crate::problem::{Evaluator, OcpDefinition};
-use crate::solver::MpcError;
+use crate::problem::{Evaluator, OcpDefinition, validate_instance};
+use crate::solver::{MpcError, invalid_input};
 use mav::{Cylinder, InputBounds, ModelParams};
 
 /// Settings of the QP fallback (validated in [`QpFallback::new`]).
@@ -311,22 +311,13 @@ struct Obstacle {
 /// sparsity pattern fixed.
 pub struct QpFallback {
     settings: QpSettings,
-    m: usize,
-    n: usize,
-    params: ModelParams,
     bounds: InputBounds,
-    dts: Vec<f64>,
-    q_x: [f64; 8],
-    q_u: [f64; 3],
-    q_du: [f64; 3],
-    x_ref: [f64; 8],
-    u_ref: [f64; 3],
     obstacles: Vec<Obstacle>,
     cylinders: Vec<Cylinder>,
+    /// Checks the plans on the nonlinear model, and holds the definition's sizes, model,
+    /// sampling times, costs and dead-time compensation, which the linearization reads too.
     evaluator: Evaluator,
     // Per-cycle data.
-    /// Dead-time compensation (see [`OcpDefinition::delay_compensation`]).
-    delay_compensation: bool,
     x0: [f64; 8],
     u_prev: [f64; 3],
     weights: Vec<f64>,
@@ -418,20 +409,10 @@ impl QpFallback {
         }
         Ok(Self {
             settings,
-            m,
-            n,
-            params: def.model,
             bounds: def.bounds,
-            dts: def.sampling_times_s.clone(),
-            q_x: def.q_x,
-            q_u: def.q_u,
-            q_du: def.q_du,
-            x_ref: def.x_ref,
-            u_ref: def.u_ref,
             obstacles,
             cylinders: def.obstacles.clone(),
             evaluator: Evaluator::new(def),
-            delay_compensation: def.delay_compensation,
             x0: [0.0; 8],
             u_prev: def.u_ref,
             weights: vec![1.0; m],
@@ -475,7 +456,7 @@ impl QpFallback {
 
     /// Inputs of a plan (`3N`).
     pub fn num_variables(&self) -> usize {
-        3 * self.n
+        3 * self.evaluator.n
     }
 
     /// Variables of the QP clarabel solves: three corrections per input block (see
@@ -510,7 +491,7 @@ impl QpFallback {
     /// inputs `u`: the bounds (with the trust region), the half-planes and the floor rows. (The
     /// move blocking is a restriction of the QP's variables, not a constraint checked here.)
     pub fn linear_violation(&self, u: &[f64]) -> f64 {
-        let nv = 3 * self.n;
+        let nv = 3 * self.evaluator.n;
         let mut worst = 0.0f64;
         for (v, &uv) in u.iter().enumerate().take(nv) {
             worst = worst.max(uv - self.hi[v]).max(self.lo[v] - uv);
@@ -529,31 +510,13 @@ impl QpFallback {
         weights: &[f64],
         nominal: Option<&[f64]>,
     ) -> Result<(), MpcError> {
-        let invalid = |field: String, reason: &str| MpcError::InvalidInput { field, reason: reason.into() };
-        if let Some(i) = x0.iter().position(|v| !v.is_finite()) {
-            return Err(invalid(format!("x0[{i}]"), "must be finite"));
-        }
-        if let Some(i) = u_prev.iter().position(|v| !v.is_finite()) {
-            return Err(invalid(format!("u_prev[{i}]"), "must be finite"));
-        }
-        if weights.len() != self.m {
-            return Err(invalid(
-                "weights".into(),
-                &format!("must hold {} values, got {}", self.m, weights.len()),
-            ));
-        }
-        if let Some(i) = weights.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
-            return Err(invalid(format!("weights[{i}]"), "must be finite and >= 0"));
-        }
-        if weights.iter().sum::<f64>() <= 0.0 {
-            return Err(invalid("weights".into(), "must not all be zero"));
-        }
+        validate_instance(self.evaluator.m, x0, u_prev, weights)?;
         if let Some(u) = nominal {
-            if u.len() != 3 * self.n {
-                return Err(invalid("nominal".into(), &format!("must hold {} values", 3 * self.n)));
+            if u.len() != 3 * self.evaluator.n {
+                return Err(invalid_input("nominal", format!("must hold {} values", 3 * self.evaluator.n)));
             }
             if let Some(k) = u.iter().position(|v| !v.is_finite()) {
-                return Err(invalid(format!("nominal[{}][{}]", k / 3, k % 3), "must be finite"));
+                return Err(invalid_input(format!("nominal[{}][{}]", k / 3, k % 3), "must be finite"));
             }
         }
         Ok(())
@@ -576,7 +539,7 @@ impl QpFallback {
         self.x0 = *x0;
         self.u_prev = *u_prev;
         self.weights.copy_from_slice(weights);
-        let nv = 3 * self.n;
+        let nv = 3 * self.evaluator.n;
         match nominal {
             Some(u) => self.nominal.copy_from_slice(u),
             None if self.has_previous => {
@@ -585,8 +548,8 @@ impl QpFallback {
                 self.nominal[nv - 3..].copy_from_slice(&last);
             }
             None => {
-                for j in 0..self.n {
-                    self.nominal[3 * j..3 * j + 3].copy_from_slice(&self.u_ref);
+                for j in 0..self.evaluator.n {
+                    self.nominal[3 * j..3 * j + 3].copy_from_slice(&self.evaluator.u_ref);
                 }
             }
         }
@@ -665,22 +628,20 @@ impl QpFallback {
 
     /// Nominal trajectories, position sensitivities, Gauss-Newton Hessian and gradient.
     fn linearize(&mut self) {
-        let (m, n) = (self.m, self.n);
+        let (m, n) = (self.evaluator.m, self.evaluator.n);
         let nv = 3 * n;
-        let p = self.params;
-        let (g, ax, ay, az) = (p.gravity_mps2, p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
-        let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
-        let (ir, ip) = (1.0 / p.tau_roll_s, 1.0 / p.tau_pitch_s);
+        let e = EulerCoeffs::new(&self.evaluator.params);
+        let EulerCoeffs { ax, ay, az, kr, kp, ir, ip, .. } = e;
         let u = &self.nominal;
         self.hess.iter_mut().for_each(|h| *h = 0.0);
         self.grad.iter_mut().for_each(|h| *h = 0.0);
         for i in 0..m {
-            let dt = self.dts[i];
+            let dt = self.evaluator.dts[i];
             let w2 = 2.0 * self.weights[i];
             let base = i * (n + 1);
             // Nominal forward pass (from the state after the dead time, with compensation).
-            let mut x = if self.delay_compensation {
-                crate::problem::euler_predict(&self.params, &self.x0, &self.u_prev, dt)
+            let mut x = if self.evaluator.delay_compensation {
+                crate::problem::euler_predict(&self.evaluator.params, &self.x0, &self.u_prev, dt)
             } else {
                 self.x0
             };
@@ -689,17 +650,7 @@ impl QpFallback {
                 let (sr, cr) = x[6].sin_cos();
                 let (sp, cp) = x[7].sin_cos();
                 self.trig[i * n + j] = [sr, cr, sp, cp];
-                let (t, rd, pd) = (u[3 * j], u[3 * j + 1], u[3 * j + 2]);
-                x = [
-                    x[0] + dt * x[3],
-                    x[1] + dt * x[4],
-                    x[2] + dt * x[5],
-                    x[3] + dt * (t * cr * sp - ax * x[3]),
-                    x[4] + dt * (-t * sr - ay * x[4]),
-                    x[5] + dt * (t * cr * cp - g - az * x[5]),
-                    x[6] + dt * (kr * rd - ir * x[6]),
-                    x[7] + dt * (kp * pd - ip * x[7]),
-                ];
+                x = e.step(&x, &u[3 * j..3 * j + 3], dt, [sr, cr, sp, cp]);
                 self.states[base + j + 1] = x;
             }
             // Gradient of the state cost at the nominal inputs: one adjoint pass.
@@ -707,14 +658,14 @@ impl QpFallback {
             for j in (0..n).rev() {
                 let xs = &self.states[base + j + 1];
                 for k in 0..8 {
-                    l[k] += w2 * self.q_x[k] * (xs[k] - self.x_ref[k]);
+                    l[k] += w2 * self.evaluator.q_x[k] * (xs[k] - self.evaluator.x_ref[k]);
                 }
                 let [sr, cr, sp, cp] = self.trig[i * n + j];
                 let t = u[3 * j];
                 self.grad[3 * j] += dt * (cr * sp * l[3] - sr * l[4] + cr * cp * l[5]);
                 self.grad[3 * j + 1] += dt * kr * l[6];
                 self.grad[3 * j + 2] += dt * kp * l[7];
-                adjoint_step(&mut l, dt, t, [sr, cr, sp, cp], (ax, ay, az, ir, ip));
+                e.adjoint_step(&mut l, dt, t, [sr, cr, sp, cp]);
             }
             // Hessian and position sensitivities: per input, a forward sensitivity pass and an
             // adjoint pass.
@@ -756,7 +707,7 @@ impl QpFallback {
                 for j in (jv..n).rev() {
                     let s = &self.col[j + 1];
                     for k in 0..8 {
-                        l[k] += w2 * self.q_x[k] * s[k];
+                        l[k] += w2 * self.evaluator.q_x[k] * s[k];
                     }
                     let [sr, cr, sp, cp] = self.trig[i * n + j];
                     let row = 3 * j;
@@ -764,7 +715,7 @@ impl QpFallback {
                     self.hess[v * nv + row + 1] += dt * kr * l[6];
                     self.hess[v * nv + row + 2] += dt * kp * l[7];
                     if j > jv {
-                        adjoint_step(&mut l, dt, u[3 * j], [sr, cr, sp, cp], (ax, ay, az, ir, ip));
+                        e.adjoint_step(&mut l, dt, u[3 * j], [sr, cr, sp, cp]);
                     }
                 }
             }
@@ -779,18 +730,19 @@ impl QpFallback {
         }
         // Input cost W sum_j |u_j - u_r|^2_Qu + |u_j - u_{j-1}|^2_Qdu: Hessian and gradient.
         let wsum: f64 = self.weights.iter().sum();
+        let (q_u, q_du, u_ref) = (self.evaluator.q_u, self.evaluator.q_du, self.evaluator.u_ref);
         for j in 0..n {
             for c in 0..3 {
                 let k = 3 * j + c;
                 let uk = u[k];
                 let prev = if j == 0 { self.u_prev[c] } else { u[k - 3] };
-                let mut gk = self.q_u[c] * (uk - self.u_ref[c]) + self.q_du[c] * (uk - prev);
-                let mut diag = self.q_u[c] + self.q_du[c];
+                let mut gk = q_u[c] * (uk - u_ref[c]) + q_du[c] * (uk - prev);
+                let mut diag = q_u[c] + q_du[c];
                 if j + 1 < n {
-                    gk -= self.q_du[c] * (u[k + 3] - uk);
-                    diag += self.q_du[c];
-                    self.hess[k * nv + k + 3] -= 2.0 * wsum * self.q_du[c];
-                    self.hess[(k + 3) * nv + k] -= 2.0 * wsum * self.q_du[c];
+                    gk -= q_du[c] * (u[k + 3] - uk);
+                    diag += q_du[c];
+                    self.hess[k * nv + k + 3] -= 2.0 * wsum * q_du[c];
+                    self.hess[(k + 3) * nv + k] -= 2.0 * wsum * q_du[c];
                 }
                 self.grad[k] += 2.0 * wsum * gk;
                 self.hess[k * nv + k] += 2.0 * wsum * diag;
@@ -802,7 +754,7 @@ impl QpFallback {
     /// the blocked corrections `d` (`u = u_bar + T d`): the CSC forms of `P = T^T H T` (upper
     /// triangle) and of `A T` below the bound rows, `q = T^T g` and the right-hand sides.
     fn build_qp(&mut self) {
-        let (m, n) = (self.m, self.n);
+        let (m, n) = (self.evaluator.m, self.evaluator.n);
         let nv = 3 * n;
         self.b.clear();
         let mut r = 0;
@@ -971,7 +923,7 @@ impl QpFallback {
     /// violates or nearly violates (every unselected row when `all`). True when rows were added
     /// and the QP must be solved again.
     fn add_violated_rows(&mut self, all: bool) -> bool {
-        let nv = 3 * self.n;
+        let nv = 3 * self.evaluator.n;
         let u = &self.solution;
         let excess = |row: &[f64], b: f64| row.iter().zip(u).map(|(a, x)| a * x).sum::<f64>() - b;
         let mut unselected =
@@ -989,7 +941,7 @@ impl QpFallback {
     /// slacks, then the selected dense rows, in CSC (`[A T, -E]`, `E` picking each elastic
     /// row's slack) with their right-hand sides.
     fn assemble_constraints(&mut self) {
-        let n = self.n;
+        let n = self.evaluator.n;
         let nv = 3 * n;
         let nb = 3 * self.num_blocks;
         let ne = self.elastic_bound.len();
@@ -1119,18 +1071,67 @@ impl QpFallback {
     }
 }
 
-/// `l <- (I + dt Fx(x, u))^T l` for the MAV's Euler map (`trig` of `x`, thrust `t`).
-#[inline]
-fn adjoint_step(l: &mut [f64; 8], dt: f64, t: f64, trig: [f64; 4], drag: (f64, f64, f64, f64, f64)) {
-    let [sr, cr, sp, cp] = trig;
-    let (ax, ay, az, ir, ip) = drag;
-    let l6 = l[6] + dt * (-t * sr * sp * l[3] - t * cr * l[4] - t * sr * cp * l[5] - ir * l[6]);
-    let l7 = l[7] + dt * (t * cr * cp * l[3] - t * cr * sp * l[5] - ip * l[7]);
-    l[3] += dt * (l[0] - ax * l[3]);
-    l[4] += dt * (l[1] - ay * l[4]);
-    l[5] += dt * (l[2] - az * l[5]);
-    l[6] = l6;
-    l[7] = l7;
+/// The coefficients of the MAV's Euler map that the linearization (and the evaluator's scalar
+/// test reference) use, computed once per pass so that both round the same way.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct EulerCoeffs {
+    pub g: f64,
+    pub ax: f64,
+    pub ay: f64,
+    pub az: f64,
+    /// Attitude gains over their time constants.
+    pub kr: f64,
+    pub kp: f64,
+    /// Inverse attitude time constants.
+    pub ir: f64,
+    pub ip: f64,
+}
+
+impl EulerCoeffs {
+    pub fn new(p: &ModelParams) -> Self {
+        Self {
+            g: p.gravity_mps2,
+            ax: p.drag_x_per_s,
+            ay: p.drag_y_per_s,
+            az: p.drag_z_per_s,
+            kr: p.gain_roll / p.tau_roll_s,
+            kp: p.gain_pitch / p.tau_pitch_s,
+            ir: 1.0 / p.tau_roll_s,
+            ip: 1.0 / p.tau_pitch_s,
+        }
+    }
+
+    /// `x + dt f(x, u)` with `trig` the `(sin, cos)` of `x`'s roll and pitch.
+    #[inline]
+    pub fn step(&self, x: &[f64; 8], u: &[f64], dt: f64, trig: [f64; 4]) -> [f64; 8] {
+        let [sr, cr, sp, cp] = trig;
+        let Self { g, ax, ay, az, kr, kp, ir, ip } = *self;
+        let (t, rd, pd) = (u[0], u[1], u[2]);
+        [
+            x[0] + dt * x[3],
+            x[1] + dt * x[4],
+            x[2] + dt * x[5],
+            x[3] + dt * (t * cr * sp - ax * x[3]),
+            x[4] + dt * (-t * sr - ay * x[4]),
+            x[5] + dt * (t * cr * cp - g - az * x[5]),
+            x[6] + dt * (kr * rd - ir * x[6]),
+            x[7] + dt * (kp * pd - ip * x[7]),
+        ]
+    }
+
+    /// `l <- (I + dt Fx(x, u))^T l` (`trig` of `x`, thrust `t`).
+    #[inline]
+    pub fn adjoint_step(&self, l: &mut [f64; 8], dt: f64, t: f64, trig: [f64; 4]) {
+        let [sr, cr, sp, cp] = trig;
+        let Self { ax, ay, az, ir, ip, .. } = *self;
+        let l6 = l[6] + dt * (-t * sr * sp * l[3] - t * cr * l[4] - t * sr * cp * l[5] - ir * l[6]);
+        let l7 = l[7] + dt * (t * cr * cp * l[3] - t * cr * sp * l[5] - ip * l[7]);
+        l[3] += dt * (l[0] - ax * l[3]);
+        l[4] += dt * (l[1] - ay * l[4]);
+        l[5] += dt * (l[2] - az * l[5]);
+        l[6] = l6;
+        l[7] = l7;
+    }
 }
 
 /// An input sequence checked on the nonlinear (Euler) predictions of every scenario.

@@ -10,7 +10,7 @@ use optimization_engine::core::ExitStatus;
 use optimization_engine::panoc::PANOCCache;
 use optimization_engine::{FunctionCallResult, SolverError};
 
-use crate::problem::{Evaluator, ObstacleFormulation, OcpDefinition};
+use crate::problem::{Evaluator, ObstacleFormulation, OcpDefinition, validate_instance};
 
 /// Default upper bound of the multiplier box `Y` OpEn's ALM requires (compact, inside the dual
 /// cone).
@@ -143,7 +143,7 @@ pub enum MpcError {
     InvalidInput { field: String, reason: String },
 }
 
-fn invalid_input(field: impl Into<String>, reason: impl Into<String>) -> MpcError {
+pub(crate) fn invalid_input(field: impl Into<String>, reason: impl Into<String>) -> MpcError {
     MpcError::InvalidInput { field: field.into(), reason: reason.into() }
 }
 
@@ -336,26 +336,6 @@ impl Mpc {
         }
     }
 
-    fn validate_instance(&self, x0: &[f64; 8], u_prev: &[f64; 3], weights: &[f64]) -> Result<(), MpcError> {
-        if let Some(i) = x0.iter().position(|v| !v.is_finite()) {
-            return Err(invalid_input(format!("x0[{i}]"), "must be finite"));
-        }
-        if let Some(i) = u_prev.iter().position(|v| !v.is_finite()) {
-            return Err(invalid_input(format!("u_prev[{i}]"), "must be finite"));
-        }
-        let m = self.def.num_scenarios();
-        if weights.len() != m {
-            return Err(invalid_input("weights", format!("must hold {m} values, got {}", weights.len())));
-        }
-        if let Some(i) = weights.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
-            return Err(invalid_input(format!("weights[{i}]"), "must be finite and >= 0"));
-        }
-        if weights.iter().sum::<f64>() <= 0.0 {
-            return Err(invalid_input("weights", "must not all be zero"));
-        }
-        Ok(())
-    }
-
     /// Solves from state `x0` with last applied input `u_prev` and scenario weights.
     ///
     /// Warm-starts from the previous solution shifted by one step (or from what
@@ -368,7 +348,7 @@ impl Mpc {
         weights: &[f64],
         budget: &SolveBudget,
     ) -> Result<SolveReport, MpcError> {
-        self.validate_instance(x0, u_prev, weights)?;
+        validate_instance(self.def.num_scenarios(), x0, u_prev, weights)?;
         let outcome = self.solve_scaled(x0, u_prev, weights, budget);
         let (status, iterations, outer_iterations, solve_time, penalty) = match outcome {
             Ok(r) => r,
