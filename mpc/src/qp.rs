@@ -821,15 +821,8 @@ impl QpFallback {
                     };
                     // n^T (p_bar + S (u - u_bar) - c) >= R  <=>  -n^T S u <= n^T (p_bar - c) - R - n^T S u_bar
                     let row = &mut self.rows[r * nv..(r + 1) * nv];
-                    let mut su = 0.0;
-                    let mut norm = 0.0f64;
-                    for v in 0..width {
-                        let a = -(nx * sens[v][0] + ny * sens[v][1]);
-                        row[v] = a;
-                        su += a * self.nominal[v];
-                        norm = norm.max(a.abs());
-                    }
-                    row[width..].iter_mut().for_each(|a| *a = 0.0);
+                    let (su, norm) =
+                        fill_row(row, width, &self.nominal, |v| -(nx * sens[v][0] + ny * sens[v][1]));
                     // A point the inputs cannot move constrains nothing the QP can change.
                     if norm < 1e-12 {
                         continue;
@@ -841,15 +834,7 @@ impl QpFallback {
                 if let Some(floor) = self.settings.min_altitude_m {
                     // z_bar + S_z (u - u_bar) >= floor  <=>  -S_z u <= z_bar - floor - S_z u_bar
                     let row = &mut self.rows[r * nv..(r + 1) * nv];
-                    let mut su = 0.0;
-                    let mut norm = 0.0f64;
-                    for v in 0..width {
-                        let a = -sens[v][2];
-                        row[v] = a;
-                        su += a * self.nominal[v];
-                        norm = norm.max(a.abs());
-                    }
-                    row[width..].iter_mut().for_each(|a| *a = 0.0);
+                    let (su, norm) = fill_row(row, width, &self.nominal, |v| -sens[v][2]);
                     if norm < 1e-12 {
                         continue;
                     }
@@ -1069,6 +1054,22 @@ impl QpFallback {
         }
         (status, solver.solution.iterations, time)
     }
+}
+
+/// Fills a dense row with `a_v = coeff(v)` for the inputs `0..width` that can move the
+/// point, zeros beyond, and returns `(a^T u_bar, max |a_v|)` for the right-hand side and the
+/// test for a row the inputs cannot change.
+fn fill_row(row: &mut [f64], width: usize, nominal: &[f64], coeff: impl Fn(usize) -> f64) -> (f64, f64) {
+    let mut su = 0.0;
+    let mut norm = 0.0f64;
+    for v in 0..width {
+        let a = coeff(v);
+        row[v] = a;
+        su += a * nominal[v];
+        norm = norm.max(a.abs());
+    }
+    row[width..].iter_mut().for_each(|a| *a = 0.0);
+    (su, norm)
 }
 
 /// The coefficients of the MAV's Euler map that the linearization (and the evaluator's scalar
