@@ -2,26 +2,19 @@
 //! paper closed loops (targets in BENCHMARKS.md).
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use mpc::{
-    ClosedLoopSettings, ControllerMode, Evaluator, Mpc, MpcSettings, OcpDefinition, SolveBudget,
-    run_closed_loop,
+    ClosedLoopSettings, ControllerMode, Mpc, MpcSettings, OcpDefinition, SolveBudget, run_closed_loop,
 };
 use std::hint::black_box;
+
+#[path = "common/eval_case.rs"]
+mod eval_case;
+use eval_case::eval_case;
 
 fn cost_and_gradient(c: &mut Criterion) {
     let scenario = mav::Scenario::paper_2();
     for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
         let def = OcpDefinition::from_scenario(&scenario, mode, 0.1, mpc::ObstacleFormulation::DistanceAlm);
-        let mut ev = Evaluator::new(&def);
-        let m = def.num_scenarios();
-        let weights = vec![1.0 / m as f64; m];
-        let mut x0 = [0.0; 8];
-        x0[..3].copy_from_slice(&[3.1, 1.2, 0.6]);
-        x0[4] = 1.5;
-        ev.set_instance(&x0, &[9.81, 0.0, 0.0], &weights);
-        let n = ev.num_variables();
-        let mut z: Vec<f64> = (0..n).map(|k| ((k * 7919) % 13) as f64 * 0.05 - 0.3).collect();
-        let y = vec![0.0; def.num_constraints()];
-        let mut grad = vec![0.0; n];
+        let (mut ev, mut z, y, mut grad) = eval_case(&def);
         let mut flip = 0.0;
         c.bench_function(&format!("cost_and_gradient/{}", mode.name()), |b| {
             b.iter(|| {

@@ -2,42 +2,14 @@
 //! Usage: accuracy [stride]; settings from env MPC_TOL, MPC_AKKT, MPC_MEM, MPC_CTOL, MPC_C0,
 //! MPC_CMAX, MPC_OUTER, MPC_INNER, MPC_PSLACK (< 0: no penalty preconditioner),
 //! MPC_PER_OUTER (0: no cap), MPC_YMAX.
-use mpc::{ControllerMode, MpcSettings, OcpDefinition, accuracy, closed_loop::percentile};
+use mpc::{ControllerMode, OcpDefinition, accuracy, closed_loop::percentile};
 
-fn env(name: &str, default: f64) -> f64 {
-    std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
-}
+#[path = "../benches/common/mpc_env.rs"]
+mod mpc_env;
 
 fn main() {
     let stride: usize = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(5);
-    let d = MpcSettings::default();
-    let s = MpcSettings {
-        tolerance: env("MPC_TOL", d.tolerance),
-        akkt_tolerance: env("MPC_AKKT", d.akkt_tolerance),
-        lbfgs_memory: env("MPC_MEM", d.lbfgs_memory as f64) as usize,
-        constraint_tolerance: env("MPC_CTOL", d.constraint_tolerance),
-        initial_penalty: env("MPC_C0", d.initial_penalty),
-        max_penalty: env("MPC_CMAX", d.max_penalty),
-        max_outer_iterations: env("MPC_OUTER", d.max_outer_iterations as f64) as usize,
-        max_inner_iterations: env("MPC_INNER", d.max_inner_iterations as f64) as usize,
-        penalty_preconditioner_slack_m: match env(
-            "MPC_PSLACK",
-            d.penalty_preconditioner_slack_m.unwrap_or(-1.0),
-        ) {
-            v if v < 0.0 => None,
-            v => Some(v),
-        },
-        max_inner_iterations_per_outer: match env(
-            "MPC_PER_OUTER",
-            d.max_inner_iterations_per_outer.unwrap_or(0) as f64,
-        ) as usize
-        {
-            0 => None,
-            v => Some(v),
-        },
-        max_multiplier: env("MPC_YMAX", d.max_multiplier),
-        ..d
-    };
+    let s = mpc_env::settings_from_env();
     println!("{s:?}");
     for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
         let (mut times, mut iters, mut gaps, mut unsafe_count) = (Vec::new(), Vec::new(), Vec::new(), 0);

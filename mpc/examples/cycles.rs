@@ -1,6 +1,10 @@
 //! Per-cycle solver statistics of one paper run (development aid).
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
 
+#[path = "../benches/common/fmt.rs"]
+mod fmt;
+use fmt::fixed;
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let scenario = mav::Scenario::by_name(&args[1]).expect("scenario");
@@ -8,15 +12,11 @@ fn main() {
     let (s, records) = run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode)).expect("run");
     for r in &records {
         println!(
-            "{:3} t={:6.2} p=[{:6.2} {:6.2} {:6.2}] v=[{:5.2} {:5.2} {:5.2}] u=[{:6.2} {:6.3} {:6.3}] d={:.3} {:?} it={} outer={} c={:.0e} viol={:.2e} clr={:.3} ms={:.2} cost={:.1} w={:.2?}",
+            "{:3} t={:6.2} p=[{}] v=[{}] u=[{:6.2} {:6.3} {:6.3}] d={:.3} {:?} it={} outer={} c={:.0e} viol={:.2e} clr={:.3} ms={:.2} cost={:.1} w={:.2?}",
             r.cycle,
             r.t_s,
-            r.state[0],
-            r.state[1],
-            r.state[2],
-            r.state[3],
-            r.state[4],
-            r.state[5],
+            fixed(&r.state[..3], 6, " "),
+            fixed(&r.state[3..6], 5, " "),
             r.command[0],
             r.command[1],
             r.command[2],

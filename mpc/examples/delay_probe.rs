@@ -2,6 +2,10 @@
 //! prints where the run went and what the layer decided.
 use mpc::{ClosedLoopSettings, ControllerMode, DelaySource, run_closed_loop};
 
+#[path = "../benches/common/fmt.rs"]
+mod fmt;
+use fmt::fixed;
+
 fn main() {
     // A constant delay in seconds, or a trace file (one delay per line).
     let arg = std::env::args().nth(1).unwrap_or_else(|| "0.33".into());
@@ -37,15 +41,11 @@ fn main() {
             if std::env::var("VERBOSE").is_ok() {
                 for r in &records {
                     println!(
-                        "  {:3} t={:5.2} p=[{:5.2},{:5.2},{:5.2}] v=[{:5.2},{:5.2},{:5.2}] w={:?} pred_clear={:.3} {}",
+                        "  {:3} t={:5.2} p=[{}] v=[{}] w={:?} pred_clear={:.3} {}",
                         r.cycle,
                         r.t_s,
-                        r.state[0],
-                        r.state[1],
-                        r.state[2],
-                        r.state[3],
-                        r.state[4],
-                        r.state[5],
+                        fixed(&r.state[..3], 5, ","),
+                        fixed(&r.state[3..6], 5, ","),
                         r.weights_used.iter().map(|w| (w * 100.0).round() / 100.0).collect::<Vec<_>>(),
                         r.report.min_clearance_m,
                         r.selection.as_ref().map(|s| s.reason()).unwrap_or_default()

@@ -3,8 +3,12 @@
 //!
 //! `profile_eval [nmpc|multistage] [iterations] [scenarios]`; `scenarios` replaces the
 //! sampling times by that many (0.05 s, 0.075 s, ...).
-use mpc::{ControllerMode, Evaluator, OcpDefinition};
+use mpc::{ControllerMode, OcpDefinition};
 use std::hint::black_box;
+
+#[path = "../benches/common/eval_case.rs"]
+mod eval_case;
+use eval_case::eval_case;
 
 fn main() {
     let mut args = std::env::args().skip(1);
@@ -19,17 +23,7 @@ fn main() {
         let m: usize = m.parse().expect("scenarios");
         def.sampling_times_s = (0..m).map(|i| 0.05 + 0.025 * i as f64).collect();
     }
-    let mut ev = Evaluator::new(&def);
-    let m = def.num_scenarios();
-    let weights = vec![1.0 / m as f64; m];
-    let mut x0 = [0.0; 8];
-    x0[..3].copy_from_slice(&[3.1, 1.2, 0.6]);
-    x0[4] = 1.5;
-    ev.set_instance(&x0, &[9.81, 0.0, 0.0], &weights);
-    let n = ev.num_variables();
-    let mut z: Vec<f64> = (0..n).map(|k| ((k * 7919) % 13) as f64 * 0.05 - 0.3).collect();
-    let y = vec![0.0; def.num_constraints()];
-    let mut grad = vec![0.0; n];
+    let (mut ev, mut z, y, mut grad) = eval_case(&def);
     let mut flip = 0.0;
     let start = std::time::Instant::now();
     let mut acc = 0.0;
