@@ -1141,6 +1141,35 @@ fn floor_value(formulation: ObstacleFormulation, min_altitude_m: f64, pz: f64) -
     }
 }
 
+/// Test support, shared by this module's unit tests and `tests/gradient_options.rs`: central
+/// finite differences of [`Evaluator::cost`] against [`Evaluator::gradient`], coordinate by
+/// coordinate. `Err` names the first variable whose adjoint derivative disagrees (relative to
+/// the largest gradient component).
+#[doc(hidden)]
+pub fn check_gradient(ev: &mut Evaluator, z: &[f64], c: f64, y: &[f64]) -> Result<(), String> {
+    let n = z.len();
+    let mut grad = vec![0.0; n];
+    ev.gradient(z, c, y, &mut grad);
+    let mut zp = z.to_vec();
+    let scale = grad.iter().fold(1.0f64, |m, g| m.max(g.abs()));
+    for k in 0..n {
+        let h = 1e-6 * (1.0 + z[k].abs());
+        zp[k] = z[k] + h;
+        let fp = ev.cost(&zp, c, y);
+        zp[k] = z[k] - h;
+        let fm = ev.cost(&zp, c, y);
+        zp[k] = z[k];
+        let fd = (fp - fm) / (2.0 * h);
+        if (fd - grad[k]).abs() > 2e-5 * scale {
+            return Err(format!(
+                "variable {k}: adjoint {} vs finite difference {fd} (scale {scale})",
+                grad[k]
+            ));
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1185,31 +1214,6 @@ mod tests {
         // and the derivative used is the model's
         let d = model.derivative(&mav::State::from(x0), &mav::Input::new(9.81, 0.0, 0.0));
         assert!(d.iter().all(|v| v.is_finite()));
-    }
-
-    /// Central finite differences of `cost` against `gradient`, coordinate by coordinate.
-    fn check_gradient(ev: &mut Evaluator, z: &[f64], c: f64, y: &[f64]) -> Result<(), String> {
-        let n = z.len();
-        let mut grad = vec![0.0; n];
-        ev.gradient(z, c, y, &mut grad);
-        let mut zp = z.to_vec();
-        let scale = grad.iter().fold(1.0f64, |m, g| m.max(g.abs()));
-        for k in 0..n {
-            let h = 1e-6 * (1.0 + z[k].abs());
-            zp[k] = z[k] + h;
-            let fp = ev.cost(&zp, c, y);
-            zp[k] = z[k] - h;
-            let fm = ev.cost(&zp, c, y);
-            zp[k] = z[k];
-            let fd = (fp - fm) / (2.0 * h);
-            if (fd - grad[k]).abs() > 2e-5 * scale {
-                return Err(format!(
-                    "variable {k}: adjoint {} vs finite difference {fd} (scale {scale})",
-                    grad[k]
-                ));
-            }
-        }
-        Ok(())
     }
 
     fn arb_z(n: usize) -> impl Strategy<Value = Vec<f64>> {

@@ -3,6 +3,7 @@
 //! unit tests of `mpc::problem`).
 
 use mav::Scenario;
+use mpc::problem::check_gradient;
 use mpc::{ControllerMode, Evaluator, ObstacleFormulation, OcpDefinition};
 use proptest::prelude::*;
 
@@ -10,31 +11,6 @@ fn definition(form: ObstacleFormulation, floor_m: f64, compensation: bool) -> Oc
     let scenario =
         Scenario { min_altitude_m: Some(floor_m), delay_compensation: compensation, ..Scenario::paper_2() };
     OcpDefinition::from_scenario(&scenario, ControllerMode::Multistage, 0.1, form)
-}
-
-/// `Err` naming the first variable whose adjoint derivative disagrees with the central
-/// difference (relative to the largest gradient component).
-fn check_gradient(ev: &mut Evaluator, z: &[f64], c: f64, y: &[f64]) -> Result<(), String> {
-    let mut grad = vec![0.0; z.len()];
-    ev.gradient(z, c, y, &mut grad);
-    let scale = grad.iter().fold(1.0f64, |m, g| m.max(g.abs()));
-    let mut zp = z.to_vec();
-    for k in 0..z.len() {
-        let h = 1e-6 * (1.0 + z[k].abs());
-        zp[k] = z[k] + h;
-        let fp = ev.cost(&zp, c, y);
-        zp[k] = z[k] - h;
-        let fm = ev.cost(&zp, c, y);
-        zp[k] = z[k];
-        let fd = (fp - fm) / (2.0 * h);
-        if (fd - grad[k]).abs() > 2e-5 * scale {
-            return Err(format!(
-                "variable {k}: adjoint {} vs finite difference {fd} (scale {scale})",
-                grad[k]
-            ));
-        }
-    }
-    Ok(())
 }
 
 proptest! {
