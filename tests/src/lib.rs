@@ -2,6 +2,8 @@
 
 pub mod controller;
 pub mod plant;
+pub mod server;
 
 pub use controller::{RunningController, start_controller};
-pub use plant::{RunningPlant, start_plant, start_plant_with_clock};
+pub use plant::{RunningPlant, start_plant, start_plant_with_clock, wait_for_state};
+pub use server::Running;

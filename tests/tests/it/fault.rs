@@ -12,7 +12,7 @@ use std::time::Duration;
 use hilbench::grpc::{Endpoints, GrpcSettings, TimeMode, netem_config, run_against};
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
-use hilbench_tests::start_plant;
+use hilbench_tests::{start_plant, wait_for_state};
 use mav::Scenario;
 use mpc::ControllerMode;
 use plant::PlantConfig;
@@ -73,23 +73,13 @@ async fn bind(addr: SocketAddr) -> tokio::net::TcpListener {
     }
 }
 
-/// Polls the plant's state until `pred` holds; panics with `what` and the last sample.
+/// Polls the plant's state every 20 ms until `pred` holds.
 async fn wait_for_plant(
     client: &mut PlantClient<Channel>,
     what: &str,
     pred: impl Fn(&pb::StateSample) -> bool,
 ) -> pb::StateSample {
-    let deadline = tokio::time::Instant::now() + PATIENCE;
-    loop {
-        let s = client.get_state(pb::GetStateRequest {}).await.expect("plant GetState").into_inner();
-        if pred(&s) {
-            return s;
-        }
-        if tokio::time::Instant::now() >= deadline {
-            panic!("timed out waiting for {what}; last sample: {s:?}");
-        }
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    wait_for_state(client, what, PATIENCE, Duration::from_millis(20), pred).await
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -4,7 +4,7 @@
 
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
-use hilbench_tests::start_plant;
+use hilbench_tests::{start_plant, wait_for_state};
 use mav::{CommandMeta, Input, PlantSim, Scenario, SimSettings, State};
 use plant::PlantConfig;
 use std::time::Duration;
@@ -302,21 +302,13 @@ async fn reset_to_a_custom_start_restarts_time_and_numbering() {
     server.stop().await.expect("clean shutdown");
 }
 
-/// Polls GetState until `pred` holds; panics after `PATIENCE`.
+/// Polls GetState every 10 ms until `pred` holds; panics after `PATIENCE`.
 async fn poll_until(
     client: &mut PlantClient<Channel>,
     what: &str,
     pred: impl Fn(&pb::StateSample) -> bool,
 ) -> pb::StateSample {
-    let deadline = tokio::time::Instant::now() + PATIENCE;
-    loop {
-        let s = get_state(client).await;
-        if pred(&s) {
-            return s;
-        }
-        assert!(tokio::time::Instant::now() < deadline, "{what}: not within {PATIENCE:?}; last sample {s:?}");
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
+    wait_for_state(client, what, PATIENCE, Duration::from_millis(10), pred).await
 }
 
 #[tokio::test]
