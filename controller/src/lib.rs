@@ -21,21 +21,17 @@ pub use config::{ControllerConfig, TimeModeSetting};
 pub use service::ControllerService;
 
 use hilbench_proto::pb::controller_server::ControllerServer;
+use hilbench_svc::{GrpcServer, ServeError};
 use std::future::Future;
-use tonic::transport::Server;
-use tonic::transport::server::TcpIncoming;
+use tonic::server::NamedService;
 
 /// Why the controller could not serve.
 #[derive(Debug, thiserror::Error)]
 pub enum ControllerError {
     #[error("invalid configuration: {0}")]
     Config(String),
-    #[error("reflection service: {0}")]
-    Reflection(#[from] tonic_reflection::server::Error),
-    #[error("listener: {0}")]
-    Io(#[from] std::io::Error),
-    #[error("gRPC server: {0}")]
-    Transport(#[from] tonic::transport::Error),
+    #[error(transparent)]
+    Serve(#[from] ServeError),
 }
 
 /// Serves the Controller API on `listener` and runs the control loop against
@@ -46,25 +42,16 @@ pub async fn serve(
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), ControllerError> {
     config.validate().map_err(ControllerError::Config)?;
-    let addr = listener.local_addr()?;
     let shared = runner::Shared::new(&config);
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
     let loop_task = tokio::spawn(runner::run(config.clone(), shared.clone(), stop_rx));
     let service = ControllerService::new(shared.clone());
 
-    let (health_reporter, health) = tonic_health::server::health_reporter();
-    health_reporter.set_serving::<ControllerServer<ControllerService>>().await;
-    let reflection = tonic_reflection::server::Builder::configure()
-        .register_encoded_file_descriptor_set(hilbench_proto::FILE_DESCRIPTOR_SET)
-        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
-        .build_v1()?;
+    let server = GrpcServer::new(listener, false, &[ControllerServer::<ControllerService>::NAME]).await?;
+    let addr = server.addr;
     tracing::info!(%addr, plant = %config.plant, scenario = %config.scenario.name, mode = config.mode.name(), "controller serving");
-    let incoming = TcpIncoming::from(listener);
-    let result = Server::builder()
-        .add_service(health)
-        .add_service(reflection)
-        .add_service(ControllerServer::new(service))
-        .serve_with_incoming_shutdown(incoming, async move {
+    let result = server
+        .serve(|router| router.add_service(ControllerServer::new(service)), async move {
             shutdown.await;
             let _ = stop_tx.send(true);
         })

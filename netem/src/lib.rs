@@ -29,8 +29,9 @@ use std::time::Duration;
 use delay::{DirectionProfile, ProfileError};
 use hilbench_proto::pb::netem_control_server::NetemControlServer;
 use hilbench_proto::pb::plant_server::PlantServer;
-use tonic::transport::server::TcpIncoming;
-use tonic::transport::{Endpoint, Server};
+use hilbench_svc::{GrpcServer, ServeError};
+use tonic::server::NamedService;
+use tonic::transport::Endpoint;
 
 pub use control::Control;
 pub use proxy::Proxy;
@@ -118,12 +119,10 @@ pub enum NetemError {
     Config(String),
     #[error("upstream address: {0}")]
     Upstream(tonic::transport::Error),
-    #[error("reflection service: {0}")]
-    Reflection(#[from] tonic_reflection::server::Error),
     #[error("io: {0}")]
     Io(#[from] std::io::Error),
-    #[error("gRPC server: {0}")]
-    Transport(#[from] tonic::transport::Error),
+    #[error(transparent)]
+    Serve(#[from] ServeError),
 }
 
 /// Serves netem on `listener` until `shutdown` resolves.
@@ -133,7 +132,6 @@ pub async fn serve(
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), NetemError> {
     config.validate()?;
-    let addr = listener.local_addr()?;
     let endpoint = Endpoint::from_shared(config.upstream_uri())
         .map_err(NetemError::Upstream)?
         .connect_timeout(Duration::from_secs(1))
@@ -151,13 +149,10 @@ pub async fn serve(
     let probe =
         tokio::spawn(core::run_probe(shared.clone(), Duration::from_millis(config.probe_interval_ms)));
 
-    let (health_reporter, health) = tonic_health::server::health_reporter();
-    health_reporter.set_serving::<PlantServer<Proxy>>().await;
-    health_reporter.set_serving::<NetemControlServer<Control>>().await;
-    let reflection = tonic_reflection::server::Builder::configure()
-        .register_encoded_file_descriptor_set(hilbench_proto::FILE_DESCRIPTOR_SET)
-        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
-        .build_v1()?;
+    let server =
+        GrpcServer::new(listener, true, &[PlantServer::<Proxy>::NAME, NetemControlServer::<Control>::NAME])
+            .await?;
+    let (addr, health_reporter) = (server.addr, server.health.clone());
 
     tracing::info!(
         %addr,
@@ -175,13 +170,15 @@ pub async fn serve(
         health_reporter.set_not_serving::<NetemControlServer<Control>>().await;
         closing.send_replace(true);
     };
-    let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));
-    let result = Server::builder()
-        .add_service(health)
-        .add_service(reflection)
-        .add_service(PlantServer::new(Proxy { shared: shared.clone() }))
-        .add_service(NetemControlServer::new(Control { shared }))
-        .serve_with_incoming_shutdown(incoming, signal)
+    let result = server
+        .serve(
+            |router| {
+                router
+                    .add_service(PlantServer::new(Proxy { shared: shared.clone() }))
+                    .add_service(NetemControlServer::new(Control { shared }))
+            },
+            signal,
+        )
         .await;
     forwarder.abort();
     probe.abort();

@@ -22,23 +22,19 @@ pub use config::{ConfigError, PlantConfig, TimeMode};
 pub use service::PlantService;
 
 use hilbench_proto::pb::plant_server::PlantServer;
+use hilbench_svc::{GrpcServer, ServeError};
 use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
-use tonic::transport::Server;
-use tonic::transport::server::TcpIncoming;
+use tonic::server::NamedService;
 
 /// Why the plant could not serve.
 #[derive(Debug, thiserror::Error)]
 pub enum PlantError {
     #[error(transparent)]
     Config(#[from] ConfigError),
-    #[error("reflection service: {0}")]
-    Reflection(#[from] tonic_reflection::server::Error),
-    #[error("listener: {0}")]
-    Io(#[from] std::io::Error),
-    #[error("gRPC server: {0}")]
-    Transport(#[from] tonic::transport::Error),
+    #[error(transparent)]
+    Serve(#[from] ServeError),
 }
 
 /// Serves the plant on `listener` until `shutdown` resolves, on the wall clock.
@@ -57,17 +53,12 @@ pub async fn serve_with_clock(
     clock: Arc<dyn Clock>,
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), PlantError> {
-    let addr = listener.local_addr()?;
     let scenario = config.scenario.name.clone();
     let rate_hz = config.rate_hz;
     let service = PlantService::new(config, clock)?;
 
-    let (health_reporter, health) = tonic_health::server::health_reporter();
-    health_reporter.set_serving::<PlantServer<PlantService>>().await;
-    let reflection = tonic_reflection::server::Builder::configure()
-        .register_encoded_file_descriptor_set(hilbench_proto::FILE_DESCRIPTOR_SET)
-        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
-        .build_v1()?;
+    let server = GrpcServer::new(listener, true, &[PlantServer::<PlantService>::NAME]).await?;
+    let (addr, health_reporter) = (server.addr, server.health.clone());
 
     let ticker = match service.time_mode() {
         TimeMode::Lockstep => None,
@@ -85,13 +76,7 @@ pub async fn serve_with_clock(
         }
     };
     tracing::info!(%addr, mode = %service.time_mode(), %scenario, rate_hz, "plant serving");
-    let incoming = TcpIncoming::from(listener).with_nodelay(Some(true));
-    let result = Server::builder()
-        .add_service(health)
-        .add_service(reflection)
-        .add_service(PlantServer::new(service))
-        .serve_with_incoming_shutdown(incoming, signal)
-        .await;
+    let result = server.serve(|router| router.add_service(PlantServer::new(service)), signal).await;
     if let Some(t) = ticker {
         t.abort();
     }

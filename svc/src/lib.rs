@@ -1,6 +1,71 @@
-//! `hilbench-svc` owns what the service binaries (`plant`, `netem`, `controller`) do the same
-//! way in `main`: structured logs with `tracing`, and the shutdown signal passed to `serve`.
-//! The service libraries do not depend on it; only their `main`s do.
+//! `hilbench-svc` owns what the services (`plant`, `netem`, `controller`) do the same way: in
+//! their libraries' `serve`, the gRPC server with health and reflection ([`GrpcServer`]); in
+//! their `main`s, structured logs with `tracing` and the shutdown signal passed to `serve`.
+
+use std::future::Future;
+use std::net::SocketAddr;
+
+use tonic::transport::Server;
+use tonic::transport::server::{Router, TcpIncoming};
+use tonic_health::ServingStatus;
+use tonic_health::server::HealthReporter;
+
+/// Why a service's gRPC server could not serve (each service's error wraps it).
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    #[error("reflection service: {0}")]
+    Reflection(#[from] tonic_reflection::server::Error),
+    #[error("listener: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("gRPC server: {0}")]
+    Transport(#[from] tonic::transport::Error),
+}
+
+/// A service's gRPC server before it serves: the health service with the service's own
+/// services SERVING, and reflection over hilbench's and health's descriptors, on a listener.
+pub struct GrpcServer {
+    /// The listener's address (for the service's start-up log).
+    pub addr: SocketAddr,
+    /// The health service's reporter: a service that reports NOT_SERVING at shutdown clones it
+    /// into its shutdown signal.
+    pub health: HealthReporter,
+    router: Router,
+    incoming: TcpIncoming,
+}
+
+impl GrpcServer {
+    /// Takes `listener` (with `TCP_NODELAY` on accepted connections when `nodelay`) and
+    /// reports every one of `services` (their `NamedService::NAME`s) SERVING.
+    pub async fn new(
+        listener: tokio::net::TcpListener,
+        nodelay: bool,
+        services: &[&str],
+    ) -> Result<Self, ServeError> {
+        let addr = listener.local_addr()?;
+        let (health, health_service) = tonic_health::server::health_reporter();
+        for name in services {
+            health.set_service_status(*name, ServingStatus::Serving).await;
+        }
+        let reflection = tonic_reflection::server::Builder::configure()
+            .register_encoded_file_descriptor_set(hilbench_proto::FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+            .build_v1()?;
+        let router = Server::builder().add_service(health_service).add_service(reflection);
+        let incoming = TcpIncoming::from(listener).with_nodelay(nodelay.then_some(true));
+        Ok(Self { addr, health, router, incoming })
+    }
+
+    /// Serves health, reflection and what `add` adds to the router until `shutdown` resolves,
+    /// then waits for the open calls (graceful shutdown).
+    pub async fn serve(
+        self,
+        add: impl FnOnce(Router) -> Router,
+        shutdown: impl Future<Output = ()>,
+    ) -> Result<(), ServeError> {
+        add(self.router).serve_with_incoming_shutdown(self.incoming, shutdown).await?;
+        Ok(())
+    }
+}
 
 /// Logs to stderr, filtered by `RUST_LOG` (default `info`).
 pub fn init_tracing() {
