@@ -30,8 +30,21 @@ fn main() {
         settings.iterative_refinement = v > 0.0;
     }
     settings.elastic_penalty_per_m = env("QP_ELASTIC");
+    if let Some(v) = env("QP_SCREEN") {
+        settings.screen_runs = v > 0.0;
+    }
+    if let Some(v) = env("QP_ADD") {
+        settings.lazy_add_margin_m = v;
+    }
+    if let Some(v) = env("QP_GAP") {
+        settings.gap_tolerance = v;
+    }
+    if let Some(v) = env("QP_FEAS") {
+        settings.feasibility_tolerance = v;
+    }
     let (def, cases) = qp_cases();
-    for case in &cases {
+    let only = std::env::var("QP_ONLY").ok();
+    for case in cases.iter().filter(|c| only.as_ref().is_none_or(|o| o == c.name)) {
         let mut qp = QpFallback::new(&def, settings).expect("valid settings");
         let t = std::time::Instant::now();
         let mut last = None;

@@ -39,8 +39,19 @@ fn main() {
             settings.mpc.obstacle_margin_m,
             ObstacleFormulation::DistanceAlm,
         );
-        let mut qp = QpFallback::new(&def, QpSettings::default()).expect("valid");
-        let elastic = QpSettings { elastic_penalty_per_m: Some(1e5), ..QpSettings::default() };
+        let mut base = QpSettings::default();
+        let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<f64>().ok());
+        if let Some(v) = env("QP_LAZY") {
+            base.lazy_slack_m = v;
+        }
+        if let Some(v) = env("QP_SCREEN") {
+            base.screen_runs = v > 0.0;
+        }
+        if let Some(v) = env("QP_ADD") {
+            base.lazy_add_margin_m = v;
+        }
+        let mut qp = QpFallback::new(&def, base).expect("valid");
+        let elastic = QpSettings { elastic_penalty_per_m: Some(1e5), ..base };
         let mut qp_elastic = QpFallback::new(&def, elastic).expect("valid");
         let mut times = Vec::new();
         let (mut iterations, mut solves, mut rows) = (0u64, 0u64, 0u64);
@@ -62,6 +73,17 @@ fn main() {
             times.push(best);
             // Deterministic: every repetition reports the same.
             let Some(r) = last else { continue };
+            if std::env::var("QP_SLOW").is_ok() && best > 3.0 {
+                println!(
+                    "    slow: cycle {} {best:.2} ms, {:?}, iterations {}, clarabel solves {}, rows {}, half-planes {}",
+                    cur.cycle,
+                    r.status,
+                    r.iterations,
+                    r.clarabel_solves,
+                    r.num_clarabel_rows,
+                    r.num_half_planes
+                );
+            }
             iterations += u64::from(r.iterations);
             solves += r.clarabel_solves as u64;
             rows += r.num_clarabel_rows as u64;

@@ -44,6 +44,9 @@
 //! - Lazy rows ([`QpSettings::lazy_slack_m`]): rows whose nominal slack is large start outside
 //!   clarabel's QP and join it only when a solution violates them. This is exact: the QP is
 //!   re-solved until its solution satisfies every row, so the result is the full QP's.
+//!   When the candidates outnumber the QP's variables, the first solve takes only each run's
+//!   closest points ([`QpSettings::screen_runs`]): near a cylinder, consecutive points of a
+//!   prediction give nearly parallel rows of which one or two are active.
 
 use std::time::Duration;
 
@@ -89,6 +92,18 @@ pub struct QpSettings {
     /// the QP's with every row either way (a solution of a relaxation that satisfies the
     /// dropped rows is optimal for the whole QP). `f64::INFINITY`: every row from the start.
     pub lazy_slack_m: f64,
+    /// Screening of the lazy rows' first solve: when more rows are within
+    /// [`QpSettings::lazy_slack_m`] than the QP has variables, the first solve takes of each run
+    /// (consecutive points of one scenario near one cylinder, or near the floor) only the local
+    /// minima of the nominal slack, the points of closest approach. Past the number of
+    /// variables most such rows cannot be active at a solution (at most one per variable are,
+    /// at a vertex), yet each adds to every interior-point iteration's factorization; between
+    /// two cylinders 125 rows were within 0.2 m and 6 were active (BENCHMARKS.md). The rows a
+    /// screened solution violates join in the next solve, so the result is the same QP's.
+    pub screen_runs: bool,
+    /// A lazy row within this of violation at a solution joins the QP with the violated ones,
+    /// m: a little ahead of need, so the next solve does not stop just short of the next row.
+    pub lazy_add_margin_m: f64,
     /// Re-solves that add only the violated (and nearly violated) lazy rows; if a solution
     /// still violates a lazy row after them, the next re-solve takes every row. Each re-solve
     /// is a full clarabel solve under the same [`QpBudget`].
@@ -116,9 +131,6 @@ pub struct QpSettings {
     pub elastic_penalty_per_m: Option<f64>,
 }
 
-/// A lazy row within this of violation (m) at a solution joins the QP with the violated ones.
-const LAZY_ADD_MARGIN_M: f64 = 0.1;
-
 /// An elastic slack above this (m) at the solution means the hard QP had no solution: the
 /// interior point leaves zero slacks at about its feasibility tolerance, far below this.
 const ELASTIC_TOLERANCE_M: f64 = 1e-6;
@@ -136,6 +148,8 @@ impl Default for QpSettings {
             unblocked_steps: 6,
             block_steps: 6,
             lazy_slack_m: 0.2,
+            screen_runs: true,
+            lazy_add_margin_m: 0.01,
             max_lazy_rounds: 3,
             iterative_refinement: false,
             elastic_penalty_per_m: None,
@@ -176,6 +190,9 @@ impl QpSettings {
         }
         if self.lazy_slack_m.is_nan() {
             return bad("lazy_slack_m", "must not be NaN");
+        }
+        if !(self.lazy_add_margin_m.is_finite() && self.lazy_add_margin_m >= 0.0) {
+            return bad("lazy_add_margin_m", "must be finite and >= 0");
         }
         Ok(())
     }
@@ -344,6 +361,12 @@ pub struct QpFallback {
     /// Per dense row, its nominal slack `b - A u_bar` and whether clarabel sees it.
     slack: Vec<f64>,
     selected: Vec<bool>,
+    /// Per dense row, the row of the same scenario and constraint at the previous point.
+    row_prev: Vec<Option<usize>>,
+    /// Per dense row, the row of the same scenario and constraint at the next point.
+    row_next: Vec<Option<usize>>,
+    /// Per constraint (cylinders, then the floor), its last row and point while building.
+    last_row: Vec<Option<(usize, usize)>>,
     /// Per dense row, the index of its elastic slack variable (after the corrections).
     elastic_of: Vec<Option<usize>>,
     /// Nominal violation (`-slack`) of each elastic row, in the slack variables' order.
@@ -433,6 +456,9 @@ impl QpFallback {
             b: Vec::with_capacity(max_dense),
             slack: Vec::with_capacity(max_dense),
             selected: Vec::with_capacity(max_dense),
+            row_prev: Vec::with_capacity(max_dense),
+            row_next: Vec::with_capacity(max_dense),
+            last_row: vec![None; max_dense / (m * n)],
             elastic_of: Vec::with_capacity(max_dense),
             elastic_bound: Vec::with_capacity(max_dense),
             elastic_violation_m: 0.0,
@@ -576,7 +602,18 @@ impl QpFallback {
             self.build_qp();
             let lazy = self.settings.lazy_slack_m;
             self.selected.clear();
-            self.selected.extend(self.slack.iter().map(|s| *s <= lazy));
+            let candidates = self.slack.iter().filter(|s| **s <= lazy).count();
+            // (`lazy_slack_m = INFINITY` asks for every row from the start: no screening.)
+            if self.settings.screen_runs && lazy.is_finite() && candidates > 3 * self.num_blocks {
+                let sl = &self.slack;
+                let closest = |r: usize| {
+                    self.row_prev[r].is_none_or(|p| sl[r] <= sl[p])
+                        && self.row_next[r].is_none_or(|q| sl[r] <= sl[q])
+                };
+                self.selected.extend((0..sl.len()).map(|r| sl[r] <= lazy && closest(r)));
+            } else {
+                self.selected.extend(self.slack.iter().map(|s| *s <= lazy));
+            }
             for lazy_round in 0.. {
                 self.assemble_constraints();
                 let (s, it, t) = self.solve_qp(budget);
@@ -771,8 +808,12 @@ impl QpFallback {
         }
         let act = self.settings.activation_distance_m;
         let mut n_half = 0;
+        self.row_prev.clear();
+        self.row_next.clear();
+        let n_obs = self.obstacles.len();
         // Dense rows of the half-planes and the floor.
         for i in 0..m {
+            self.last_row.iter_mut().for_each(|l| *l = None);
             // A nominal prediction that passes through a cylinder would get half-planes facing
             // backwards before the axis and forwards after it, which no trajectory satisfies.
             // Its points inside the cylinder share one normal instead: towards the side of
@@ -828,6 +869,13 @@ impl QpFallback {
                         continue;
                     }
                     self.b.push(nx * dx + ny * dy - ob.r + su);
+                    let prev = self.last_row[o].filter(|(_, kp)| kp + 1 == k).map(|(rp, _)| rp);
+                    self.row_prev.push(prev);
+                    self.row_next.push(None);
+                    if let Some(p) = prev {
+                        self.row_next[p] = Some(r);
+                    }
+                    self.last_row[o] = Some((r, k));
                     r += 1;
                     n_half += 1;
                 }
@@ -839,6 +887,13 @@ impl QpFallback {
                         continue;
                     }
                     self.b.push(xb[2] - floor + su);
+                    let prev = self.last_row[n_obs].filter(|(_, kp)| kp + 1 == k).map(|(rp, _)| rp);
+                    self.row_prev.push(prev);
+                    self.row_next.push(None);
+                    if let Some(p) = prev {
+                        self.row_next[p] = Some(r);
+                    }
+                    self.last_row[n_obs] = Some((r, k));
                     r += 1;
                 }
             }
@@ -916,8 +971,9 @@ impl QpFallback {
         if !unselected.any(|((row, b), _)| excess(row, *b) > 0.0) {
             return false;
         }
+        let margin = self.settings.lazy_add_margin_m;
         for ((row, b), sel) in self.rows.chunks_exact(nv).zip(&self.b).zip(self.selected.iter_mut()) {
-            *sel = *sel || all || excess(row, *b) > -LAZY_ADD_MARGIN_M;
+            *sel = *sel || all || excess(row, *b) > -margin;
         }
         true
     }
@@ -1351,11 +1407,13 @@ mod tests {
             2 * qp.num_qp_variables() + r_all.num_constraints - 2 * qp.num_variables()
         );
         let u_all = qp.solution().expect("solved").to_vec();
-        // The default (rows with a large nominal slack start outside), and no rows at first at
-        // all (every row that matters must be found by the re-solves).
+        // The default (rows with a large nominal slack start outside), no rows at first at all
+        // (every row that matters must be found by the re-solves), and every row a candidate,
+        // screened to each run's closest points (fewer rows in the end than every row).
         let none_first =
             QpSettings { lazy_slack_m: f64::NEG_INFINITY, max_lazy_rounds: 10, ..Default::default() };
-        for settings in [QpSettings::default(), none_first] {
+        let screened = QpSettings { lazy_slack_m: 2.0, max_lazy_rounds: 10, ..Default::default() };
+        for settings in [QpSettings::default(), none_first, screened] {
             let mut qp = QpFallback::new(&def, settings).expect("valid");
             let r = qp.solve(&x0, &HOVER, &[1.0], None, &QpBudget::default()).expect("valid");
             assert_eq!(r.status, QpStatus::Solved);
@@ -1367,7 +1425,7 @@ mod tests {
             }
             let u = qp.solution().expect("solved");
             let worst = u.iter().zip(&u_all).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
-            assert!(worst < 1e-4, "lazy {}: largest input difference {worst}", settings.lazy_slack_m);
+            assert!(worst < 1e-4, "{settings:?}: largest input difference {worst}");
             assert!((r.cost - r_all.cost).abs() <= 1e-6 * r_all.cost, "cost {} vs {}", r.cost, r_all.cost);
         }
     }
