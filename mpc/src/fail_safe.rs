@@ -13,7 +13,12 @@
 //! that pass a few cycles before the cylinder. Checking a command together with a way out
 //! (braking) under every delay gives a recursive argument: if this cycle's command passed,
 //! then next cycle braking passes too (its check is this one's continuation), so some command
-//! that passes always exists, up to the delays sampled and the model being the plant's.
+//! that passes always exists. Up to two things: the delays are sampled (the ends of the range
+//! and points between), and a flight here keeps one delay for all braking commands while the
+//! next cycle's check varies the later ones again, so the argument is approximate (measured:
+//! 14 cycles without a passing candidate in the 120 runs of the survey; the plant kept at
+//! least 4 cm of clearance).
+//! The model is the plant's (the same dynamics, RK4), so model error is not the gap.
 
 use mav::{Cylinder, InputBounds, MavModel, ModelParams, State, rk4_step};
 

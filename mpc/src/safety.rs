@@ -816,6 +816,37 @@ mod tests {
     }
 
     #[test]
+    fn the_fail_safe_check_judges_the_first_input_followed_by_braking_under_every_delay() {
+        let s = Scenario::paper_2();
+        let def = def_of(&s, ControllerMode::Nmpc);
+        let check = BrakingCheck::default();
+        let fail_safe_settings = SafetySettings { braking_check: Some(check), ..Default::default() };
+        let mut layer = SafetyLayer::new(&def, fail_safe_settings).expect("valid");
+        let mut plan_layer = SafetyLayer::new(&def, SafetySettings::default()).expect("valid");
+        let fail_safe = FailSafe::new(check, def.model, def.bounds, def.obstacles.clone(), 1.0);
+        let hover_plan: Vec<f64> = (0..def.num_variables()).map(|k| HOVER[k % 3]).collect();
+        let hover = Ok((&hover_plan[..], SolveStatus::Converged));
+        // 0.8 m/s at the 0.4 m cylinder from 1.2 m. Drifting on at hover for the whole plan
+        // (2 s) hits it, so the plan check rejects the plan; but only its first input is
+        // sent, and braking from the next cycle on stops in time under every delay.
+        let x0 = [2.8, 1.4, 1.0, 0.0, 0.8, 0.0, 0.0, 0.0];
+        let sel = plan_layer.select_plan(&x0, &HOVER, &[1.0], hover);
+        assert!(matches!(sel.panoc.rejection, Some(Rejection::Collision { .. })), "{}", sel.reason());
+        let sel = layer.select_plan(&x0, &HOVER, &[1.0], hover);
+        assert_eq!(sel.decision, Decision::Panoc, "{}", sel.reason());
+        assert!(sel.verified_safe && sel.panoc.min_clearance_m >= 0.0);
+        let e = fail_safe.envelope(&x0, &HOVER, &HOVER);
+        assert_eq!(e.min_clearance_m, sel.panoc.min_clearance_m);
+        // At 1 m/s it does not (the previous command may stay on for 0.33 s, the next one may
+        // land 0.33 s after its sample): nothing passes, and the layer says so.
+        let x0 = [2.8, 1.4, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+        let sel = layer.select_plan(&x0, &HOVER, &[1.0], hover);
+        assert!(matches!(sel.panoc.rejection, Some(Rejection::Collision { .. })), "{}", sel.reason());
+        assert!(!sel.verified_safe, "{}", sel.reason());
+        assert!(in_bounds(&def.bounds, sel.command));
+    }
+
+    #[test]
     fn a_missed_deadline_reuses_the_previous_plan_shifted() {
         let s = Scenario::paper_3();
         let def = def_of(&s, ControllerMode::Nmpc);
