@@ -2,8 +2,9 @@
 //! (uniform, Gamma, bursts in [0, 0.33] s), counting collisions and misses. Settings from the
 //! environment: MARGIN (m), FLOOR (m), COMP (dead-time compensation), NOSAFETY, CASES.
 use mpc::{ClosedLoopSettings, ControllerMode, DelaySource, run_closed_loop};
-use rand::{Rng, SeedableRng};
-use rand_distr::{Distribution, Gamma};
+
+#[path = "../benches/common/delay_traces.rs"]
+mod traces;
 
 fn main() {
     let cases: u64 = std::env::var("CASES").ok().and_then(|c| c.parse().ok()).unwrap_or(20);
@@ -17,39 +18,29 @@ fn main() {
     if std::env::var("NOSAFETY").is_ok() {
         settings.safety = None;
     }
+    // FAILSAFE=1: the safety layer's fail-safe check (first input, then braking, under every
+    // delay up to DMAX s, SAMPLES delays per cycle).
+    if std::env::var("FAILSAFE").is_ok()
+        && let Some(safety) = settings.safety.as_mut()
+    {
+        let mut check = mpc::BrakingCheck::default();
+        if let Some(d) = std::env::var("DMAX").ok().and_then(|d| d.parse().ok()) {
+            check.max_delay_s = d;
+        }
+        if let Some(n) = std::env::var("SAMPLES").ok().and_then(|n| n.parse().ok()) {
+            check.delay_samples = n;
+        }
+        safety.braking_check = Some(check);
+    }
     // Width of the i.i.d. uniform jitter, s: delays uniform in [a, a + width], a random.
     let width: f64 = std::env::var("WIDTH").ok().and_then(|w| w.parse().ok()).unwrap_or(0.33);
     for kind in ["uniform", "gamma", "bursts"] {
         let (mut collided, mut missed, mut fallbacks) = (0, 0, 0);
+        // Cycles where no candidate passed the checks; worst clearance; sums for the means.
+        let (mut unverified, mut worst, mut runs) = (0, f64::INFINITY, 0);
+        let (mut time_s, mut path_m, mut reached_runs) = (0.0, 0.0, 0);
         for seed in 0..cases {
-            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed * 7919 + kind.len() as u64);
-            let len = rng.random_range(20..200);
-            let trace: Vec<f64> = match kind {
-                "uniform" => {
-                    let low = rng.random_range(0.0..=0.33 - width);
-                    (0..len).map(|_| rng.random_range(low..=low + width)).collect()
-                }
-                "gamma" => {
-                    let g: Gamma<f64> =
-                        Gamma::new(rng.random_range(1.0..30.0), rng.random_range(0.002..0.04))
-                            .expect("gamma");
-                    (0..len).map(|_| g.sample(&mut rng).min(0.33)).collect()
-                }
-                _ => {
-                    let base = rng.random_range(0.0..0.06);
-                    let mut t = vec![base; len];
-                    let mut at = 0;
-                    for _ in 0..rng.random_range(1..6) {
-                        at += rng.random_range(0..30);
-                        let (w, level) = (rng.random_range(1..15), rng.random_range(0.15..=0.33));
-                        for d in t.iter_mut().skip(at).take(w) {
-                            *d = level;
-                        }
-                        at += w;
-                    }
-                    t
-                }
-            };
+            let trace = traces::trace(kind, seed, width);
             // ONLY=kind:seed runs one trace and prints its cycles (what the controller decided).
             let only = std::env::var("ONLY").ok();
             if only.as_ref().is_some_and(|o| *o != format!("{kind}:{seed}")) {
@@ -77,9 +68,29 @@ fn main() {
             collided += usize::from(s.collided);
             missed += usize::from(!s.reached);
             fallbacks += s.fallbacks;
+            let run_unverified =
+                records.iter().filter(|r| r.selection.is_some_and(|s| !s.verified_safe)).count();
+            if run_unverified > 0 && std::env::var("VERBOSE").is_ok() {
+                println!("  {kind} seed {seed}: {run_unverified} unverified cycles");
+            }
+            unverified += run_unverified;
+            worst = worst.min(s.min_clearance_m);
+            runs += 1;
+            if let Some(t) = s.time_to_goal_s {
+                time_s += t;
+                path_m += s.path_length_m;
+                reached_runs += 1;
+            }
         }
+        if runs == 0 {
+            continue;
+        }
+        let reached_runs = f64::from(reached_runs);
         println!(
-            "{kind}: {cases} traces, {collided} collided, {missed} missed the goal, {fallbacks} fallback cycles"
+            "{kind}: {runs} traces, {collided} collided, {missed} missed the goal, {fallbacks} fallback cycles, \
+             {unverified} unverified, worst clearance {worst:.3} m, mean time to goal {:.2} s, mean path {:.2} m",
+            time_s / reached_runs,
+            path_m / reached_runs
         );
     }
 }

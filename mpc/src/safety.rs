@@ -4,13 +4,23 @@
 //!
 //! Order of preference, first acceptable wins:
 //! 1. PANOC's plan, when its status is acceptable (converged; iteration limit and deadline when
-//!    the settings accept them), its inputs are finite and inside the bounds, and its nonlinear
-//!    predictions keep the required true clearance (and the floor, when one is set).
+//!    the settings accept them), its inputs are finite and inside the bounds, and it passes the
+//!    safety check (below).
 //! 2. The QP's plan, when the QP has a solution and passes the same checks.
 //! 3. The previously selected plan shifted by one step (last input repeated), while it passes
 //!    the same checks and has not been shifted more than `max_plan_shifts` times in a row.
 //! 4. A braking command: tilt against the horizontal velocity, thrust against the vertical one,
-//!    clipped to the bounds (hover when the state is not finite). Not verified, last resort.
+//!    clipped to the bounds (hover when the state is not finite), when it passes the checks.
+//! 5. None passes: the candidate that comes closest (`best_effort`), flagged unverified.
+//!
+//! The safety check is one of two (`SafetySettings::braking_check`):
+//! - the plan's predictions (paper mode): every scenario's Euler prediction of the plan keeps
+//!   the required true clearance and the floor;
+//! - the fail-safe check ([`crate::fail_safe`]): the plan's first input, the only one that is
+//!   sent, followed by braking from the next cycle on, keeps them on the continuous model for
+//!   every round-trip delay in the range, including the previous command staying on until
+//!   the new one lands. A passed command leaves braking as a candidate that passes the next
+//!   cycle, which the plan check cannot promise under delays that change from cycle to cycle.
 //!
 //! Whatever is picked, the command is finite and inside the input bounds.
 
@@ -18,6 +28,7 @@ use std::fmt::Write as _;
 
 use mav::{Cylinder, InputBounds, ModelParams};
 
+use crate::fail_safe::{BrakingCheck, Envelope, FailSafe};
 use crate::problem::{Evaluator, OcpDefinition};
 use crate::qp::{
     NonlinearCheck, QpBudget, QpFallback, QpReport, QpSettings, QpStatus, check_on_nonlinear_model,
@@ -75,6 +86,12 @@ pub struct SafetySettings {
     /// the candidate whose predictions come closest to passing (largest clearance, floor
     /// included) instead of braking blindly. The selection says so (`verified_safe: false`).
     pub best_effort: bool,
+    /// How a candidate is judged safe. `None` (paper mode): its plan's predictions on the
+    /// prediction model keep the required clearance. `Some`: its first input, followed by
+    /// braking from the next cycle on, keeps it on the continuous model for every round-trip
+    /// delay in the range (see [`crate::fail_safe`]); the plan's predictions then only give
+    /// the cost.
+    pub braking_check: Option<BrakingCheck>,
 }
 
 impl Default for SafetySettings {
@@ -88,6 +105,7 @@ impl Default for SafetySettings {
             max_plan_shifts: 10,
             brake_gain_per_s: 1.0,
             best_effort: true,
+            braking_check: None,
         }
     }
 }
@@ -105,6 +123,9 @@ impl SafetySettings {
         }
         if !(self.brake_gain_per_s.is_finite() && self.brake_gain_per_s >= 0.0) {
             return bad("brake_gain_per_s", "must be finite and >= 0");
+        }
+        if let Some(check) = &self.braking_check {
+            check.validate()?;
         }
         Ok(())
     }
@@ -288,6 +309,11 @@ pub struct SafetyLayer {
     has_plan: bool,
     shifts: usize,
     qp_budget: QpBudget,
+    /// The fail-safe check, when the settings ask for it.
+    fail_safe: Option<FailSafe>,
+    /// The cycle's state and last applied input (for the fail-safe check).
+    x0: [f64; 8],
+    u_prev: [f64; 3],
     /// Altitude of the cycle's state (for the floor check).
     x0_z: f64,
     /// Selections made since the last reset (for the QP's schedule).
@@ -302,7 +328,13 @@ impl SafetyLayer {
         settings.validate()?;
         let qp = QpFallback::new(def, settings.qp)?;
         let nv = def.num_variables();
+        let fail_safe = settings.braking_check.map(|check| {
+            FailSafe::new(check, def.model, def.bounds, def.obstacles.clone(), settings.brake_gain_per_s)
+        });
         Ok(Self {
+            fail_safe,
+            x0: [0.0; 8],
+            u_prev: [0.0; 3],
             settings,
             params: def.model,
             bounds: def.bounds,
@@ -412,6 +444,8 @@ impl SafetyLayer {
             };
         }
         self.evaluator.set_instance(x0, u_prev, weights);
+        self.x0 = *x0;
+        self.u_prev = *u_prev;
         self.x0_z = x0[2];
 
         // 1. PANOC.
@@ -627,8 +661,14 @@ impl SafetyLayer {
         if !inside {
             return CandidateCheck::rejected(Rejection::OutOfBounds);
         }
-        let NonlinearCheck { cost, min_clearance_m, min_altitude_m, finite } =
+        let NonlinearCheck { cost, mut min_clearance_m, mut min_altitude_m, mut finite } =
             check_on_nonlinear_model(&mut self.evaluator, &self.cylinders, u);
+        if let Some(fs) = &self.fail_safe {
+            // Only the first input is sent: it, then braking, under every delay.
+            let Envelope { min_clearance_m: c, min_altitude_m: z, finite: f } =
+                fs.envelope(&self.x0, &self.u_prev, &[u[0], u[1], u[2]]);
+            (min_clearance_m, min_altitude_m, finite) = (c, z, f && cost.is_finite());
+        }
         let rejection = if !finite {
             Some(Rejection::NotFinite)
         } else if min_clearance_m < self.settings.required_clearance_m {
@@ -773,6 +813,37 @@ mod tests {
             let (clearance, _) = resimulate(&def, &x0, layer.plan().expect("plan"));
             assert!(clearance >= 0.0);
         }
+    }
+
+    #[test]
+    fn the_fail_safe_check_judges_the_first_input_followed_by_braking_under_every_delay() {
+        let s = Scenario::paper_2();
+        let def = def_of(&s, ControllerMode::Nmpc);
+        let check = BrakingCheck::default();
+        let fail_safe_settings = SafetySettings { braking_check: Some(check), ..Default::default() };
+        let mut layer = SafetyLayer::new(&def, fail_safe_settings).expect("valid");
+        let mut plan_layer = SafetyLayer::new(&def, SafetySettings::default()).expect("valid");
+        let fail_safe = FailSafe::new(check, def.model, def.bounds, def.obstacles.clone(), 1.0);
+        let hover_plan: Vec<f64> = (0..def.num_variables()).map(|k| HOVER[k % 3]).collect();
+        let hover = Ok((&hover_plan[..], SolveStatus::Converged));
+        // 0.8 m/s at the 0.4 m cylinder from 1.2 m. Drifting on at hover for the whole plan
+        // (2 s) hits it, so the plan check rejects the plan; but only its first input is
+        // sent, and braking from the next cycle on stops in time under every delay.
+        let x0 = [2.8, 1.4, 1.0, 0.0, 0.8, 0.0, 0.0, 0.0];
+        let sel = plan_layer.select_plan(&x0, &HOVER, &[1.0], hover);
+        assert!(matches!(sel.panoc.rejection, Some(Rejection::Collision { .. })), "{}", sel.reason());
+        let sel = layer.select_plan(&x0, &HOVER, &[1.0], hover);
+        assert_eq!(sel.decision, Decision::Panoc, "{}", sel.reason());
+        assert!(sel.verified_safe && sel.panoc.min_clearance_m >= 0.0);
+        let e = fail_safe.envelope(&x0, &HOVER, &HOVER);
+        assert_eq!(e.min_clearance_m, sel.panoc.min_clearance_m);
+        // At 1 m/s it does not (the previous command may stay on for 0.33 s, the next one may
+        // land 0.33 s after its sample): nothing passes, and the layer says so.
+        let x0 = [2.8, 1.4, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+        let sel = layer.select_plan(&x0, &HOVER, &[1.0], hover);
+        assert!(matches!(sel.panoc.rejection, Some(Rejection::Collision { .. })), "{}", sel.reason());
+        assert!(!sel.verified_safe, "{}", sel.reason());
+        assert!(in_bounds(&def.bounds, sel.command));
     }
 
     #[test]
