@@ -9,7 +9,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand, ValueEnum};
 use controller::solve_lines::LineSolver;
 use controller::{ControllerConfig, TimeModeSetting};
-use mpc::{ControllerMode, MpcSettings, QpSchedule, QpSettings, SafetySettings};
+use mpc::{BrakingCheck, ControllerMode, MpcSettings, QpSchedule, QpSettings, SafetySettings};
 
 #[derive(Parser, Debug)]
 #[command(name = "controller", version, about = "The multi-stage NMPC controller of hilbench")]
@@ -60,6 +60,12 @@ struct Cli {
     /// QP is infeasible (default: hard rows; see BENCHMARKS.md for the trade-off).
     #[arg(long)]
     qp_elastic_penalty: Option<f64>,
+    /// Judge every candidate command with the fail-safe check: the command, then braking from
+    /// the next cycle on, flown on the continuous model for every round-trip delay up to the
+    /// scenario's largest sampling time (the cycle being its smallest). Off by default (the
+    /// paper's controller checks its plan's predictions); see ARCHITECTURE.md.
+    #[arg(long)]
+    fail_safe: bool,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug)]
@@ -118,6 +124,11 @@ fn main() -> anyhow::Result<()> {
         Mode::Nmpc => ControllerMode::Nmpc,
         Mode::Multistage => ControllerMode::Multistage,
     };
+    let braking_check = cli.fail_safe.then(|| BrakingCheck {
+        max_delay_s: scenario.sampling_times_s.iter().copied().fold(0.0, f64::max),
+        min_cycle_s: scenario.sampling_times_s.iter().copied().fold(f64::INFINITY, f64::min),
+        ..BrakingCheck::default()
+    });
     let mut config = ControllerConfig::new(cli.plant.clone(), scenario, mode);
     config.mpc = settings;
     config.safety = (!cli.no_safety).then(|| SafetySettings {
@@ -127,10 +138,11 @@ fn main() -> anyhow::Result<()> {
             Schedule::WhenNeeded => QpSchedule::WhenNeeded,
         },
         qp: QpSettings { elastic_penalty_per_m: cli.qp_elastic_penalty, ..QpSettings::default() },
+        braking_check,
         ..SafetySettings::default()
     });
     if let Some(safety) = &config.safety {
-        safety.validate().context("--qp-elastic-penalty")?;
+        safety.validate().context("--qp-elastic-penalty / --fail-safe")?;
     }
     config.reset_plant = !cli.no_reset;
     config.autostart = !cli.no_autostart;
