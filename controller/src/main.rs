@@ -62,8 +62,8 @@ struct Cli {
     qp_elastic_penalty: Option<f64>,
     /// Judge every candidate command with the fail-safe check: the command, then braking from
     /// the next cycle on, flown on the continuous model for every round-trip delay up to the
-    /// scenario's largest sampling time (the cycle being its smallest). Off by default (the
-    /// paper's controller checks its plan's predictions); see ARCHITECTURE.md.
+    /// scenario's largest sampling time. Off by default (the paper's controller checks its
+    /// plan's predictions); see ARCHITECTURE.md.
     #[arg(long)]
     fail_safe: bool,
 }
@@ -124,11 +124,7 @@ fn main() -> anyhow::Result<()> {
         Mode::Nmpc => ControllerMode::Nmpc,
         Mode::Multistage => ControllerMode::Multistage,
     };
-    let braking_check = cli.fail_safe.then(|| BrakingCheck {
-        max_delay_s: scenario.sampling_times_s.iter().copied().fold(0.0, f64::max),
-        min_cycle_s: scenario.sampling_times_s.iter().copied().fold(f64::INFINITY, f64::min),
-        ..BrakingCheck::default()
-    });
+    let braking_check = cli.fail_safe.then(|| BrakingCheck::for_scenario(&scenario));
     let mut config = ControllerConfig::new(cli.plant.clone(), scenario, mode);
     config.mpc = settings;
     config.safety = (!cli.no_safety).then(|| SafetySettings {

@@ -199,7 +199,8 @@ impl Episode {
             config.mpc.formulation,
         );
         let ts = def.sampling_times_s.clone();
-        let controller = CycleController::new(def, config.mpc, config.safety).map_err(|e| e.to_string())?;
+        let safety = config.safety.map(|s| s.for_scenario(&scenario));
+        let controller = CycleController::new(def, config.mpc, safety).map_err(|e| e.to_string())?;
         let weights = weight_estimator(&scenario, mode, &ts);
         Ok(Self {
             scenario,
@@ -416,8 +417,9 @@ async fn fly(
                 config.mpc.obstacle_margin_m,
                 config.mpc.formulation,
             );
-            ep.controller = CycleController::new(def, config.mpc, config.safety)
-                .map_err(|e| LoopError::Bad(e.to_string()))?;
+            let safety = config.safety.map(|s| s.for_scenario(&ep.scenario));
+            ep.controller =
+                CycleController::new(def, config.mpc, safety).map_err(|e| LoopError::Bad(e.to_string()))?;
             shared.update(|st| {
                 st.goal_m = goal;
                 st.reached = false;

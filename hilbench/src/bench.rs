@@ -412,6 +412,23 @@ mod tests {
     }
 
     #[test]
+    fn the_fail_safe_check_of_a_scenario_file_reaches_the_controller_over_grpc() {
+        // The standard NMPC on slalom-4: its plans ignore the delay, so the check rejects some
+        // of them and the flight differs from the one without the check; over gRPC it is the
+        // in-process flight, bit for bit.
+        let mut file = load("slalom-4.toml");
+        let without = run_all(&file_jobs(&file, Some(&[Mode::Nmpc])), &Transport::InProcess, false)
+            .expect("in process");
+        file.scenario.fail_safe = true;
+        let jobs = file_jobs(&file, Some(&[Mode::Nmpc]));
+        let grpc = run_all(&jobs, &Transport::Grpc(Endpoints::default()), false).expect("grpc");
+        let local = run_all(&jobs, &Transport::InProcess, false).expect("in process");
+        assert_eq!(deterministic(&grpc), deterministic(&local));
+        assert_ne!(deterministic(&local), deterministic(&without), "the check changed nothing");
+        assert!(!local.runs[0].collided);
+    }
+
+    #[test]
     fn cycle_metrics_are_computed_from_the_rows() {
         let row = |k: u64, delay_s: f64, px: f64, status: &str| crate::cycle_log::CycleRow {
             cycle: k,

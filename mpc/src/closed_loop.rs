@@ -206,7 +206,8 @@ pub fn run_closed_loop(
         settings.mpc.formulation,
     );
     let sampling_times = def.sampling_times_s.clone();
-    let mut controller = CycleController::new(def, settings.mpc, settings.safety)?.with_fault(settings.fault);
+    let safety = settings.safety.map(|s| s.for_scenario(scenario));
+    let mut controller = CycleController::new(def, settings.mpc, safety)?.with_fault(settings.fault);
     let (prior_shape, prior_scale) = scenario.prior_gamma;
     let weight_settings = WeightSettings {
         window: scenario.delay_window,

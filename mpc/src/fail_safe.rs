@@ -20,7 +20,7 @@
 //! least 4 cm of clearance).
 //! The model is the plant's (the same dynamics, RK4), so model error is not the gap.
 
-use mav::{Cylinder, InputBounds, MavModel, ModelParams, State, rk4_step};
+use mav::{Cylinder, InputBounds, MavModel, ModelParams, Scenario, State, rk4_step};
 
 use crate::safety::braking_command;
 use crate::solver::MpcError;
@@ -59,6 +59,16 @@ impl Default for BrakingCheck {
 }
 
 impl BrakingCheck {
+    /// The check over `scenario`'s delay range: delays up to its largest sampling time (the
+    /// longest delay its scenario tree covers), cycles no shorter than its `min_cycle_s`.
+    pub fn for_scenario(scenario: &Scenario) -> Self {
+        Self {
+            max_delay_s: scenario.sampling_times_s.iter().copied().fold(0.0, f64::max),
+            min_cycle_s: scenario.min_cycle_s,
+            ..Self::default()
+        }
+    }
+
     /// Names the first invalid setting.
     pub fn validate(&self) -> Result<(), MpcError> {
         let bad = |field: &'static str, reason: &'static str| Err(MpcError::InvalidSetting { field, reason });

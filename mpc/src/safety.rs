@@ -26,7 +26,7 @@
 
 use std::fmt::Write as _;
 
-use mav::{Cylinder, InputBounds, ModelParams};
+use mav::{Cylinder, InputBounds, ModelParams, Scenario};
 
 use crate::fail_safe::{BrakingCheck, Envelope, FailSafe};
 use crate::problem::{Evaluator, OcpDefinition};
@@ -112,6 +112,15 @@ impl Default for SafetySettings {
 }
 
 impl SafetySettings {
+    /// These settings for `scenario`: the fail-safe check over its delay range when the
+    /// scenario asks for it and the settings do not set one already.
+    pub fn for_scenario(mut self, scenario: &Scenario) -> Self {
+        if scenario.fail_safe && self.braking_check.is_none() {
+            self.braking_check = Some(BrakingCheck::for_scenario(scenario));
+        }
+        self
+    }
+
     /// Names the first invalid setting.
     pub fn validate(&self) -> Result<(), MpcError> {
         self.qp.validate()?;

@@ -4,7 +4,8 @@
 //!
 //! Delays are drawn from `[0, 0.33]` s (the range the scenario tree covers): independent
 //! uniform over the whole range, Gamma with random shape and scale (clipped), and bursts of
-//! long delays on a short base. A failing trace is shrunk by proptest and written to
+//! long delays on a short base; and delays recorded in real-time runs of the bench
+//! (`tests/traces/`). A failing trace is shrunk by proptest and written to
 //! `target/tmp/delay-traces/` in the `delay` crate's trace format; replay it with
 //! `HILBENCH_REPLAY_TRACE=<file> cargo test --release -p mpc --test delay_traces replay`.
 
@@ -150,6 +151,28 @@ proptest! {
     #[test]
     fn paper_2_is_collision_free_and_reaches_the_goal_under_bursts(trace in bursts()) {
         check(&trace)?;
+    }
+}
+
+/// Delays recorded in real-time runs of the bench on this machine (`tests/traces/`, each file
+/// says how), replayed as they were measured.
+#[test]
+fn paper_2_is_collision_free_and_reaches_the_goal_under_recorded_traces() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/traces");
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .filter_map(|entry| entry.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "txt"))
+        .collect();
+    files.sort();
+    assert!(files.len() >= 2, "recorded traces in {}: {files:?}", dir.display());
+    for path in files {
+        let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let delays_s = delay::parse_trace(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        assert!(delays_s.len() >= 50 && delays_s.iter().all(|d| (0.0..=MAX_DELAY_S).contains(d)));
+        if let Err(e) = check(&Trace { kind: format!("recorded ({})", path.display()), delays_s }) {
+            panic!("{e}");
+        }
     }
 }
 
