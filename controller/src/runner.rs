@@ -467,7 +467,7 @@ async fn fly(
         let weights = ep.weights.weights().to_vec();
         let outcome = ep
             .controller
-            .step(ep.cycle, &x, &u_prev, &weights, &budget)
+            .step(ep.cycle, sample.time_ns, &x, &u_prev, &weights, &budget)
             .map_err(|e| LoopError::Bad(e.to_string()))?;
         // Finite and inside the bounds by construction; checked again at the edge.
         let command = sanitize_command(outcome.command, &ep.scenario.bounds, hover);

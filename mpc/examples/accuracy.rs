@@ -1,7 +1,7 @@
 //! Tuning aid: the closed loop's own warm-started solves against the careful reference.
 //! Usage: accuracy [stride]; settings from env MPC_TOL, MPC_AKKT, MPC_MEM, MPC_CTOL, MPC_C0,
 //! MPC_CMAX, MPC_OUTER, MPC_INNER, MPC_PSLACK (< 0: no penalty preconditioner),
-//! MPC_PER_OUTER (0: no cap), MPC_YMAX.
+//! MPC_PER_OUTER (0: no cap), MPC_YMAX, MPC_ELAPSED.
 use mpc::{ControllerMode, OcpDefinition, accuracy, closed_loop::percentile};
 
 #[path = "../benches/common/mpc_env.rs"]

@@ -242,7 +242,7 @@ pub fn run_closed_loop(
         let x0: [f64; 8] = x.into();
         let up: [f64; 3] = u_prev.into();
         let weights_used = weights.weights().to_vec();
-        let outcome = controller.step(cycle, &x0, &up, &weights_used, &settings.budget)?;
+        let outcome = controller.step(cycle, sim.time_ns(), &x0, &up, &weights_used, &settings.budget)?;
         let command = outcome.command;
         let predictions = if settings.record_predictions {
             controller

@@ -57,6 +57,8 @@ pub struct CycleController {
     /// The selected plan of the last cycle (`N x 3`).
     plan: Vec<f64>,
     scratch: Vec<f64>,
+    /// Time of the last cycle's state sample, ns (`None` before the first cycle).
+    last_sample_ns: Option<u64>,
 }
 
 impl CycleController {
@@ -69,7 +71,7 @@ impl CycleController {
         let safety = safety.map(|s| SafetyLayer::new(&def, s)).transpose()?;
         let mpc = Mpc::new(def, mpc)?;
         let plan = mpc.solution().to_vec();
-        Ok(Self { scratch: plan.clone(), plan, mpc, safety, fault: None })
+        Ok(Self { scratch: plan.clone(), plan, mpc, safety, fault: None, last_sample_ns: None })
     }
 
     /// Forces `fault` on PANOC on the given cycles (tests of the fallbacks).
@@ -95,16 +97,36 @@ impl CycleController {
         &self.plan
     }
 
-    /// Solves cycle `cycle` from state `x0` with last applied input `u_prev` and the scenario
-    /// weights, and selects the command. `Err` only for an invalid instance (nothing changes).
+    /// Solves cycle `cycle` from state `x0`, sampled at `sample_ns`, with last applied input
+    /// `u_prev` and the scenario weights, and selects the command. `Err` only for an invalid
+    /// instance (nothing changes).
+    ///
+    /// Warm start: the last plan shifted by one step. With
+    /// [`MpcSettings::warm_start_by_elapsed_time`], a single-scenario plan (standard NMPC, one
+    /// 0.05 s sampling time) is shifted by the steps elapsed since the last cycle's sample
+    /// instead: under the delays a cycle lasts `max(T, d)`, ~0.18 s with the paper's, so a
+    /// one-step shift starts the solve from inputs meant for 0.13 s ago. A multi-stage plan is
+    /// always shifted by one step: its inputs are shared by scenarios whose steps last
+    /// 0.05-0.33 s, and one step is the shift of the scenario whose sampling time matches the
+    /// cycle (the tree's premise).
     pub fn step(
         &mut self,
         cycle: u64,
+        sample_ns: u64,
         x0: &[f64; 8],
         u_prev: &[f64; 3],
         weights: &[f64],
         budget: &SolveBudget,
     ) -> Result<CycleOutcome, MpcError> {
+        if let Some(last_ns) = self.last_sample_ns.replace(sample_ns) {
+            let ts = self.mpc.definition().sampling_times_s[0];
+            if self.mpc.settings().warm_start_by_elapsed_time && self.mpc.definition().num_scenarios() == 1 {
+                let steps = (mav::ns_to_s(sample_ns.saturating_sub(last_ns)) / ts).round();
+                if steps >= 2.0 {
+                    self.mpc.advance_warm_start(steps as usize - 1);
+                }
+            }
+        }
         let fault = self.fault.filter(|f| f.active(cycle)).map(|f| f.fault);
         let zero = SolveBudget { max_inner_iterations: Some(0), ..*budget };
         let budget = if fault == Some(PanocFault::ZeroBudget) { &zero } else { budget };
@@ -165,7 +187,7 @@ mod tests {
     fn a_good_panoc_plan_is_selected_and_sent() {
         let mut c = controller(Some(SafetySettings::default()));
         let s = Scenario::paper_2();
-        let out = c.step(0, &s.start, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid");
+        let out = c.step(0, 0, &s.start, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid");
         let sel = out.selection.expect("layer on");
         assert_eq!(sel.decision, Decision::Panoc, "{}", sel.reason());
         assert_eq!(out.command, c.mpc().first_input());
@@ -182,9 +204,10 @@ mod tests {
             }));
             let s = Scenario::paper_2();
             let u = [9.81, 0.0, 0.0];
-            let first = c.step(0, &s.start, &u, &W5, &SolveBudget::default()).expect("valid");
+            let first = c.step(0, 0, &s.start, &u, &W5, &SolveBudget::default()).expect("valid");
             assert_eq!(first.fault, None);
-            let out = c.step(1, &s.start, &first.command, &W5, &SolveBudget::default()).expect("valid");
+            let out =
+                c.step(1, 50_000_000, &s.start, &first.command, &W5, &SolveBudget::default()).expect("valid");
             assert_eq!(out.fault, Some(fault));
             let sel = out.selection.expect("layer on");
             assert!(sel.decision.is_fallback(), "{fault:?}: {}", sel.reason());
@@ -202,6 +225,40 @@ mod tests {
     }
 
     #[test]
+    fn the_warm_start_follows_the_elapsed_time_for_nmpc_when_asked_and_one_step_otherwise() {
+        // A zero budget on the second cycle returns the warm start as the plan.
+        let s = Scenario::paper_2();
+        let zero = Some(FaultInjection { fault: PanocFault::ZeroBudget, first_cycle: 1, cycles: 1 });
+        let elapsed = MpcSettings { warm_start_by_elapsed_time: true, ..MpcSettings::default() };
+        for (mode, weights, settings, expected_shift) in [
+            (ControllerMode::Nmpc, &[1.0][..], elapsed, 4),
+            (ControllerMode::Nmpc, &[1.0][..], MpcSettings::default(), 1),
+            (ControllerMode::Multistage, &W5[..], elapsed, 1),
+        ] {
+            let def = OcpDefinition::from_scenario(&s, mode, 0.1, ObstacleFormulation::DistanceAlm);
+            let mut c = CycleController::new(def, settings, None).expect("valid").with_fault(zero);
+            let u = [9.81, 0.0, 0.0];
+            c.step(0, 1_000_000_000, &s.start, &u, weights, &SolveBudget::default()).expect("valid");
+            let first = c.plan().to_vec();
+            // 0.2 s later: four of the NMPC's 0.05 s steps.
+            let out =
+                c.step(1, 1_200_000_000, &s.start, &u, weights, &SolveBudget::default()).expect("valid");
+            assert_eq!(out.fault, Some(PanocFault::ZeroBudget));
+            let n = first.len() / 3;
+            for j in 0..n {
+                let from = (j + expected_shift).min(n - 1);
+                for k in 0..3 {
+                    let (got, want) = (c.plan()[3 * j + k], first[3 * from + k]);
+                    assert!(
+                        (got - want).abs() < 1e-12,
+                        "{mode:?} shift {expected_shift} step {j}: {got} vs {want}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
     fn without_the_layer_a_nan_plan_becomes_hover() {
         let mut c = controller(None).with_fault(Some(FaultInjection {
             fault: PanocFault::NanPlan,
@@ -209,7 +266,7 @@ mod tests {
             cycles: 1,
         }));
         let s = Scenario::paper_2();
-        let out = c.step(0, &s.start, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid");
+        let out = c.step(0, 0, &s.start, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid");
         assert_eq!(out.command, [9.81, 0.0, 0.0]);
         assert!(out.selection.is_none());
     }

@@ -64,6 +64,12 @@ pub struct MpcSettings {
     /// (BENCHMARKS.md, issue 3): with the hover sensitivities it made multi-stage solves slower,
     /// so it is off by default.
     pub penalty_preconditioner_slack_m: Option<f64>,
+    /// Standard NMPC (one scenario) only: warm-start each cycle from the last plan shifted by
+    /// the time since the last cycle's sample, in whole sampling times, instead of by one step
+    /// (see [`crate::CycleController::step`]). Off by default: the issue's protocol shifts by
+    /// one step, and the paper-1 result depends on it (measured: with it the NMPC no longer
+    /// stalls in front of the cylinder; BENCHMARKS.md).
+    pub warm_start_by_elapsed_time: bool,
 }
 
 impl Default for MpcSettings {
@@ -83,6 +89,7 @@ impl Default for MpcSettings {
             max_inner_iterations_per_outer: None,
             max_multiplier: MAX_MULTIPLIER,
             penalty_preconditioner_slack_m: None,
+            warm_start_by_elapsed_time: false,
         }
     }
 }
@@ -304,6 +311,35 @@ impl Mpc {
             *w = v.clamp(self.def.bounds.min[k % 3], self.def.bounds.max[k % 3]);
         }
         Ok(())
+    }
+
+    /// Shifts the warm start (inputs and multipliers) by `steps` more steps, the last one
+    /// repeated: for a controller whose cycle lasted that many more of its sampling times.
+    pub fn advance_warm_start(&mut self, steps: usize) {
+        let horizon = self.def.horizon;
+        let steps = steps.min(horizon - 1);
+        if steps == 0 {
+            return;
+        }
+        let n = self.warm.len();
+        self.warm.copy_within(3 * steps.., 0);
+        for j in horizon - steps..horizon {
+            let last =
+                [self.warm[n - 3 * steps - 3], self.warm[n - 3 * steps - 2], self.warm[n - 3 * steps - 1]];
+            self.warm[3 * j..3 * j + 3].copy_from_slice(&last);
+        }
+        let n_con = self.def.constraints_per_point();
+        if n_con > 0 && !self.warm_multipliers.is_empty() {
+            for i in 0..self.def.num_scenarios() {
+                let block = &mut self.warm_multipliers[i * horizon * n_con..(i + 1) * horizon * n_con];
+                block.copy_within(steps * n_con.., 0);
+                for j in horizon - steps..horizon {
+                    let (head, tail) = block.split_at_mut(j * n_con);
+                    tail[..n_con]
+                        .copy_from_slice(&head[(horizon - steps - 1) * n_con..(horizon - steps) * n_con]);
+                }
+            }
+        }
     }
 
     /// Forgets the previous solution: the next solve starts from hover.
@@ -650,6 +686,33 @@ mod tests {
         let first = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &[1.0], &SolveBudget::default()).expect("valid");
         let second = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &[1.0], &SolveBudget::default()).expect("valid");
         assert!(second.iterations <= first.iterations, "{} > {}", second.iterations, first.iterations);
+    }
+
+    #[test]
+    fn the_warm_start_advances_by_whole_steps_repeating_the_last_input() {
+        let s = Scenario::paper_2();
+        let mut mpc = mpc_for(&s, ControllerMode::Nmpc, MpcSettings::default());
+        let n = s.horizon;
+        let plan: Vec<f64> = (0..3 * n).map(|k| [9.0, 0.01, -0.01][k % 3] + 0.001 * (k / 3) as f64).collect();
+        let zero = SolveBudget { max_inner_iterations: Some(0), deadline: None };
+        for steps in [0, 1, 3, n - 1, n + 5] {
+            mpc.set_warm_start(&plan).expect("valid");
+            mpc.advance_warm_start(steps);
+            // A zero budget returns the warm start as the solution (through the scaling: to
+            // rounding).
+            mpc.solve(&s.start, &[9.81, 0.0, 0.0], &[1.0], &zero).expect("valid");
+            let got = mpc.solution();
+            let shift = steps.min(n - 1);
+            for j in 0..3 * n {
+                let from = 3 * (j / 3 + shift).min(n - 1) + j % 3;
+                assert!(
+                    (got[j] - plan[from]).abs() < 1e-12,
+                    "steps {steps}, value {j}: {} vs {}",
+                    got[j],
+                    plan[from]
+                );
+            }
+        }
     }
 
     #[test]

@@ -1,7 +1,8 @@
 //! Solver settings from the environment for the tuning aids (`examples/accuracy.rs`,
 //! `examples/fixed_instances.rs`), so that one set of variables configures both: MPC_TOL,
 //! MPC_AKKT, MPC_MEM, MPC_CTOL, MPC_C0, MPC_CMAX, MPC_OUTER, MPC_INNER, MPC_PSLACK (< 0: no
-//! penalty preconditioner), MPC_PER_OUTER (0: no cap), MPC_YMAX; the defaults where unset.
+//! penalty preconditioner), MPC_PER_OUTER (0: no cap), MPC_YMAX, MPC_ELAPSED (1: NMPC warm
+//! start shifted by the elapsed time); the defaults where unset.
 use mpc::MpcSettings;
 
 fn env(name: &str, default: f64) -> f64 {
@@ -35,6 +36,7 @@ pub fn settings_from_env() -> MpcSettings {
             v => Some(v),
         },
         max_multiplier: env("MPC_YMAX", d.max_multiplier),
+        warm_start_by_elapsed_time: env("MPC_ELAPSED", 0.0) > 0.0,
         ..d
     }
 }
