@@ -1,9 +1,10 @@
 //! Diagnosis of one delay trace of the survey (`delay_robustness`): per cycle, the plant's
 //! smallest clearance between this cycle's start and the next (and which cylinder), what the
 //! safety layer decided, and how far the plant ended from each scenario's prediction of the
-//! selected plan. Same environment as the survey (COMP, FLOOR, MARGIN), plus TRACE=kind:seed.
+//! selected plan. Same environment as the survey (COMP, FLOOR, MARGIN, NOSAFETY, FAILSAFE), plus
+//! TRACE=kind:seed.
 use mav::{CommandMeta, Input, PlantSim, SimSettings};
-use mpc::{ClosedLoopSettings, ControllerMode, DelaySource, run_closed_loop};
+use mpc::{DelaySource, run_closed_loop};
 
 #[path = "../benches/common/delay_traces.rs"]
 mod traces;
@@ -13,27 +14,7 @@ fn main() {
     let (kind, seed) = spec.split_once(':').expect("TRACE=kind:seed");
     let seed: u64 = seed.parse().expect("seed");
     let trace = traces::trace(kind, seed, 0.33);
-    let mut scenario = mav::Scenario::paper_2();
-    scenario.delay_compensation = std::env::var("COMP").is_ok();
-    scenario.min_altitude_m = std::env::var("FLOOR").ok().and_then(|z| z.parse().ok());
-    let mut settings = ClosedLoopSettings::paper(ControllerMode::Multistage);
-    if let Some(m) = std::env::var("MARGIN").ok().and_then(|m| m.parse().ok()) {
-        settings.mpc.obstacle_margin_m = m;
-    }
-    // FAILSAFE=1: the safety layer's fail-safe check (first input, then braking, under every
-    // delay up to DMAX s, SAMPLES delays per cycle).
-    if std::env::var("FAILSAFE").is_ok()
-        && let Some(safety) = settings.safety.as_mut()
-    {
-        let mut check = mpc::BrakingCheck::default();
-        if let Some(d) = std::env::var("DMAX").ok().and_then(|d| d.parse().ok()) {
-            check.max_delay_s = d;
-        }
-        if let Some(n) = std::env::var("SAMPLES").ok().and_then(|n| n.parse().ok()) {
-            check.delay_samples = n;
-        }
-        safety.braking_check = Some(check);
-    }
+    let (scenario, mut settings) = traces::setup_from_env();
     settings.delays = Some(DelaySource::Trace(trace));
     settings.record_predictions = true;
     let (summary, records) = run_closed_loop(&scenario, &settings).expect("run");

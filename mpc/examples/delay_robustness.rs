@@ -1,37 +1,15 @@
 //! Robustness survey: paper-2 with the multi-stage controller under many random delay traces
 //! (uniform, Gamma, bursts in [0, 0.33] s), counting collisions and misses. Settings from the
-//! environment: MARGIN (m), FLOOR (m), COMP (dead-time compensation), NOSAFETY, CASES.
-use mpc::{ClosedLoopSettings, ControllerMode, DelaySource, run_closed_loop};
+//! environment: MARGIN (m), FLOOR (m), COMP (dead-time compensation), NOSAFETY, FAILSAFE (with
+//! DMAX, SAMPLES), WIDTH (of the uniform jitter, s), CASES.
+use mpc::{DelaySource, run_closed_loop};
 
 #[path = "../benches/common/delay_traces.rs"]
 mod traces;
 
 fn main() {
     let cases: u64 = std::env::var("CASES").ok().and_then(|c| c.parse().ok()).unwrap_or(20);
-    let mut scenario = mav::Scenario::paper_2();
-    scenario.delay_compensation = std::env::var("COMP").is_ok();
-    scenario.min_altitude_m = std::env::var("FLOOR").ok().and_then(|z| z.parse().ok());
-    let mut settings = ClosedLoopSettings::paper(ControllerMode::Multistage);
-    if let Some(m) = std::env::var("MARGIN").ok().and_then(|m| m.parse().ok()) {
-        settings.mpc.obstacle_margin_m = m;
-    }
-    if std::env::var("NOSAFETY").is_ok() {
-        settings.safety = None;
-    }
-    // FAILSAFE=1: the safety layer's fail-safe check (first input, then braking, under every
-    // delay up to DMAX s, SAMPLES delays per cycle).
-    if std::env::var("FAILSAFE").is_ok()
-        && let Some(safety) = settings.safety.as_mut()
-    {
-        let mut check = mpc::BrakingCheck::default();
-        if let Some(d) = std::env::var("DMAX").ok().and_then(|d| d.parse().ok()) {
-            check.max_delay_s = d;
-        }
-        if let Some(n) = std::env::var("SAMPLES").ok().and_then(|n| n.parse().ok()) {
-            check.delay_samples = n;
-        }
-        safety.braking_check = Some(check);
-    }
+    let (scenario, mut settings) = traces::setup_from_env();
     // Width of the i.i.d. uniform jitter, s: delays uniform in [a, a + width], a random.
     let width: f64 = std::env::var("WIDTH").ok().and_then(|w| w.parse().ok()).unwrap_or(0.33);
     for kind in ["uniform", "gamma", "bursts"] {

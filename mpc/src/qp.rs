@@ -361,12 +361,8 @@ pub struct QpFallback {
     /// Per dense row, its nominal slack `b - A u_bar` and whether clarabel sees it.
     slack: Vec<f64>,
     selected: Vec<bool>,
-    /// Per dense row, the row of the same scenario and constraint at the previous point.
-    row_prev: Vec<Option<usize>>,
-    /// Per dense row, the row of the same scenario and constraint at the next point.
-    row_next: Vec<Option<usize>>,
-    /// Per constraint (cylinders, then the floor), its last row and point while building.
-    last_row: Vec<Option<(usize, usize)>>,
+    /// The dense rows' runs (for [`QpSettings::screen_runs`]).
+    runs: RowRuns,
     /// Per dense row, the index of its elastic slack variable (after the corrections).
     elastic_of: Vec<Option<usize>>,
     /// Nominal violation (`-slack`) of each elastic row, in the slack variables' order.
@@ -456,9 +452,11 @@ impl QpFallback {
             b: Vec::with_capacity(max_dense),
             slack: Vec::with_capacity(max_dense),
             selected: Vec::with_capacity(max_dense),
-            row_prev: Vec::with_capacity(max_dense),
-            row_next: Vec::with_capacity(max_dense),
-            last_row: vec![None; max_dense / (m * n)],
+            runs: RowRuns {
+                prev: Vec::with_capacity(max_dense),
+                next: Vec::with_capacity(max_dense),
+                last: vec![None; max_dense / (m * n)],
+            },
             elastic_of: Vec::with_capacity(max_dense),
             elastic_bound: Vec::with_capacity(max_dense),
             elastic_violation_m: 0.0,
@@ -606,9 +604,9 @@ impl QpFallback {
             // (`lazy_slack_m = INFINITY` asks for every row from the start: no screening.)
             if self.settings.screen_runs && lazy.is_finite() && candidates > 3 * self.num_blocks {
                 let sl = &self.slack;
+                let runs = &self.runs;
                 let closest = |r: usize| {
-                    self.row_prev[r].is_none_or(|p| sl[r] <= sl[p])
-                        && self.row_next[r].is_none_or(|q| sl[r] <= sl[q])
+                    runs.prev[r].is_none_or(|p| sl[r] <= sl[p]) && runs.next[r].is_none_or(|q| sl[r] <= sl[q])
                 };
                 self.selected.extend((0..sl.len()).map(|r| sl[r] <= lazy && closest(r)));
             } else {
@@ -808,12 +806,12 @@ impl QpFallback {
         }
         let act = self.settings.activation_distance_m;
         let mut n_half = 0;
-        self.row_prev.clear();
-        self.row_next.clear();
+        self.runs.prev.clear();
+        self.runs.next.clear();
         let n_obs = self.obstacles.len();
         // Dense rows of the half-planes and the floor.
         for i in 0..m {
-            self.last_row.iter_mut().for_each(|l| *l = None);
+            self.runs.last.iter_mut().for_each(|l| *l = None);
             // A nominal prediction that passes through a cylinder would get half-planes facing
             // backwards before the axis and forwards after it, which no trajectory satisfies.
             // Its points inside the cylinder share one normal instead: towards the side of
@@ -869,13 +867,7 @@ impl QpFallback {
                         continue;
                     }
                     self.b.push(nx * dx + ny * dy - ob.r + su);
-                    let prev = self.last_row[o].filter(|(_, kp)| kp + 1 == k).map(|(rp, _)| rp);
-                    self.row_prev.push(prev);
-                    self.row_next.push(None);
-                    if let Some(p) = prev {
-                        self.row_next[p] = Some(r);
-                    }
-                    self.last_row[o] = Some((r, k));
+                    self.runs.link(o, r, k);
                     r += 1;
                     n_half += 1;
                 }
@@ -887,13 +879,7 @@ impl QpFallback {
                         continue;
                     }
                     self.b.push(xb[2] - floor + su);
-                    let prev = self.last_row[n_obs].filter(|(_, kp)| kp + 1 == k).map(|(rp, _)| rp);
-                    self.row_prev.push(prev);
-                    self.row_next.push(None);
-                    if let Some(p) = prev {
-                        self.row_next[p] = Some(r);
-                    }
-                    self.last_row[n_obs] = Some((r, k));
+                    self.runs.link(n_obs, r, k);
                     r += 1;
                 }
             }
@@ -1109,6 +1095,32 @@ impl QpFallback {
             }
         }
         (status, solver.solution.iterations, time)
+    }
+}
+
+/// The runs of the dense rows: consecutive points of one scenario near one constraint.
+#[derive(Debug, Clone)]
+struct RowRuns {
+    /// Per dense row, the row of the same scenario and constraint at the previous point.
+    prev: Vec<Option<usize>>,
+    /// Per dense row, the row of the same scenario and constraint at the next point.
+    next: Vec<Option<usize>>,
+    /// Per constraint (cylinders, then the floor), its last row and point while building one
+    /// scenario's rows.
+    last: Vec<Option<(usize, usize)>>,
+}
+
+impl RowRuns {
+    /// Records row `r`, of constraint `c` at point `k`, after the same constraint's row at
+    /// point `k - 1` when there is one.
+    fn link(&mut self, c: usize, r: usize, k: usize) {
+        let prev = self.last[c].filter(|(_, kp)| kp + 1 == k).map(|(rp, _)| rp);
+        self.prev.push(prev);
+        self.next.push(None);
+        if let Some(p) = prev {
+            self.next[p] = Some(r);
+        }
+        self.last[c] = Some((r, k));
     }
 }
 

@@ -1,5 +1,6 @@
 //! The survey's random delay traces (`delay_robustness`, `delay_diagnose`): trace `seed` of
-//! each kind is the same in both, so that a trace the survey reports can be looked at.
+//! each kind is the same in both, so that a trace the survey reports can be looked at; and
+//! the fail-safe check both take from the environment.
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Gamma};
 
@@ -33,4 +34,34 @@ pub fn trace(kind: &str, seed: u64, width_s: f64) -> Vec<f64> {
             t
         }
     }
+}
+
+/// paper-2 and the multi-stage controller as the environment asks: `COMP` (dead-time
+/// compensation), `FLOOR` (m), `MARGIN` (m), `NOSAFETY` (no safety layer), `FAILSAFE=1` (the
+/// fail-safe check: first input, then braking, under every delay up to `DMAX` s, `SAMPLES`
+/// delays per cycle).
+pub fn setup_from_env() -> (mav::Scenario, mpc::ClosedLoopSettings) {
+    let mut scenario = mav::Scenario::paper_2();
+    scenario.delay_compensation = std::env::var("COMP").is_ok();
+    scenario.min_altitude_m = std::env::var("FLOOR").ok().and_then(|z| z.parse().ok());
+    let mut settings = mpc::ClosedLoopSettings::paper(mpc::ControllerMode::Multistage);
+    if let Some(m) = std::env::var("MARGIN").ok().and_then(|m| m.parse().ok()) {
+        settings.mpc.obstacle_margin_m = m;
+    }
+    if std::env::var("NOSAFETY").is_ok() {
+        settings.safety = None;
+    }
+    if std::env::var("FAILSAFE").is_ok()
+        && let Some(safety) = settings.safety.as_mut()
+    {
+        let mut check = mpc::BrakingCheck::default();
+        if let Some(d) = std::env::var("DMAX").ok().and_then(|d| d.parse().ok()) {
+            check.max_delay_s = d;
+        }
+        if let Some(n) = std::env::var("SAMPLES").ok().and_then(|n| n.parse().ok()) {
+            check.delay_samples = n;
+        }
+        safety.braking_check = Some(check);
+    }
+    (scenario, settings)
 }
