@@ -95,7 +95,9 @@ fn bench_settings() -> ClosedLoopSettings {
     settings
 }
 
-/// Writes a failing trace where a replay can find it; returns the path.
+/// Writes a failing trace where a replay can find it; returns the path. One file per family
+/// of traces, overwritten: proptest calls the test again for every simpler case it tries
+/// while shrinking, and the last one that fails, the one it reports, is the one kept.
 fn save(trace: &Trace) -> String {
     let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("delay-traces");
     let dir = std::fs::canonicalize(&dir).unwrap_or(dir);
@@ -104,8 +106,8 @@ fn save(trace: &Trace) -> String {
     for d in &trace.delays_s {
         text.push_str(&format!("{d:?}\n"));
     }
-    let hash = trace.delays_s.iter().fold(0u64, |h, d| h.rotate_left(7) ^ d.to_bits());
-    let path = dir.join(format!("paper-2-{hash:016x}.txt"));
+    let family = trace.kind.split(|c: char| !c.is_ascii_alphanumeric()).next().filter(|f| !f.is_empty());
+    let path = dir.join(format!("paper-2-{}.txt", family.unwrap_or("trace")));
     match std::fs::write(&path, text) {
         Ok(()) => path.display().to_string(),
         Err(e) => format!("(could not write {}: {e})", path.display()),
