@@ -49,9 +49,10 @@ pub enum QpSchedule {
 
 impl QpSchedule {
     /// The default: the QP (median 0.65 ms, up to 5.6 ms along the paper loops, against
-    /// PANOC's 0.25 ms median; see BENCHMARKS.md) every cycle would more than double a cycle's
-    /// solver time, and its worst cases are a fifth of the 25 ms a real-time cycle gives the
-    /// solvers; so the cross-check runs every 5th cycle, and the fallback whenever needed.
+    /// PANOC's 0.25 ms median; see BENCHMARKS.md) every cycle would nearly double a cycle's
+    /// time (3.1 against 1.6 ms per paper-2 cycle), and its worst cases are a fifth of the
+    /// 25 ms a real-time cycle gives the solvers; so the cross-check runs every 5th cycle, and
+    /// the fallback whenever needed.
     pub const DEFAULT: QpSchedule = QpSchedule::EveryNth(5);
 
     /// Whether the cross-check is due on the `k`-th cycle of an episode (0-based).
