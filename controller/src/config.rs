@@ -3,7 +3,7 @@
 use std::time::Duration;
 
 use mav::Scenario;
-use mpc::{ControllerMode, MpcSettings, SafetySettings};
+use mpc::{BrakingCheck, ControllerMode, MpcSettings, SafetySettings};
 
 /// Lockstep or real time; `Auto` follows what the plant's `Describe` says.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -25,6 +25,9 @@ pub struct ControllerConfig {
     /// The safety layer: cross-check of PANOC against the QP fallback and selection of the
     /// command every cycle; `None` sends PANOC's input as it is (clipped to the bounds).
     pub safety: Option<SafetySettings>,
+    /// The safety layer's fail-safe check over each episode's scenario, whatever the scenario
+    /// asks (`--fail-safe`); without it, only scenarios with `fail_safe` get it.
+    pub fail_safe: bool,
     pub time_mode: TimeModeSetting,
     /// Reset the plant to the scenario when an episode starts (not on reconnection).
     pub reset_plant: bool,
@@ -42,6 +45,18 @@ pub struct ControllerConfig {
 }
 
 impl ControllerConfig {
+    /// The safety settings of an episode of `scenario`: these, with the fail-safe check over
+    /// the scenario's delay range when the scenario or [`ControllerConfig::fail_safe`] asks.
+    pub fn safety_for(&self, scenario: &Scenario) -> Option<SafetySettings> {
+        self.safety.map(|s| {
+            if self.fail_safe && s.braking_check.is_none() {
+                SafetySettings { braking_check: Some(BrakingCheck::for_scenario(scenario)), ..s }
+            } else {
+                s.for_scenario(scenario)
+            }
+        })
+    }
+
     pub fn new(plant: impl Into<String>, scenario: Scenario, mode: ControllerMode) -> Self {
         Self {
             plant: plant.into(),
@@ -49,6 +64,7 @@ impl ControllerConfig {
             mode,
             mpc: MpcSettings::default(),
             safety: Some(SafetySettings::default()),
+            fail_safe: false,
             time_mode: TimeModeSetting::Auto,
             reset_plant: true,
             autostart: true,

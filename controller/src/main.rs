@@ -9,7 +9,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand, ValueEnum};
 use controller::solve_lines::LineSolver;
 use controller::{ControllerConfig, TimeModeSetting};
-use mpc::{BrakingCheck, ControllerMode, MpcSettings, QpSchedule, QpSettings, SafetySettings};
+use mpc::{ControllerMode, MpcSettings, QpSchedule, QpSettings, SafetySettings};
 
 #[derive(Parser, Debug)]
 #[command(name = "controller", version, about = "The multi-stage NMPC controller of hilbench")]
@@ -61,10 +61,10 @@ struct Cli {
     #[arg(long)]
     qp_elastic_penalty: Option<f64>,
     /// Judge every candidate command with the fail-safe check: the command, then braking from
-    /// the next cycle on, flown on the continuous model for every round-trip delay up to the
+    /// the next cycle on, flown on the continuous model for sampled round-trip delays up to the
     /// scenario's largest sampling time. Off by default (the paper's controller checks its
     /// plan's predictions); see ARCHITECTURE.md.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "no_safety")]
     fail_safe: bool,
 }
 
@@ -124,7 +124,6 @@ fn main() -> anyhow::Result<()> {
         Mode::Nmpc => ControllerMode::Nmpc,
         Mode::Multistage => ControllerMode::Multistage,
     };
-    let braking_check = cli.fail_safe.then(|| BrakingCheck::for_scenario(&scenario));
     let mut config = ControllerConfig::new(cli.plant.clone(), scenario, mode);
     config.mpc = settings;
     config.safety = (!cli.no_safety).then(|| SafetySettings {
@@ -134,11 +133,11 @@ fn main() -> anyhow::Result<()> {
             Schedule::WhenNeeded => QpSchedule::WhenNeeded,
         },
         qp: QpSettings { elastic_penalty_per_m: cli.qp_elastic_penalty, ..QpSettings::default() },
-        braking_check,
         ..SafetySettings::default()
     });
+    config.fail_safe = cli.fail_safe;
     if let Some(safety) = &config.safety {
-        safety.validate().context("--qp-elastic-penalty / --fail-safe")?;
+        safety.validate().context("--qp-elastic-penalty")?;
     }
     config.reset_plant = !cli.no_reset;
     config.autostart = !cli.no_autostart;

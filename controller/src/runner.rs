@@ -199,7 +199,7 @@ impl Episode {
             config.mpc.formulation,
         );
         let ts = def.sampling_times_s.clone();
-        let safety = config.safety.map(|s| s.for_scenario(&scenario));
+        let safety = config.safety_for(&scenario);
         let controller = CycleController::new(def, config.mpc, safety).map_err(|e| e.to_string())?;
         let weights = weight_estimator(&scenario, mode, &ts);
         Ok(Self {
@@ -417,7 +417,7 @@ async fn fly(
                 config.mpc.obstacle_margin_m,
                 config.mpc.formulation,
             );
-            let safety = config.safety.map(|s| s.for_scenario(&ep.scenario));
+            let safety = config.safety_for(&ep.scenario);
             ep.controller =
                 CycleController::new(def, config.mpc, safety).map_err(|e| LoopError::Bad(e.to_string()))?;
             shared.update(|st| {

@@ -101,7 +101,7 @@ pub struct RunSection {
     #[serde(default)]
     pub obstacle_margin_m: Option<f64>,
     /// The safety layer's fail-safe check (each candidate command, then braking, on the
-    /// continuous model under every delay up to the largest sampling time; see
+    /// continuous model under sampled delays up to the largest sampling time; see
     /// `mpc::fail_safe`). Off by default: it made the multi-stage controller collision-free on
     /// paper-2 under 120 random delay traces (5 collided without it) at 1-2 s more to the goal,
     /// but it holds back a controller whose plans ignore the delay: the standard NMPC on
@@ -222,6 +222,15 @@ impl ScenarioFile {
             }
         }
         let s = &self.scenario;
+        // The controller's options beyond the paper come from `[run]`, which overwrites them.
+        let from_run = [
+            ("delay_compensation", s.delay_compensation),
+            ("obstacle_margin_m", s.obstacle_margin_m.is_some()),
+            ("fail_safe", s.fail_safe),
+        ];
+        if let Some((key, _)) = from_run.iter().find(|(_, set)| *set) {
+            return Err((format!("scenario.{key}"), format!("belongs in [run] (run.{key})")));
+        }
         if s.name.is_empty() || s.name.len() > 64 || s.name.chars().any(|c| c.is_control()) {
             return Err(("scenario.name".into(), "must be 1 to 64 printable characters".into()));
         }
@@ -382,6 +391,11 @@ mod tests {
             text.replacen("time_mode = \"lockstep\"", "time_mode = \"lockstep\"\nfail_safe = true", 1);
         let file = ScenarioFile::parse(&path, &check).unwrap_or_else(|e| panic!("{e}"));
         assert!(file.scenario.fail_safe);
+        // In [scenario] it would be overwritten by [run]: refused, naming where it belongs.
+        let misplaced = text.replacen("ground_z_m = 0.0", "ground_z_m = 0.0\nfail_safe = true", 1);
+        let err = ScenarioFile::parse(&path, &misplaced).expect_err("misplaced key");
+        assert_eq!(err.field.as_deref(), Some("scenario.fail_safe"), "{err}");
+        assert!(err.to_string().contains("run.fail_safe"), "{err}");
         let margin =
             text.replacen("time_mode = \"lockstep\"", "time_mode = \"lockstep\"\nobstacle_margin_m = 0.3", 1);
         let file = ScenarioFile::parse(&path, &margin).unwrap_or_else(|e| panic!("{e}"));

@@ -3,7 +3,7 @@
 //! and the controller service both call [`CycleController::step`], so that their decisions,
 //! and hence their trajectories, are the same bit for bit.
 
-use crate::problem::OcpDefinition;
+use crate::problem::{OcpDefinition, validate_instance};
 use crate::qp::QpBudget;
 use crate::safety::{SafetyLayer, SafetySettings, Selection, sanitize_command};
 use crate::solver::{Mpc, MpcError, MpcSettings, SolveBudget, SolveReport};
@@ -118,6 +118,8 @@ impl CycleController {
         weights: &[f64],
         budget: &SolveBudget,
     ) -> Result<CycleOutcome, MpcError> {
+        // Refused before anything changes (the warm start's shift included).
+        validate_instance(self.mpc.definition().num_scenarios(), x0, u_prev, weights)?;
         if let Some(last_ns) = self.last_sample_ns.replace(sample_ns) {
             let ts = self.mpc.definition().sampling_times_s[0];
             if self.mpc.settings().warm_start_by_elapsed_time && self.mpc.definition().num_scenarios() == 1 {

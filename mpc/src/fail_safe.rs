@@ -19,6 +19,12 @@
 //! 14 cycles without a passing candidate in the 120 runs of the survey; the plant kept at
 //! least 4 cm of clearance).
 //! The model is the plant's (the same dynamics, RK4), so model error is not the gap.
+//!
+//! The timing is the bench's lockstep protocol (SPEC.md): the next sample is taken when this
+//! cycle's command has landed, `max(T, d)` later, so one command is in flight at a time. In
+//! real time the controller samples every `T` whatever the delay, several commands can be in
+//! flight, and the ones sent before this cycle's are not flown here: there the check is a
+//! heuristic, not the argument above.
 
 use mav::{Cylinder, InputBounds, MavModel, ModelParams, Scenario, State, rk4_step};
 

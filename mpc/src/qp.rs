@@ -456,6 +456,7 @@ impl QpFallback {
                 prev: Vec::with_capacity(max_dense),
                 next: Vec::with_capacity(max_dense),
                 last: vec![None; max_dense / (m * n)],
+                owner: Vec::with_capacity(max_dense),
             },
             elastic_of: Vec::with_capacity(max_dense),
             elastic_bound: Vec::with_capacity(max_dense),
@@ -808,10 +809,11 @@ impl QpFallback {
         let mut n_half = 0;
         self.runs.prev.clear();
         self.runs.next.clear();
+        self.runs.owner.clear();
         let n_obs = self.obstacles.len();
         // Dense rows of the half-planes and the floor.
         for i in 0..m {
-            self.runs.last.iter_mut().for_each(|l| *l = None);
+            self.runs.start_scenario();
             // A nominal prediction that passes through a cylinder would get half-planes facing
             // backwards before the axis and forwards after it, which no trajectory satisfies.
             // Its points inside the cylinder share one normal instead: towards the side of
@@ -867,7 +869,7 @@ impl QpFallback {
                         continue;
                     }
                     self.b.push(nx * dx + ny * dy - ob.r + su);
-                    self.runs.link(o, r, k);
+                    self.runs.link(i, o, r, k);
                     r += 1;
                     n_half += 1;
                 }
@@ -879,7 +881,7 @@ impl QpFallback {
                         continue;
                     }
                     self.b.push(xb[2] - floor + su);
-                    self.runs.link(n_obs, r, k);
+                    self.runs.link(i, n_obs, r, k);
                     r += 1;
                 }
             }
@@ -1108,13 +1110,21 @@ struct RowRuns {
     /// Per constraint (cylinders, then the floor), its last row and point while building one
     /// scenario's rows.
     last: Vec<Option<(usize, usize)>>,
+    /// Per dense row, `[scenario, constraint, point]`.
+    owner: Vec<[usize; 3]>,
 }
 
 impl RowRuns {
-    /// Records row `r`, of constraint `c` at point `k`, after the same constraint's row at
-    /// point `k - 1` when there is one.
-    fn link(&mut self, c: usize, r: usize, k: usize) {
+    /// The rows that follow belong to the next scenario: no run continues into it.
+    fn start_scenario(&mut self) {
+        self.last.iter_mut().for_each(|l| *l = None);
+    }
+
+    /// Records row `r`, of scenario `i`'s constraint `c` at point `k`, after the same
+    /// constraint's row at point `k - 1` when there is one (`last` is cleared per scenario).
+    fn link(&mut self, i: usize, c: usize, r: usize, k: usize) {
         let prev = self.last[c].filter(|(_, kp)| kp + 1 == k).map(|(rp, _)| rp);
+        self.owner.push([i, c, k]);
         self.prev.push(prev);
         self.next.push(None);
         if let Some(p) = prev {
@@ -1440,6 +1450,54 @@ mod tests {
             assert!(worst < 1e-4, "{settings:?}: largest input difference {worst}");
             assert!((r.cost - r_all.cost).abs() <= 1e-6 * r_all.cost, "cost {} vs {}", r.cost, r_all.cost);
         }
+    }
+
+    #[test]
+    fn a_run_ends_at_a_gap_and_at_the_end_of_a_scenario() {
+        let mut runs = RowRuns { prev: Vec::new(), next: Vec::new(), last: vec![None; 2], owner: Vec::new() };
+        // Scenario 0: constraint 0 at points 1, 2, then 4 (a gap); constraint 1 at 2, 3.
+        // Scenario 1: constraint 0 at 5, 6 (right after scenario 0's point 4), constraint 1 at 4.
+        let rows = [(0, 0, 1), (0, 0, 2), (0, 1, 2), (0, 1, 3), (0, 0, 4), (1, 0, 5), (1, 1, 4), (1, 0, 6)];
+        for (r, &(i, c, k)) in rows.iter().enumerate() {
+            if r > 0 && rows[r - 1].0 != i {
+                runs.start_scenario();
+            }
+            runs.link(i, c, r, k);
+        }
+        assert_eq!(runs.prev, [None, Some(0), None, Some(2), None, None, None, Some(5)]);
+        assert_eq!(runs.next, [Some(1), None, Some(3), None, None, Some(7), None, None]);
+    }
+
+    #[test]
+    fn runs_link_consecutive_points_of_one_scenario_and_constraint_only() {
+        // paper-2 multi-stage between the cylinders, with the floor: rows of five scenarios,
+        // three cylinders and the floor; a short activation distance, so that runs also end
+        // and start again.
+        let (_, x0) = between_cylinders();
+        let s = Scenario::paper_2();
+        let def = paper_def(&s, ControllerMode::Multistage);
+        let settings =
+            QpSettings { min_altitude_m: Some(0.0), activation_distance_m: 0.3, ..Default::default() };
+        let mut qp = QpFallback::new(&def, settings).expect("valid");
+        let w = [0.05, 0.15, 0.45, 0.30, 0.05];
+        qp.solve(&x0, &HOVER, &w, None, &QpBudget::default()).expect("valid");
+        let runs = &qp.runs;
+        assert_eq!(runs.owner.len(), qp.b.len());
+        let scenarios: std::collections::BTreeSet<usize> = runs.owner.iter().map(|o| o[0]).collect();
+        assert!(scenarios.len() > 1, "rows of several scenarios: {scenarios:?}");
+        let (mut linked, mut starts) = (0, 0);
+        for (r, &[i, c, k]) in runs.owner.iter().enumerate() {
+            let before = runs.owner.iter().position(|o| *o == [i, c, k - 1]);
+            assert_eq!(runs.prev[r], before, "row {r} {:?}", runs.owner[r]);
+            let after = runs.owner.iter().position(|o| *o == [i, c, k + 1]);
+            assert_eq!(runs.next[r], after, "row {r} {:?}", runs.owner[r]);
+            if before.is_some() {
+                linked += 1;
+            } else {
+                starts += 1;
+            }
+        }
+        assert!(linked > 0 && starts > 0, "{linked} linked, {starts} run starts");
     }
 
     #[test]

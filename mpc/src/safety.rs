@@ -18,8 +18,8 @@
 //!   the required true clearance and the floor;
 //! - the fail-safe check ([`crate::fail_safe`]): the plan's first input, the only one that is
 //!   sent, followed by braking from the next cycle on, keeps them on the continuous model for
-//!   every round-trip delay in the range, including the previous command staying on until
-//!   the new one lands. A passed command leaves braking as a candidate that passes the next
+//!   every sampled round-trip delay in the range, including the previous command staying on
+//!   until the new one lands. A passed command leaves braking as a candidate that passes the next
 //!   cycle, which the plan check cannot promise under delays that change from cycle to cycle.
 //!
 //! Whatever is picked, the command is finite and inside the input bounds.
@@ -49,8 +49,8 @@ pub enum QpSchedule {
 
 impl QpSchedule {
     /// The default: the QP (median 0.65 ms, up to 5.6 ms along the paper loops, against
-    /// PANOC's 0.25 ms median; see BENCHMARKS.md) every cycle would nearly double a cycle's
-    /// time (3.1 against 1.6 ms per paper-2 cycle), and its worst cases are a fifth of the
+    /// PANOC's 0.25 ms median; see BENCHMARKS.md) every cycle would cost 3.1 ms per paper-2
+    /// cycle against 1.9 ms with this schedule (1.6 ms without the layer), and its worst cases are a fifth of the
     /// 25 ms a real-time cycle gives the solvers; so the cross-check runs every 5th cycle, and
     /// the fallback whenever needed.
     pub const DEFAULT: QpSchedule = QpSchedule::EveryNth(5);

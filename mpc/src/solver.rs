@@ -716,6 +716,31 @@ mod tests {
     }
 
     #[test]
+    fn advancing_the_warm_start_shifts_each_scenarios_multipliers_by_points() {
+        let s = Scenario::paper_2();
+        let mut mpc = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
+        let (n, nc, m) = (s.horizon, mpc.def.constraints_per_point(), mpc.def.num_scenarios());
+        assert_eq!(mpc.warm_multipliers.len(), m * n * nc);
+        let value = |i: usize, j: usize, c: usize| (1000 * i + 10 * j + c) as f64;
+        for i in 0..m {
+            for j in 0..n {
+                for c in 0..nc {
+                    mpc.warm_multipliers[(i * n + j) * nc + c] = value(i, j, c);
+                }
+            }
+        }
+        mpc.advance_warm_start(3);
+        for i in 0..m {
+            for j in 0..n {
+                for c in 0..nc {
+                    let from = (j + 3).min(n - 1);
+                    assert_eq!(mpc.warm_multipliers[(i * n + j) * nc + c], value(i, from, c), "{i} {j} {c}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn the_iteration_budget_is_respected_and_reported() {
         let s = Scenario::paper_1();
         let settings = MpcSettings { max_outer_iterations: 1, ..Default::default() };
