@@ -12,6 +12,7 @@
 //! A broken link is retried with exponential backoff; the episode (solver warm start, delay
 //! window, command numbering) survives, and the plant is not reset on reconnection.
 
+use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
@@ -20,8 +21,8 @@ use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
 use mav::{InputBounds, Scenario};
 use mpc::{
-    ControllerMode, CycleController, CycleOutcome, GammaParams, OcpDefinition, ScenarioWeights, SolveBudget,
-    SolveStatus, WeightSettings,
+    ControllerMode, CycleController, CycleOutcome, GammaParams, InFlight, OcpDefinition, ScenarioWeights,
+    SolveBudget, SolveStatus, WeightSettings,
 };
 use tokio::sync::{Notify, broadcast, watch};
 use tonic::transport::{Channel, Endpoint};
@@ -183,7 +184,14 @@ struct Episode {
     last_delay_s: f64,
     /// Number of this episode (1 for the first).
     number: u64,
+    /// Real time: commands sent and not yet seen applied, oldest first, as
+    /// `(command_seq, time of the sample they came from, ns, command)`.
+    sent: VecDeque<(u64, u64, [f64; 3])>,
+    in_flight: Vec<InFlight>,
 }
+
+/// Commands remembered as in flight at most (older ones were lost on the link).
+const MAX_IN_FLIGHT: usize = 64;
 
 impl Episode {
     fn new(
@@ -211,6 +219,8 @@ impl Episode {
             measured_seq: 0,
             cycle: 0,
             pending_sample: None,
+            sent: VecDeque::with_capacity(MAX_IN_FLIGHT),
+            in_flight: Vec::with_capacity(MAX_IN_FLIGHT),
             last_delay_s: f64::NAN,
             number,
         })
@@ -456,6 +466,19 @@ async fn fly(
             return Ok(Outcome::Finished);
         }
         let u_prev = applied_input(&sample, hover);
+        if !lockstep {
+            // What was sent and not seen applied is still on its way (the fail-safe check
+            // flies it; lockstep waits for each command to land, so nothing is in flight).
+            let applied_seq =
+                sample.last_command.as_ref().filter(|l| !l.initial).map_or(0, |l| l.command_seq);
+            ep.sent.retain(|(seq, _, _)| *seq > applied_seq);
+            ep.in_flight.clear();
+            ep.in_flight.extend(ep.sent.iter().map(|(_, sent_ns, command)| InFlight {
+                sent_ago_s: mav::ns_to_s(sample.time_ns.saturating_sub(*sent_ns)),
+                command: *command,
+            }));
+            ep.controller.set_in_flight(Some(&ep.in_flight));
+        }
         let budget = if lockstep {
             SolveBudget::default()
         } else {
@@ -483,6 +506,12 @@ async fn fly(
             based_on_sample_time_ns: sample.time_ns,
         };
         client.apply_command(pb_command).await?;
+        if !lockstep {
+            if ep.sent.len() == MAX_IN_FLIGHT {
+                ep.sent.pop_front();
+            }
+            ep.sent.push_back((ep.command_seq, sample.time_ns, command));
+        }
         publish(shared, ep, &sample, command, &weights, &outcome);
         if lockstep {
             let advance =

@@ -97,6 +97,13 @@ impl CycleController {
         &self.plan
     }
 
+    /// See [`SafetyLayer::set_in_flight`] (nothing without the layer).
+    pub fn set_in_flight(&mut self, in_flight: Option<&[crate::fail_safe::InFlight]>) {
+        if let Some(layer) = self.safety.as_mut() {
+            layer.set_in_flight(in_flight);
+        }
+    }
+
     /// Solves cycle `cycle` from state `x0`, sampled at `sample_ns`, with last applied input
     /// `u_prev` and the scenario weights, and selects the command. `Err` only for an invalid
     /// instance (nothing changes).

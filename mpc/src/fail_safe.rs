@@ -20,11 +20,14 @@
 //! least 4 cm of clearance).
 //! The model is the plant's (the same dynamics, RK4), so model error is not the gap.
 //!
-//! The timing is the bench's lockstep protocol (SPEC.md): the next sample is taken when this
-//! cycle's command has landed, `max(T, d)` later, so one command is in flight at a time. In
-//! real time the controller samples every `T` whatever the delay, several commands can be in
-//! flight, and the ones sent before this cycle's are not flown here: there the check is a
-//! heuristic, not the argument above.
+//! Two timings. [`FailSafe::envelope`] is the bench's lockstep protocol (SPEC.md): the next
+//! sample is taken when this cycle's command has landed, `max(T, d)` later, so one command is
+//! in flight at a time. [`FailSafe::envelope_real_time`] is real time: the controller samples
+//! every `T` whatever the delay, so commands sent before this cycle's may still be in flight
+//! ([`InFlight`]); they land first (the link is first in, first out), then this cycle's, then
+//! a braking command computed at every later sample.
+
+use std::collections::VecDeque;
 
 use mav::{Cylinder, InputBounds, MavModel, ModelParams, Scenario, State, rk4_step};
 
@@ -116,6 +119,15 @@ pub struct Envelope {
     pub finite: bool,
 }
 
+/// A command sent before this cycle's that had not landed when the cycle's state was sampled.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InFlight {
+    /// How long before this cycle's sample it was sent (the age of the sample it came from),
+    /// s.
+    pub sent_ago_s: f64,
+    pub command: [f64; 3],
+}
+
 /// The model and obstacles the check flies in.
 #[derive(Debug, Clone)]
 pub struct FailSafe {
@@ -155,6 +167,87 @@ impl FailSafe {
             }
         }
         out
+    }
+
+    /// Real time: for every sampled pair `(d, d')`, `u_prev` until the first command in flight
+    /// lands (`d` after it was sent, not before now), each in turn until the next lands, then
+    /// `command` from `d`, and from the next sample on (every `T`) the braking law computed
+    /// from the state at each sample, landing `d'` later and never before the command sent
+    /// before it. `in_flight` oldest first.
+    pub fn envelope_real_time(
+        &self,
+        x0: &[f64; 8],
+        u_prev: &[f64; 3],
+        in_flight: &[InFlight],
+        command: &[f64; 3],
+    ) -> Envelope {
+        let mut out =
+            Envelope { min_clearance_m: f64::INFINITY, min_altitude_m: f64::INFINITY, finite: true };
+        self.observe(&State::from(*x0), &mut out);
+        let mut brakes = VecDeque::new();
+        for a in 0..self.check.delay_samples {
+            for b in 0..self.check.delay_samples {
+                let (d, d_next) = (self.check.delay(a), self.check.delay(b));
+                self.fly_real_time(x0, u_prev, in_flight, command, d, d_next, &mut brakes, &mut out);
+                if !out.finite {
+                    return out;
+                }
+            }
+        }
+        out
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn fly_real_time(
+        &self,
+        x0: &[f64; 8],
+        u_prev: &[f64; 3],
+        in_flight: &[InFlight],
+        command: &[f64; 3],
+        d: f64,
+        d_next: f64,
+        brakes: &mut VecDeque<(f64, [f64; 3])>,
+        out: &mut Envelope,
+    ) {
+        let period = self.check.min_cycle_s;
+        let mut x = State::from(*x0);
+        let (mut t, mut applied, mut landed_at) = (0.0f64, *u_prev, 0.0f64);
+        // What was sent up to this cycle lands in order.
+        let sent = in_flight.iter().map(|f| ((d - f.sent_ago_s).max(0.0), f.command));
+        for (at, u) in sent.chain(std::iter::once((d, *command))) {
+            landed_at = landed_at.max(at);
+            x = self.hold(x, &applied, landed_at - t, out);
+            (t, applied) = (landed_at, u);
+        }
+        // Braking from the next sample on; a brake can be computed before the command lands.
+        brakes.clear();
+        let end = period.max(d) + self.check.horizon_s;
+        let mut next_sample = period;
+        while out.finite {
+            let landing = brakes.front().map(|(at, _)| *at).filter(|at| *at <= next_sample);
+            let event = landing.unwrap_or(next_sample);
+            if event > end {
+                self.hold(x, &applied, end - t, out);
+                return;
+            }
+            x = self.hold(x, &applied, event - t, out);
+            t = event;
+            if landing.is_some() {
+                if let Some((_, u)) = brakes.pop_front() {
+                    applied = u;
+                }
+                let speed = (x[3] * x[3] + x[4] * x[4] + x[5] * x[5]).sqrt();
+                if speed < self.check.stop_speed_mps {
+                    return;
+                }
+            } else {
+                let brake =
+                    braking_command(&self.model.params, &self.bounds, &x.into(), self.brake_gain_per_s);
+                landed_at = landed_at.max(t + d_next);
+                brakes.push_back((landed_at, brake));
+                next_sample += period;
+            }
+        }
     }
 
     fn fly(
@@ -241,6 +334,45 @@ mod tests {
         let slow = [2.8, 1.6, 1.0, 0.0, 0.3, 0.0, 0.0, 0.0];
         let e = fs.envelope(&slow, &hover, &hover);
         assert!(e.min_clearance_m > 0.3, "{e:?}");
+    }
+
+    #[test]
+    fn without_delay_real_time_and_lockstep_timing_agree() {
+        let p = ModelParams::default();
+        let check = BrakingCheck { max_delay_s: 0.0, ..BrakingCheck::default() };
+        let s = Scenario::paper_2();
+        let fs = FailSafe::new(check, p, InputBounds::paper(p.gravity_mps2), s.obstacles.clone(), 1.0);
+        let x0 = [2.8, 1.2, 1.0, 0.0, 0.8, 0.0, 0.0, 0.0];
+        let (hover, tilt) = ([9.81, 0.0, 0.0], [10.5, 0.05, -0.03]);
+        let lockstep = fs.envelope(&x0, &hover, &tilt);
+        let real_time = fs.envelope_real_time(&x0, &hover, &[], &tilt);
+        assert!(
+            (lockstep.min_clearance_m - real_time.min_clearance_m).abs() < 1e-9,
+            "{lockstep:?} {real_time:?}"
+        );
+        assert!(
+            (lockstep.min_altitude_m - real_time.min_altitude_m).abs() < 1e-9,
+            "{lockstep:?} {real_time:?}"
+        );
+    }
+
+    #[test]
+    fn commands_still_in_flight_are_flown_before_this_cycles() {
+        let s = Scenario::paper_2();
+        let fs = fail_safe(s.obstacles.clone());
+        let hover = [9.81, 0.0, 0.0];
+        // Slowly towards the 0.5 m cylinder at (4.3, 4.1), 0.8 m away; braking alone stops in
+        // time.
+        let x0 = [4.3, 2.8, 1.0, 0.0, 0.3, 0.0, 0.0, 0.0];
+        let alone = fs.envelope_real_time(&x0, &hover, &[], &hover);
+        assert!(alone.min_clearance_m > 0.2, "{alone:?}");
+        // Three earlier commands rolling hard towards it (+y) are still on their way: they land
+        // first, and the vehicle gets much closer.
+        let push = [11.0, -0.17, 0.0];
+        let in_flight: Vec<InFlight> =
+            [0.15, 0.1, 0.05].iter().map(|&sent_ago_s| InFlight { sent_ago_s, command: push }).collect();
+        let pushed = fs.envelope_real_time(&x0, &hover, &in_flight, &hover);
+        assert!(pushed.min_clearance_m < alone.min_clearance_m - 0.2, "{alone:?} {pushed:?}");
     }
 
     #[test]

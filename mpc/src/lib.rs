@@ -26,7 +26,7 @@ pub mod solver;
 pub use closed_loop::{ClosedLoopSettings, CycleRecord, DelaySource, RunSummary, run_closed_loop};
 pub use cycle::{CycleController, CycleOutcome, FaultInjection, PanocFault};
 pub use delays::{DelayWindow, GammaParams, ScenarioWeights, WeightSettings, WeightSource};
-pub use fail_safe::{BrakingCheck, Envelope, FailSafe};
+pub use fail_safe::{BrakingCheck, Envelope, FailSafe, InFlight};
 pub use problem::{ControllerMode, Evaluator, ObstacleFormulation, OcpDefinition};
 pub use qp::{QpBudget, QpFallback, QpReport, QpSettings, QpStatus};
 pub use safety::{Decision, QpSchedule, Rejection, SafetyLayer, SafetySettings, Selection};

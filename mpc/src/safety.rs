@@ -28,7 +28,7 @@ use std::fmt::Write as _;
 
 use mav::{Cylinder, InputBounds, ModelParams, Scenario};
 
-use crate::fail_safe::{BrakingCheck, Envelope, FailSafe};
+use crate::fail_safe::{BrakingCheck, Envelope, FailSafe, InFlight};
 use crate::problem::{Evaluator, OcpDefinition};
 use crate::qp::{
     NonlinearCheck, QpBudget, QpFallback, QpReport, QpSettings, QpStatus, check_on_nonlinear_model,
@@ -322,6 +322,8 @@ pub struct SafetyLayer {
     qp_budget: QpBudget,
     /// The fail-safe check, when the settings ask for it.
     fail_safe: Option<FailSafe>,
+    /// Real time: the commands in flight at this cycle's sample (`None`: lockstep timing).
+    in_flight: Option<Vec<InFlight>>,
     /// The cycle's state and last applied input (for the fail-safe check).
     x0: [f64; 8],
     u_prev: [f64; 3],
@@ -344,6 +346,7 @@ impl SafetyLayer {
         });
         Ok(Self {
             fail_safe,
+            in_flight: None,
             x0: [0.0; 8],
             u_prev: [0.0; 3],
             settings,
@@ -372,6 +375,19 @@ impl SafetyLayer {
 
     /// The QP's budget for the following cycles (iterations in lockstep, a deadline in real
     /// time).
+    /// The timing the fail-safe check assumes from the next selection on: `None`, lockstep (one
+    /// command in flight); `Some`, real time with these commands sent before this cycle's and
+    /// not landed at its sample, oldest first (see [`FailSafe::envelope_real_time`]).
+    pub fn set_in_flight(&mut self, in_flight: Option<&[InFlight]>) {
+        match (in_flight, &mut self.in_flight) {
+            (Some(new), Some(kept)) => {
+                kept.clear();
+                kept.extend_from_slice(new);
+            }
+            (new, kept) => *kept = new.map(<[InFlight]>::to_vec),
+        }
+    }
+
     pub fn set_qp_budget(&mut self, budget: QpBudget) {
         self.qp_budget = budget;
     }
@@ -676,8 +692,11 @@ impl SafetyLayer {
             check_on_nonlinear_model(&mut self.evaluator, &self.cylinders, u);
         if let Some(fs) = &self.fail_safe {
             // Only the first input is sent: it, then braking, under every delay.
-            let Envelope { min_clearance_m: c, min_altitude_m: z, finite: f } =
-                fs.envelope(&self.x0, &self.u_prev, &[u[0], u[1], u[2]]);
+            let command = [u[0], u[1], u[2]];
+            let Envelope { min_clearance_m: c, min_altitude_m: z, finite: f } = match &self.in_flight {
+                Some(in_flight) => fs.envelope_real_time(&self.x0, &self.u_prev, in_flight, &command),
+                None => fs.envelope(&self.x0, &self.u_prev, &command),
+            };
             (min_clearance_m, min_altitude_m, finite) = (c, z, f && cost.is_finite());
         }
         let rejection = if !finite {
@@ -855,6 +874,35 @@ mod tests {
         assert!(matches!(sel.panoc.rejection, Some(Rejection::Collision { .. })), "{}", sel.reason());
         assert!(!sel.verified_safe, "{}", sel.reason());
         assert!(in_bounds(&def.bounds, sel.command));
+    }
+
+    #[test]
+    fn in_real_time_the_fail_safe_check_flies_the_commands_in_flight_first() {
+        let s = Scenario::paper_2();
+        let def = def_of(&s, ControllerMode::Nmpc);
+        let check = BrakingCheck::default();
+        let settings = SafetySettings { braking_check: Some(check), ..Default::default() };
+        let mut layer = SafetyLayer::new(&def, settings).expect("valid");
+        let fail_safe = FailSafe::new(check, def.model, def.bounds, def.obstacles.clone(), 1.0);
+        let hover_plan: Vec<f64> = (0..def.num_variables()).map(|k| HOVER[k % 3]).collect();
+        let hover = Ok((&hover_plan[..], SolveStatus::Converged));
+        // 0.8 m/s at the 0.4 m cylinder from 1.2 m: hover then braking passes (test above).
+        let x0 = [2.8, 1.4, 1.0, 0.0, 0.8, 0.0, 0.0, 0.0];
+        layer.set_in_flight(Some(&[]));
+        let sel = layer.select_plan(&x0, &HOVER, &[1.0], hover);
+        assert_eq!(sel.decision, Decision::Panoc, "{}", sel.reason());
+        let e = fail_safe.envelope_real_time(&x0, &HOVER, &[], &HOVER);
+        assert_eq!(e.min_clearance_m, sel.panoc.min_clearance_m);
+        // Two earlier commands rolling towards it (+y) are still on their way: the same plan
+        // no longer passes.
+        let push = InFlight { sent_ago_s: 0.05, command: [11.0, -0.17, 0.0] };
+        layer.set_in_flight(Some(&[InFlight { sent_ago_s: 0.1, ..push }, push]));
+        let sel = layer.select_plan(&x0, &HOVER, &[1.0], hover);
+        assert!(matches!(sel.panoc.rejection, Some(Rejection::Collision { .. })), "{}", sel.reason());
+        // Back to lockstep timing: it passes again.
+        layer.set_in_flight(None);
+        let sel = layer.select_plan(&x0, &HOVER, &[1.0], hover);
+        assert_eq!(sel.decision, Decision::Panoc, "{}", sel.reason());
     }
 
     #[test]
