@@ -155,12 +155,18 @@ impl FailSafe {
     /// after its sample, for every sampled pair `(d, d')`; returns the worst clearance and
     /// altitude over all of them.
     pub fn envelope(&self, x0: &[f64; 8], u_prev: &[f64; 3], command: &[f64; 3]) -> Envelope {
+        self.worst_over_delays(x0, |d, d_next, out| self.fly(x0, u_prev, command, d, d_next, out))
+    }
+
+    /// The worst of `fly(d, d', out)` over every sampled pair of delays, from `x0` on (the
+    /// first non-finite state ends it).
+    fn worst_over_delays(&self, x0: &[f64; 8], mut fly: impl FnMut(f64, f64, &mut Envelope)) -> Envelope {
         let mut out =
             Envelope { min_clearance_m: f64::INFINITY, min_altitude_m: f64::INFINITY, finite: true };
         self.observe(&State::from(*x0), &mut out);
         for a in 0..self.check.delay_samples {
             for b in 0..self.check.delay_samples {
-                self.fly(x0, u_prev, command, self.check.delay(a), self.check.delay(b), &mut out);
+                fly(self.check.delay(a), self.check.delay(b), &mut out);
                 if !out.finite {
                     return out;
                 }
@@ -181,20 +187,10 @@ impl FailSafe {
         in_flight: &[InFlight],
         command: &[f64; 3],
     ) -> Envelope {
-        let mut out =
-            Envelope { min_clearance_m: f64::INFINITY, min_altitude_m: f64::INFINITY, finite: true };
-        self.observe(&State::from(*x0), &mut out);
         let mut brakes = VecDeque::new();
-        for a in 0..self.check.delay_samples {
-            for b in 0..self.check.delay_samples {
-                let (d, d_next) = (self.check.delay(a), self.check.delay(b));
-                self.fly_real_time(x0, u_prev, in_flight, command, d, d_next, &mut brakes, &mut out);
-                if !out.finite {
-                    return out;
-                }
-            }
-        }
-        out
+        self.worst_over_delays(x0, |d, d_next, out| {
+            self.fly_real_time(x0, u_prev, in_flight, command, d, d_next, &mut brakes, out)
+        })
     }
 
     #[allow(clippy::too_many_arguments)]

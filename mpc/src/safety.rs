@@ -845,16 +845,23 @@ mod tests {
         }
     }
 
+    /// paper-2's standard NMPC definition, a layer with the default fail-safe check, the check
+    /// alone, and a plan that hovers throughout.
+    fn fail_safe_fixture() -> (OcpDefinition, SafetyLayer, FailSafe, Vec<f64>) {
+        let def = def_of(&Scenario::paper_2(), ControllerMode::Nmpc);
+        let check = BrakingCheck::default();
+        let settings = SafetySettings { braking_check: Some(check), ..Default::default() };
+        let layer = SafetyLayer::new(&def, settings).expect("valid");
+        let gain = settings.brake_gain_per_s;
+        let fail_safe = FailSafe::new(check, def.model, def.bounds, def.obstacles.clone(), gain);
+        let hover_plan: Vec<f64> = (0..def.num_variables()).map(|k| HOVER[k % 3]).collect();
+        (def, layer, fail_safe, hover_plan)
+    }
+
     #[test]
     fn the_fail_safe_check_judges_the_first_input_followed_by_braking_under_every_delay() {
-        let s = Scenario::paper_2();
-        let def = def_of(&s, ControllerMode::Nmpc);
-        let check = BrakingCheck::default();
-        let fail_safe_settings = SafetySettings { braking_check: Some(check), ..Default::default() };
-        let mut layer = SafetyLayer::new(&def, fail_safe_settings).expect("valid");
+        let (def, mut layer, fail_safe, hover_plan) = fail_safe_fixture();
         let mut plan_layer = SafetyLayer::new(&def, SafetySettings::default()).expect("valid");
-        let fail_safe = FailSafe::new(check, def.model, def.bounds, def.obstacles.clone(), 1.0);
-        let hover_plan: Vec<f64> = (0..def.num_variables()).map(|k| HOVER[k % 3]).collect();
         let hover = Ok((&hover_plan[..], SolveStatus::Converged));
         // 0.8 m/s at the 0.4 m cylinder from 1.2 m. Drifting on at hover for the whole plan
         // (2 s) hits it, so the plan check rejects the plan; but only its first input is
@@ -878,13 +885,7 @@ mod tests {
 
     #[test]
     fn in_real_time_the_fail_safe_check_flies_the_commands_in_flight_first() {
-        let s = Scenario::paper_2();
-        let def = def_of(&s, ControllerMode::Nmpc);
-        let check = BrakingCheck::default();
-        let settings = SafetySettings { braking_check: Some(check), ..Default::default() };
-        let mut layer = SafetyLayer::new(&def, settings).expect("valid");
-        let fail_safe = FailSafe::new(check, def.model, def.bounds, def.obstacles.clone(), 1.0);
-        let hover_plan: Vec<f64> = (0..def.num_variables()).map(|k| HOVER[k % 3]).collect();
+        let (_, mut layer, fail_safe, hover_plan) = fail_safe_fixture();
         let hover = Ok((&hover_plan[..], SolveStatus::Converged));
         // 0.8 m/s at the 0.4 m cylinder from 1.2 m: hover then braking passes (test above).
         let x0 = [2.8, 1.4, 1.0, 0.0, 0.8, 0.0, 0.0, 0.0];

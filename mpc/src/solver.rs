@@ -354,22 +354,9 @@ impl Mpc {
 
     /// Shifts the last solution by one step into the warm start (last input repeated).
     fn shift_solution_into_warm_start(&mut self) {
-        let n = self.solution.len();
-        self.warm[..n - 3].copy_from_slice(&self.solution[3..]);
-        let last = [self.solution[n - 3], self.solution[n - 2], self.solution[n - 1]];
-        self.warm[n - 3..].copy_from_slice(&last);
-        // Multipliers are laid out per scenario, point and cylinder: shift the points.
-        let n_con = self.def.constraints_per_point();
-        if n_con > 0 && !self.multipliers.is_empty() {
-            let horizon = self.def.horizon;
-            for i in 0..self.def.num_scenarios() {
-                let block = &self.multipliers[i * horizon * n_con..(i + 1) * horizon * n_con];
-                let warm = &mut self.warm_multipliers[i * horizon * n_con..(i + 1) * horizon * n_con];
-                warm[..(horizon - 1) * n_con].copy_from_slice(&block[n_con..]);
-                let last = &block[(horizon - 1) * n_con..];
-                warm[(horizon - 1) * n_con..].copy_from_slice(last);
-            }
-        }
+        self.warm.copy_from_slice(&self.solution);
+        self.warm_multipliers.copy_from_slice(&self.multipliers);
+        self.advance_warm_start(1);
     }
 
     /// Solves from state `x0` with last applied input `u_prev` and scenario weights.
