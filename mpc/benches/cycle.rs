@@ -5,7 +5,8 @@
 //! variant). Also one fail-safe check (`FailSafe::envelope`) alone, between the cylinders.
 use criterion::{Criterion, criterion_group, criterion_main};
 use mpc::{
-    BrakingCheck, ClosedLoopSettings, ControllerMode, FailSafe, QpSchedule, SafetySettings, run_closed_loop,
+    BrakingCheck, ClosedLoopSettings, ControllerMode, FailSafe, InFlight, QpSchedule, SafetySettings,
+    run_closed_loop,
 };
 use std::hint::black_box;
 
@@ -46,6 +47,14 @@ fn fail_safe_envelope(c: &mut Criterion) {
     eprintln!("envelope: clearance {:.3} m, altitude {:.3} m", e.min_clearance_m, e.min_altitude_m);
     c.bench_function("fail_safe/envelope/paper-2", |b| {
         b.iter(|| black_box(fs.envelope(black_box(&x0), &u_prev, &u)))
+    });
+    // Real time: the same with the last three commands still in flight.
+    let in_flight: Vec<InFlight> =
+        [0.15, 0.1, 0.05].iter().map(|&sent_ago_s| InFlight { sent_ago_s, command: u_prev }).collect();
+    let e = fs.envelope_real_time(&x0, &u_prev, &in_flight, &u);
+    eprintln!("real time: clearance {:.3} m, altitude {:.3} m", e.min_clearance_m, e.min_altitude_m);
+    c.bench_function("fail_safe/envelope_real_time/paper-2", |b| {
+        b.iter(|| black_box(fs.envelope_real_time(black_box(&x0), &u_prev, &in_flight, &u)))
     });
 }
 
