@@ -1,7 +1,8 @@
 //! Tuning aid: the closed loop's own warm-started solves against the careful reference.
-//! Usage: accuracy [stride]; settings from env MPC_TOL, MPC_AKKT, MPC_MEM, MPC_CTOL, MPC_C0,
-//! MPC_CMAX, MPC_OUTER, MPC_INNER, MPC_PSLACK (< 0: no penalty preconditioner),
-//! MPC_PER_OUTER (0: no cap), MPC_YMAX, MPC_ELAPSED.
+//! Usage: accuracy [stride]; settings from env MPC_TOL, MPC_AKKT, MPC_NMPC_TOL, MPC_NMPC_AKKT,
+//! MPC_NMPC_MEM, MPC_MEM, MPC_CTOL, MPC_C0, MPC_CMAX, MPC_OUTER, MPC_INNER, MPC_PSLACK (< 0: no
+//! penalty preconditioner), MPC_PER_OUTER (0: no cap), MPC_YMAX, MPC_ELAPSED; MPC_MODE (nmpc or multistage: that mode
+//! alone).
 use mpc::{ControllerMode, OcpDefinition, accuracy, closed_loop::percentile};
 
 #[path = "../benches/common/mpc_env.rs"]
@@ -11,7 +12,11 @@ fn main() {
     let stride: usize = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(5);
     let s = mpc_env::settings_from_env();
     println!("{s:?}");
+    let only = std::env::var("MPC_MODE").ok().and_then(|m| ControllerMode::parse(&m));
     for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
+        if only.is_some_and(|m| m != mode) {
+            continue;
+        }
         let (mut times, mut iters, mut gaps, mut unsafe_count) = (Vec::new(), Vec::new(), Vec::new(), 0);
         let (mut passes, mut limits, mut outers) = ((0u64, 0u64), 0, 0);
         for name in mav::Scenario::BUILT_IN {

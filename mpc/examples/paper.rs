@@ -1,6 +1,10 @@
 //! Runs the three paper scenarios in process with both controllers and prints a summary line
-//! per run (development aid; `hilbench reproduce` is the product).
+//! per run (development aid; `hilbench reproduce` is the product). Solver settings from the
+//! `MPC_*` environment variables of `benches/common/mpc_env.rs`.
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
+
+#[path = "../benches/common/mpc_env.rs"]
+mod mpc_env;
 
 fn main() {
     let only: Vec<String> = std::env::args().skip(1).collect();
@@ -11,7 +15,9 @@ fn main() {
         let scenario = mav::Scenario::by_name(name).expect("built in");
         for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
             let t = std::time::Instant::now();
-            match run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode)) {
+            let mut settings = ClosedLoopSettings::paper(mode);
+            settings.mpc = mpc_env::settings_from_env();
+            match run_closed_loop(&scenario, &settings) {
                 Ok((s, _)) => println!(
                     "{name} {:10} reached={} t={:?} collided={} path={:.2} clear={:.3} cycles={} solve ms mean={:.3} med={:.3} p95={:.3} max={:.3} it_med={} limits={} fb={} end={:?} wall={:.1}s\n   collisions={:?}",
                     s.controller,

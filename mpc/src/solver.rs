@@ -26,10 +26,26 @@ pub struct MpcSettings {
     pub obstacle_margin_m: f64,
     /// How the cylinder constraint enters the solver.
     pub formulation: ObstacleFormulation,
-    /// PANOC's fixed-point residual tolerance, in scaled variables.
+    /// PANOC's fixed-point residual tolerance, in scaled variables, for multi-stage problems
+    /// (more than one scenario); standard NMPC uses `single_scenario_tolerance`.
     pub tolerance: f64,
-    /// Inner (AKKT) tolerance of the ALM/PM outer loop, in units of the cost gradient.
+    /// Inner (AKKT) tolerance of the ALM/PM outer loop, in units of the cost gradient, for
+    /// multi-stage problems; standard NMPC uses `single_scenario_akkt_tolerance`.
     pub akkt_tolerance: f64,
+    /// `tolerance` of standard NMPC (one scenario). OpEn stops when `γ |r| < tolerance` (and
+    /// the AKKT residual, also times `γ`, is below its tolerance), with `γ = 0.95 / L` and `L`
+    /// the Lipschitz estimate of the gradient: the same number is a much looser test where
+    /// active long-horizon penalties make `L` large (multi-stage) than where they do not.
+    /// Measured (BENCHMARKS.md, issue 3): at 3e-2 / 1e-1 the NMPC's costs stay within 1 % of
+    /// the careful reference on every sampled loop state with 9 iterations at the median
+    /// (25 at 1e-3 / 1e-2), while multi-stage solves at those values miss by up to 40 %.
+    pub single_scenario_tolerance: f64,
+    /// `akkt_tolerance` of standard NMPC (one scenario); see `single_scenario_tolerance`.
+    pub single_scenario_akkt_tolerance: f64,
+    /// `lbfgs_memory` of standard NMPC (one scenario). Measured (BENCHMARKS.md, issue 3): at
+    /// the NMPC tolerances, memories 5, 7 and 10 cost the same per solve; 7 kept every
+    /// sampled loop state within 1 % of the reference and no predicted clearance below zero.
+    pub single_scenario_lbfgs_memory: usize,
     /// Largest accepted constraint violation: `|F2|` for the penalty method, `|y+ - y| / c`
     /// (the ALM's infeasibility, m for the distance form) for the augmented Lagrangian.
     pub constraint_tolerance: f64,
@@ -46,7 +62,8 @@ pub struct MpcSettings {
     pub max_outer_iterations: usize,
     /// PANOC iterations per solve, summed over the outer iterations: the lockstep budget.
     pub max_inner_iterations: usize,
-    /// L-BFGS memory of PANOC.
+    /// L-BFGS memory of PANOC for multi-stage problems; standard NMPC uses
+    /// `single_scenario_lbfgs_memory`.
     pub lbfgs_memory: usize,
     /// PANOC iterations per outer iteration; `None`: whatever is left of the solve's budget.
     /// Measured (BENCHMARKS.md, issue 3): caps of 20-100 did not reduce the solves that stop
@@ -79,6 +96,9 @@ impl Default for MpcSettings {
             formulation: ObstacleFormulation::DistanceAlm,
             tolerance: 1e-3,
             akkt_tolerance: 1e-2,
+            single_scenario_tolerance: 3e-2,
+            single_scenario_akkt_tolerance: 1e-1,
+            single_scenario_lbfgs_memory: 7,
             constraint_tolerance: 0.02,
             initial_penalty: 1e3,
             max_penalty: 1e4,
@@ -108,6 +128,12 @@ impl MpcSettings {
         if !pos(self.akkt_tolerance) {
             return bad("akkt_tolerance", "must be finite and > 0");
         }
+        if !pos(self.single_scenario_tolerance) {
+            return bad("single_scenario_tolerance", "must be finite and > 0");
+        }
+        if !pos(self.single_scenario_akkt_tolerance) {
+            return bad("single_scenario_akkt_tolerance", "must be finite and > 0");
+        }
         if !pos(self.constraint_tolerance) {
             return bad("constraint_tolerance", "must be finite and > 0");
         }
@@ -135,7 +161,24 @@ impl MpcSettings {
         if self.lbfgs_memory == 0 {
             return bad("lbfgs_memory", "must be > 0");
         }
+        if self.single_scenario_lbfgs_memory == 0 {
+            return bad("single_scenario_lbfgs_memory", "must be > 0");
+        }
         Ok(())
+    }
+
+    /// PANOC's `(tolerance, akkt_tolerance, lbfgs_memory)` for a problem of `num_scenarios`
+    /// scenarios.
+    pub fn panoc_for(&self, num_scenarios: usize) -> (f64, f64, usize) {
+        if num_scenarios == 1 {
+            (
+                self.single_scenario_tolerance,
+                self.single_scenario_akkt_tolerance,
+                self.single_scenario_lbfgs_memory,
+            )
+        } else {
+            (self.tolerance, self.akkt_tolerance, self.lbfgs_memory)
+        }
     }
 }
 
@@ -251,7 +294,8 @@ impl Mpc {
             ObstacleFormulation::DistanceAlm => (nc, 0),
             ObstacleFormulation::PaperPenalty => (0, nc),
         };
-        let panoc_cache = PANOCCache::new(n, settings.tolerance, settings.lbfgs_memory);
+        let (tolerance, _, lbfgs_memory) = settings.panoc_for(def.num_scenarios());
+        let panoc_cache = PANOCCache::new(n, tolerance, lbfgs_memory);
         let alm_cache = AlmCache::new(panoc_cache, n1, n2);
         let mut warm = vec![0.0; n];
         for j in 0..def.horizon {
@@ -417,6 +461,7 @@ impl Mpc {
         budget: &SolveBudget,
     ) -> Result<(SolveStatus, usize, usize, Duration, f64), SolverError> {
         let s = self.settings;
+        let (_, akkt_tolerance, _) = s.panoc_for(self.def.num_scenarios());
         let mut c = self.penalty.clamp(s.initial_penalty, s.max_penalty);
         let nc = self.def.num_constraints();
         let alm_multipliers = self.def.formulation == ObstacleFormulation::DistanceAlm;
@@ -495,8 +540,8 @@ impl Mpc {
                 .with_max_outer_iterations(1)
                 .with_max_inner_iterations(max_inner)
                 .with_delta_tolerance(s.constraint_tolerance)
-                .with_epsilon_tolerance(s.akkt_tolerance)
-                .with_initial_inner_tolerance(s.akkt_tolerance);
+                .with_epsilon_tolerance(akkt_tolerance)
+                .with_initial_inner_tolerance(akkt_tolerance);
             if nc > 0 {
                 optimizer = optimizer.with_initial_penalty(c);
             }
@@ -759,6 +804,38 @@ mod tests {
             MpcSettings { penalty_update_factor: 1.0, ..Default::default() }.validate(),
             Err(MpcError::InvalidSetting { field: "penalty_update_factor", .. })
         ));
+    }
+
+    #[test]
+    fn standard_nmpc_has_its_own_panoc_tolerances_and_memory() {
+        let s = MpcSettings {
+            tolerance: 1e-3,
+            akkt_tolerance: 1e-2,
+            lbfgs_memory: 10,
+            single_scenario_tolerance: 3e-2,
+            single_scenario_akkt_tolerance: 1e-1,
+            single_scenario_lbfgs_memory: 7,
+            ..Default::default()
+        };
+        assert_eq!(s.panoc_for(1), (3e-2, 1e-1, 7));
+        assert_eq!(s.panoc_for(5), (1e-3, 1e-2, 10));
+        for (bad, field) in [
+            (MpcSettings { single_scenario_tolerance: f64::NAN, ..s }, "single_scenario_tolerance"),
+            (MpcSettings { single_scenario_akkt_tolerance: 0.0, ..s }, "single_scenario_akkt_tolerance"),
+            (MpcSettings { single_scenario_lbfgs_memory: 0, ..s }, "single_scenario_lbfgs_memory"),
+        ] {
+            assert!(matches!(bad.validate(), Err(MpcError::InvalidSetting { field: f, .. }) if f == field));
+        }
+        // A tighter NMPC tolerance costs iterations on the same problem: the setting is used.
+        let scenario = Scenario::paper_1();
+        let x0 = [0.2, 3.0, 0.9, 0.1, 1.2, 0.05, 0.02, -0.01];
+        let iterations = |settings: MpcSettings| {
+            let mut mpc = mpc_for(&scenario, ControllerMode::Nmpc, settings);
+            mpc.solve(&x0, &[9.81, 0.0, 0.0], &[1.0], &SolveBudget::default()).expect("valid").iterations
+        };
+        let tight =
+            MpcSettings { single_scenario_tolerance: 1e-6, single_scenario_akkt_tolerance: 1e-5, ..s };
+        assert!(iterations(tight) > iterations(s), "{} vs {}", iterations(tight), iterations(s));
     }
 
     #[test]

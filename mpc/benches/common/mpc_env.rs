@@ -1,6 +1,7 @@
 //! Solver settings from the environment for the tuning aids (`examples/accuracy.rs`,
 //! `examples/fixed_instances.rs`), so that one set of variables configures both: MPC_TOL,
-//! MPC_AKKT, MPC_MEM, MPC_CTOL, MPC_C0, MPC_CMAX, MPC_OUTER, MPC_INNER, MPC_PSLACK (< 0: no
+//! MPC_AKKT (multi-stage), MPC_NMPC_TOL, MPC_NMPC_AKKT, MPC_NMPC_MEM (standard NMPC), MPC_MEM, MPC_CTOL,
+//! MPC_C0, MPC_CMAX, MPC_OUTER, MPC_INNER, MPC_PSLACK (< 0: no
 //! penalty preconditioner), MPC_PER_OUTER (0: no cap), MPC_YMAX, MPC_ELAPSED (1: NMPC warm
 //! start shifted by the elapsed time); the defaults where unset.
 use mpc::MpcSettings;
@@ -14,7 +15,10 @@ pub fn settings_from_env() -> MpcSettings {
     MpcSettings {
         tolerance: env("MPC_TOL", d.tolerance),
         akkt_tolerance: env("MPC_AKKT", d.akkt_tolerance),
+        single_scenario_tolerance: env("MPC_NMPC_TOL", d.single_scenario_tolerance),
+        single_scenario_akkt_tolerance: env("MPC_NMPC_AKKT", d.single_scenario_akkt_tolerance),
         lbfgs_memory: env("MPC_MEM", d.lbfgs_memory as f64) as usize,
+        single_scenario_lbfgs_memory: env("MPC_NMPC_MEM", d.single_scenario_lbfgs_memory as f64) as usize,
         constraint_tolerance: env("MPC_CTOL", d.constraint_tolerance),
         initial_penalty: env("MPC_C0", d.initial_penalty),
         max_penalty: env("MPC_CMAX", d.max_penalty),

@@ -1,0 +1,59 @@
+//! Tuning aid: PANOC's progress on one inner (fixed penalty, zero multipliers) problem of a loop
+//! solve. Usage: inner_trace SCENARIO MODE CYCLE PENALTY [TOL] [MEM]
+use std::cell::RefCell;
+
+use mpc::{ControllerMode, Evaluator, MpcSettings, OcpDefinition, accuracy};
+use optimization_engine::constraints::Rectangle;
+use optimization_engine::panoc::{PANOCCache, PANOCOptimizer};
+use optimization_engine::{Problem, SolverError};
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let scenario = mav::Scenario::by_name(&args[1]).expect("scenario");
+    let mode = ControllerMode::parse(&args[2]).expect("mode");
+    let k: usize = args[3].parse().expect("cycle");
+    let c: f64 = args[4].parse().expect("penalty");
+    let tol: f64 = args.get(5).and_then(|a| a.parse().ok()).unwrap_or(1e-3);
+    let mem: usize = args.get(6).and_then(|a| a.parse().ok()).unwrap_or(10);
+    let s = MpcSettings::default();
+    let solves = accuracy::loop_solves(&scenario, mode, &s).expect("loop");
+    let def = OcpDefinition::from_scenario(&scenario, mode, s.obstacle_margin_m, s.formulation);
+    let inst = &solves[k].instance;
+    let ev = RefCell::new(Evaluator::new(&def));
+    let n = def.num_variables();
+    let (mut lo, mut hi, mut z0) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    {
+        let mut e = ev.borrow_mut();
+        e.set_instance(&inst.x0, &inst.u_prev, &inst.weights);
+        e.scaled_bounds(&def.bounds, &mut lo, &mut hi);
+        e.to_scaled(&inst.warm_start, &mut z0);
+    }
+    let cost = |z: &[f64], v: &mut f64| -> Result<(), SolverError> {
+        *v = ev.borrow_mut().cost(z, c, &[]);
+        Ok(())
+    };
+    let grad = |z: &[f64], g: &mut [f64]| -> Result<(), SolverError> {
+        ev.borrow_mut().gradient(z, c, &[], g);
+        Ok(())
+    };
+    for iters in [1, 2, 3, 5, 8, 12, 20, 30, 50, 80, 120, 200, 400, 1000] {
+        let mut cache = PANOCCache::new(n, tol, mem);
+        let rect = Rectangle::new(Some(&lo), Some(&hi));
+        let problem = Problem::new(&rect, grad, cost);
+        let mut z = z0.clone();
+        let st = PANOCOptimizer::new(problem, &mut cache).with_max_iter(iters).solve(&mut z).expect("solve");
+        let obj = ev.borrow_mut().objective(&z);
+        let psi = ev.borrow_mut().cost(&z, c, &[]);
+        let viol: f64 =
+            ev.borrow().constraint_values().iter().map(|g| g.max(0.0).powi(2)).sum::<f64>().sqrt();
+        println!(
+            "max {iters:5}: it={:4} fpr={:.2e} psi={psi:.4} objective={obj:.4} viol={viol:.3e} {:?}",
+            st.iterations(),
+            st.norm_fpr(),
+            st.exit_status()
+        );
+        if st.iterations() < iters {
+            break;
+        }
+    }
+}
