@@ -122,9 +122,7 @@ pub fn loop_solves(
             (hover, [g, 0.0, 0.0])
         } else {
             let prev = &records[k - 1];
-            let mut warm = prev.plan[3..].to_vec();
-            warm.extend_from_slice(&prev.plan[prev.plan.len() - 3..]);
-            (warm, prev.command)
+            (crate::solver::shifted_plan(&prev.plan), prev.command)
         };
         out.push(LoopSolve {
             instance: Instance {

@@ -163,9 +163,7 @@ impl CycleController {
         if selection.decision.is_fallback() {
             // PANOC starts the next cycle from the plan that was flown, shifted by one step,
             // not from its own rejected one.
-            let n = self.plan.len();
-            self.scratch[..n - 3].copy_from_slice(&self.plan[3..]);
-            self.scratch[n - 3..].copy_from_slice(&self.plan[n - 3..]);
+            crate::solver::shift_plan_into(&self.plan, &mut self.scratch);
             self.mpc.set_warm_start(&self.scratch)?;
         }
         Ok(CycleOutcome { command: selection.command, report, selection: Some(selection), fault })

@@ -30,4 +30,6 @@ pub use fail_safe::{BrakingCheck, Envelope, FailSafe, InFlight};
 pub use problem::{ControllerMode, Evaluator, ObstacleFormulation, OcpDefinition};
 pub use qp::{QpBudget, QpFallback, QpReport, QpSettings, QpStatus};
 pub use safety::{Decision, QpSchedule, Rejection, SafetyLayer, SafetySettings, Selection};
-pub use solver::{Mpc, MpcError, MpcSettings, SolveBudget, SolveReport, SolveStatus};
+pub use solver::{
+    Mpc, MpcError, MpcSettings, SolveBudget, SolveReport, SolveStatus, shift_plan_into, shifted_plan,
+};

@@ -37,7 +37,7 @@ pub struct MpcSettings {
     /// the Lipschitz estimate of the gradient: the same number is a much looser test where
     /// active long-horizon penalties make `L` large (multi-stage) than where they do not.
     /// Measured (BENCHMARKS.md, issue 3): at 3e-2 / 1e-1 the NMPC's costs stay within 1 % of
-    /// the careful reference on every sampled loop state with 9 iterations at the median
+    /// the careful reference on every sampled loop state with 10 iterations at the median
     /// (25 at 1e-3 / 1e-2), while multi-stage solves at those values miss by up to 40 %.
     pub single_scenario_tolerance: f64,
     /// `akkt_tolerance` of standard NMPC (one scenario); see `single_scenario_tolerance`.
@@ -654,6 +654,21 @@ impl Mpc {
     pub fn has_solution(&self) -> bool {
         self.has_solution
     }
+}
+
+/// `plan` (`N x 3` inputs, flattened) shifted one step into `out`, the last input repeated: the
+/// warm start of the cycle after the one that flew `plan`'s first input.
+pub fn shift_plan_into(plan: &[f64], out: &mut [f64]) {
+    let n = plan.len();
+    out[..n - 3].copy_from_slice(&plan[3..]);
+    out[n - 3..].copy_from_slice(&plan[n - 3..]);
+}
+
+/// [`shift_plan_into`] into a new vector.
+pub fn shifted_plan(plan: &[f64]) -> Vec<f64> {
+    let mut out = vec![0.0; plan.len()];
+    shift_plan_into(plan, &mut out);
+    out
 }
 
 /// Sets the preconditioner for inputs `u` and penalty `c` (with the penalty part when
