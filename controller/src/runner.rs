@@ -193,6 +193,19 @@ struct Episode {
 /// Commands remembered as in flight at most (older ones were lost on the link).
 const MAX_IN_FLIGHT: usize = 64;
 
+/// The controller of `scenario` in `mode`: its optimal control problem and the configured
+/// safety layer. Errors are the solver's, as text.
+fn build_controller(
+    config: &ControllerConfig,
+    scenario: &Scenario,
+    mode: ControllerMode,
+) -> Result<CycleController, String> {
+    let def =
+        OcpDefinition::from_scenario(scenario, mode, config.mpc.obstacle_margin_m, config.mpc.formulation);
+    let safety = config.safety_for(scenario);
+    CycleController::new(def, config.mpc, safety).map_err(|e| e.to_string())
+}
+
 impl Episode {
     fn new(
         config: &ControllerConfig,
@@ -200,16 +213,8 @@ impl Episode {
         mode: ControllerMode,
         number: u64,
     ) -> Result<Self, String> {
-        let def = OcpDefinition::from_scenario(
-            &scenario,
-            mode,
-            config.mpc.obstacle_margin_m,
-            config.mpc.formulation,
-        );
-        let ts = def.sampling_times_s.clone();
-        let safety = config.safety_for(&scenario);
-        let controller = CycleController::new(def, config.mpc, safety).map_err(|e| e.to_string())?;
-        let weights = weight_estimator(&scenario, mode, &ts);
+        let controller = build_controller(config, &scenario, mode)?;
+        let weights = weight_estimator(&scenario, mode, &controller.definition().sampling_times_s);
         Ok(Self {
             scenario,
             mode,
@@ -421,15 +426,7 @@ async fn fly(
         if let Some(goal) = requests.goal {
             scenario.goal_m = goal;
             ep.scenario.goal_m = goal;
-            let def = OcpDefinition::from_scenario(
-                &ep.scenario,
-                ep.mode,
-                config.mpc.obstacle_margin_m,
-                config.mpc.formulation,
-            );
-            let safety = config.safety_for(&ep.scenario);
-            ep.controller =
-                CycleController::new(def, config.mpc, safety).map_err(|e| LoopError::Bad(e.to_string()))?;
+            ep.controller = build_controller(config, &ep.scenario, ep.mode).map_err(LoopError::Bad)?;
             shared.update(|st| {
                 st.goal_m = goal;
                 st.reached = false;

@@ -152,7 +152,7 @@ pub async fn serve(
     let server =
         GrpcServer::new(listener, true, &[PlantServer::<Proxy>::NAME, NetemControlServer::<Control>::NAME])
             .await?;
-    let (addr, health_reporter) = (server.addr, server.health.clone());
+    let (addr, not_serving) = (server.addr, server.not_serving());
 
     tracing::info!(
         %addr,
@@ -166,8 +166,7 @@ pub async fn serve(
     let signal = async move {
         shutdown.await;
         tracing::info!("netem shutting down");
-        health_reporter.set_not_serving::<PlantServer<Proxy>>().await;
-        health_reporter.set_not_serving::<NetemControlServer<Control>>().await;
+        not_serving.await;
         closing.send_replace(true);
     };
     let result = server

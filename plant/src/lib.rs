@@ -58,7 +58,7 @@ pub async fn serve_with_clock(
     let service = PlantService::new(config, clock)?;
 
     let server = GrpcServer::new(listener, true, &[PlantServer::<PlantService>::NAME]).await?;
-    let (addr, health_reporter) = (server.addr, server.health.clone());
+    let (addr, not_serving) = (server.addr, server.not_serving());
 
     let ticker = match service.time_mode() {
         TimeMode::Lockstep => None,
@@ -70,7 +70,7 @@ pub async fn serve_with_clock(
         async move {
             shutdown.await;
             tracing::info!("plant shutting down");
-            health_reporter.set_not_serving::<PlantServer<PlantService>>().await;
+            not_serving.await;
             // Open state streams would otherwise keep the graceful shutdown waiting forever.
             service.close();
         }

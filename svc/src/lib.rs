@@ -26,9 +26,11 @@ pub enum ServeError {
 pub struct GrpcServer {
     /// The listener's address (for the service's start-up log).
     pub addr: SocketAddr,
-    /// The health service's reporter: a service that reports NOT_SERVING at shutdown clones it
-    /// into its shutdown signal.
+    /// The health service's reporter (a service that reports NOT_SERVING at shutdown awaits
+    /// [`GrpcServer::not_serving`] in its shutdown signal instead).
     pub health: HealthReporter,
+    /// The names reported SERVING by [`GrpcServer::new`].
+    services: Vec<String>,
     router: Router,
     incoming: TcpIncoming,
 }
@@ -52,7 +54,20 @@ impl GrpcServer {
             .build_v1()?;
         let router = Server::builder().add_service(health_service).add_service(reflection);
         let incoming = TcpIncoming::from(listener).with_nodelay(nodelay.then_some(true));
-        Ok(Self { addr, health, router, incoming })
+        let services = services.iter().map(|name| name.to_string()).collect();
+        Ok(Self { addr, health, services, router, incoming })
+    }
+
+    /// A future that reports every one of the services given to [`GrpcServer::new`]
+    /// NOT_SERVING. Opt-in: a service that reports NOT_SERVING at shutdown takes it before
+    /// `serve` and awaits it in its shutdown signal.
+    pub fn not_serving(&self) -> impl Future<Output = ()> + Send + use<> {
+        let (health, services) = (self.health.clone(), self.services.clone());
+        async move {
+            for name in &services {
+                health.set_service_status(name, ServingStatus::NotServing).await;
+            }
+        }
     }
 
     /// Serves health, reflection and what `add` adds to the router until `shutdown` resolves,
@@ -105,4 +120,39 @@ pub async fn shutdown_signal() {
         () = term => {}
     }
     tracing::info!("shutdown requested");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tonic_health::pb::HealthCheckRequest;
+    use tonic_health::pb::health_check_response::ServingStatus as Status;
+    use tonic_health::pb::health_client::HealthClient;
+
+    #[tokio::test]
+    async fn not_serving_reports_every_listed_service_and_only_when_awaited()
+    -> Result<(), Box<dyn std::error::Error>> {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+        let server = GrpcServer::new(listener, false, &["a.A", "b.B"]).await?;
+        let addr = server.addr;
+        let not_serving = server.not_serving();
+        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+        let task = tokio::spawn(server.serve(|router| router, async {
+            let _ = stopped.await;
+        }));
+        let channel = tonic::transport::Channel::from_shared(format!("http://{addr}"))?.connect().await?;
+        let mut client = HealthClient::new(channel);
+        let mut status = async |name: &str| -> Result<i32, tonic::Status> {
+            let r = client.check(HealthCheckRequest { service: name.into() }).await?;
+            Ok(r.into_inner().status)
+        };
+        assert_eq!(status("a.A").await?, Status::Serving as i32);
+        assert_eq!(status("b.B").await?, Status::Serving as i32);
+        not_serving.await;
+        assert_eq!(status("a.A").await?, Status::NotServing as i32);
+        assert_eq!(status("b.B").await?, Status::NotServing as i32);
+        let _ = stop.send(());
+        task.await??;
+        Ok(())
+    }
 }

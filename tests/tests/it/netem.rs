@@ -10,6 +10,7 @@ use delay::{DelayLine, Direction, DirectionProfile, Distribution, Fate, Ordering
 use hilbench_proto::pb;
 use hilbench_proto::pb::netem_control_client::NetemControlClient;
 use hilbench_proto::pb::plant_client::PlantClient;
+use hilbench_tests::server::{self, Running};
 use hilbench_tests::start_plant;
 use mav::{CommandMeta, Input, PlantSim, Scenario, SimSettings};
 use plant::PlantConfig;
@@ -22,55 +23,25 @@ use tonic::{Code, Status};
 /// Generous bound for anything that must happen "soon" on a loaded machine.
 const PATIENCE: Duration = Duration::from_secs(30);
 
-struct RunningNetem {
-    addr: SocketAddr,
-    stop: Option<oneshot::Sender<()>>,
-    task: Option<JoinHandle<Result<(), netem::NetemError>>>,
-}
+/// A netem served on `127.0.0.1:<ephemeral>`.
+type RunningNetem = Running<netem::NetemError>;
 
 async fn start_netem(config: netem::Config) -> RunningNetem {
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind a loopback port");
-    let addr = listener.local_addr().expect("local address");
-    let (stop, stopped) = oneshot::channel::<()>();
-    let task = tokio::spawn(netem::serve(listener, config, async {
-        let _ = stopped.await;
-    }));
-    RunningNetem { addr, stop: Some(stop), task: Some(task) }
+    server::start("netem", |listener, shutdown| netem::serve(listener, config, shutdown)).await
 }
 
-impl RunningNetem {
-    async fn channel(&self) -> Channel {
-        Channel::from_shared(format!("http://{}", self.addr))
-            .expect("uri")
-            .connect()
-            .await
-            .expect("connect to netem")
-    }
+/// Clients of the two APIs a running netem serves.
+trait NetemClients {
+    async fn plant(&self) -> PlantClient<Channel>;
+    async fn control(&self) -> NetemControlClient<Channel>;
+}
+
+impl NetemClients for RunningNetem {
     async fn plant(&self) -> PlantClient<Channel> {
         PlantClient::new(self.channel().await)
     }
     async fn control(&self) -> NetemControlClient<Channel> {
         NetemControlClient::new(self.channel().await)
-    }
-    async fn stop(mut self) {
-        if let Some(s) = self.stop.take() {
-            let _ = s.send(());
-        }
-        if let Some(t) = self.task.take() {
-            match tokio::time::timeout(PATIENCE, t).await {
-                Ok(Ok(r)) => r.expect("netem served cleanly"),
-                Ok(Err(e)) => panic!("netem task failed: {e}"),
-                Err(_) => panic!("netem did not shut down within {PATIENCE:?}"),
-            }
-        }
-    }
-}
-
-impl Drop for RunningNetem {
-    fn drop(&mut self) {
-        if let Some(s) = self.stop.take() {
-            let _ = s.send(());
-        }
     }
 }
 
@@ -215,7 +186,7 @@ async fn lockstep_command_takes_effect_exactly_at_send_time_plus_delay() {
         assert_eq!(c.applied_time_ns, release, "command {} sent at {send}", c.command_seq);
         assert!(release > send, "Gamma delays are positive");
     }
-    netem.stop().await;
+    netem.stop().await.expect("netem served cleanly");
     plant.stop().await.expect("plant stops");
 }
 
@@ -261,7 +232,7 @@ async fn lockstep_runs_through_netem_are_bit_identical_with_sample_delays_loss_a
     // A stale sample is the state at (end of the step - its delay).
     let stale = a.iter().skip(1).any(|s| s.time_ns % 50_000_000 != 0);
     assert!(stale, "every sample was taken at the end of its step");
-    netem.stop().await;
+    netem.stop().await.expect("netem served cleanly");
     plant.stop().await.expect("plant stops");
 }
 
@@ -375,7 +346,7 @@ async fn profiles_change_at_run_time_and_invalid_ones_are_refused_keeping_the_ol
     let want: pb::DirectionProfile =
         (&delay::preset("paper-split", 42).expect("preset").plant_to_controller).into();
     assert_eq!(p, want);
-    netem.stop().await;
+    netem.stop().await.expect("netem served cleanly");
     plant.stop().await.expect("plant stops");
 }
 
@@ -477,7 +448,7 @@ async fn upstream_loss_gives_unavailable_drops_in_flight_with_a_reason_then_reco
     assert_eq!((lc.command_seq, lc.applied_time_ns), (3, 100_000_000));
     let stats = control.get_stats(pb::GetStatsRequest {}).await.expect("stats").into_inner();
     assert!(stats.upstream_connected);
-    netem.stop().await;
+    netem.stop().await.expect("netem served cleanly");
     let _ = stop_plant.send(());
     tokio::time::timeout(PATIENCE, plant_task).await.expect("plant stops").expect("plant task");
 }
@@ -528,6 +499,6 @@ async fn real_time_streams_and_commands_are_delayed_and_stamped() {
     let c = stats.controller_to_plant.expect("c2p");
     assert_eq!((c.sent, c.delivered, c.dropped), (1, 1, 0));
     drop(stream);
-    netem.stop().await;
+    netem.stop().await.expect("netem served cleanly");
     plant.stop().await.expect("plant stops");
 }
