@@ -3,7 +3,7 @@
 use std::time::Duration;
 
 use mav::Scenario;
-use mpc::{BrakingCheck, ControllerMode, MpcSettings, SafetySettings};
+use mpc::{ControllerMode, MpcSettings, SafetySettings};
 
 /// Lockstep or real time; `Auto` follows what the plant's `Describe` says.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -48,13 +48,7 @@ impl ControllerConfig {
     /// The safety settings of an episode of `scenario`: these, with the fail-safe check over
     /// the scenario's delay range when the scenario or [`ControllerConfig::fail_safe`] asks.
     pub fn safety_for(&self, scenario: &Scenario) -> Option<SafetySettings> {
-        self.safety.map(|s| {
-            if self.fail_safe && s.braking_check.is_none() {
-                SafetySettings { braking_check: Some(BrakingCheck::for_scenario(scenario)), ..s }
-            } else {
-                s.for_scenario(scenario)
-            }
-        })
+        self.safety.map(|s| s.with_fail_safe(scenario, self.fail_safe || scenario.fail_safe))
     }
 
     pub fn new(plant: impl Into<String>, scenario: Scenario, mode: ControllerMode) -> Self {
@@ -103,5 +97,32 @@ impl ControllerConfig {
     /// `http://` URI of the plant endpoint.
     pub fn plant_uri(&self) -> String {
         if self.plant.contains("://") { self.plant.clone() } else { format!("http://{}", self.plant) }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mpc::BrakingCheck;
+
+    #[test]
+    fn the_fail_safe_check_comes_from_the_flag_or_the_scenario_and_a_preset_one_stays() {
+        let preset = BrakingCheck { delay_samples: 5, ..BrakingCheck::default() };
+        for (flag, asks, set) in (0..8).map(|b| (b & 1 != 0, b & 2 != 0, b & 4 != 0)) {
+            let scenario = Scenario { fail_safe: asks, ..Scenario::paper_2() };
+            let mut config = ControllerConfig::new("plant:1", scenario.clone(), ControllerMode::Multistage);
+            config.fail_safe = flag;
+            let base = SafetySettings { braking_check: set.then_some(preset), ..SafetySettings::default() };
+            config.safety = Some(base);
+            let expected = match (set, flag || asks) {
+                (true, _) => Some(preset),
+                (false, true) => Some(BrakingCheck::for_scenario(&scenario)),
+                (false, false) => None,
+            };
+            let got = config.safety_for(&scenario).expect("layer on");
+            assert_eq!(got, SafetySettings { braking_check: expected, ..base }, "{flag} {asks} {set}");
+            config.safety = None;
+            assert_eq!(config.safety_for(&scenario), None);
+        }
     }
 }

@@ -27,6 +27,7 @@
 //! ([`InFlight`]); they land first (the link is first in, first out), then this cycle's, then
 //! a braking command computed at every later sample.
 
+use std::cell::RefCell;
 use std::collections::VecDeque;
 
 use mav::{Cylinder, InputBounds, MavModel, ModelParams, Scenario, State, rk4_step};
@@ -123,7 +124,8 @@ pub struct Envelope {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InFlight {
     /// How long before this cycle's sample it was sent (the age of the sample it came from),
-    /// s.
+    /// s. A negative or NaN value counts as 0 (sent at the sample), so a command in flight
+    /// lands within the delay of the flight.
     pub sent_ago_s: f64,
     pub command: [f64; 3],
 }
@@ -137,6 +139,9 @@ pub struct FailSafe {
     cylinders: Vec<Cylinder>,
     /// Gain of the braking law, 1/s.
     brake_gain_per_s: f64,
+    /// Scratch of [`FailSafe::envelope_real_time`]: the braking commands computed but not
+    /// landed yet (landing time, command), allocated here once.
+    brakes: RefCell<VecDeque<(f64, [f64; 3])>>,
 }
 
 impl FailSafe {
@@ -147,7 +152,17 @@ impl FailSafe {
         cylinders: Vec<Cylinder>,
         brake_gain_per_s: f64,
     ) -> Self {
-        Self { check, model: MavModel::new(params), bounds, cylinders, brake_gain_per_s }
+        // About one braking command per cycle of the longest delay is in flight at a time
+        // (more grow the queue).
+        let in_flight = (check.max_delay_s / check.min_cycle_s).ceil().min(256.0) as usize + 2;
+        Self {
+            check,
+            model: MavModel::new(params),
+            bounds,
+            cylinders,
+            brake_gain_per_s,
+            brakes: RefCell::new(VecDeque::with_capacity(in_flight)),
+        }
     }
 
     /// Flies `u_prev` for the delay `d`, then `command` until the next command lands at
@@ -187,7 +202,7 @@ impl FailSafe {
         in_flight: &[InFlight],
         command: &[f64; 3],
     ) -> Envelope {
-        let mut brakes = VecDeque::new();
+        let mut brakes = self.brakes.borrow_mut();
         self.worst_over_delays(x0, |d, d_next, out| {
             self.fly_real_time(x0, u_prev, in_flight, command, d, d_next, &mut brakes, out)
         })
@@ -209,7 +224,8 @@ impl FailSafe {
         let mut x = State::from(*x0);
         let (mut t, mut applied, mut landed_at) = (0.0f64, *u_prev, 0.0f64);
         // What was sent up to this cycle lands in order.
-        let sent = in_flight.iter().map(|f| ((d - f.sent_ago_s).max(0.0), f.command));
+        // (`sent_ago_s` at least 0, so every one lands within `[0, d]`.)
+        let sent = in_flight.iter().map(|f| ((d - f.sent_ago_s.max(0.0)).max(0.0), f.command));
         for (at, u) in sent.chain(std::iter::once((d, *command))) {
             landed_at = landed_at.max(at);
             x = self.hold(x, &applied, landed_at - t, out);
@@ -232,8 +248,7 @@ impl FailSafe {
                 if let Some((_, u)) = brakes.pop_front() {
                     applied = u;
                 }
-                let speed = (x[3] * x[3] + x[4] * x[4] + x[5] * x[5]).sqrt();
-                if speed < self.check.stop_speed_mps {
+                if speed_mps(&x) < self.check.stop_speed_mps {
                     return;
                 }
             } else {
@@ -270,8 +285,7 @@ impl FailSafe {
             applied = brake;
             x = self.hold(x, &applied, t_min.max(d_next) - d_next, out);
             t += t_min.max(d_next);
-            let speed = (x[3] * x[3] + x[4] * x[4] + x[5] * x[5]).sqrt();
-            if speed < self.check.stop_speed_mps {
+            if speed_mps(&x) < self.check.stop_speed_mps {
                 break;
             }
         }
@@ -302,6 +316,11 @@ impl FailSafe {
         out.min_clearance_m = out.min_clearance_m.min(c);
         out.min_altitude_m = out.min_altitude_m.min(x[2]);
     }
+}
+
+/// The speed of state `x`, m/s.
+fn speed_mps(x: &State) -> f64 {
+    (x[3] * x[3] + x[4] * x[4] + x[5] * x[5]).sqrt()
 }
 
 #[cfg(test)]
@@ -369,6 +388,19 @@ mod tests {
             [0.15, 0.1, 0.05].iter().map(|&sent_ago_s| InFlight { sent_ago_s, command: push }).collect();
         let pushed = fs.envelope_real_time(&x0, &hover, &in_flight, &hover);
         assert!(pushed.min_clearance_m < alone.min_clearance_m - 0.2, "{alone:?} {pushed:?}");
+    }
+
+    #[test]
+    fn a_command_sent_in_the_future_counts_as_sent_now() {
+        let s = Scenario::paper_2();
+        let fs = fail_safe(s.obstacles.clone());
+        let hover = [9.81, 0.0, 0.0];
+        let x0 = [4.3, 2.8, 1.0, 0.0, 0.3, 0.0, 0.0, 0.0];
+        let flight = |sent_ago_s| [InFlight { sent_ago_s, command: [11.0, -0.17, 0.0] }];
+        let now = fs.envelope_real_time(&x0, &hover, &flight(0.0), &hover);
+        for bad in [-1e9, f64::NEG_INFINITY, f64::NAN] {
+            assert_eq!(fs.envelope_real_time(&x0, &hover, &flight(bad), &hover), now, "{bad}");
+        }
     }
 
     #[test]

@@ -413,13 +413,16 @@ impl QpFallback {
         let num_blocks = block_of.last().map_or(0, |b| b + 1);
         let nb = 3 * num_blocks;
         let p_nnz = nb * (nb + 1) / 2;
-        // Columns: the corrections, then up to one elastic slack per dense row.
-        let mut colptr = Vec::with_capacity(nb + max_dense + 1);
-        colptr.resize(nb + 1, 0);
-        let mut p_csc = CscMatrix::new(nb, nb, colptr.clone(), Vec::new(), Vec::new());
+        // Columns of P and A: the corrections, then up to one elastic slack per dense row.
+        let colptr = || {
+            let mut colptr = Vec::with_capacity(nb + max_dense + 1);
+            colptr.resize(nb + 1, 0);
+            colptr
+        };
+        let mut p_csc = CscMatrix::new(nb, nb, colptr(), Vec::new(), Vec::new());
         p_csc.rowval.reserve(p_nnz);
         p_csc.nzval.reserve(p_nnz);
-        let mut a_csc = CscMatrix::new(0, nb, colptr, Vec::new(), Vec::new());
+        let mut a_csc = CscMatrix::new(0, nb, colptr(), Vec::new(), Vec::new());
         a_csc.rowval.reserve(max_dense * nb + 2 * nb + 3 * max_dense);
         a_csc.nzval.reserve(max_dense * nb + 2 * nb + 3 * max_dense);
         let mut hover = vec![0.0; nv];
@@ -455,7 +458,8 @@ impl QpFallback {
             runs: RowRuns {
                 prev: Vec::with_capacity(max_dense),
                 next: Vec::with_capacity(max_dense),
-                last: vec![None; max_dense / (m * n)],
+                last: vec![None; def.obstacles.len() + 1],
+                #[cfg(test)]
                 owner: Vec::with_capacity(max_dense),
             },
             elastic_of: Vec::with_capacity(max_dense),
@@ -809,6 +813,7 @@ impl QpFallback {
         let mut n_half = 0;
         self.runs.prev.clear();
         self.runs.next.clear();
+        #[cfg(test)]
         self.runs.owner.clear();
         let n_obs = self.obstacles.len();
         // Dense rows of the half-planes and the floor.
@@ -1110,7 +1115,8 @@ struct RowRuns {
     /// Per constraint (cylinders, then the floor), its last row and point while building one
     /// scenario's rows.
     last: Vec<Option<(usize, usize)>>,
-    /// Per dense row, `[scenario, constraint, point]`.
+    /// Per dense row, `[scenario, constraint, point]` (for the tests).
+    #[cfg(test)]
     owner: Vec<[usize; 3]>,
 }
 
@@ -1122,8 +1128,15 @@ impl RowRuns {
 
     /// Records row `r`, of scenario `i`'s constraint `c` at point `k`, after the same
     /// constraint's row at point `k - 1` when there is one (`last` is cleared per scenario).
-    fn link(&mut self, i: usize, c: usize, r: usize, k: usize) {
+    fn link(
+        &mut self,
+        #[cfg_attr(not(test), allow(unused_variables))] i: usize,
+        c: usize,
+        r: usize,
+        k: usize,
+    ) {
         let prev = self.last[c].filter(|(_, kp)| kp + 1 == k).map(|(rp, _)| rp);
+        #[cfg(test)]
         self.owner.push([i, c, k]);
         self.prev.push(prev);
         self.next.push(None);

@@ -115,8 +115,14 @@ impl Default for SafetySettings {
 impl SafetySettings {
     /// These settings for `scenario`: the fail-safe check over its delay range when the
     /// scenario asks for it and the settings do not set one already.
-    pub fn for_scenario(mut self, scenario: &Scenario) -> Self {
-        if scenario.fail_safe && self.braking_check.is_none() {
+    pub fn for_scenario(self, scenario: &Scenario) -> Self {
+        self.with_fail_safe(scenario, scenario.fail_safe)
+    }
+
+    /// These settings with the fail-safe check over `scenario`'s delay range when `on` and the
+    /// settings do not set one already (whatever the scenario asks).
+    pub fn with_fail_safe(mut self, scenario: &Scenario, on: bool) -> Self {
+        if on && self.braking_check.is_none() {
             self.braking_check = Some(BrakingCheck::for_scenario(scenario));
         }
         self
@@ -327,8 +333,6 @@ pub struct SafetyLayer {
     /// The cycle's state and last applied input (for the fail-safe check).
     x0: [f64; 8],
     u_prev: [f64; 3],
-    /// Altitude of the cycle's state (for the floor check).
-    x0_z: f64,
     /// Selections made since the last reset (for the QP's schedule).
     cycles: u64,
 }
@@ -364,7 +368,6 @@ impl SafetyLayer {
             has_plan: false,
             shifts: 0,
             qp_budget: QpBudget::default(),
-            x0_z: 0.0,
             cycles: 0,
         })
     }
@@ -373,8 +376,6 @@ impl SafetyLayer {
         &self.settings
     }
 
-    /// The QP's budget for the following cycles (iterations in lockstep, a deadline in real
-    /// time).
     /// The timing the fail-safe check assumes from the next selection on: `None`, lockstep (one
     /// command in flight); `Some`, real time with these commands sent before this cycle's and
     /// not landed at its sample, oldest first (see [`FailSafe::envelope_real_time`]).
@@ -388,6 +389,8 @@ impl SafetyLayer {
         }
     }
 
+    /// The QP's budget for the following cycles (iterations in lockstep, a deadline in real
+    /// time).
     pub fn set_qp_budget(&mut self, budget: QpBudget) {
         self.qp_budget = budget;
     }
@@ -473,7 +476,6 @@ impl SafetyLayer {
         self.evaluator.set_instance(x0, u_prev, weights);
         self.x0 = *x0;
         self.u_prev = *u_prev;
-        self.x0_z = x0[2];
 
         // 1. PANOC.
         let panoc_check = match panoc {
@@ -501,7 +503,7 @@ impl SafetyLayer {
         let mut qp_report = None;
         let qp_check = if run_qp {
             let nominal = if self.has_plan {
-                shift_into(&self.plan, &mut self.shifted);
+                crate::solver::shift_plan_into(&self.plan, &mut self.shifted);
                 Some(&self.shifted[..])
             } else {
                 None
@@ -538,7 +540,7 @@ impl SafetyLayer {
             Decision::Qp
         } else {
             shifted_check = if self.has_plan && self.shifts < self.settings.max_plan_shifts {
-                shift_into(&self.plan, &mut self.shifted);
+                crate::solver::shift_plan_into(&self.plan, &mut self.shifted);
                 let u = self.shifted.clone();
                 self.check_plan(&u)
             } else {
@@ -632,7 +634,7 @@ impl SafetyLayer {
         }
         let clearance = c.min_clearance_m - self.settings.required_clearance_m;
         let floor = match self.settings.qp.min_altitude_m {
-            Some(z) if c.min_altitude_m.is_finite() => c.min_altitude_m - z.min(self.x0_z),
+            Some(z) if c.min_altitude_m.is_finite() => c.min_altitude_m - z.min(self.x0[2]),
             _ => f64::INFINITY,
         };
         clearance.min(floor)
@@ -688,17 +690,20 @@ impl SafetyLayer {
         if !inside {
             return CandidateCheck::rejected(Rejection::OutOfBounds);
         }
-        let NonlinearCheck { cost, mut min_clearance_m, mut min_altitude_m, mut finite } =
-            check_on_nonlinear_model(&mut self.evaluator, &self.cylinders, u);
-        if let Some(fs) = &self.fail_safe {
-            // Only the first input is sent: it, then braking, under every delay.
-            let command = [u[0], u[1], u[2]];
-            let Envelope { min_clearance_m: c, min_altitude_m: z, finite: f } = match &self.in_flight {
-                Some(in_flight) => fs.envelope_real_time(&self.x0, &self.u_prev, in_flight, &command),
-                None => fs.envelope(&self.x0, &self.u_prev, &command),
-            };
-            (min_clearance_m, min_altitude_m, finite) = (c, z, f && cost.is_finite());
-        }
+        let NonlinearCheck { cost, min_clearance_m, min_altitude_m, finite } = match &self.fail_safe {
+            None => check_on_nonlinear_model(&mut self.evaluator, &self.cylinders, u),
+            Some(fs) => {
+                // The plan's predictions give only the cost. Only the first input is sent: it,
+                // then braking, under every delay.
+                let cost = self.evaluator.objective_at_inputs(u);
+                let command = [u[0], u[1], u[2]];
+                let Envelope { min_clearance_m, min_altitude_m, finite } = match &self.in_flight {
+                    Some(in_flight) => fs.envelope_real_time(&self.x0, &self.u_prev, in_flight, &command),
+                    None => fs.envelope(&self.x0, &self.u_prev, &command),
+                };
+                NonlinearCheck { cost, min_clearance_m, min_altitude_m, finite: finite && cost.is_finite() }
+            }
+        };
         let rejection = if !finite {
             Some(Rejection::NotFinite)
         } else if min_clearance_m < self.settings.required_clearance_m {
@@ -706,7 +711,7 @@ impl SafetyLayer {
         } else if self.settings.qp.min_altitude_m.is_some_and(|floor| {
             // A vehicle already below the floor cannot be above it at once: it may not sink
             // further.
-            min_altitude_m < floor.min(self.x0_z) - 1e-9
+            min_altitude_m < floor.min(self.x0[2]) - 1e-9
         }) {
             Some(Rejection::BelowFloor { min_altitude_m })
         } else {
@@ -714,13 +719,6 @@ impl SafetyLayer {
         };
         CandidateCheck { cost, min_clearance_m, min_altitude_m, rejection }
     }
-}
-
-/// `out` = `plan` shifted by one step, last input repeated.
-fn shift_into(plan: &[f64], out: &mut [f64]) {
-    let n = plan.len();
-    out[..n - 3].copy_from_slice(&plan[3..]);
-    out[n - 3..].copy_from_slice(&plan[n - 3..]);
 }
 
 /// Finite and inside the bounds: non-finite components become hover's, then everything is
