@@ -1,6 +1,6 @@
 //! Tuning aid: how cost, violation and clearance of chosen loop solves evolve with the budget.
 //! Usage: budget_sweep SCENARIO MODE CYCLE...
-use mpc::{ControllerMode, MpcSettings, OcpDefinition, SolveBudget, accuracy};
+use mpc::{ControllerMode, MpcSettings, OcpDefinition, accuracy};
 
 #[path = "../benches/common/mpc_env.rs"]
 mod mpc_env;
@@ -20,12 +20,8 @@ fn main() {
                 .expect("reference");
         println!("cycle {k}: reference {reference:.4}");
         for budget in [5, 10, 20, 40, 80, 160, 320, 640, 2000] {
-            let mut mpc =
-                mpc::Mpc::new(def.clone(), MpcSettings { max_inner_iterations: budget, ..s }).expect("mpc");
-            mpc.set_warm_start(&ls.instance.warm_start).expect("warm");
-            let r = mpc
-                .solve(&ls.instance.x0, &ls.instance.u_prev, &ls.instance.weights, &SolveBudget::default())
-                .expect("solve");
+            let budgeted = MpcSettings { max_inner_iterations: budget, ..s };
+            let (r, _) = accuracy::fast_solve(&def, &budgeted, &ls.instance).expect("solve");
             println!(
                 "  budget {budget:5}: it={:4} outer={} c={:.0e} cost={:.4} gap={:+.4} viol={:.2e} clear={:.3} {:?}",
                 r.iterations,

@@ -1,8 +1,8 @@
 //! Diagnosis of one delay trace of the survey (`delay_robustness`): per cycle, the plant's
 //! smallest clearance between this cycle's start and the next (and which cylinder), what the
 //! safety layer decided, and how far the plant ended from each scenario's prediction of the
-//! selected plan. Same environment as the survey (COMP, FLOOR, MARGIN, NOSAFETY, FAILSAFE), plus
-//! TRACE=kind:seed.
+//! selected plan. Same environment as the survey (COMP, FLOOR, MARGIN, NOSAFETY, FAILSAFE,
+//! WIDTH), plus TRACE=kind:seed.
 use mav::{CommandMeta, Input, PlantSim, SimSettings};
 use mpc::{DelaySource, run_closed_loop};
 
@@ -13,7 +13,7 @@ fn main() {
     let spec = std::env::var("TRACE").unwrap_or_else(|_| "uniform:29".into());
     let (kind, seed) = spec.split_once(':').expect("TRACE=kind:seed");
     let seed: u64 = seed.parse().expect("seed");
-    let trace = traces::trace(kind, seed, 0.33);
+    let trace = traces::trace(kind, seed, traces::width_from_env());
     let (scenario, mut settings) = traces::setup_from_env();
     settings.delays = Some(DelaySource::Trace(trace));
     settings.record_predictions = true;

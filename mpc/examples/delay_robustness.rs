@@ -10,8 +10,7 @@ mod traces;
 fn main() {
     let cases: u64 = std::env::var("CASES").ok().and_then(|c| c.parse().ok()).unwrap_or(20);
     let (scenario, mut settings) = traces::setup_from_env();
-    // Width of the i.i.d. uniform jitter, s: delays uniform in [a, a + width], a random.
-    let width: f64 = std::env::var("WIDTH").ok().and_then(|w| w.parse().ok()).unwrap_or(0.33);
+    let width = traces::width_from_env();
     for kind in ["uniform", "gamma", "bursts"] {
         let (mut collided, mut missed, mut fallbacks) = (0, 0, 0);
         // Cycles where no candidate passed the checks; worst clearance; sums for the means.

@@ -1,5 +1,6 @@
 //! Tuning aid: PANOC's progress on one inner (fixed penalty, zero multipliers) problem of a loop
-//! solve. Usage: inner_trace SCENARIO MODE CYCLE PENALTY [TOL] [MEM]
+//! solve. Usage: inner_trace SCENARIO MODE CYCLE PENALTY [TOL] [MEM] (default: the loop's own
+//! PANOC tolerance and L-BFGS memory for the mode)
 use std::cell::RefCell;
 
 use mpc::{ControllerMode, Evaluator, MpcSettings, OcpDefinition, accuracy};
@@ -13,11 +14,13 @@ fn main() {
     let mode = ControllerMode::parse(&args[2]).expect("mode");
     let k: usize = args[3].parse().expect("cycle");
     let c: f64 = args[4].parse().expect("penalty");
-    let tol: f64 = args.get(5).and_then(|a| a.parse().ok()).unwrap_or(1e-3);
-    let mem: usize = args.get(6).and_then(|a| a.parse().ok()).unwrap_or(10);
     let s = MpcSettings::default();
     let solves = accuracy::loop_solves(&scenario, mode, &s).expect("loop");
     let def = OcpDefinition::from_scenario(&scenario, mode, s.obstacle_margin_m, s.formulation);
+    // By default the tolerance and memory the loop's PANOC used for this kind of problem.
+    let (default_tol, _, default_mem) = s.panoc_for(def.num_scenarios());
+    let tol: f64 = args.get(5).and_then(|a| a.parse().ok()).unwrap_or(default_tol);
+    let mem: usize = args.get(6).and_then(|a| a.parse().ok()).unwrap_or(default_mem);
     let inst = &solves[k].instance;
     let ev = RefCell::new(Evaluator::new(&def));
     let n = def.num_variables();

@@ -4,12 +4,13 @@
 //! build + clarabel solve. Prints the distribution per scenario. Argument: repetitions per
 //! problem (the fastest counts; default 3). Each problem is also solved with elastic rows
 //! (`QpSettings::elastic_penalty_per_m`) for comparison (not timed); `QP_SHOW=1` lists the
-//! problems where both were solved with elastic rows present.
-use mpc::{
-    ClosedLoopSettings, ControllerMode, ObstacleFormulation, OcpDefinition, QpBudget, QpFallback, QpSettings,
-    QpStatus, run_closed_loop,
-};
+//! problems where both were solved with elastic rows present. QP settings from the environment
+//! (`benches/common/qp_env.rs`); `QP_SLOW=1` lists the problems over 3 ms.
+use mpc::{ControllerMode, MpcSettings, OcpDefinition, QpBudget, QpFallback, QpSettings, QpStatus, accuracy};
 use std::time::Instant;
+
+#[path = "../benches/common/qp_env.rs"]
+mod qp_env;
 
 #[derive(Default)]
 struct Tally {
@@ -30,67 +31,48 @@ fn main() {
     let reps: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(3).max(1);
     let show = std::env::var("QP_SHOW").is_ok();
     let mut all = Vec::new();
+    let base = qp_env::qp_settings_from_env();
+    let mpc_settings = MpcSettings::default();
     for scenario in [mav::Scenario::paper_1(), mav::Scenario::paper_2(), mav::Scenario::paper_3()] {
-        let settings = ClosedLoopSettings::paper(ControllerMode::Multistage);
-        let (_, records) = run_closed_loop(&scenario, &settings).expect("run");
+        let loop_solves =
+            accuracy::loop_solves(&scenario, ControllerMode::Multistage, &mpc_settings).expect("run");
         let def = OcpDefinition::from_scenario(
             &scenario,
             ControllerMode::Multistage,
-            settings.mpc.obstacle_margin_m,
-            ObstacleFormulation::DistanceAlm,
+            mpc_settings.obstacle_margin_m,
+            mpc_settings.formulation,
         );
-        let mut base = QpSettings::default();
-        let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<f64>().ok());
-        if let Some(v) = env("QP_LAZY") {
-            base.lazy_slack_m = v;
-        }
-        if let Some(v) = env("QP_SCREEN") {
-            base.screen_runs = v > 0.0;
-        }
-        if let Some(v) = env("QP_ADD") {
-            base.lazy_add_margin_m = v;
-        }
         let mut qp = QpFallback::new(&def, base).expect("valid");
         let elastic = QpSettings { elastic_penalty_per_m: Some(1e5), ..base };
         let mut qp_elastic = QpFallback::new(&def, elastic).expect("valid");
         let mut times = Vec::new();
         let (mut iterations, mut solves, mut rows) = (0u64, 0u64, 0u64);
         let (mut hard, mut soft, mut same_worst) = (Tally::default(), Tally::default(), 0.0f64);
-        for pair in records.windows(2) {
-            let (prev, cur) = (&pair[0], &pair[1]);
-            let mut nominal = prev.plan[3..].to_vec();
-            nominal.extend_from_slice(&prev.plan[prev.plan.len() - 3..]);
+        for (cycle, ls) in loop_solves.iter().enumerate().skip(1) {
+            let (x0, u_prev, w) = (&ls.instance.x0, &ls.instance.u_prev, &ls.instance.weights);
+            let nominal = &ls.instance.warm_start;
             let mut best = f64::INFINITY;
             let mut last = None;
             for _ in 0..reps {
                 let t = Instant::now();
-                let r = qp
-                    .solve(&cur.state, &prev.command, &cur.weights_used, Some(&nominal), &QpBudget::default())
-                    .expect("valid");
+                let r = qp.solve(x0, u_prev, w, Some(nominal), &QpBudget::default()).expect("valid");
                 best = best.min(t.elapsed().as_secs_f64() * 1e3);
                 last = Some(r);
             }
             times.push(best);
-            // Deterministic: every repetition reports the same.
-            let Some(r) = last else { continue };
+            // Deterministic: every repetition reports the same (`reps` is at least 1).
+            let Some(r) = last else { unreachable!("at least one repetition") };
             if std::env::var("QP_SLOW").is_ok() && best > 3.0 {
                 println!(
                     "    slow: cycle {} {best:.2} ms, {:?}, iterations {}, clarabel solves {}, rows {}, half-planes {}",
-                    cur.cycle,
-                    r.status,
-                    r.iterations,
-                    r.clarabel_solves,
-                    r.num_clarabel_rows,
-                    r.num_half_planes
+                    cycle, r.status, r.iterations, r.clarabel_solves, r.num_clarabel_rows, r.num_half_planes
                 );
             }
             iterations += u64::from(r.iterations);
             solves += r.clarabel_solves as u64;
             rows += r.num_clarabel_rows as u64;
             hard.add(&r);
-            let re = qp_elastic
-                .solve(&cur.state, &prev.command, &cur.weights_used, Some(&nominal), &QpBudget::default())
-                .expect("valid");
+            let re = qp_elastic.solve(x0, u_prev, w, Some(nominal), &QpBudget::default()).expect("valid");
             soft.add(&re);
             if r.status == QpStatus::Solved && re.status == QpStatus::Solved && re.num_elastic_rows > 0 {
                 let (a, b) = (qp.solution().expect("solved"), qp_elastic.solution().expect("solved"));
@@ -99,7 +81,7 @@ fn main() {
                 if show {
                     println!(
                         "    cycle {} state {:?} u_prev {:?} elastic rows {} input difference {d:.2e}",
-                        cur.cycle, cur.state, prev.command, re.num_elastic_rows
+                        cycle, x0, u_prev, re.num_elastic_rows
                     );
                 }
             }

@@ -36,6 +36,12 @@ pub fn trace(kind: &str, seed: u64, width_s: f64) -> Vec<f64> {
     }
 }
 
+/// Width of the survey's i.i.d. uniform jitter from `WIDTH` (s; default 0.33, the whole range):
+/// delays uniform in `[a, a + width]`, `a` random.
+pub fn width_from_env() -> f64 {
+    std::env::var("WIDTH").ok().and_then(|w| w.parse().ok()).unwrap_or(0.33)
+}
+
 /// paper-2 and the multi-stage controller as the environment asks: `COMP` (dead-time
 /// compensation), `FLOOR` (m), `MARGIN` (m), `NOSAFETY` (no safety layer), `FAILSAFE=1` (the
 /// fail-safe check: first input, then braking, under every delay up to `DMAX` s, `SAMPLES`

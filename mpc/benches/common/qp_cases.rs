@@ -29,10 +29,7 @@ pub fn qp_cases() -> (OcpDefinition, Vec<QpCase>) {
         .map(|(name, x0)| {
             let mut mpc = Mpc::new(def.clone(), MpcSettings::default()).expect("valid");
             mpc.solve(&x0, &U_PREV, &W5, &SolveBudget::default()).expect("valid");
-            let plan = mpc.solution();
-            let mut nominal = plan[3..].to_vec();
-            nominal.extend_from_slice(&plan[plan.len() - 3..]);
-            QpCase { name, x0, nominal }
+            QpCase { name, x0, nominal: mpc::shifted_plan(mpc.solution()) }
         })
         .collect();
     (def, cases)
