@@ -15,7 +15,8 @@ pub struct Instance {
     pub x0: [f64; 8],
     pub u_prev: [f64; 3],
     pub weights: Vec<f64>,
-    /// The warm start the controller used (previous plan shifted by one step).
+    /// The warm start the controller used (the previous plan shifted by one step, or by the
+    /// elapsed steps with `MpcSettings::warm_start_by_elapsed_time`).
     pub warm_start: Vec<f64>,
 }
 
@@ -122,7 +123,15 @@ pub fn loop_solves(
             (hover, [g, 0.0, 0.0])
         } else {
             let prev = &records[k - 1];
-            (crate::solver::shifted_plan(&prev.plan), prev.command)
+            let mut warm = crate::solver::shifted_plan(&prev.plan);
+            if settings.warm_start_by_elapsed_time && mode == ControllerMode::Nmpc {
+                // As `CycleController::step` does, from the records' times.
+                let steps = ((records[k].t_s - prev.t_s) / scenario.sampling_times_s[0]).round();
+                for _ in 1..(steps as usize) {
+                    warm = crate::solver::shifted_plan(&warm);
+                }
+            }
+            (warm, prev.command)
         };
         out.push(LoopSolve {
             instance: Instance {

@@ -1,9 +1,10 @@
 //! Solver settings from the environment for the tuning aids (`examples/accuracy.rs`,
-//! `examples/fixed_instances.rs`), so that one set of variables configures both: MPC_TOL,
-//! MPC_AKKT (multi-stage), MPC_NMPC_TOL, MPC_NMPC_AKKT, MPC_NMPC_MEM (standard NMPC), MPC_MEM, MPC_CTOL,
-//! MPC_C0, MPC_CMAX, MPC_OUTER, MPC_INNER, MPC_PSLACK (< 0: no
+//! `fixed_instances.rs`, `paper.rs`, `budget_sweep.rs`), so that one set of variables configures
+//! them all: MPC_TOL, MPC_AKKT, MPC_MEM (multi-stage), MPC_NMPC_TOL, MPC_NMPC_AKKT, MPC_NMPC_MEM
+//! (standard NMPC), MPC_CTOL, MPC_C0, MPC_CMAX, MPC_OUTER, MPC_INNER, MPC_PSLACK (< 0: no
 //! penalty preconditioner), MPC_PER_OUTER (0: no cap), MPC_YMAX, MPC_ELAPSED (1: NMPC warm
-//! start shifted by the elapsed time); the defaults where unset.
+//! start shifted by the elapsed time; only where a closed loop runs, `accuracy` and `paper`);
+//! the defaults where unset.
 use mpc::MpcSettings;
 
 fn env(name: &str, default: f64) -> f64 {
