@@ -330,6 +330,12 @@ pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch:
                 if !matches!(e, LoopError::Bad(_)) {
                     shared.link_lost();
                 }
+                // What was sent over the lost link has landed or is lost with it; after the
+                // reconnection the plant's stamps say what is applied (a restarted plant's
+                // clock starts again at 0, which would make the old commands look just sent).
+                if let Some(ep) = episode.as_mut() {
+                    ep.sent.clear();
+                }
                 tracing::warn!(error = %e, retry_in_ms = backoff.as_millis() as u64, "plant link lost; retrying");
                 shared.update(|st| {
                     st.plant_connected = false;
