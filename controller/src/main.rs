@@ -9,7 +9,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand, ValueEnum};
 use controller::solve_lines::LineSolver;
 use controller::{ControllerConfig, TimeModeSetting};
-use mpc::{ControllerMode, MpcSettings, QpSchedule, QpSettings, SafetySettings};
+use mpc::{ControllerMode, InactiveSetTolerances, MpcSettings, QpSchedule, QpSettings, SafetySettings};
 
 #[derive(Parser, Debug)]
 #[command(name = "controller", version, about = "The multi-stage NMPC controller of hilbench")]
@@ -66,6 +66,23 @@ struct Cli {
     /// plan's predictions); see ARCHITECTURE.md.
     #[arg(long, conflicts_with = "no_safety")]
     fail_safe: bool,
+    /// Multi-stage: a looser PANOC test in the outer iterations that start with no constraint
+    /// active (`MpcSettings::inactive_set` at its measured values). About half the median solve
+    /// time at about the same accuracy, but it changes the closed loops; off by default (see
+    /// BENCHMARKS.md, issue 3, sixth pass).
+    #[arg(long)]
+    inactive_set: bool,
+}
+
+impl Cli {
+    /// The solver settings the flags ask for.
+    fn mpc_settings(&self) -> MpcSettings {
+        MpcSettings {
+            obstacle_margin_m: self.margin_m,
+            inactive_set: self.inactive_set.then_some(InactiveSetTolerances::MEASURED),
+            ..MpcSettings::default()
+        }
+    }
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug)]
@@ -99,7 +116,7 @@ enum TimeMode {
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
-    let settings = MpcSettings { obstacle_margin_m: cli.margin_m, ..MpcSettings::default() };
+    let settings = cli.mpc_settings();
     settings.validate().context("--margin-m")?;
     if let Some(Command::Solve { file }) = &cli.command {
         let mut solver = LineSolver::new(settings);
@@ -154,4 +171,17 @@ fn main() -> anyhow::Result<()> {
         controller::serve(listener, config, hilbench_svc::shutdown_signal()).await?;
         anyhow::Ok(())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn solver_flags_reach_the_settings() {
+        let cli = Cli::try_parse_from(["controller", "--margin-m", "0.2"]).expect("valid flags");
+        assert_eq!(cli.mpc_settings(), MpcSettings { obstacle_margin_m: 0.2, ..MpcSettings::default() });
+        let cli = Cli::try_parse_from(["controller", "--inactive-set"]).expect("valid flags");
+        assert_eq!(cli.mpc_settings().inactive_set, Some(InactiveSetTolerances::MEASURED));
+    }
 }

@@ -36,6 +36,8 @@ pub fn reference_settings(fast: &MpcSettings) -> MpcSettings {
         max_multiplier: crate::solver::MAX_MULTIPLIER,
         penalty_preconditioner_slack_m: None,
         max_inner_iterations_per_outer: None,
+        // The reference's own tolerances throughout, whatever the fast path uses.
+        inactive_set: None,
         ..*fast
     }
 }

@@ -31,5 +31,6 @@ pub use problem::{ControllerMode, Evaluator, ObstacleFormulation, OcpDefinition}
 pub use qp::{QpBudget, QpFallback, QpReport, QpSettings, QpStatus};
 pub use safety::{Decision, QpSchedule, Rejection, SafetyLayer, SafetySettings, Selection};
 pub use solver::{
-    Mpc, MpcError, MpcSettings, SolveBudget, SolveReport, SolveStatus, shift_plan_into, shifted_plan,
+    InactiveSetTolerances, Mpc, MpcError, MpcSettings, SolveBudget, SolveReport, SolveStatus,
+    shift_plan_into, shifted_plan,
 };

@@ -3,9 +3,10 @@
 //! them all: MPC_TOL, MPC_AKKT, MPC_MEM (multi-stage), MPC_NMPC_TOL, MPC_NMPC_AKKT, MPC_NMPC_MEM
 //! (standard NMPC), MPC_CTOL, MPC_C0, MPC_CMAX, MPC_OUTER, MPC_INNER, MPC_PSLACK (< 0: no
 //! penalty preconditioner), MPC_PER_OUTER (0: no cap), MPC_YMAX, MPC_ELAPSED (1: NMPC warm
-//! start shifted by the elapsed time; only where a closed loop runs, `accuracy` and `paper`);
-//! the defaults where unset.
-use mpc::MpcSettings;
+//! start shifted by the elapsed time; only where a closed loop runs, `accuracy` and `paper`),
+//! MPC_INACTIVE (`measured`: `InactiveSetTolerances::MEASURED`; or `TOL,AKKT,GRAD`: the
+//! multi-stage inactive-set tolerances); the defaults where unset.
+use mpc::{InactiveSetTolerances, MpcSettings};
 
 fn env(name: &str, default: f64) -> f64 {
     std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
@@ -42,6 +43,20 @@ pub fn settings_from_env() -> MpcSettings {
         },
         max_multiplier: env("MPC_YMAX", d.max_multiplier),
         warm_start_by_elapsed_time: env("MPC_ELAPSED", 0.0) > 0.0,
+        inactive_set: std::env::var("MPC_INACTIVE").ok().map_or(d.inactive_set, |v| inactive_set(&v)),
         ..d
+    }
+}
+
+fn inactive_set(value: &str) -> Option<InactiveSetTolerances> {
+    if value == "measured" {
+        return Some(InactiveSetTolerances::MEASURED);
+    }
+    let v: Vec<f64> = value.split(',').map(|x| x.trim().parse().expect("MPC_INACTIVE: numbers")).collect();
+    match v[..] {
+        [tolerance, akkt_tolerance, gradient_tolerance] => {
+            Some(InactiveSetTolerances { tolerance, akkt_tolerance, gradient_tolerance })
+        }
+        _ => panic!("MPC_INACTIVE: `measured` or TOL,AKKT,GRAD"),
     }
 }
