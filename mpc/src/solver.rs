@@ -95,8 +95,8 @@ pub struct MpcSettings {
     /// pass): with [`InactiveSetTolerances::MEASURED`] the multi-stage median along the paper
     /// loops drops from 0.22-0.27 ms to 0.13-0.14 ms at about the same accuracy (61 of 70
     /// sampled states within 1 % of the reference, against 65 of 73), but the closed
-    /// loops change, and the default paper-1 run then dives through the ground after a
-    /// zero-thrust fallback command, so it is not the default.
+    /// loops change, and the default paper-1 run then dives into the ground (paper mode has
+    /// no floor), so it is not the default.
     pub inactive_set: Option<InactiveSetTolerances>,
 }
 
