@@ -68,7 +68,7 @@ struct Cli {
     fail_safe: bool,
     /// Multi-stage: a looser PANOC test in the outer iterations that start with no constraint
     /// active (`MpcSettings::inactive_set` at its measured values). About half the median solve
-    /// time at about the same accuracy, but it changes the closed loops; off by default (see
+    /// time at a little lower accuracy, and it changes the closed loops; off by default (see
     /// BENCHMARKS.md, issue 3, sixth pass).
     #[arg(long)]
     inactive_set: bool,

@@ -93,7 +93,7 @@ pub struct MpcSettings {
     /// what they mean for standard NMPC (see `single_scenario_tolerance`). `None` (default):
     /// `tolerance` and `akkt_tolerance` throughout. Measured (BENCHMARKS.md, issue 3, sixth
     /// pass): with [`InactiveSetTolerances::MEASURED`] the multi-stage median along the paper
-    /// loops drops from 0.22-0.27 ms to 0.13-0.14 ms at about the same accuracy (61 of 70
+    /// loops drops from 0.22-0.27 ms to 0.13-0.15 ms at a little lower accuracy (61 of 70
     /// sampled states within 1 % of the reference, against 65 of 73), but the closed
     /// loops change, and the default paper-1 run then dives into the ground (paper mode has
     /// no floor), so it is not the default.

