@@ -733,6 +733,13 @@ impl Evaluator {
         }
     }
 
+    /// Whether any constraint enters the penalty term of `psi(z; c, y)` at `z`: the same test
+    /// as the adjoint pass's active set ([`Evaluator::collect_active`]).
+    pub(crate) fn has_penalty_terms(&mut self, z: &[f64], c: f64, y: &[f64]) -> bool {
+        self.ensure_forward(z);
+        any_penalty_term(&self.con, y, c)
+    }
+
     /// Lists the constraints with `c g + y > 0` (those the penalty's gradient sees) with that
     /// value, scenario by scenario in `con` order; scenario `i`'s are
     /// `active[active_start[i]..active_start[i + 1]]`. Most are inactive: one contiguous pass
@@ -964,6 +971,17 @@ fn sin_cos_lanes<const L: usize>(x: &[f64; L]) -> ([f64; L], [f64; L]) {
         sin_cos_large_lanes(x, &mut s, &mut c);
     }
     (s, c)
+}
+
+/// Whether any `c g_k + y_k > 0` (`y_k` = 0 past the end of `y`; none for `c <= 0`): a constraint
+/// in the augmented Lagrangian `(c / 2) sum_k [g_k + y_k / c]_+^2`, or in the penalty method's
+/// `F2` with `y` empty.
+fn any_penalty_term(g: &[f64], y: &[f64], c: f64) -> bool {
+    let mut any = false;
+    if c > 0.0 {
+        for_each_positive(g, y, |g, y| c * g + y, |_, _| any = true);
+    }
+    any
 }
 
 /// `visit(k, v)`, in increasing `k`, for every `k` with `v = value(g[k], y[k]) > 0`, where
@@ -1267,6 +1285,16 @@ mod tests {
             assert!(with > without, "{form:?}: penalty must be active");
             assert!(check_gradient(&mut ev, &z, 1e3, &[]).is_ok());
         }
+    }
+
+    #[test]
+    fn a_penalty_term_is_active_where_c_g_plus_y_is_positive() {
+        assert!(!any_penalty_term(&[-0.1, -0.2], &[], 1e3));
+        assert!(any_penalty_term(&[-0.1, 0.001], &[], 1e3));
+        // A multiplier keeps a satisfied constraint in the augmented Lagrangian...
+        assert!(any_penalty_term(&[-0.1, -0.2], &[101.0, 0.0], 1e3));
+        // ...until the constraint is satisfied by more than y / c.
+        assert!(!any_penalty_term(&[-0.1, -0.2], &[99.0, 0.0], 1e3));
     }
 
     #[test]

@@ -604,17 +604,14 @@ impl Mpc {
             // first evaluation reuses).
             let y: &[f64] = if alm_multipliers { &self.warm_multipliers } else { &[] };
             let inactive = match (&mut self.inactive_cache, s.inactive_set) {
-                (Some(cache), Some(t))
-                    if {
-                        evaluator.borrow_mut().constraints(&self.z, &mut self.con);
-                        !any_penalty_term(&self.con, y, c)
-                    } =>
-                {
+                (Some(cache), Some(t)) if !evaluator.borrow_mut().has_penalty_terms(&self.z, c, y) => {
                     Some((cache, t))
                 }
                 _ => None,
             };
-            self.multipliers_in.copy_from_slice(&self.warm_multipliers);
+            if inactive.is_some() {
+                self.multipliers_in.copy_from_slice(&self.warm_multipliers);
+            }
             let inactive_tolerances = inactive.as_ref().map(|(_, t)| *t);
             let (cache, akkt_tolerance) = match inactive {
                 Some((cache, t)) => (cache, t.akkt_tolerance),
@@ -661,8 +658,7 @@ impl Mpc {
             {
                 let mut ev = evaluator.borrow_mut();
                 let y: &[f64] = if alm_multipliers { &self.multipliers_in } else { &[] };
-                ev.constraints(&self.z, &mut self.con);
-                accepted = !any_penalty_term(&self.con, y, c) && {
+                accepted = !ev.has_penalty_terms(&self.z, c, y) && {
                     ev.gradient(&self.z, c, y, &mut self.gradient);
                     projected_gradient_norm(&self.z, &self.gradient, &self.lo, &self.hi)
                         <= t.gradient_tolerance
@@ -768,12 +764,6 @@ pub fn shifted_plan(plan: &[f64]) -> Vec<f64> {
     let mut out = vec![0.0; plan.len()];
     shift_plan_into(plan, &mut out);
     out
-}
-
-/// Whether any constraint enters the augmented Lagrangian `(c / 2) sum_k [g_k + y_k / c]_+^2`
-/// (`y_k` = 0 past the end of `y`; the penalty method's `F2` with `y` empty).
-fn any_penalty_term(g: &[f64], y: &[f64], c: f64) -> bool {
-    g.iter().enumerate().any(|(k, g)| c * g + y.get(k).copied().unwrap_or(0.0) > 0.0)
 }
 
 /// `|z - P(z - grad)|` with `P` the projection on the box `[lo, hi]`: the fixed-point residual
@@ -989,6 +979,16 @@ mod tests {
         }
     }
 
+    /// Paper-2 with its cylinders moved 20 m away, out of reach whatever the inputs do: no
+    /// constraint term ever.
+    fn open_space() -> Scenario {
+        let mut s = Scenario::paper_2();
+        for c in &mut s.obstacles {
+            c.x_m += 20.0;
+        }
+        s
+    }
+
     /// Report and solution bits of one solve from a fresh workspace.
     fn solve_bits(
         scenario: &Scenario,
@@ -1005,11 +1005,7 @@ mod tests {
     #[test]
     fn inactive_set_tolerances_apply_where_no_constraint_term_is_active() {
         let loose = MpcSettings { inactive_set: Some(InactiveSetTolerances::MEASURED), ..Default::default() };
-        // Far from every cylinder (paper-2's, 3-4 m away whatever the inputs do): no term ever.
-        let mut open_space = Scenario::paper_2();
-        for c in &mut open_space.obstacles {
-            c.x_m += 20.0;
-        }
+        let open_space = open_space();
         let x0 = [3.1, 1.2, 0.6, 0.1, 1.4, 0.2, 0.05, -0.02];
         let (tight_report, _) =
             solve_bits(&open_space, ControllerMode::Multistage, MpcSettings::default(), &x0, &W5);
@@ -1047,10 +1043,7 @@ mod tests {
     fn an_inactive_set_result_must_have_a_small_projected_gradient() {
         // A gradient tolerance no result can meet: every inactive-set outer iteration is
         // handed on, so the solve runs all its outer iterations and never reports convergence.
-        let mut open_space = Scenario::paper_2();
-        for c in &mut open_space.obstacles {
-            c.x_m += 20.0;
-        }
+        let open_space = open_space();
         let unreachable =
             InactiveSetTolerances { gradient_tolerance: 1e-300, ..InactiveSetTolerances::MEASURED };
         let s = MpcSettings { inactive_set: Some(unreachable), ..Default::default() };
@@ -1067,16 +1060,6 @@ mod tests {
         assert_eq!(projected_gradient_norm(&[0.0, 0.0, 0.0], &[0.3, 0.0, -0.4], &lo, &hi), 0.5);
         assert_eq!(projected_gradient_norm(&[1.0, -1.0, 0.0], &[-2.0, -5.0, 0.0], &lo, &hi), 2.0);
         assert_eq!(projected_gradient_norm(&[0.5, 0.0, 0.0], &[-3.0, 0.0, 0.0], &lo, &hi), 0.5);
-    }
-
-    #[test]
-    fn a_penalty_term_is_active_where_c_g_plus_y_is_positive() {
-        assert!(!any_penalty_term(&[-0.1, -0.2], &[], 1e3));
-        assert!(any_penalty_term(&[-0.1, 0.001], &[], 1e3));
-        // A multiplier keeps a satisfied constraint in the augmented Lagrangian...
-        assert!(any_penalty_term(&[-0.1, -0.2], &[101.0, 0.0], 1e3));
-        // ...until the constraint is satisfied by more than y / c.
-        assert!(!any_penalty_term(&[-0.1, -0.2], &[99.0, 0.0], 1e3));
     }
 
     #[test]
