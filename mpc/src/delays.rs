@@ -45,14 +45,11 @@ impl GammaParams {
 pub enum WeightSource {
     /// The run has no delays: the fixed nominal weights.
     Nominal,
-    /// Too few (or degenerate) observations: the configured prior.
+    /// Too few observations, or a degenerate window (zero variance, as under a constant
+    /// delay, or non-finite moments): the configured prior, as the spec asks.
     Prior(GammaParams),
     /// Fitted to the window.
     Fitted(GammaParams),
-    /// Every delay in the window is the same (up to rounding): the limit of the Gamma fit as
-    /// its variance goes to zero, all weight on the scenario whose interval holds the delay
-    /// (the last one when the delay is beyond every sampling time).
-    Constant { delay_s: f64 },
 }
 
 /// The last `capacity` observed round-trip delays.
@@ -198,20 +195,6 @@ impl ScenarioWeights {
             self.source = WeightSource::Fitted(fit);
             return;
         }
-        if self.window.len() >= self.settings.min_samples.max(2)
-            && let Some((mean, var)) = self.window.moments()
-            && mean > 0.0
-            && GammaParams::from_moments(mean, var).is_none()
-            && !self.sampling_times_s.is_empty()
-        {
-            // No spread to fit: a Gamma CDF of vanishing variance is a step at the mean.
-            let last = self.sampling_times_s.len() - 1;
-            // (A relative tolerance: a mean of identical delays can round above the delay.)
-            let bin = self.sampling_times_s.iter().position(|&ts| mean <= ts * (1.0 + 1e-9)).unwrap_or(last);
-            self.current.iter_mut().enumerate().for_each(|(i, w)| *w = if i == bin { 1.0 } else { 0.0 });
-            self.source = WeightSource::Constant { delay_s: mean };
-            return;
-        }
         let prior = self.settings.prior;
         if weights_from_gamma(&prior, &self.sampling_times_s, &mut self.current) {
             self.source = WeightSource::Prior(prior);
@@ -292,31 +275,41 @@ mod tests {
     }
 
     #[test]
-    fn prior_until_enough_samples_then_the_fit_or_a_point_mass_for_constant_delays() {
+    fn prior_until_enough_samples_or_when_the_window_is_degenerate_then_the_fit() {
         let s = WeightSettings::default();
+        let prior_weights = {
+            let mut w = [0.0; 5];
+            assert!(weights_from_gamma(&s.prior, &TS, &mut w));
+            w
+        };
         let mut sw = ScenarioWeights::new(s, &TS, None);
         assert_eq!(sw.source(), WeightSource::Prior(s.prior));
         for _ in 0..s.min_samples - 1 {
-            sw.observe(0.18);
+            sw.observe(0.18 + 0.01 * sw.window().len() as f64);
         }
         assert_eq!(sw.source(), WeightSource::Prior(s.prior));
-        for _ in s.min_samples - 1..20 {
-            sw.observe(0.18); // zero variance: no Gamma fits, the limit is a step at 0.18 s
+        sw.observe(0.12);
+        assert!(matches!(sw.source(), WeightSource::Fitted(_)), "{:?}", sw.source());
+        // Zero variance (a constant delay) has no Gamma fit: back to the prior, whatever the delay.
+        for delay_s in [0.05, 0.18, 0.5] {
+            let mut constant = ScenarioWeights::new(s, &TS, None);
+            for _ in 0..20 {
+                constant.observe(delay_s);
+            }
+            assert_eq!(constant.window().len(), 20);
+            assert_eq!(constant.source(), WeightSource::Prior(s.prior), "{delay_s}");
+            assert_eq!(constant.weights(), &prior_weights, "{delay_s}");
+            constant.observe(delay_s + 0.07);
+            assert!(matches!(constant.source(), WeightSource::Fitted(_)), "{delay_s}");
         }
-        assert!(matches!(sw.source(), WeightSource::Constant { delay_s } if (delay_s - 0.18).abs() < 1e-12));
-        assert_eq!(sw.weights(), &[0.0, 0.0, 0.0, 1.0, 0.0]);
-        let mut beyond = ScenarioWeights::new(s, &TS, None);
-        let mut at_first = ScenarioWeights::new(s, &TS, None);
-        for _ in 0..20 {
-            beyond.observe(0.5);
-            at_first.observe(0.05);
+        // Moments that overflow (delays near f64::MAX) are not finite: the prior as well.
+        let mut huge = ScenarioWeights::new(s, &TS, None);
+        for k in 0..20 {
+            huge.observe(if k % 2 == 0 { 1e300 } else { 1.7e308 });
         }
-        assert_eq!(beyond.weights(), &[0.0, 0.0, 0.0, 0.0, 1.0]);
-        assert_eq!(at_first.weights(), &[1.0, 0.0, 0.0, 0.0, 0.0]);
+        assert_eq!(huge.source(), WeightSource::Prior(s.prior));
         sw.observe(f64::NAN); // ignored
-        assert_eq!(sw.window().len(), 20);
-        sw.observe(0.25);
-        assert!(matches!(sw.source(), WeightSource::Fitted(_)));
+        assert_eq!(sw.window().len(), s.min_samples);
         let fixed = ScenarioWeights::new(s, &TS, Some(&[0.05, 0.15, 0.45, 0.30, 0.05]));
         assert_eq!(fixed.weights(), &[0.05, 0.15, 0.45, 0.30, 0.05]);
     }
