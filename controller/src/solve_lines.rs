@@ -4,7 +4,10 @@
 //!
 //! Input keys: `scenario` (e.g. `paper-1`), `x0` (8 numbers), `u_prev` (3), `weights` (M
 //! numbers; M = 1 for `"mode": "nmpc"`, else the scenario's sampling times), optional
-//! `warm_start` (N x 3), optional `mode` (`multistage` by default).
+//! `warm_start` (N x 3), optional `mode` (`multistage` by default). `x0` must lie in the
+//! plant's reset envelope and `u_prev` within the scenario's input bounds. Every line is solved
+//! on its own: from its `warm_start` (or hover) with fresh multipliers and penalty, so that an
+//! answer does not depend on the lines before it.
 //! Output keys: `line`, `status`, `iterations`, `solve_ms`, `cost` (the spec's objective,
 //! unscaled), `u` (N x 3), `min_clearance_m`, `constraint_violation`; or `line` and `error`
 //! (with `field`).
@@ -12,6 +15,7 @@
 use std::collections::HashMap;
 use std::io::{BufRead, Write};
 
+use hilbench_proto::convert::plant::check_state_envelope;
 use mpc::{ControllerMode, Mpc, MpcSettings, OcpDefinition, SolveBudget};
 use serde_json::{Value, json};
 
@@ -83,6 +87,9 @@ impl LineSolver {
                 .ok_or_else(|| err("mode", "must be \"nmpc\" or \"multistage\""))?,
         };
         let x0 = numbers(obj.get("x0").ok_or_else(|| err("x0", "is required"))?, "x0", Some(8))?;
+        let mut x = [0.0; 8];
+        x.copy_from_slice(&x0);
+        check_state_envelope(|i| format!("x0[{i}]"), &x).map_err(|e| err(e.field, e.reason))?;
         let u_prev =
             numbers(obj.get("u_prev").ok_or_else(|| err("u_prev", "is required"))?, "u_prev", Some(3))?;
         let key = (name.to_string(), mode);
@@ -99,28 +106,35 @@ impl LineSolver {
         let Some(mpc) = self.workspaces.get_mut(&key) else {
             return Err(err("<internal>", "workspace missing"));
         };
+        let bounds = mpc.definition().bounds;
+        if let Some(i) = (0..3).find(|&i| !(bounds.min[i]..=bounds.max[i]).contains(&u_prev[i])) {
+            return Err(err(
+                format!("u_prev[{i}]"),
+                format!(
+                    "must be within the input bounds [{}, {}], got {}",
+                    bounds.min[i], bounds.max[i], u_prev[i]
+                ),
+            ));
+        }
         let m = mpc.definition().num_scenarios();
         let weights =
             numbers(obj.get("weights").ok_or_else(|| err("weights", "is required"))?, "weights", Some(m))?;
         let n = mpc.definition().horizon;
-        match obj.get("warm_start") {
-            Some(ws) => {
-                let rows = ws
-                    .as_array()
-                    .ok_or_else(|| err("warm_start", format!("must be {n} rows of 3 numbers")))?;
-                if rows.len() != n {
-                    return Err(err("warm_start", format!("must hold {n} rows, got {}", rows.len())));
-                }
-                let mut flat = Vec::with_capacity(3 * n);
-                for (j, r) in rows.iter().enumerate() {
-                    flat.extend(numbers(r, &format!("warm_start[{j}]"), Some(3))?);
-                }
-                mpc.set_warm_start(&flat).map_err(|e| err("warm_start", e.to_string()))?;
+        // Fresh multipliers and penalty (and hover when no warm start is given): the previous
+        // line's solve must not shape this one.
+        mpc.reset_warm_start();
+        if let Some(ws) = obj.get("warm_start") {
+            let rows =
+                ws.as_array().ok_or_else(|| err("warm_start", format!("must be {n} rows of 3 numbers")))?;
+            if rows.len() != n {
+                return Err(err("warm_start", format!("must hold {n} rows, got {}", rows.len())));
             }
-            None => mpc.reset_warm_start(),
+            let mut flat = Vec::with_capacity(3 * n);
+            for (j, r) in rows.iter().enumerate() {
+                flat.extend(numbers(r, &format!("warm_start[{j}]"), Some(3))?);
+            }
+            mpc.set_warm_start(&flat).map_err(|e| err("warm_start", e.to_string()))?;
         }
-        let mut x = [0.0; 8];
-        x.copy_from_slice(&x0);
         let mut up = [0.0; 3];
         up.copy_from_slice(&u_prev);
         let report = mpc.solve(&x, &up, &weights, &SolveBudget::default()).map_err(|e| match e {
@@ -141,15 +155,27 @@ impl LineSolver {
         }))
     }
 
-    /// Reads lines from `input` and writes one JSON line per non-empty input line.
-    pub fn run(&mut self, input: impl BufRead, mut output: impl Write) -> std::io::Result<usize> {
+    /// Reads lines from `input` and writes one JSON line per non-empty input line. A line that
+    /// is not UTF-8 gets an error line like any other bad line; only an I/O error stops the run.
+    pub fn run(&mut self, mut input: impl BufRead, mut output: impl Write) -> std::io::Result<usize> {
         let mut count = 0;
-        for (i, line) in input.lines().enumerate() {
-            let line = line?;
-            if line.trim().is_empty() {
-                continue;
+        let mut buf = Vec::new();
+        let mut line_no = 0;
+        loop {
+            buf.clear();
+            if input.read_until(b'\n', &mut buf)? == 0 {
+                break;
             }
-            let answer = self.answer(i + 1, &line);
+            line_no += 1;
+            let answer = match std::str::from_utf8(&buf) {
+                Ok(line) if line.trim().is_empty() => continue,
+                Ok(line) => self.answer(line_no, line.trim_end_matches(['\n', '\r'])),
+                Err(e) => json!({
+                    "line": line_no,
+                    "error": format!("invalid `<line>`: not UTF-8 ({e})"),
+                    "field": "<line>",
+                }),
+            };
             writeln!(output, "{answer}")?;
             count += 1;
         }
@@ -193,5 +219,64 @@ mod tests {
         assert!(out[5]["status"].is_string());
         // Thrust of the first input climbs towards the goal above.
         assert!(out[5]["u"][0][0].as_f64().is_some_and(|t| t > 9.81));
+    }
+
+    fn without_timing(mut v: Value) -> Value {
+        if let Some(o) = v.as_object_mut() {
+            o.remove("line");
+            o.remove("solve_ms");
+        }
+        v
+    }
+
+    #[test]
+    fn an_answer_does_not_depend_on_the_lines_before_it() {
+        // A warm-started line after an unrelated solve of the same scenario (which leaves
+        // multipliers and a raised penalty in the workspace) and after nothing at all.
+        let ws: Vec<String> = (0..40).map(|_| "[11.0,0.05,0.0]".to_string()).collect();
+        let probe = format!(
+            r#"{{"scenario":"paper-2","x0":[3.1,1.0,0.5,0.1,0.8,0.2,0.0,0.0],"u_prev":[9.81,0,0],"weights":[0.0,0.01,0.05,0.6,0.34],"warm_start":[{}]}}"#,
+            ws.join(",")
+        );
+        let other = r#"{"scenario":"paper-2","x0":[3.2,0,0,0,0,0,0,0],"u_prev":[9.81,0,0],"weights":[0.05,0.15,0.45,0.3,0.05]}"#;
+        let alone = solve(&probe);
+        let after = solve(&[other, &probe].join("\n"));
+        assert_eq!(alone.len(), 1);
+        assert_eq!(after.len(), 2);
+        assert!(alone[0]["status"].is_string(), "{}", alone[0]);
+        assert_eq!(without_timing(alone[0].clone()), without_timing(after[1].clone()));
+    }
+
+    #[test]
+    fn out_of_range_states_and_inputs_and_non_utf8_lines_get_error_lines() {
+        let good = r#"{"scenario":"paper-2","x0":[3.2,0,0,0,0,0,0,0],"u_prev":[9.81,0,0],"weights":[0.05,0.15,0.45,0.3,0.05]}"#;
+        let tilted = good.replace("[3.2,0,0,0,0,0,0,0]", "[3.2,0,0,0,0,0,2.0,0]");
+        let far = good.replace("[3.2,0,0,0,0,0,0,0]", "[3.2,0,0,0,0,5000,0,0]");
+        let negative_thrust = good.replace("[9.81,0,0]", "[-1.0,0,0]");
+        let steep_roll = good.replace("[9.81,0,0]", "[9.81,0.5,0]");
+        let mut input = Vec::new();
+        for line in [tilted.as_str(), far.as_str(), negative_thrust.as_str(), steep_roll.as_str()] {
+            input.extend_from_slice(line.as_bytes());
+            input.push(b'\n');
+        }
+        input.extend_from_slice(b"{\"scenario\":\"paper-2\xff\"}\n");
+        input.extend_from_slice(good.as_bytes());
+        let mut out = Vec::new();
+        let count =
+            LineSolver::new(MpcSettings::default()).run(input.as_slice(), &mut out).expect("in-memory io");
+        assert_eq!(count, 6);
+        let out: Vec<Value> = String::from_utf8(out)
+            .expect("utf8")
+            .lines()
+            .map(|l| serde_json::from_str(l).expect("json"))
+            .collect();
+        assert_eq!(out[0]["field"], "x0[6]");
+        assert_eq!(out[1]["field"], "x0[5]");
+        assert_eq!(out[2]["field"], "u_prev[0]");
+        assert_eq!(out[3]["field"], "u_prev[1]");
+        assert_eq!(out[4]["field"], "<line>");
+        assert_eq!(out[4]["line"], 5);
+        assert!(out[5]["status"].is_string(), "{}", out[5]);
+        assert_eq!(out[5]["line"], 6);
     }
 }

@@ -99,6 +99,15 @@ pub fn state_from_pb(field: &str, s: &pb::MavState) -> Result<State, FieldError>
 /// `(-pi/2, pi/2)`. The error names the element, e.g. `initial_state.x[6]`.
 pub fn initial_state_from_pb(field: &str, s: &pb::MavState) -> Result<State, FieldError> {
     let x = state_from_pb(field, s)?;
+    check_state_envelope(|i| format!("{field}.x[{i}]"), &x.into())?;
+    Ok(x)
+}
+
+/// Checks that a state of 8 values lies in the envelope of [`initial_state_from_pb`] (positions
+/// within `MAX_ABS_POSITION_M`, velocities within `MAX_ABS_VELOCITY_MPS`, angles within
+/// `(-pi/2, pi/2)`); the error names element `i` as `name(i)`. For states that come from a
+/// user rather than from a plant (a reset, a logged problem for `controller solve`).
+pub fn check_state_envelope(name: impl Fn(usize) -> String, x: &[f64; 8]) -> Result<(), FieldError> {
     for (i, v) in x.iter().enumerate() {
         let (ok, range) = match i {
             0..=2 => (v.abs() <= MAX_ABS_POSITION_M, "[-1e4, 1e4] m"),
@@ -106,14 +115,10 @@ pub fn initial_state_from_pb(field: &str, s: &pb::MavState) -> Result<State, Fie
             _ => (v.abs() < MAX_ABS_ANGLE_RAD, "(-pi/2, pi/2) rad"),
         };
         if !ok {
-            return Err(out_of_range(
-                &format!("{field}.x[{i}]"),
-                *v,
-                &format!("{range} ({})", STATE_NAMES[i]),
-            ));
+            return Err(out_of_range(&name(i), *v, &format!("{range} ({})", STATE_NAMES[i])));
         }
     }
-    Ok(x)
+    Ok(())
 }
 
 impl TryFrom<&pb::Command> for Command {
