@@ -35,9 +35,14 @@ pub struct ControllerConfig {
     pub autostart: bool,
     /// Real time: fraction of the cycle period a solve may take before its deadline.
     pub deadline_fraction: f64,
-    /// Reconnection backoff: first wait, doubled up to `backoff_max`.
+    /// Reconnection backoff: first wait of each outage, doubled up to `backoff_max`.
     pub backoff_min: Duration,
     pub backoff_max: Duration,
+    /// Longest wait for one plant RPC. A link that stops answering without closing (a frozen
+    /// gateway, a dropped route) would otherwise hang the loop; past this the call fails, the
+    /// loss is reported and the link is retried like a closed one. Generous against a lockstep
+    /// `Advance`, which integrates the whole cycle before it answers.
+    pub rpc_timeout: Duration,
     /// Telemetry items buffered per subscriber (default 4096, more than the cycles of a
     /// 60 s paper run); a subscriber that falls further behind loses the oldest items, the
     /// loop never waits for it.
@@ -65,6 +70,7 @@ impl ControllerConfig {
             deadline_fraction: 0.5,
             backoff_min: Duration::from_millis(50),
             backoff_max: Duration::from_secs(2),
+            rpc_timeout: Duration::from_secs(5),
             telemetry_buffer: 4096,
         }
     }
@@ -73,6 +79,9 @@ impl ControllerConfig {
     pub fn validate(&self) -> Result<(), String> {
         if self.plant.trim().is_empty() {
             return Err("`plant`: an address is required".into());
+        }
+        if let Err(e) = tonic::transport::Endpoint::from_shared(self.plant_uri()) {
+            return Err(format!("`plant`: `{}` is not a HOST:PORT address ({e})", self.plant));
         }
         self.scenario.validate().map_err(|e| e.to_string())?;
         self.mpc.validate().map_err(|e| e.to_string())?;
@@ -90,6 +99,9 @@ impl ControllerConfig {
         }
         if self.backoff_min.is_zero() || self.backoff_max < self.backoff_min {
             return Err("`backoff_min`/`backoff_max`: need 0 < min <= max".into());
+        }
+        if self.rpc_timeout.is_zero() {
+            return Err("`rpc_timeout`: must be > 0".into());
         }
         Ok(())
     }
@@ -124,5 +136,20 @@ mod tests {
             config.safety = None;
             assert_eq!(config.safety_for(&scenario), None);
         }
+    }
+
+    #[test]
+    fn validation_names_a_bad_plant_address_and_a_zero_call_timeout() {
+        let ok = ControllerConfig::new("127.0.0.1:50052", Scenario::paper_2(), ControllerMode::Multistage);
+        assert_eq!(ok.validate(), Ok(()));
+        for plant in ["", "  ", "bad host:50052", "http://[::1"] {
+            let bad = ControllerConfig { plant: plant.into(), ..ok.clone() };
+            let e = bad.validate().expect_err(plant);
+            assert!(e.starts_with("`plant`"), "{plant}: {e}");
+        }
+        let hostname = ControllerConfig { plant: "vehicle-gateway:50052".into(), ..ok.clone() };
+        assert_eq!(hostname.validate(), Ok(()));
+        let zero = ControllerConfig { rpc_timeout: Duration::ZERO, ..ok };
+        assert!(zero.validate().is_err_and(|e| e.starts_with("`rpc_timeout`")));
     }
 }

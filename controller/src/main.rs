@@ -2,7 +2,6 @@
 //! JSON lines (`controller solve`).
 
 use std::io::BufReader;
-use std::net::SocketAddr;
 use std::path::PathBuf;
 
 use anyhow::Context;
@@ -16,9 +15,9 @@ use mpc::{ControllerMode, InactiveSetTolerances, MpcSettings, QpSchedule, QpSett
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
-    /// Address of the Controller API.
+    /// Address of the Controller API, HOST:PORT.
     #[arg(long, default_value = "127.0.0.1:50053")]
-    listen: SocketAddr,
+    listen: String,
     /// Plant API endpoint: a plant, netem, or a vehicle gateway.
     #[arg(long, default_value = "127.0.0.1:50052")]
     plant: String,
@@ -72,6 +71,10 @@ struct Cli {
     /// BENCHMARKS.md, issue 3, sixth pass).
     #[arg(long)]
     inactive_set: bool,
+    /// Longest wait for one plant RPC, s: a link that stops answering without closing is
+    /// then reported and retried like a closed one.
+    #[arg(long, default_value_t = 5.0)]
+    rpc_timeout_s: f64,
 }
 
 impl Cli {
@@ -156,6 +159,10 @@ fn main() -> anyhow::Result<()> {
     if let Some(safety) = &config.safety {
         safety.validate().context("--qp-elastic-penalty")?;
     }
+    config.rpc_timeout = std::time::Duration::try_from_secs_f64(cli.rpc_timeout_s)
+        .ok()
+        .filter(|d| !d.is_zero())
+        .context("--rpc-timeout-s: must be a positive number of seconds")?;
     config.reset_plant = !cli.no_reset;
     config.autostart = !cli.no_autostart;
     config.time_mode = match cli.time_mode {
@@ -165,7 +172,7 @@ fn main() -> anyhow::Result<()> {
     };
     let runtime = tokio::runtime::Runtime::new()?;
     runtime.block_on(async move {
-        let listener = tokio::net::TcpListener::bind(cli.listen)
+        let listener = tokio::net::TcpListener::bind(&cli.listen)
             .await
             .with_context(|| format!("cannot listen on {}", cli.listen))?;
         controller::serve(listener, config, hilbench_svc::shutdown_signal()).await?;

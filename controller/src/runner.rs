@@ -151,11 +151,14 @@ impl Shared {
     }
 
     /// A working plant link failed: starts an outage (retries of the same outage count once).
-    fn link_lost(&self) {
-        if self.link_up.swap(false, Ordering::SeqCst) {
+    /// True when this starts a new outage (the link had answered since the last one).
+    fn link_lost(&self) -> bool {
+        let was_up = self.link_up.swap(false, Ordering::SeqCst);
+        if was_up {
             *lock(&self.link_down_since) = Some(Instant::now());
             self.update(|st| st.link_losses += 1);
         }
+        was_up
     }
 }
 
@@ -303,18 +306,23 @@ pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch:
             }
             continue;
         }
-        let outcome = async {
-            let channel = Endpoint::from_shared(config.plant_uri())
-                .map_err(LoopError::Connect)?
-                .connect_timeout(Duration::from_secs(2))
-                .tcp_nodelay(true)
-                .connect()
-                .await?;
-            shared.update(|st| st.plant_connected = true);
-            let mut client = PlantClient::new(channel);
-            fly(&config, &shared, &mut client, &mut scenario, &mut mode, &mut episode, &mut stop).await
-        }
-        .await;
+        // A stop ends a hanging call at once rather than after `rpc_timeout`.
+        let mut stop_during_call = stop.clone();
+        let outcome = tokio::select! {
+            outcome = async {
+                let channel = Endpoint::from_shared(config.plant_uri())
+                    .map_err(LoopError::Connect)?
+                    .connect_timeout(Duration::from_secs(2))
+                    .timeout(config.rpc_timeout)
+                    .tcp_nodelay(true)
+                    .connect()
+                    .await?;
+                shared.update(|st| st.plant_connected = true);
+                let mut client = PlantClient::new(channel);
+                fly(&config, &shared, &mut client, &mut scenario, &mut mode, &mut episode, &mut stop).await
+            } => outcome,
+            _ = stop_during_call.wait_for(|stop| *stop) => return,
+        };
         match outcome {
             Ok(Outcome::Stopped) => return,
             Ok(Outcome::Finished) => {
@@ -327,8 +335,9 @@ pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch:
                 backoff = config.backoff_min;
             }
             Err(e) => {
-                if !matches!(e, LoopError::Bad(_)) {
-                    shared.link_lost();
+                if !matches!(e, LoopError::Bad(_)) && shared.link_lost() {
+                    // A new outage: retry soon, whatever the last one's backoff had grown to.
+                    backoff = config.backoff_min;
                 }
                 // What was sent over the lost link has landed or is lost with it; after the
                 // reconnection the plant's stamps say what is applied (a restarted plant's

@@ -2,8 +2,10 @@
 
 pub mod controller;
 pub mod plant;
+pub mod relay;
 pub mod server;
 
 pub use controller::{RunningController, start_controller};
 pub use plant::{RunningPlant, start_plant, start_plant_with_clock, wait_for_state};
+pub use relay::Relay;
 pub use server::Running;

@@ -9,7 +9,7 @@ use std::time::Duration;
 use controller::{ControllerConfig, TimeModeSetting};
 use hilbench_proto::pb;
 use hilbench_proto::pb::controller_client::ControllerClient;
-use hilbench_tests::{start_controller, start_plant};
+use hilbench_tests::{Relay, start_controller, start_plant};
 use mav::Scenario;
 use mpc::ControllerMode;
 use plant::PlantConfig;
@@ -179,6 +179,66 @@ async fn controller_survives_the_plant_going_away_and_reconnects() {
         Ok(Err(e)) => panic!("second plant task failed: {e}"),
         Err(_) => panic!("second plant did not stop"),
     }
+}
+
+/// A link that goes silent without closing (a frozen gateway): every call hangs. The controller
+/// gives up on the call after `rpc_timeout`, reports the loss, retries, and flies on once the
+/// link answers again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn controller_reports_a_link_that_stops_answering_and_flies_on_when_it_answers_again() {
+    let scenario = Scenario::by_name("paper-1").expect("built-in");
+    let plant = start_plant(PlantConfig::real_time(scenario.clone())).await;
+    let relay = Relay::start(plant.addr).await;
+    let mut config = ControllerConfig::new(relay.addr.to_string(), scenario.clone(), ControllerMode::Nmpc);
+    config.backoff_min = Duration::from_millis(20);
+    config.backoff_max = Duration::from_millis(200);
+    config.rpc_timeout = Duration::from_millis(500);
+    let ctl = start_controller(config).await;
+    let mut client = ctl.client().await;
+    let first = wait_for(&mut client, "the loop to cycle", |s| s.plant_connected && s.cycles >= 2).await;
+    assert_eq!((first.reconnects, first.link_losses), (0, 0));
+
+    relay.freeze();
+    let lost = wait_for(&mut client, "the silent link to be reported", |s| !s.plant_connected).await;
+    assert_eq!(lost.link_losses, 1, "{lost:?}");
+    assert!(!lost.last_error.is_empty(), "the error is reported: {lost:?}");
+    // Retries go on while the link is silent: each one times out in its turn.
+    let retried = wait_for(&mut client, "retries of the silent link", |s| s.reconnects >= 3).await;
+    assert!(!retried.plant_connected);
+
+    relay.thaw();
+    let back = wait_for(&mut client, "the link to come back", |s| s.plant_connected).await;
+    let resumed = wait_for(&mut client, "cycles after the link came back", |s| {
+        s.plant_connected && s.cycles > back.cycles + 2
+    })
+    .await;
+    assert_eq!(resumed.episode, 1, "the episode survives the outage");
+    assert_eq!(resumed.link_losses, 1, "one outage, however many retries: {resumed:?}");
+    assert!(relay.accepted() >= 2, "the controller connected again");
+    ctl.stop().await.expect("controller stops cleanly");
+    drop(relay); // its frozen connection to the plant would hold the plant's graceful shutdown
+    plant.stop().await.expect("plant stops cleanly");
+}
+
+/// A stop does not wait for a call that hangs on a silent link (here for an hour).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn controller_stops_while_a_call_hangs_on_a_silent_link() {
+    let scenario = Scenario::by_name("paper-1").expect("built-in");
+    let plant = start_plant(PlantConfig::real_time(scenario.clone())).await;
+    let relay = Relay::start(plant.addr).await;
+    let mut config = ControllerConfig::new(relay.addr.to_string(), scenario.clone(), ControllerMode::Nmpc);
+    config.rpc_timeout = Duration::from_secs(3600);
+    let ctl = start_controller(config).await;
+    let mut client = ctl.client().await;
+    wait_for(&mut client, "the loop to cycle", |s| s.plant_connected && s.cycles >= 2).await;
+    relay.freeze();
+    // Real time cycles every 50 ms: by now the loop waits on a call that will not answer.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let hung = status(&mut client).await;
+    assert!(hung.plant_connected, "no failure is visible before the timeout: {hung:?}");
+    ctl.stop().await.expect("controller stops cleanly, without waiting for the call");
+    drop(relay); // its frozen connection to the plant would hold the plant's graceful shutdown
+    plant.stop().await.expect("plant stops cleanly");
 }
 
 /// Binds `addr` again (the old listener is closed; retried while the port is in transition).
