@@ -150,7 +150,9 @@ impl CycleController {
             let command = sanitize_command(&def.model, &def.bounds, first);
             return Ok(CycleOutcome { command, report, selection: None, fault });
         };
-        layer.set_qp_budget(QpBudget { max_iterations: None, deadline: budget.deadline });
+        // The deadline is the cycle's: the QP gets what PANOC left of it.
+        let qp_deadline = budget.deadline.map(|d| d.saturating_sub(report.solve_time));
+        layer.set_qp_budget(QpBudget { max_iterations: None, deadline: qp_deadline });
         let selection = if fault == Some(PanocFault::NanPlan) {
             self.scratch.iter_mut().for_each(|u| *u = f64::NAN);
             layer.select_plan(x0, u_prev, weights, Ok((&self.scratch, report.status)))

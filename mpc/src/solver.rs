@@ -16,6 +16,10 @@ use crate::problem::{Evaluator, ObstacleFormulation, OcpDefinition, validate_ins
 /// cone).
 pub const MAX_MULTIPLIER: f64 = 1e9;
 
+/// Least time left before a deadline for another OpEn call: below it the solve stops with
+/// `Deadline` (an OpEn call whose time is up before its first PANOC iteration does no work).
+const MIN_CALL_DURATION: Duration = Duration::from_micros(20);
+
 /// Settings of the solver (validated in [`Mpc::new`]).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -580,7 +584,7 @@ impl Mpc {
                 (max_total - iterations).min(s.max_inner_iterations_per_outer.unwrap_or(usize::MAX));
             let remaining = match budget.deadline {
                 Some(d) => match d.checked_sub(elapsed) {
-                    Some(r) if !r.is_zero() => Some(r),
+                    Some(r) if r >= MIN_CALL_DURATION => Some(r),
                     _ => {
                         status = SolveStatus::Deadline;
                         break;
@@ -632,7 +636,22 @@ impl Mpc {
             if let Some(r) = remaining {
                 optimizer = optimizer.with_max_duration(r);
             }
-            let report = optimizer.solve(&mut self.z)?;
+            let report = if remaining.is_some() {
+                // OpEn 0.12's ALM panics (an assertion on the inner residual it has not
+                // computed yet) when its time is up before its first inner solve, which a
+                // preempted thread can meet even with `MIN_CALL_DURATION` left: that is the
+                // deadline, not a crash of the controller.
+                match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| optimizer.solve(&mut self.z)))
+                {
+                    Ok(report) => report?,
+                    Err(_) => {
+                        status = SolveStatus::Deadline;
+                        break;
+                    }
+                }
+            } else {
+                optimizer.solve(&mut self.z)?
+            };
             iterations += report.num_inner_iterations();
             elapsed += report.solve_time();
             let violation = if alm {
@@ -904,6 +923,40 @@ mod tests {
         assert_eq!(r.status, SolveStatus::IterationLimit);
         assert!(r.iterations <= 2);
         assert!(s.bounds.contains(&mav::Input::from(mpc.first_input())));
+    }
+
+    #[test]
+    fn a_wall_clock_deadline_stops_the_solve_with_its_best_iterate_inside_the_bounds() {
+        // Real time: a deadline too short for even one PANOC iteration of the paper-1 start
+        // (a hard solve: 200 iterations without one) ends the solve with `Deadline`.
+        let s = Scenario::paper_1();
+        let mut mpc = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
+        let budget = SolveBudget { max_inner_iterations: None, deadline: Some(Duration::from_nanos(1)) };
+        let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &budget).expect("valid");
+        assert_eq!(r.status, SolveStatus::Deadline, "{r:?}");
+        assert!(r.iterations < MpcSettings::default().max_inner_iterations, "{r:?}");
+        assert!(mpc.solution().iter().all(|u| u.is_finite()));
+        for u in mpc.solution().chunks(3) {
+            assert!(s.bounds.contains(&mav::Input::new(u[0], u[1], u[2])), "{u:?}");
+        }
+        assert!(r.cost.is_finite() && r.min_clearance_m.is_finite(), "{r:?}");
+        // Deadlines that run out inside the solve, one outer iteration or another: a status,
+        // never a panic, and a plan inside the bounds.
+        for micros in [20, 21, 30, 50, 100, 300, 1000, 3000] {
+            let budget =
+                SolveBudget { max_inner_iterations: None, deadline: Some(Duration::from_micros(micros)) };
+            let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &budget).expect("valid");
+            assert_ne!(r.status, SolveStatus::NumericalFailure, "{micros} us: {r:?}");
+            assert!(mpc.solution().iter().all(|u| u.is_finite()));
+        }
+        // A generous deadline changes nothing against no deadline (lockstep's iteration budget).
+        let mut timed = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
+        let mut counted = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
+        let long = SolveBudget { max_inner_iterations: None, deadline: Some(Duration::from_secs(3600)) };
+        let a = timed.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &long).expect("valid");
+        let b = counted.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid");
+        assert_eq!((a.status, a.iterations), (b.status, b.iterations));
+        assert_eq!(timed.solution(), counted.solution());
     }
 
     #[test]
