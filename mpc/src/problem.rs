@@ -1245,12 +1245,14 @@ mod tests {
         fn gradient_matches_finite_differences_single_scenario(
             z in arb_z(120), px in 2.5f64..3.8, py in 0.5f64..4.5, vy in 0.0f64..2.0,
             c in prop::sample::select(vec![0.0, 1e2, 1e4]),
+            y_scale in 0.0f64..50.0,
             paper_form in any::<bool>(),
         ) {
             let form = if paper_form { ObstacleFormulation::PaperPenalty } else { ObstacleFormulation::DistanceAlm };
             let x0 = [px, py, 0.8, 0.1, vy, 0.0, 0.02, -0.03];
             let mut ev = evaluator(ControllerMode::Nmpc, form, x0, &[1.0]);
-            let y = vec![0.0; 0];
+            let nc = 40 * 3;
+            let y: Vec<f64> = if paper_form { Vec::new() } else { (0..nc).map(|k| y_scale * ((k % 5) as f64) / 5.0).collect() };
             prop_assert!(check_gradient(&mut ev, &z, c, &y).is_ok(), "{:?}", check_gradient(&mut ev, &z, c, &y));
         }
 
@@ -1275,15 +1277,35 @@ mod tests {
 
     #[test]
     fn obstacles_are_active_in_the_gradient_tests() {
-        // A state heading straight at the 0.4 m cylinder: some predicted point is inside.
+        // A state heading straight at the 0.4 m cylinder: some predicted point is inside, for
+        // one scenario and for five, both forms, with and without ALM multipliers.
         let x0 = [2.8, 2.0, 0.8, 0.0, 1.5, 0.0, 0.0, 0.0];
-        for form in [ObstacleFormulation::PaperPenalty, ObstacleFormulation::DistanceAlm] {
-            let mut ev = evaluator(ControllerMode::Multistage, form, x0, &[0.2; 5]);
+        for (mode, weights) in [(ControllerMode::Nmpc, vec![1.0]), (ControllerMode::Multistage, vec![0.2; 5])]
+        {
+            for form in [ObstacleFormulation::PaperPenalty, ObstacleFormulation::DistanceAlm] {
+                let mut ev = evaluator(mode, form, x0, &weights);
+                let z = vec![0.0; 120];
+                let with = ev.cost(&z, 1e3, &[]);
+                let without = ev.cost(&z, 0.0, &[]);
+                assert!(with > without, "{mode:?} {form:?}: penalty must be active");
+                assert!(check_gradient(&mut ev, &z, 1e3, &[]).is_ok(), "{mode:?} {form:?}");
+                if form == ObstacleFormulation::DistanceAlm {
+                    let nc = weights.len() * 40 * 3;
+                    let y: Vec<f64> = (0..nc).map(|k| 20.0 * ((k % 5) as f64)).collect();
+                    assert!(ev.cost(&z, 1e3, &y) > with, "{mode:?}: multipliers add terms");
+                    assert!(check_gradient(&mut ev, &z, 1e3, &y).is_ok(), "{mode:?} with multipliers");
+                }
+            }
+        }
+        // Far from every cylinder nothing is active: the penalty adds nothing, and the gradient
+        // is the objective's.
+        let far = [8.0, -6.0, 0.8, 0.0, -0.5, 0.0, 0.0, 0.0];
+        for (mode, weights) in [(ControllerMode::Nmpc, vec![1.0]), (ControllerMode::Multistage, vec![0.2; 5])]
+        {
+            let mut ev = evaluator(mode, ObstacleFormulation::DistanceAlm, far, &weights);
             let z = vec![0.0; 120];
-            let with = ev.cost(&z, 1e3, &[]);
-            let without = ev.cost(&z, 0.0, &[]);
-            assert!(with > without, "{form:?}: penalty must be active");
-            assert!(check_gradient(&mut ev, &z, 1e3, &[]).is_ok());
+            assert_eq!(ev.cost(&z, 1e3, &[]), ev.cost(&z, 0.0, &[]), "{mode:?}");
+            assert!(check_gradient(&mut ev, &z, 1e3, &[]).is_ok(), "{mode:?}");
         }
     }
 
