@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
-use mav::{InputBounds, Scenario};
+use mav::{InputBounds, Scenario, ScenarioError};
 use mpc::{
     ControllerMode, CycleController, CycleOutcome, GammaParams, InFlight, OcpDefinition, ScenarioWeights,
     SolveBudget, SolveStatus, WeightSettings,
@@ -67,11 +67,19 @@ struct Requests {
     scenario: Option<(Scenario, Option<ControllerMode>)>,
 }
 
+/// The requests not yet taken, and the scenario they lead to: what a new goal is checked
+/// against (the pending scenario if there is one, else the one flown).
+#[derive(Debug)]
+struct RequestState {
+    pending: Requests,
+    target: Scenario,
+}
+
 /// State shared between the loop and the gRPC service.
 #[derive(Debug)]
 pub struct Shared {
     status: Mutex<Status>,
-    requests: Mutex<Requests>,
+    requests: Mutex<RequestState>,
     wake: Notify,
     closed: AtomicBool,
     telemetry: broadcast::Sender<pb::CycleTelemetry>,
@@ -98,7 +106,10 @@ impl Shared {
         };
         Arc::new(Self {
             status: Mutex::new(status),
-            requests: Mutex::new(Requests::default()),
+            requests: Mutex::new(RequestState {
+                pending: Requests::default(),
+                target: config.scenario.clone(),
+            }),
             wake: Notify::new(),
             closed: AtomicBool::new(false),
             telemetry,
@@ -115,13 +126,27 @@ impl Shared {
         self.telemetry.subscribe()
     }
 
-    pub fn request_goal(&self, goal: [f64; 3]) {
-        lock(&self.requests).goal = Some(goal);
+    /// Asks for a new goal from the next cycle on, in the scenario the requests so far lead to
+    /// (a `SetScenario` not yet taken included: the goal then applies to that scenario).
+    /// Refused, with nothing changed, when it cannot be that scenario's goal.
+    pub fn request_goal(&self, goal: [f64; 3]) -> Result<(), ScenarioError> {
+        let mut r = lock(&self.requests);
+        r.target.check_goal(goal)?;
+        r.target.goal_m = goal;
+        match &mut r.pending.scenario {
+            Some((scenario, _)) => scenario.goal_m = goal,
+            None => r.pending.goal = Some(goal),
+        }
         self.wake.notify_one();
+        Ok(())
     }
 
+    /// Asks for a new episode of `scenario` (with its own goal: an earlier goal request not
+    /// yet taken is superseded).
     pub fn request_scenario(&self, scenario: Scenario, mode: Option<ControllerMode>) {
-        lock(&self.requests).scenario = Some((scenario, mode));
+        let mut r = lock(&self.requests);
+        r.target = scenario.clone();
+        r.pending = Requests { goal: None, scenario: Some((scenario, mode)) };
         self.wake.notify_one();
     }
 
@@ -131,7 +156,7 @@ impl Shared {
     }
 
     fn take_requests(&self) -> Requests {
-        std::mem::take(&mut *lock(&self.requests))
+        std::mem::take(&mut lock(&self.requests).pending)
     }
 
     fn update(&self, f: impl FnOnce(&mut Status)) {
@@ -627,5 +652,41 @@ mod tests {
         );
         assert_eq!(sanitize_command([f64::NAN, 0.1, 0.1], &b, hover), hover);
         assert_eq!(sanitize_command([f64::INFINITY, 0.1, 0.1], &b, hover), hover);
+    }
+
+    fn field(r: Result<(), ScenarioError>) -> String {
+        match r {
+            Err(ScenarioError::Invalid { field, .. }) => field,
+            other => format!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_goal_is_checked_against_the_scenario_it_will_apply_to_and_never_dropped() {
+        let config = ControllerConfig::new("127.0.0.1:1", Scenario::paper_1(), ControllerMode::Nmpc);
+        let shared = Shared::new(&config);
+        // Inside paper-1's cylinder: refused, nothing pending.
+        assert_eq!(field(shared.request_goal([0.3, 6.0, 1.0])), "goal_m");
+        let r = shared.take_requests();
+        assert!(r.goal.is_none() && r.scenario.is_none());
+        // A goal for the scenario flown.
+        assert_eq!(shared.request_goal([1.0, 8.0, 1.5]), Ok(()));
+        assert_eq!(shared.take_requests().goal, Some([1.0, 8.0, 1.5]));
+        // A goal after a SetScenario not yet taken belongs to that scenario: checked against
+        // it (this point is clear of paper-1's cylinder but inside paper-2's 0.4 m one) and
+        // carried by it, not dropped when the loop takes the scenario.
+        shared.request_scenario(Scenario::paper_2(), None);
+        assert_eq!(field(shared.request_goal([2.8, 3.0, 1.0])), "goal_m");
+        assert_eq!(shared.request_goal([3.0, 4.5, 1.2]), Ok(()));
+        let r = shared.take_requests();
+        assert!(r.goal.is_none());
+        let (scenario, _) = r.scenario.expect("the scenario request");
+        assert_eq!((scenario.name.as_str(), scenario.goal_m), ("paper-2", [3.0, 4.5, 1.2]));
+        // A SetScenario supersedes an earlier goal request: its own goal stands.
+        assert_eq!(shared.request_goal([3.5, 4.8, 1.0]), Ok(()));
+        shared.request_scenario(Scenario::paper_3(), None);
+        let r = shared.take_requests();
+        assert!(r.goal.is_none());
+        assert_eq!(r.scenario.map(|(s, _)| s.goal_m), Some(Scenario::paper_3().goal_m));
     }
 }

@@ -3,6 +3,7 @@
 use std::pin::Pin;
 use std::sync::Arc;
 
+use hilbench_proto::convert::FieldError;
 use hilbench_proto::convert::controller::{goal_from_pb, scenario_from_pb};
 use hilbench_proto::pb;
 use hilbench_proto::pb::controller_server::Controller;
@@ -79,7 +80,10 @@ impl Controller for ControllerService {
         request: Request<pb::SetGoalRequest>,
     ) -> Result<Response<pb::SetGoalResponse>, Status> {
         let goal = goal_from_pb(request.get_ref())?;
-        self.shared.request_goal(goal);
+        self.shared.request_goal(goal).map_err(|e| match e {
+            mav::ScenarioError::Invalid { field, reason } => Status::from(FieldError::new(field, reason)),
+            other => Status::invalid_argument(other.to_string()),
+        })?;
         Ok(Response::new(pb::SetGoalResponse {}))
     }
 

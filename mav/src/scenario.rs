@@ -199,9 +199,7 @@ impl Scenario {
         if let Some(i) = self.start.iter().position(|v| !v.is_finite()) {
             return Err(invalid(format!("start[{i}]"), "must be finite"));
         }
-        if let Some(i) = self.goal_m.iter().position(|v| !v.is_finite()) {
-            return Err(invalid(format!("goal_m[{i}]"), "must be finite"));
-        }
+        self.check_goal(self.goal_m)?;
         let weights = [("q_x", &self.q_x[..]), ("q_u", &self.q_u[..]), ("q_du", &self.q_du[..])];
         for (name, w) in weights {
             if let Some(i) = w.iter().position(|v| !v.is_finite() || *v < 0.0) {
@@ -274,6 +272,25 @@ impl Scenario {
         Ok(())
     }
 
+    /// Checks that `goal_m` can be this scenario's goal: finite, not below the ground (nor
+    /// below the floor when there is one), and outside every cylinder (a goal inside one can
+    /// only be reached through it). The error names `goal_m` or the element.
+    pub fn check_goal(&self, goal_m: [f64; 3]) -> Result<(), ScenarioError> {
+        if let Some(i) = goal_m.iter().position(|v| !v.is_finite()) {
+            return Err(invalid(format!("goal_m[{i}]"), "must be finite"));
+        }
+        let lowest = self.min_altitude_m.map_or(self.ground_z_m, |floor| floor.max(self.ground_z_m));
+        if goal_m[2] < lowest {
+            return Err(invalid("goal_m[2]", format!("must be at or above {lowest} m (ground or floor)")));
+        }
+        let (clearance, nearest) =
+            crate::geometry::min_clearance(&self.obstacles, goal_m[0], goal_m[1], goal_m[2]);
+        if let Some(k) = nearest.filter(|_| clearance <= 0.0) {
+            return Err(invalid("goal_m", format!("lies inside obstacles[{k}] ({clearance:.3} m)")));
+        }
+        Ok(())
+    }
+
     /// The end condition of `SPEC.md`: close to the goal and nearly at rest.
     pub fn goal_reached(&self, x: &State) -> bool {
         let dp = ((x[0] - self.goal_m[0]).powi(2)
@@ -301,6 +318,27 @@ mod tests {
         assert_eq!(Scenario::paper_3().delays, DelayModel::None);
         assert_eq!(Scenario::paper_3().obstacles, p2.obstacles);
         assert!(matches!(Scenario::by_name("paper-9"), Err(ScenarioError::Unknown(_))));
+    }
+
+    #[test]
+    fn a_goal_must_be_finite_above_the_ground_and_floor_and_outside_every_cylinder() {
+        let s = Scenario::paper_1(); // cylinder (0, 6), r 1.5, 10 m high
+        let field = |r: Result<(), ScenarioError>| match r {
+            Err(ScenarioError::Invalid { field, .. }) => field,
+            other => format!("{other:?}"),
+        };
+        assert_eq!(s.check_goal([0.0, 9.0, 1.0]), Ok(()));
+        assert_eq!(s.check_goal([0.0, 9.0, 0.0]), Ok(()), "on the ground");
+        assert_eq!(field(s.check_goal([0.0, 9.0, f64::NAN])), "goal_m[2]");
+        assert_eq!(field(s.check_goal([0.0, 9.0, -0.1])), "goal_m[2]");
+        assert_eq!(field(s.check_goal([0.5, 6.0, 1.0])), "goal_m");
+        assert_eq!(field(s.check_goal([0.0, 4.5, 1.0])), "goal_m", "on the surface");
+        assert_eq!(s.check_goal([0.0, 6.0, 10.5]), Ok(()), "above the cylinder");
+        let floored = Scenario { min_altitude_m: Some(0.5), ..Scenario::paper_1() };
+        assert_eq!(field(floored.check_goal([0.0, 9.0, 0.3])), "goal_m[2]");
+        // The scenario's own goal is checked by `validate`.
+        let inside = Scenario { goal_m: [0.0, 6.0, 1.0], ..Scenario::paper_1() };
+        assert_eq!(field(inside.validate()), "goal_m");
     }
 
     #[test]

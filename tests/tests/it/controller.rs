@@ -98,10 +98,12 @@ async fn bad_goal_and_scenario_are_invalid_argument_naming_the_field_and_the_loo
     let mut client = ctl.client().await;
     let before = wait_for(&mut client, "the loop to cycle", |s| s.cycles >= 2).await;
 
-    let bad_goals: [(Vec<f64>, &str); 3] = [
+    let bad_goals: [(Vec<f64>, &str); 5] = [
         (vec![1.0, f64::NAN, 1.0], "goal_m[1]"),
         (vec![1.0, 2.0], "goal_m"),
         (vec![1.0, 2.0, 1e12], "goal_m[2]"),
+        (vec![1.0, 2.0, -0.5], "goal_m[2]"),          // below the ground
+        (vec![0.3, 6.0, 1.0], "inside obstacles[0]"), // inside paper-1's cylinder
     ];
     for (goal_m, field) in bad_goals {
         let err = client.set_goal(pb::SetGoalRequest { goal_m: goal_m.clone() }).await.expect_err("refused");
