@@ -256,9 +256,12 @@ pub(crate) fn invalid_input(field: impl Into<String>, reason: impl Into<String>)
 pub enum SolveStatus {
     /// Tolerances met, constraint violation within tolerance.
     Converged,
-    /// The iteration budget ran out; the best iterate is returned.
+    /// The iteration budget ran out; the best iterate is returned: OpEn's, the feasible
+    /// (projected) half step with the smallest fixed-point residual of the last inner problem,
+    /// that is, the iterate closest to stationary for the multipliers and penalty reached.
     IterationLimit,
-    /// The wall-clock budget ran out (real time only); the best iterate is returned.
+    /// The wall-clock budget ran out (real time only); the best iterate is returned, as for
+    /// `IterationLimit` (the warm start when no PANOC iteration ran).
     Deadline,
     /// A non-finite value appeared; the warm start is returned unchanged.
     NumericalFailure,
