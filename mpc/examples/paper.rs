@@ -1,6 +1,7 @@
 //! Runs the three paper scenarios in process with both controllers and prints a summary line
 //! per run (development aid; `hilbench reproduce` is the product). Solver settings from the
-//! `MPC_*` environment variables of `benches/common/mpc_env.rs`.
+//! `MPC_*` environment variables of `benches/common/mpc_env.rs`; `MPC_NO_SAFETY=1` flies PANOC's
+//! plans alone (no safety layer).
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
 
 #[path = "../benches/common/mpc_env.rs"]
@@ -17,6 +18,9 @@ fn main() {
             let t = std::time::Instant::now();
             let mut settings = ClosedLoopSettings::paper(mode);
             settings.mpc = mpc_env::settings_from_env();
+            if std::env::var("MPC_NO_SAFETY").is_ok_and(|v| v == "1") {
+                settings.safety = None;
+            }
             match run_closed_loop(&scenario, &settings) {
                 Ok((s, _)) => println!(
                     "{name} {:10} reached={} t={:?} collided={} path={:.2} clear={:.3} cycles={} solve ms mean={:.3} med={:.3} p95={:.3} max={:.3} it_med={} limits={} fb={} end={:?} wall={:.1}s\n   collisions={:?}",

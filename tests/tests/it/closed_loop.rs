@@ -112,10 +112,17 @@ async fn paper_3_nmpc_over_grpc_is_bit_identical_to_the_in_process_closed_loop()
 
 #[test]
 fn multistage_reaches_the_goal_of_every_paper_scenario_without_touching_a_cylinder() {
-    for name in Scenario::BUILT_IN {
-        let scenario = Scenario::by_name(name).expect("built-in scenario");
-        let (s, records) = run_closed_loop(&scenario, &ClosedLoopSettings::paper(ControllerMode::Multistage))
-            .expect("closed loop runs");
+    // With the safety layer (issue 5), as the paper reproduction flies, and without it: PANOC's
+    // plans alone, the controller of issue 3.
+    let with_layer = ClosedLoopSettings::paper(ControllerMode::Multistage);
+    let panoc_alone = ClosedLoopSettings { safety: None, ..with_layer.clone() };
+    for (scenario_name, settings) in
+        Scenario::BUILT_IN.iter().flat_map(|n| [(n, &with_layer), (n, &panoc_alone)])
+    {
+        let scenario = Scenario::by_name(scenario_name).expect("built-in scenario");
+        let layer = if settings.safety.is_some() { "on" } else { "off" };
+        let name = format!("{scenario_name} (safety layer {layer})");
+        let (s, records) = run_closed_loop(&scenario, settings).expect("closed loop runs");
         assert!(s.reached, "{name}: multi-stage did not reach the goal (ended at {:?})", s.final_position_m);
         assert!(!s.collided, "{name}: collided: {:?}", s.collisions);
         assert!(s.min_clearance_m >= 0.0, "{name}: true min clearance {} m < 0", s.min_clearance_m);
