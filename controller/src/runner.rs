@@ -604,7 +604,6 @@ fn publish(
     let ts = &ep.controller.definition().sampling_times_s;
     let predictions = ep
         .controller
-        .mpc()
         .predictions()
         .iter()
         .zip(ts)

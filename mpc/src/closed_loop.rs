@@ -246,7 +246,6 @@ pub fn run_closed_loop(
         let command = outcome.command;
         let predictions = if settings.record_predictions {
             controller
-                .mpc()
                 .predictions()
                 .iter()
                 .map(|traj| traj.iter().map(|s| [s[0], s[1], s[2]]).collect())

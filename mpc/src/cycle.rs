@@ -97,6 +97,12 @@ impl CycleController {
         &self.plan
     }
 
+    /// Predicted states of every scenario under the plan selected in the last cycle (PANOC's or
+    /// the fallback's: the one flown), from that cycle's state: `M` trajectories of `N + 1`.
+    pub fn predictions(&self) -> Vec<Vec<[f64; 8]>> {
+        self.mpc.predictions_of(&self.plan)
+    }
+
     /// See [`SafetyLayer::set_in_flight`] (nothing without the layer).
     pub fn set_in_flight(&mut self, in_flight: Option<&[crate::fail_safe::InFlight]>) {
         if let Some(layer) = self.safety.as_mut() {
@@ -201,6 +207,7 @@ mod tests {
         assert_eq!(sel.decision, Decision::Panoc, "{}", sel.reason());
         assert_eq!(out.command, c.mpc().first_input());
         assert_eq!(c.plan(), c.mpc().solution());
+        assert_eq!(c.predictions(), c.mpc().predictions());
     }
 
     #[test]
@@ -230,6 +237,12 @@ mod tests {
             );
             // PANOC's next warm start is the flown plan shifted.
             assert_eq!(&c.plan()[..3], &out.command[..]);
+            // The predictions shown are the flown plan's, not PANOC's rejected one.
+            let shown = c.predictions();
+            assert_eq!(shown, c.mpc().predictions_of(c.plan()));
+            assert_ne!(shown, c.mpc().predictions(), "{fault:?}");
+            assert_eq!(shown.len(), 5);
+            assert!(shown.iter().all(|t| t.len() == 41 && t[0] == s.start));
         }
     }
 

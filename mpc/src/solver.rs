@@ -763,6 +763,14 @@ impl Mpc {
         (0..ev.num_scenarios()).map(|i| ev.predicted_states(i).to_vec()).collect()
     }
 
+    /// Predicted states of every scenario under inputs `u` (`N x 3`, flattened) from the last
+    /// solve's instance: `M` trajectories of `N + 1`.
+    pub fn predictions_of(&self, u: &[f64]) -> Vec<Vec<[f64; 8]>> {
+        let mut ev = self.evaluator.borrow_mut();
+        ev.objective_at_inputs(u);
+        (0..ev.num_scenarios()).map(|i| ev.predicted_states(i).to_vec()).collect()
+    }
+
     /// Objective of arbitrary inputs for the current instance (used by accuracy checks).
     pub fn objective_of(&self, u: &[f64]) -> f64 {
         self.evaluator.borrow_mut().objective_at_inputs(u)
