@@ -38,10 +38,11 @@ pub struct ControllerConfig {
     /// Reconnection backoff: first wait of each outage, doubled up to `backoff_max`.
     pub backoff_min: Duration,
     pub backoff_max: Duration,
-    /// Longest wait for one plant RPC. A link that stops answering without closing (a frozen
-    /// gateway, a dropped route) would otherwise hang the loop; past this the call fails, the
-    /// loss is reported and the link is retried like a closed one. Generous against a lockstep
-    /// `Advance`, which integrates the whole cycle before it answers.
+    /// Longest wait for one plant RPC in real time (and for `Describe`). A link that stops
+    /// answering without closing (a frozen gateway, a dropped route) would otherwise hang the
+    /// loop; past this the call fails, the loss is reported and the link is retried like a
+    /// closed one. Lockstep calls get at least 60 s: an `Advance` integrates a whole cycle
+    /// before it answers, and a loaded machine must not make a deterministic run reconnect.
     pub rpc_timeout: Duration,
     /// Telemetry items buffered per subscriber (default 4096, more than the cycles of a
     /// 60 s paper run); a subscriber that falls further behind loses the oldest items, the
@@ -81,7 +82,7 @@ impl ControllerConfig {
             return Err("`plant`: an address is required".into());
         }
         if let Err(e) = tonic::transport::Endpoint::from_shared(self.plant_uri()) {
-            return Err(format!("`plant`: `{}` is not a HOST:PORT address ({e})", self.plant));
+            return Err(format!("`plant`: `{}` is not a valid address ({e})", self.plant));
         }
         self.scenario.validate().map_err(|e| e.to_string())?;
         self.mpc.validate().map_err(|e| e.to_string())?;

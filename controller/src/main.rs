@@ -71,8 +71,9 @@ struct Cli {
     /// BENCHMARKS.md, issue 3, sixth pass).
     #[arg(long)]
     inactive_set: bool,
-    /// Longest wait for one plant RPC, s: a link that stops answering without closing is
-    /// then reported and retried like a closed one.
+    /// Longest wait for one plant RPC in real time, s (lockstep calls get at least 60 s): a
+    /// link that stops answering without closing is then reported and retried like a closed
+    /// one.
     #[arg(long, default_value_t = 5.0)]
     rpc_timeout_s: f64,
 }

@@ -163,7 +163,9 @@ impl Shared {
         f(&mut lock(&self.status));
     }
 
-    /// The plant API answered: ends an outage (adding it to the episode's link faults).
+    /// A whole cycle went through the plant API (state read, command applied): ends an outage
+    /// (adding it to the episode's link faults). Not on `Describe` alone: a gateway that
+    /// answers it but fails every cycle is still down, and its retries one outage.
     fn link_answered(&self) {
         self.link_up.store(true, Ordering::SeqCst);
         if let Some(since) = lock(&self.link_down_since).take() {
@@ -293,6 +295,8 @@ enum Outcome {
 enum LoopError {
     #[error("plant: {0}")]
     Rpc(#[from] tonic::Status),
+    #[error("plant: no answer to {call} within {after:?}")]
+    Timeout { call: &'static str, after: Duration },
     #[error("connect: {0}")]
     Connect(#[from] tonic::transport::Error),
     #[error("{0}")]
@@ -338,11 +342,9 @@ pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch:
                 let channel = Endpoint::from_shared(config.plant_uri())
                     .map_err(LoopError::Connect)?
                     .connect_timeout(Duration::from_secs(2))
-                    .timeout(config.rpc_timeout)
                     .tcp_nodelay(true)
                     .connect()
                     .await?;
-                shared.update(|st| st.plant_connected = true);
                 let mut client = PlantClient::new(channel);
                 fly(&config, &shared, &mut client, &mut scenario, &mut mode, &mut episode, &mut stop).await
             } => outcome,
@@ -386,6 +388,22 @@ pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch:
     }
 }
 
+/// Smallest per-call timeout in lockstep (see `call_timeout` in `fly`).
+const LOCKSTEP_MIN_RPC_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// One plant call, given up after `limit`: a link that goes silent without closing (a frozen
+/// gateway) is then a lost link like a closed one.
+async fn within<T>(
+    limit: Duration,
+    call: &'static str,
+    request: impl std::future::Future<Output = Result<tonic::Response<T>, tonic::Status>>,
+) -> Result<T, LoopError> {
+    match tokio::time::timeout(limit, request).await {
+        Ok(answer) => Ok(answer?.into_inner()),
+        Err(_) => Err(LoopError::Timeout { call, after: limit }),
+    }
+}
+
 fn state_of(sample: &pb::StateSample) -> Result<[f64; 8], LoopError> {
     let x =
         sample.state.as_ref().ok_or_else(|| LoopError::Bad("plant sent a sample without a state".into()))?;
@@ -413,21 +431,25 @@ async fn fly(
     episode: &mut Option<Episode>,
     stop: &mut watch::Receiver<bool>,
 ) -> Result<Outcome, LoopError> {
-    let description = client.describe(pb::DescribeRequest {}).await?.into_inner();
-    shared.link_answered();
+    let description = within(config.rpc_timeout, "Describe", client.describe(pb::DescribeRequest {})).await?;
+    shared.update(|st| st.plant_connected = true);
     let lockstep = match config.time_mode {
         TimeModeSetting::Lockstep => true,
         TimeModeSetting::RealTime => false,
         TimeModeSetting::Auto => description.time_mode == pb::TimeMode::Lockstep as i32,
     };
+    // A lockstep call does a whole cycle's integration before it answers, and a stall of the
+    // machine must not turn into a link loss (the run would then depend on wall-clock time).
+    let call_timeout =
+        if lockstep { config.rpc_timeout.max(LOCKSTEP_MIN_RPC_TIMEOUT) } else { config.rpc_timeout };
     if episode.is_none() {
         let number = shared.status().episode + 1;
         let mut ep = Episode::new(config, scenario.clone(), *mode, number).map_err(LoopError::Bad)?;
         let sample = if config.reset_plant {
             let reset = pb::ResetRequest { scenario: scenario.name.clone(), initial_state: None };
-            client.reset(reset).await?.into_inner().sample
+            within(call_timeout, "Reset", client.reset(reset)).await?.sample
         } else {
-            Some(client.get_state(pb::GetStateRequest {}).await?.into_inner())
+            Some(within(call_timeout, "GetState", client.get_state(pb::GetStateRequest {})).await?)
         };
         ep.pending_sample = sample;
         shared.update(|st| {
@@ -475,7 +497,7 @@ async fn fly(
         let cycle_start = Instant::now();
         let sample = match (lockstep, ep.pending_sample.take()) {
             (true, Some(s)) => s,
-            _ => client.get_state(pb::GetStateRequest {}).await?.into_inner(),
+            _ => within(call_timeout, "GetState", client.get_state(pb::GetStateRequest {})).await?,
         };
         let x = state_of(&sample)?;
         if let Some(last) = &sample.last_command
@@ -542,7 +564,8 @@ async fn fly(
             based_on_sample_seq: sample.seq,
             based_on_sample_time_ns: sample.time_ns,
         };
-        client.apply_command(pb_command).await?;
+        within(call_timeout, "ApplyCommand", client.apply_command(pb_command)).await?;
+        shared.link_answered();
         if !lockstep {
             if ep.sent.len() == MAX_IN_FLIGHT {
                 ep.sent.pop_front();
@@ -553,7 +576,7 @@ async fn fly(
         if lockstep {
             let advance =
                 pb::AdvanceRequest { duration_ns: min_cycle_ns, wait_for_command_seq: ep.command_seq };
-            ep.pending_sample = client.advance(advance).await?.into_inner().sample;
+            ep.pending_sample = within(call_timeout, "Advance", client.advance(advance)).await?.sample;
         } else {
             let next = cycle_start + min_cycle;
             tokio::select! {

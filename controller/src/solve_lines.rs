@@ -8,9 +8,9 @@
 //! plant's reset envelope and `u_prev` within the scenario's input bounds. Every line is solved
 //! on its own: from its `warm_start` (or hover) with fresh multipliers and penalty, so that an
 //! answer does not depend on the lines before it.
-//! Output keys: `line`, `status`, `iterations`, `solve_ms`, `cost` (the spec's objective,
-//! unscaled), `u` (N x 3), `min_clearance_m`, `constraint_violation`; or `line` and `error`
-//! (with `field`).
+//! Output keys: `line`, `scenario`, `mode`, `status`, `iterations`, `solve_ms`, `cost` (the
+//! spec's objective, unscaled), `u` (N x 3), `min_clearance_m`, `constraint_violation`; or
+//! `line`, `error` and `field`.
 
 use std::collections::HashMap;
 use std::io::{BufRead, Write};

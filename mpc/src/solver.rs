@@ -644,17 +644,25 @@ impl Mpc {
                 // computed yet) when its time is up before its first inner solve, which a
                 // preempted thread can meet even with `MIN_CALL_DURATION` left: that is the
                 // deadline, not a crash of the controller.
+                // Any other panic is a bug and goes on unwinding.
                 match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| optimizer.solve(&mut self.z)))
                 {
                     Ok(report) => report?,
-                    Err(_) => {
+                    Err(payload) if is_open_time_up_before_first_solve(payload.as_ref()) => {
                         status = SolveStatus::Deadline;
                         break;
                     }
+                    Err(payload) => std::panic::resume_unwind(payload),
                 }
             } else {
                 optimizer.solve(&mut self.z)?
             };
+            if report.num_outer_iterations() == 0 {
+                // The time was up before the first inner solve (a used cache does not panic):
+                // nothing was solved, and the multipliers OpEn reports are an earlier solve's.
+                status = SolveStatus::Deadline;
+                break;
+            }
             iterations += report.num_inner_iterations();
             elapsed += report.solve_time();
             let violation = if alm {
@@ -758,9 +766,7 @@ impl Mpc {
 
     /// Predicted states of every scenario at the last solution: `M` trajectories of `N + 1`.
     pub fn predictions(&self) -> Vec<Vec<[f64; 8]>> {
-        let mut ev = self.evaluator.borrow_mut();
-        ev.objective_at_inputs(&self.solution);
-        (0..ev.num_scenarios()).map(|i| ev.predicted_states(i).to_vec()).collect()
+        self.predictions_of(&self.solution)
     }
 
     /// Predicted states of every scenario under inputs `u` (`N x 3`, flattened) from the last
@@ -799,6 +805,16 @@ pub fn shifted_plan(plan: &[f64]) -> Vec<f64> {
 /// `|z - P(z - grad)|` with `P` the projection on the box `[lo, hi]`: the fixed-point residual
 /// of a unit projected-gradient step, zero exactly at a stationary point of the box-constrained
 /// problem.
+/// The panic of OpEn 0.12's ALM when its time is up before its first inner solve on a fresh cache
+/// (`with_last_problem_norm_fpr` asserts on the residual it has not computed yet).
+fn is_open_time_up_before_first_solve(payload: &(dyn std::any::Any + Send)) -> bool {
+    let message = payload
+        .downcast_ref::<&str>()
+        .copied()
+        .or_else(|| payload.downcast_ref::<String>().map(String::as_str));
+    message.is_some_and(|m| m.contains("last_problem_norm_fpr"))
+}
+
 fn projected_gradient_norm(z: &[f64], grad: &[f64], lo: &[f64], hi: &[f64]) -> f64 {
     let mut acc = 0.0;
     for k in 0..z.len() {
@@ -968,6 +984,46 @@ mod tests {
         let b = counted.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid");
         assert_eq!((a.status, a.iterations), (b.status, b.iterations));
         assert_eq!(timed.solution(), counted.solution());
+    }
+
+    #[test]
+    fn the_panic_of_an_open_call_out_of_time_before_its_first_solve_is_recognized() {
+        // OpEn's own panic, reproduced on a fresh cache with no time at all: the solver turns
+        // exactly this one into `Deadline` (and lets any other panic unwind).
+        let cache = AlmCache::new(PANOCCache::new(2, 1e-5, 3), 0, 0);
+        let (lo, hi) = ([-1.0, -1.0], [1.0, 1.0]);
+        let cost = |u: &[f64], _: &[f64], c: &mut f64| -> FunctionCallResult {
+            *c = u[0] * u[0] + u[1] * u[1];
+            Ok(())
+        };
+        let grad = |u: &[f64], _: &[f64], g: &mut [f64]| -> FunctionCallResult {
+            g[0] = 2.0 * u[0];
+            g[1] = 2.0 * u[1];
+            Ok(())
+        };
+        type NoMapping = fn(&[f64], &mut [f64]) -> FunctionCallResult;
+        let problem = AlmProblem::new(
+            Rectangle::new(Some(&lo), Some(&hi)),
+            None::<Rectangle>,
+            None::<Rectangle>,
+            cost,
+            grad,
+            None::<NoMapping>,
+            None::<NoMapping>,
+            0,
+            0,
+        );
+        let mut cache = cache;
+        let mut u = [0.5, 0.5];
+        let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            AlmOptimizer::new(&mut cache, problem).with_max_duration(Duration::ZERO).solve(&mut u)
+        }));
+        match outcome {
+            Err(payload) => assert!(is_open_time_up_before_first_solve(payload.as_ref())),
+            Ok(r) => panic!("OpEn no longer panics out of time (the guard can go): {r:?}"),
+        }
+        assert!(!is_open_time_up_before_first_solve(&"index out of bounds"));
+        assert!(!is_open_time_up_before_first_solve(&String::from("already borrowed")));
     }
 
     #[test]

@@ -194,19 +194,22 @@ async fn controller_reports_a_link_that_stops_answering_and_flies_on_when_it_ans
     let mut config = ControllerConfig::new(relay.addr.to_string(), scenario.clone(), ControllerMode::Nmpc);
     config.backoff_min = Duration::from_millis(20);
     config.backoff_max = Duration::from_millis(200);
-    config.rpc_timeout = Duration::from_millis(500);
+    // Long enough that a loaded machine's ordinary calls never reach it.
+    config.rpc_timeout = Duration::from_secs(2);
     let ctl = start_controller(config).await;
     let mut client = ctl.client().await;
     let first = wait_for(&mut client, "the loop to cycle", |s| s.plant_connected && s.cycles >= 2).await;
-    assert_eq!((first.reconnects, first.link_losses), (0, 0));
 
     relay.freeze();
     let lost = wait_for(&mut client, "the silent link to be reported", |s| !s.plant_connected).await;
-    assert_eq!(lost.link_losses, 1, "{lost:?}");
-    assert!(!lost.last_error.is_empty(), "the error is reported: {lost:?}");
-    // Retries go on while the link is silent: each one times out in its turn.
-    let retried = wait_for(&mut client, "retries of the silent link", |s| s.reconnects >= 3).await;
-    assert!(!retried.plant_connected);
+    assert!(lost.link_losses > first.link_losses, "{lost:?}");
+    assert!(lost.last_error.contains("no answer"), "the timeout is reported: {lost:?}");
+    // Retries go on while the link is silent, each timing out in its turn (`Describe` never
+    // answers, so the status never says connected) and all one outage.
+    let retried =
+        wait_for(&mut client, "retries of the silent link", |s| s.reconnects >= lost.reconnects + 2).await;
+    assert!(!retried.plant_connected, "{retried:?}");
+    assert_eq!(retried.link_losses, lost.link_losses, "one outage, however many retries");
 
     relay.thaw();
     let back = wait_for(&mut client, "the link to come back", |s| s.plant_connected).await;
@@ -215,7 +218,7 @@ async fn controller_reports_a_link_that_stops_answering_and_flies_on_when_it_ans
     })
     .await;
     assert_eq!(resumed.episode, 1, "the episode survives the outage");
-    assert_eq!(resumed.link_losses, 1, "one outage, however many retries: {resumed:?}");
+    assert!(resumed.link_down_s > 0.0, "{resumed:?}");
     assert!(relay.accepted() >= 2, "the controller connected again");
     ctl.stop().await.expect("controller stops cleanly");
     drop(relay); // its frozen connection to the plant would hold the plant's graceful shutdown
