@@ -486,15 +486,11 @@ impl Mpc {
         budget: &SolveBudget,
     ) -> Result<SolveReport, MpcError> {
         validate_instance(self.def.num_scenarios(), x0, u_prev, weights)?;
-        let outcome = self.solve_scaled(x0, u_prev, weights, budget);
-        let (status, iterations, outer_iterations, solve_time, penalty) = match outcome {
-            Ok(r) => r,
-            Err(_) => {
-                let warm = self.warm.clone();
-                self.solution.copy_from_slice(&warm);
-                (SolveStatus::NumericalFailure, 0, 0, Duration::ZERO, self.penalty)
-            }
-        };
+        let (status, iterations, outer_iterations, solve_time, penalty) =
+            self.solve_scaled(x0, u_prev, weights, budget);
+        if status == SolveStatus::NumericalFailure {
+            self.solution.copy_from_slice(&self.warm);
+        }
         // The returned inputs are within the bounds by construction (box projection); clip
         // anyway so that rounding in the unscaling can never leave the box.
         for (k, u) in self.solution.iter_mut().enumerate() {
@@ -529,7 +525,7 @@ impl Mpc {
         u_prev: &[f64; 3],
         weights: &[f64],
         budget: &SolveBudget,
-    ) -> Result<(SolveStatus, usize, usize, Duration, f64), SolverError> {
+    ) -> (SolveStatus, usize, usize, Duration, f64) {
         let s = self.settings;
         let (_, akkt_tolerance, _) = s.panoc_for(self.def.num_scenarios());
         let mut c = self.penalty.clamp(s.initial_penalty, s.max_penalty);
@@ -647,7 +643,11 @@ impl Mpc {
                 // Any other panic is a bug and goes on unwinding.
                 match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| optimizer.solve(&mut self.z)))
                 {
-                    Ok(report) => report?,
+                    Ok(Ok(report)) => report,
+                    Ok(Err(_)) => {
+                        status = SolveStatus::NumericalFailure;
+                        break;
+                    }
                     Err(payload) if is_open_time_up_before_first_solve(payload.as_ref()) => {
                         status = SolveStatus::Deadline;
                         break;
@@ -655,7 +655,13 @@ impl Mpc {
                     Err(payload) => std::panic::resume_unwind(payload),
                 }
             } else {
-                optimizer.solve(&mut self.z)?
+                match optimizer.solve(&mut self.z) {
+                    Ok(report) => report,
+                    Err(_) => {
+                        status = SolveStatus::NumericalFailure;
+                        break;
+                    }
+                }
             };
             if report.num_outer_iterations() == 0 {
                 // The time was up before the first inner solve (a used cache does not panic):
@@ -739,12 +745,13 @@ impl Mpc {
                 );
             }
         }
-        if self.z.iter().any(|v| !v.is_finite()) {
-            return Err(SolverError::NotFiniteComputation("solution"));
+        // A failed OpEn call, or a solution that is not finite: the counts of the work done so
+        // far, and the caller falls back to the warm start.
+        if status == SolveStatus::NumericalFailure || self.z.iter().any(|v| !v.is_finite()) {
+            return (SolveStatus::NumericalFailure, iterations, outer, elapsed, c);
         }
-        let report_penalty = c;
         self.evaluator.borrow().to_inputs(&self.z, &mut self.solution);
-        Ok((status, iterations, outer, elapsed, report_penalty))
+        (status, iterations, outer, elapsed, c)
     }
 
     /// Objective, `|F2|` and true clearance at `self.solution`.
