@@ -28,6 +28,9 @@ pub struct ControllerConfig {
     /// The safety layer's fail-safe check over each episode's scenario, whatever the scenario
     /// asks (`--fail-safe`); without it, only scenarios with `fail_safe` get it.
     pub fail_safe: bool,
+    /// A floor for every scenario flown (`--min-altitude-m`), those asked for by `SetScenario`
+    /// included; `None`: each scenario's own (none for the paper's).
+    pub min_altitude_m: Option<f64>,
     pub time_mode: TimeModeSetting,
     /// Reset the plant to the scenario when an episode starts (not on reconnection).
     pub reset_plant: bool,
@@ -65,6 +68,7 @@ impl ControllerConfig {
             mpc: MpcSettings::default(),
             safety: Some(SafetySettings::default()),
             fail_safe: false,
+            min_altitude_m: None,
             time_mode: TimeModeSetting::Auto,
             reset_plant: true,
             autostart: true,
@@ -84,7 +88,7 @@ impl ControllerConfig {
         if let Err(e) = tonic::transport::Endpoint::from_shared(self.plant_uri()) {
             return Err(format!("`plant`: `{}` is not a valid address ({e})", self.plant));
         }
-        self.scenario.validate().map_err(|e| e.to_string())?;
+        self.adapt(self.scenario.clone()).validate().map_err(|e| e.to_string())?;
         self.mpc.validate().map_err(|e| e.to_string())?;
         if let Some(safety) = &self.safety {
             safety.validate().map_err(|e| e.to_string())?;
@@ -107,10 +111,23 @@ impl ControllerConfig {
         Ok(())
     }
 
+    /// `scenario` as this controller flies it: with the `min_altitude_m` floor when one is set.
+    pub fn adapt(&self, scenario: Scenario) -> Scenario {
+        with_floor(scenario, self.min_altitude_m)
+    }
+
     /// `http://` URI of the plant endpoint.
     pub fn plant_uri(&self) -> String {
         if self.plant.contains("://") { self.plant.clone() } else { format!("http://{}", self.plant) }
     }
+}
+
+/// `scenario` with `floor_m` as its floor when given (see [`ControllerConfig::min_altitude_m`]).
+pub(crate) fn with_floor(mut scenario: Scenario, floor_m: Option<f64>) -> Scenario {
+    if floor_m.is_some() {
+        scenario.min_altitude_m = floor_m;
+    }
+    scenario
 }
 
 #[cfg(test)]

@@ -138,14 +138,15 @@ fn main() -> anyhow::Result<()> {
         return Ok(());
     }
     hilbench_svc::init_tracing();
-    let mut scenario = mav::Scenario::by_name(&cli.scenario).context("--scenario")?;
-    scenario.min_altitude_m = cli.min_altitude_m;
-    scenario.validate().context("--min-altitude-m")?;
+    let scenario = mav::Scenario::by_name(&cli.scenario).context("--scenario")?;
     let mode = match cli.mode {
         Mode::Nmpc => ControllerMode::Nmpc,
         Mode::Multistage => ControllerMode::Multistage,
     };
     let mut config = ControllerConfig::new(cli.plant.clone(), scenario, mode);
+    // The floor goes with every scenario flown, those set later by SetScenario included.
+    config.min_altitude_m = cli.min_altitude_m;
+    config.adapt(config.scenario.clone()).validate().context("--min-altitude-m")?;
     config.mpc = settings;
     config.safety = (!cli.no_safety).then(|| SafetySettings {
         qp_schedule: match cli.qp_schedule {

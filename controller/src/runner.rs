@@ -87,6 +87,8 @@ pub struct Shared {
     link_down_since: Mutex<Option<Instant>>,
     /// The plant API has answered at least once since the last loss.
     link_up: AtomicBool,
+    /// `ControllerConfig::min_altitude_m`, for the scenarios `SetScenario` asks for.
+    floor_m: Option<f64>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -108,13 +110,14 @@ impl Shared {
             status: Mutex::new(status),
             requests: Mutex::new(RequestState {
                 pending: Requests::default(),
-                target: config.scenario.clone(),
+                target: config.adapt(config.scenario.clone()),
             }),
             wake: Notify::new(),
             closed: AtomicBool::new(false),
             telemetry,
             link_down_since: Mutex::new(None),
             link_up: AtomicBool::new(false),
+            floor_m: config.min_altitude_m,
         })
     }
 
@@ -144,6 +147,7 @@ impl Shared {
     /// Asks for a new episode of `scenario` (with its own goal: an earlier goal request not
     /// yet taken is superseded).
     pub fn request_scenario(&self, scenario: Scenario, mode: Option<ControllerMode>) {
+        let scenario = crate::config::with_floor(scenario, self.floor_m);
         let mut r = lock(&self.requests);
         r.target = scenario.clone();
         r.pending = Requests { goal: None, scenario: Some((scenario, mode)) };
@@ -305,7 +309,7 @@ enum LoopError {
 
 /// Runs until `stop` turns true.
 pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch::Receiver<bool>) {
-    let mut scenario = config.scenario.clone();
+    let mut scenario = config.adapt(config.scenario.clone());
     let mut mode = config.mode;
     let mut active = config.autostart;
     let mut episode: Option<Episode> = None;
@@ -710,5 +714,24 @@ mod tests {
         let r = shared.take_requests();
         assert!(r.goal.is_none());
         assert_eq!(r.scenario.map(|(s, _)| s.goal_m), Some(Scenario::paper_3().goal_m));
+    }
+
+    #[test]
+    fn the_controllers_floor_goes_with_every_scenario_set_later() {
+        let mut config = ControllerConfig::new("127.0.0.1:1", Scenario::paper_1(), ControllerMode::Nmpc);
+        config.min_altitude_m = Some(0.5);
+        let shared = Shared::new(&config);
+        // Below the floor of the scenario flown: refused.
+        assert_eq!(field(shared.request_goal([1.0, 8.0, 0.3])), "goal_m[2]");
+        shared.request_scenario(Scenario::paper_2(), None);
+        assert_eq!(field(shared.request_goal([3.0, 4.5, 0.3])), "goal_m[2]");
+        let (scenario, _) = shared.take_requests().scenario.expect("the scenario request");
+        assert_eq!((scenario.name.as_str(), scenario.min_altitude_m), ("paper-2", Some(0.5)));
+        // Without a floor of its own the controller keeps each scenario's.
+        let plain =
+            Shared::new(&ControllerConfig::new("127.0.0.1:1", Scenario::paper_1(), ControllerMode::Nmpc));
+        plain.request_scenario(Scenario::paper_2(), None);
+        let (scenario, _) = plain.take_requests().scenario.expect("the scenario request");
+        assert_eq!(scenario.min_altitude_m, None);
     }
 }
