@@ -53,6 +53,11 @@ pub struct BrakingCheck {
     pub step_s: f64,
     /// A flight stops early once the speed is below this, m/s (the vehicle hovers).
     pub stop_speed_mps: f64,
+    /// The ground, m. The check judges what the vehicle will physically do, so a flight that
+    /// goes below it fails even where the problem has no floor (paper mode); a floor, when
+    /// there is one, is checked instead. A vehicle already lower may not sink further. `None`:
+    /// no ground (only the floor, if any).
+    pub ground_z_m: Option<f64>,
 }
 
 impl Default for BrakingCheck {
@@ -64,6 +69,7 @@ impl Default for BrakingCheck {
             horizon_s: 5.0,
             step_s: 0.02,
             stop_speed_mps: 0.005,
+            ground_z_m: Some(0.0),
         }
     }
 }
@@ -75,6 +81,7 @@ impl BrakingCheck {
         Self {
             max_delay_s: scenario.sampling_times_s.iter().copied().fold(0.0, f64::max),
             min_cycle_s: scenario.min_cycle_s,
+            ground_z_m: Some(scenario.ground_z_m),
             ..Self::default()
         }
     }
@@ -99,6 +106,9 @@ impl BrakingCheck {
         }
         if !(self.stop_speed_mps.is_finite() && self.stop_speed_mps >= 0.0) {
             return bad("braking_check.stop_speed_mps", "must be finite and >= 0");
+        }
+        if self.ground_z_m.is_some_and(|z| !z.is_finite()) {
+            return bad("braking_check.ground_z_m", "must be finite");
         }
         Ok(())
     }

@@ -194,7 +194,8 @@ pub enum Rejection {
     OutOfBounds,
     /// A predicted point is closer to a cylinder than required (true clearance, m).
     Collision { min_clearance_m: f64 },
-    /// A predicted point is below the floor (lowest predicted altitude, m).
+    /// A predicted point is below the floor, or, for the fail-safe check without a floor,
+    /// below the ground (lowest altitude, m).
     BelowFloor { min_altitude_m: f64 },
     /// No previous plan, or it was shifted `max_plan_shifts` times already.
     NoPlan,
@@ -633,7 +634,7 @@ impl SafetyLayer {
             return f64::NEG_INFINITY;
         }
         let clearance = c.min_clearance_m - self.settings.required_clearance_m;
-        let floor = match self.settings.qp.min_altitude_m {
+        let floor = match self.lowest_allowed_m() {
             Some(z) if c.min_altitude_m.is_finite() => c.min_altitude_m - z.min(self.x0[2]),
             _ => f64::INFINITY,
         };
@@ -676,6 +677,12 @@ impl SafetyLayer {
         self.shifts = 0;
     }
 
+    /// The lowest altitude a candidate may reach: the floor when there is one, else, with the
+    /// fail-safe check, the ground (see [`BrakingCheck::ground_z_m`]).
+    fn lowest_allowed_m(&self) -> Option<f64> {
+        self.settings.qp.min_altitude_m.or_else(|| self.fail_safe.as_ref().and_then(|fs| fs.check.ground_z_m))
+    }
+
     /// Finite, inside the bounds, and safe on the nonlinear predictions of the instance set in
     /// the evaluator.
     fn check_plan(&mut self, u: &[f64]) -> CandidateCheck {
@@ -708,7 +715,7 @@ impl SafetyLayer {
             Some(Rejection::NotFinite)
         } else if min_clearance_m < self.settings.required_clearance_m {
             Some(Rejection::Collision { min_clearance_m })
-        } else if self.settings.qp.min_altitude_m.is_some_and(|floor| {
+        } else if self.lowest_allowed_m().is_some_and(|floor| {
             // A vehicle already below the floor cannot be above it at once: it may not sink
             // further.
             min_altitude_m < floor.min(self.x0[2]) - 1e-9
@@ -879,6 +886,36 @@ mod tests {
         assert!(matches!(sel.panoc.rejection, Some(Rejection::Collision { .. })), "{}", sel.reason());
         assert!(!sel.verified_safe, "{}", sel.reason());
         assert!(in_bounds(&def.bounds, sel.command));
+    }
+
+    #[test]
+    fn without_a_floor_the_fail_safe_check_still_keeps_the_vehicle_above_the_ground() {
+        // Paper mode has no floor. 0.3 m up, sinking at 0.5 m/s, a plan of zero thrust: its
+        // first input, held up to 0.38 s before braking lands, takes the vehicle into the
+        // ground, which the fail-safe check sees unless it is told there is no ground.
+        let def = def_of(&Scenario::paper_2(), ControllerMode::Nmpc);
+        assert_eq!(def.min_altitude_m, None);
+        let falling = vec![0.0; def.num_variables()];
+        let x0 = [3.2, 0.0, 0.3, 0.0, 0.0, -0.5, 0.0, 0.0];
+        for ground_z_m in [Some(0.0), None] {
+            let check = BrakingCheck { ground_z_m, ..BrakingCheck::default() };
+            let settings = SafetySettings { braking_check: Some(check), ..Default::default() };
+            let mut layer = SafetyLayer::new(&def, settings).expect("valid");
+            let sel = layer.select_plan(&x0, &HOVER, &[1.0], Ok((&falling[..], SolveStatus::Converged)));
+            match ground_z_m {
+                Some(_) => {
+                    assert!(
+                        matches!(sel.panoc.rejection, Some(Rejection::BelowFloor { min_altitude_m }) if min_altitude_m < 0.0),
+                        "{}",
+                        sel.reason()
+                    );
+                    assert_ne!(sel.decision, Decision::Panoc);
+                }
+                None => assert_eq!(sel.decision, Decision::Panoc, "{}", sel.reason()),
+            }
+        }
+        let bad = BrakingCheck { ground_z_m: Some(f64::NAN), ..BrakingCheck::default() };
+        assert!(bad.validate().is_err());
     }
 
     #[test]
