@@ -635,19 +635,15 @@ impl Mpc {
             if let Some(r) = remaining {
                 optimizer = optimizer.with_max_duration(r);
             }
-            let report = if remaining.is_some() {
+            let solved = if remaining.is_some() {
                 // OpEn 0.12's ALM panics (an assertion on the inner residual it has not
                 // computed yet) when its time is up before its first inner solve, which a
                 // preempted thread can meet even with `MIN_CALL_DURATION` left: that is the
-                // deadline, not a crash of the controller.
-                // Any other panic is a bug and goes on unwinding.
+                // deadline, not a crash of the controller. Any other panic is a bug and goes
+                // on unwinding.
                 match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| optimizer.solve(&mut self.z)))
                 {
-                    Ok(Ok(report)) => report,
-                    Ok(Err(_)) => {
-                        status = SolveStatus::NumericalFailure;
-                        break;
-                    }
+                    Ok(solved) => solved,
                     Err(payload) if is_open_time_up_before_first_solve(payload.as_ref()) => {
                         status = SolveStatus::Deadline;
                         break;
@@ -655,13 +651,11 @@ impl Mpc {
                     Err(payload) => std::panic::resume_unwind(payload),
                 }
             } else {
-                match optimizer.solve(&mut self.z) {
-                    Ok(report) => report,
-                    Err(_) => {
-                        status = SolveStatus::NumericalFailure;
-                        break;
-                    }
-                }
+                optimizer.solve(&mut self.z)
+            };
+            let Ok(report) = solved else {
+                status = SolveStatus::NumericalFailure;
+                break;
             };
             if report.num_outer_iterations() == 0 {
                 // The time was up before the first inner solve (a used cache does not panic):

@@ -8,7 +8,7 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use tokio::net::{TcpListener, TcpStream};
+use tokio::net::TcpStream;
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
@@ -23,14 +23,7 @@ pub struct Relay {
 impl Relay {
     /// Relays connections to `upstream` from a fresh loopback port.
     pub async fn start(upstream: SocketAddr) -> Relay {
-        let listener = match TcpListener::bind("127.0.0.1:0").await {
-            Ok(l) => l,
-            Err(e) => panic!("cannot bind a loopback port for the relay: {e}"),
-        };
-        let addr = match listener.local_addr() {
-            Ok(a) => a,
-            Err(e) => panic!("relay has no local address: {e}"),
-        };
+        let (listener, addr) = crate::server::bind_loopback().await;
         let (frozen, watch_frozen) = watch::channel(false);
         let accepted = Arc::new(AtomicU64::new(0));
         let counter = accepted.clone();

@@ -26,6 +26,18 @@ pub struct Running<E> {
     task: Option<JoinHandle<Result<(), E>>>,
 }
 
+/// Binds an ephemeral loopback port (panics if it cannot: a test set-up failure).
+pub async fn bind_loopback() -> (TcpListener, SocketAddr) {
+    let listener = match TcpListener::bind("127.0.0.1:0").await {
+        Ok(l) => l,
+        Err(e) => panic!("cannot bind a loopback port: {e}"),
+    };
+    match listener.local_addr() {
+        Ok(addr) => (listener, addr),
+        Err(e) => panic!("no local address: {e}"),
+    }
+}
+
 /// Binds a loopback port and spawns `serve(listener, shutdown)`. The listener is bound before
 /// the task starts, so clients can connect at once.
 pub async fn start<E, F>(name: &'static str, serve: impl FnOnce(TcpListener, Shutdown) -> F) -> Running<E>
@@ -33,14 +45,7 @@ where
     E: Send + 'static,
     F: Future<Output = Result<(), E>> + Send + 'static,
 {
-    let listener = match TcpListener::bind("127.0.0.1:0").await {
-        Ok(l) => l,
-        Err(e) => panic!("cannot bind a loopback port: {e}"),
-    };
-    let addr = match listener.local_addr() {
-        Ok(a) => a,
-        Err(e) => panic!("no local address: {e}"),
-    };
+    let (listener, addr) = bind_loopback().await;
     let (stop, stopped) = oneshot::channel::<()>();
     let task = tokio::spawn(serve(
         listener,

@@ -9,7 +9,7 @@ use std::time::Duration;
 use controller::{ControllerConfig, TimeModeSetting};
 use hilbench_proto::pb;
 use hilbench_proto::pb::controller_client::ControllerClient;
-use hilbench_tests::{Relay, start_controller, start_plant};
+use hilbench_tests::{Relay, RunningController, RunningPlant, start_controller, start_plant};
 use mav::Scenario;
 use mpc::ControllerMode;
 use plant::PlantConfig;
@@ -183,22 +183,31 @@ async fn controller_survives_the_plant_going_away_and_reconnects() {
     }
 }
 
+/// A real-time paper-1 plant, a relay in front of it, and an NMPC controller flying through
+/// the relay with `rpc_timeout`, once it has cycled twice.
+async fn fly_through_a_relay(
+    rpc_timeout: Duration,
+) -> (RunningPlant, Relay, RunningController, ControllerClient<Channel>, pb::ControllerStatus) {
+    let scenario = Scenario::by_name("paper-1").expect("built-in");
+    let plant = start_plant(PlantConfig::real_time(scenario.clone())).await;
+    let relay = Relay::start(plant.addr).await;
+    let mut config = ControllerConfig::new(relay.addr.to_string(), scenario, ControllerMode::Nmpc);
+    config.backoff_min = Duration::from_millis(20);
+    config.backoff_max = Duration::from_millis(200);
+    config.rpc_timeout = rpc_timeout;
+    let ctl = start_controller(config).await;
+    let mut client = ctl.client().await;
+    let first = wait_for(&mut client, "the loop to cycle", |s| s.plant_connected && s.cycles >= 2).await;
+    (plant, relay, ctl, client, first)
+}
+
 /// A link that goes silent without closing (a frozen gateway): every call hangs. The controller
 /// gives up on the call after `rpc_timeout`, reports the loss, retries, and flies on once the
 /// link answers again.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn controller_reports_a_link_that_stops_answering_and_flies_on_when_it_answers_again() {
-    let scenario = Scenario::by_name("paper-1").expect("built-in");
-    let plant = start_plant(PlantConfig::real_time(scenario.clone())).await;
-    let relay = Relay::start(plant.addr).await;
-    let mut config = ControllerConfig::new(relay.addr.to_string(), scenario.clone(), ControllerMode::Nmpc);
-    config.backoff_min = Duration::from_millis(20);
-    config.backoff_max = Duration::from_millis(200);
     // Long enough that a loaded machine's ordinary calls never reach it.
-    config.rpc_timeout = Duration::from_secs(2);
-    let ctl = start_controller(config).await;
-    let mut client = ctl.client().await;
-    let first = wait_for(&mut client, "the loop to cycle", |s| s.plant_connected && s.cycles >= 2).await;
+    let (plant, relay, ctl, mut client, first) = fly_through_a_relay(Duration::from_secs(2)).await;
 
     relay.freeze();
     let lost = wait_for(&mut client, "the silent link to be reported", |s| !s.plant_connected).await;
@@ -228,14 +237,7 @@ async fn controller_reports_a_link_that_stops_answering_and_flies_on_when_it_ans
 /// A stop does not wait for a call that hangs on a silent link (here for an hour).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn controller_stops_while_a_call_hangs_on_a_silent_link() {
-    let scenario = Scenario::by_name("paper-1").expect("built-in");
-    let plant = start_plant(PlantConfig::real_time(scenario.clone())).await;
-    let relay = Relay::start(plant.addr).await;
-    let mut config = ControllerConfig::new(relay.addr.to_string(), scenario.clone(), ControllerMode::Nmpc);
-    config.rpc_timeout = Duration::from_secs(3600);
-    let ctl = start_controller(config).await;
-    let mut client = ctl.client().await;
-    wait_for(&mut client, "the loop to cycle", |s| s.plant_connected && s.cycles >= 2).await;
+    let (plant, relay, ctl, mut client, _) = fly_through_a_relay(Duration::from_secs(3600)).await;
     relay.freeze();
     // Real time cycles every 50 ms: by now the loop waits on a call that will not answer.
     tokio::time::sleep(Duration::from_millis(300)).await;
