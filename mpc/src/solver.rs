@@ -164,23 +164,17 @@ impl MpcSettings {
         if !(self.obstacle_margin_m.is_finite() && self.obstacle_margin_m >= 0.0) {
             return bad("obstacle_margin_m", "must be finite and >= 0");
         }
-        if !pos(self.tolerance) {
-            return bad("tolerance", "must be finite and > 0");
-        }
-        if !pos(self.akkt_tolerance) {
-            return bad("akkt_tolerance", "must be finite and > 0");
-        }
-        if !pos(self.single_scenario_tolerance) {
-            return bad("single_scenario_tolerance", "must be finite and > 0");
-        }
-        if !pos(self.single_scenario_akkt_tolerance) {
-            return bad("single_scenario_akkt_tolerance", "must be finite and > 0");
-        }
-        if !pos(self.constraint_tolerance) {
-            return bad("constraint_tolerance", "must be finite and > 0");
-        }
-        if !pos(self.initial_penalty) {
-            return bad("initial_penalty", "must be finite and > 0");
+        for (field, v) in [
+            ("tolerance", self.tolerance),
+            ("akkt_tolerance", self.akkt_tolerance),
+            ("single_scenario_tolerance", self.single_scenario_tolerance),
+            ("single_scenario_akkt_tolerance", self.single_scenario_akkt_tolerance),
+            ("constraint_tolerance", self.constraint_tolerance),
+            ("initial_penalty", self.initial_penalty),
+        ] {
+            if !pos(v) {
+                return bad(field, "must be finite and > 0");
+            }
         }
         if !(self.max_penalty.is_finite() && self.max_penalty >= self.initial_penalty) {
             return bad("max_penalty", "must be finite and >= initial_penalty");
@@ -207,14 +201,14 @@ impl MpcSettings {
             return bad("single_scenario_lbfgs_memory", "must be > 0");
         }
         if let Some(t) = &self.inactive_set {
-            if !pos(t.tolerance) {
-                return bad("inactive_set.tolerance", "must be finite and > 0");
-            }
-            if !pos(t.akkt_tolerance) {
-                return bad("inactive_set.akkt_tolerance", "must be finite and > 0");
-            }
-            if !pos(t.gradient_tolerance) {
-                return bad("inactive_set.gradient_tolerance", "must be finite and > 0");
+            for (field, v) in [
+                ("inactive_set.tolerance", t.tolerance),
+                ("inactive_set.akkt_tolerance", t.akkt_tolerance),
+                ("inactive_set.gradient_tolerance", t.gradient_tolerance),
+            ] {
+                if !pos(v) {
+                    return bad(field, "must be finite and > 0");
+                }
             }
         }
         Ok(())
