@@ -324,7 +324,6 @@ pub struct Mpc {
     hi: Vec<f64>,
     solution: Vec<f64>,
     warm: Vec<f64>,
-    con: Vec<f64>,
     /// ALM multipliers: of the last solve, and shifted by one step for the next.
     multipliers: Vec<f64>,
     warm_multipliers: Vec<f64>,
@@ -374,7 +373,6 @@ impl Mpc {
             hi: vec![0.0; n],
             solution: warm.clone(),
             warm,
-            con: vec![0.0; nc],
             multipliers: vec![0.0; n1],
             warm_multipliers: vec![0.0; n1],
             lagrange_box_lo: vec![0.0; n1],
@@ -754,8 +752,7 @@ impl Mpc {
             }
         }
         // Violation at the solution: the norm of the positive parts of the constraint values.
-        self.con.copy_from_slice(ev.constraint_values());
-        let violation = self.con.iter().map(|v| v.max(0.0).powi(2)).sum::<f64>().sqrt();
+        let violation = ev.constraint_values().iter().map(|v| v.max(0.0).powi(2)).sum::<f64>().sqrt();
         (cost, violation, min_clearance)
     }
 
