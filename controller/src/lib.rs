@@ -4,13 +4,14 @@
 //! (status, per-cycle telemetry, goal and scenario setting), with health and reflection.
 //!
 //! - [`config`]: [`ControllerConfig`], validated settings.
-//! - [`runner`]: the control loop (a Plant API client): the cycle of `SPEC.md`, delay
-//!   measurement from plant stamps, reconnection with backoff.
+//! - [`runner`]: the Plant API client that drives `mpc::Episode` (the one control cycle, shared
+//!   with the in-process loop): samples in, commands out, reconnection with backoff, episodes.
 //! - [`service`]: the Controller API, a thin shell over the runner's shared state.
 //! - [`solve_lines`]: `controller solve`, one JSON problem per line in, one JSON answer out.
 //!
 //! **Architecture Invariant:** every command that leaves this crate is finite and inside the
-//! scenario's input bounds ([`runner::sanitize_command`]), whatever the solver returned.
+//! scenario's input bounds (`mpc::Episode` sends only what the one command sanitiser passed),
+//! whatever the solver returned.
 
 pub mod config;
 pub mod runner;

@@ -5,6 +5,7 @@ use std::io::BufReader;
 use std::path::PathBuf;
 
 use anyhow::Context;
+use clap::builder::PossibleValuesParser;
 use clap::{Parser, Subcommand, ValueEnum};
 use controller::solve_lines::LineSolver;
 use controller::{ControllerConfig, TimeModeSetting};
@@ -18,16 +19,20 @@ struct Cli {
     /// Address of the Controller API, HOST:PORT.
     #[arg(long, default_value = "127.0.0.1:50053")]
     listen: String,
-    /// Plant API endpoint: a plant, netem, or a vehicle gateway.
+    /// Plant API endpoint, HOST:PORT: a plant, netem, or a vehicle gateway (netem's `--plant`
+    /// names the same kind of endpoint).
     #[arg(long, default_value = "127.0.0.1:50052")]
     plant: String,
-    /// Scenario (problem, goal, limits): paper-1, paper-2, paper-3.
-    #[arg(long, default_value = "paper-1")]
+    /// Scenario flown at start (problem, goal and limits); SetScenario flies another. The plant
+    /// is reset to it when an episode starts (unless `--no-reset`), whatever scenario the plant
+    /// was started with.
+    #[arg(long, default_value = "paper-1", value_parser = PossibleValuesParser::new(mav::Scenario::BUILT_IN))]
     scenario: String,
     /// Controller: the standard NMPC or the multi-stage NMPC.
     #[arg(long, value_enum, default_value_t = Mode::Multistage)]
     mode: Mode,
-    /// Time mode; `auto` follows the plant's Describe.
+    /// How time moves. `auto` (the default) asks the plant (or netem) with Describe and follows
+    /// it, so that only the plant's `--time-mode` has to be chosen.
     #[arg(long, value_enum, default_value_t = TimeMode::Auto)]
     time_mode: TimeMode,
     /// Do not reset the plant when an episode starts.
@@ -36,9 +41,10 @@ struct Cli {
     /// Wait for SetScenario before flying.
     #[arg(long)]
     no_autostart: bool,
-    /// Safety margin added to every cylinder radius, m.
-    #[arg(long, default_value_t = MpcSettings::default().obstacle_margin_m)]
-    margin_m: f64,
+    /// Safety margin added to every cylinder radius, m (a scenario's own `obstacle_margin_m`
+    /// takes precedence; `--margin-m` is an alias).
+    #[arg(long, visible_alias = "margin-m", default_value_t = MpcSettings::default().obstacle_margin_m)]
+    obstacle_margin_m: f64,
     /// Turn the safety layer off: send PANOC's input as it is (clipped to the bounds), with no
     /// QP cross-check and no fallback.
     #[arg(long)]
@@ -50,13 +56,14 @@ struct Cli {
     /// n of `--qp-schedule every-nth`.
     #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..))]
     qp_every: u32,
-    /// Floor for both solvers: predicted altitudes stay at or above this, m (default: none,
-    /// as in the paper).
+    /// Floor for both solvers and the safety checks: predicted altitudes stay at or above
+    /// this, m, in every scenario flown (the key `min_altitude_m` of a scenario file, where
+    /// `run.floor` turns the floor on). Default: each scenario's own (none in paper mode).
     #[arg(long)]
     min_altitude_m: Option<f64>,
     /// Make the QP fallback's rows that its nominal already violates elastic, at this cost
     /// per metre of remaining violation (e.g. 1e5), so that it returns a plan where the hard
-    /// QP is infeasible (default: hard rows; see BENCHMARKS.md for the trade-off).
+    /// QP is infeasible (default: hard rows; BENCHMARKS.md, "The QP fallback", has the trade-off).
     #[arg(long)]
     qp_elastic_penalty: Option<f64>,
     /// Judge every candidate command with the fail-safe check: the command, then braking from
@@ -68,7 +75,7 @@ struct Cli {
     /// Multi-stage: a looser PANOC test in the outer iterations that start with no constraint
     /// active (`MpcSettings::inactive_set` at its measured values). About half the median solve
     /// time at a little lower accuracy, and it changes the closed loops; off by default (see
-    /// BENCHMARKS.md, issue 3, sixth pass).
+    /// docs/reproduction.md, "Options that change the result").
     #[arg(long)]
     inactive_set: bool,
     /// Longest wait for one plant RPC in real time, s (lockstep calls get at least 60 s): a
@@ -82,7 +89,7 @@ impl Cli {
     /// The solver settings the flags ask for.
     fn mpc_settings(&self) -> MpcSettings {
         MpcSettings {
-            obstacle_margin_m: self.margin_m,
+            obstacle_margin_m: self.obstacle_margin_m,
             inactive_set: self.inactive_set.then_some(InactiveSetTolerances::MEASURED),
             ..MpcSettings::default()
         }
@@ -121,7 +128,7 @@ enum TimeMode {
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     let settings = cli.mpc_settings();
-    settings.validate().context("--margin-m")?;
+    settings.validate().context("--obstacle-margin-m")?;
     if let Some(Command::Solve { file }) = &cli.command {
         let mut solver = LineSolver::new(settings);
         let stdout = std::io::stdout().lock();
@@ -188,8 +195,11 @@ mod tests {
 
     #[test]
     fn solver_flags_reach_the_settings() {
-        let cli = Cli::try_parse_from(["controller", "--margin-m", "0.2"]).expect("valid flags");
+        let cli = Cli::try_parse_from(["controller", "--obstacle-margin-m", "0.2"]).expect("valid flags");
         assert_eq!(cli.mpc_settings(), MpcSettings { obstacle_margin_m: 0.2, ..MpcSettings::default() });
+        // The old name stays an alias, so that scripts written for it still work.
+        let cli = Cli::try_parse_from(["controller", "--margin-m", "0.3"]).expect("valid flags");
+        assert_eq!(cli.mpc_settings().obstacle_margin_m, 0.3);
         let cli = Cli::try_parse_from(["controller", "--inactive-set"]).expect("valid flags");
         assert_eq!(cli.mpc_settings().inactive_set, Some(InactiveSetTolerances::MEASURED));
     }

@@ -5,25 +5,23 @@
 //! comes at `t_k + max(min_cycle, d_k)` whatever sits between it and the plant. Real time:
 //! one cycle every `min_cycle` of wall time, from the freshest sample, with a solve deadline.
 //!
-//! Delays are measured from plant stamps only: a sample's `last_command` says which command
-//! was applied at which plant time and which sample it was computed from, so
-//! `d = applied_time - based_on_sample_time` is the whole round trip.
+//! The cycle itself (delay measured from the sample's stamps, weights, solve, safety layer,
+//! command) is `mpc::Episode`'s, the same one the in-process loop runs: this module only
+//! carries samples in and commands out, decoded and encoded by `proto`'s convert module.
 //!
 //! A broken link is retried with exponential backoff; the episode (solver warm start, delay
 //! window, command numbering) survives, and the plant is not reset on reconnection.
 
-use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
+use hilbench_proto::convert::controller::telemetry_of;
+use hilbench_proto::convert::plant::Command;
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
-use mav::{InputBounds, Scenario, ScenarioError};
-use mpc::{
-    ControllerMode, CycleController, CycleOutcome, GammaParams, InFlight, OcpDefinition, ScenarioWeights,
-    SolveBudget, SolveStatus, WeightSettings,
-};
+use mav::{PlantSample, Scenario, ScenarioError};
+use mpc::{ControllerMode, CycleOutput, CycleTiming, Episode, EpisodeSettings, Finish};
 use tokio::sync::{Notify, broadcast, watch};
 use tonic::transport::{Channel, Endpoint};
 
@@ -58,6 +56,8 @@ pub struct Status {
     pub link_down_s: f64,
     /// The longest of those outages, s.
     pub longest_link_down_s: f64,
+    /// The scenario of the current episode (`None` before the first).
+    pub definition: Option<Scenario>,
 }
 
 /// Requests from the Controller API, taken by the loop at the start of the next cycle.
@@ -193,98 +193,30 @@ impl Shared {
     }
 }
 
-/// A command that is safe to send: finite and inside the bounds. A non-finite component makes
-/// the whole command hover (a solver fault must not tilt the vehicle).
-pub fn sanitize_command(u: [f64; 3], bounds: &InputBounds, hover: [f64; 3]) -> [f64; 3] {
-    let base = if u.iter().all(|v| v.is_finite()) { u } else { hover };
-    let mut out = [0.0; 3];
-    for c in 0..3 {
-        out[c] = base[c].clamp(bounds.min[c], bounds.max[c]);
-    }
-    out
-}
-
-/// Everything an episode keeps across reconnections.
-struct Episode {
-    scenario: Scenario,
-    mode: ControllerMode,
-    controller: CycleController,
-    weights: ScenarioWeights,
-    command_seq: u64,
-    measured_seq: u64,
-    cycle: u64,
-    /// Lockstep: the sample the last `Advance` returned.
-    pending_sample: Option<pb::StateSample>,
-    last_delay_s: f64,
+/// The episode in flight, with what the loop keeps across reconnections besides it.
+struct Flight {
+    episode: Episode,
     /// Number of this episode (1 for the first).
     number: u64,
-    /// Real time: commands sent and not yet seen applied, oldest first, as
-    /// `(command_seq, time of the sample they came from, ns, command)`.
-    sent: VecDeque<(u64, u64, [f64; 3])>,
-    in_flight: Vec<InFlight>,
+    /// Lockstep: the sample the last `Advance` returned.
+    pending_sample: Option<pb::StateSample>,
 }
 
-/// Commands remembered as in flight at most (older ones were lost on the link).
-const MAX_IN_FLIGHT: usize = 64;
-
-/// The controller of `scenario` in `mode`: its optimal control problem and the configured
-/// safety layer. Errors are the solver's, as text.
-fn build_controller(
-    config: &ControllerConfig,
-    scenario: &Scenario,
+/// What the loop flies: the scenario and mode of the next episode, and the episode in flight.
+struct Current {
+    scenario: Scenario,
     mode: ControllerMode,
-) -> Result<CycleController, String> {
-    let def =
-        OcpDefinition::from_scenario(scenario, mode, config.mpc.obstacle_margin_m, config.mpc.formulation);
-    let safety = config.safety_for(scenario);
-    CycleController::new(def, config.mpc, safety).map_err(|e| e.to_string())
+    flight: Option<Flight>,
 }
 
-impl Episode {
-    fn new(
-        config: &ControllerConfig,
-        scenario: Scenario,
-        mode: ControllerMode,
-        number: u64,
-    ) -> Result<Self, String> {
-        let controller = build_controller(config, &scenario, mode)?;
-        let weights = weight_estimator(&scenario, mode, &controller.definition().sampling_times_s);
-        Ok(Self {
-            scenario,
-            mode,
-            controller,
-            weights,
-            command_seq: 0,
-            measured_seq: 0,
-            cycle: 0,
-            pending_sample: None,
-            sent: VecDeque::with_capacity(MAX_IN_FLIGHT),
-            in_flight: Vec::with_capacity(MAX_IN_FLIGHT),
-            last_delay_s: f64::NAN,
-            number,
-        })
-    }
-}
-
-/// The weights of `mode`: fixed 1 for the standard NMPC; for the multi-stage controller the
-/// nominal weights when the scenario has no delays, otherwise the Gamma fit of measured delays.
-pub fn weight_estimator(
-    scenario: &Scenario,
-    mode: ControllerMode,
-    sampling_times_s: &[f64],
-) -> ScenarioWeights {
-    let settings = WeightSettings {
-        window: scenario.delay_window,
-        prior: GammaParams { shape: scenario.prior_gamma.0, scale_s: scenario.prior_gamma.1 },
-        ..WeightSettings::default()
-    };
-    match mode {
-        ControllerMode::Nmpc => ScenarioWeights::new(settings, sampling_times_s, Some(&[1.0])),
-        ControllerMode::Multistage if scenario.delays == mav::DelayModel::None => {
-            ScenarioWeights::new(settings, sampling_times_s, Some(&scenario.nominal_weights))
-        }
-        ControllerMode::Multistage => ScenarioWeights::new(settings, sampling_times_s, None),
-    }
+/// The settings of an episode of `mode` under `config` (the scenario's own delay model says
+/// whether delays are expected).
+fn episode_settings(config: &ControllerConfig, scenario: &Scenario, mode: ControllerMode) -> EpisodeSettings {
+    let mut settings = EpisodeSettings::new(mode, config.mpc);
+    settings.safety = config.safety;
+    settings.fail_safe = config.fail_safe;
+    settings.delays_expected = scenario.delays != mav::DelayModel::None;
+    settings
 }
 
 enum Outcome {
@@ -309,10 +241,9 @@ enum LoopError {
 
 /// Runs until `stop` turns true.
 pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch::Receiver<bool>) {
-    let mut scenario = config.adapt(config.scenario.clone());
-    let mut mode = config.mode;
+    let mut current =
+        Current { scenario: config.adapt(config.scenario.clone()), mode: config.mode, flight: None };
     let mut active = config.autostart;
-    let mut episode: Option<Episode> = None;
     let mut backoff = config.backoff_min;
     loop {
         if *stop.borrow() || shared.closed.load(Ordering::SeqCst) {
@@ -321,14 +252,14 @@ pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch:
         if !active {
             let requests = shared.take_requests();
             if let Some((s, m)) = requests.scenario {
-                scenario = s;
-                mode = m.unwrap_or(mode);
-                episode = None;
+                current.scenario = s;
+                current.mode = m.unwrap_or(current.mode);
+                current.flight = None;
                 active = true;
                 continue;
             }
             if let Some(goal) = requests.goal {
-                scenario.goal_m = goal;
+                current.scenario.goal_m = goal;
                 shared.update(|st| st.goal_m = goal);
                 active = true;
                 continue;
@@ -350,7 +281,7 @@ pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch:
                     .connect()
                     .await?;
                 let mut client = PlantClient::new(channel);
-                fly(&config, &shared, &mut client, &mut scenario, &mut mode, &mut episode, &mut stop).await
+                fly(&config, &shared, &mut client, &mut current, &mut stop).await
             } => outcome,
             _ = stop_during_call.wait_for(|stop| *stop) => return,
         };
@@ -358,11 +289,11 @@ pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch:
             Ok(Outcome::Stopped) => return,
             Ok(Outcome::Finished) => {
                 active = false;
-                episode = None;
+                current.flight = None;
                 backoff = config.backoff_min;
             }
             Ok(Outcome::Restart) => {
-                episode = None;
+                current.flight = None;
                 backoff = config.backoff_min;
             }
             Err(e) => {
@@ -370,11 +301,8 @@ pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch:
                     // A new outage: retry soon, whatever the last one's backoff had grown to.
                     backoff = config.backoff_min;
                 }
-                // What was sent over the lost link has landed or is lost with it; after the
-                // reconnection the plant's stamps say what is applied (a restarted plant's
-                // clock starts again at 0, which would make the old commands look just sent).
-                if let Some(ep) = episode.as_mut() {
-                    ep.sent.clear();
+                if let Some(flight) = current.flight.as_mut() {
+                    flight.episode.forget_in_flight();
                 }
                 tracing::warn!(error = %e, retry_in_ms = backoff.as_millis() as u64, "plant link lost; retrying");
                 shared.update(|st| {
@@ -408,31 +336,16 @@ async fn within<T>(
     }
 }
 
-fn state_of(sample: &pb::StateSample) -> Result<[f64; 8], LoopError> {
-    let x =
-        sample.state.as_ref().ok_or_else(|| LoopError::Bad("plant sent a sample without a state".into()))?;
-    hilbench_proto::convert::finite_array::<8>("state.x", &x.x)
-        .map_err(|e| LoopError::Bad(format!("plant sent {e}")))
+/// A sample from the plant, validated by `proto`'s conversion.
+fn decode(sample: &pb::StateSample) -> Result<PlantSample, LoopError> {
+    PlantSample::try_from(sample).map_err(|e| LoopError::Bad(format!("plant sent {e}")))
 }
 
-fn applied_input(sample: &pb::StateSample, fallback: [f64; 3]) -> [f64; 3] {
-    sample
-        .last_command
-        .as_ref()
-        .and_then(|c| c.input.as_ref())
-        .map(|u| [u.thrust_mps2, u.roll_rad, u.pitch_rad])
-        .filter(|u| u.iter().all(|v| v.is_finite()))
-        .unwrap_or(fallback)
-}
-
-#[allow(clippy::too_many_arguments)]
 async fn fly(
     config: &ControllerConfig,
     shared: &Shared,
     client: &mut PlantClient<Channel>,
-    scenario: &mut Scenario,
-    mode: &mut ControllerMode,
-    episode: &mut Option<Episode>,
+    current: &mut Current,
     stop: &mut watch::Receiver<bool>,
 ) -> Result<Outcome, LoopError> {
     let description = within(config.rpc_timeout, "Describe", client.describe(pb::DescribeRequest {})).await?;
@@ -446,141 +359,106 @@ async fn fly(
     // machine must not turn into a link loss (the run would then depend on wall-clock time).
     let call_timeout =
         if lockstep { config.rpc_timeout.max(LOCKSTEP_MIN_RPC_TIMEOUT) } else { config.rpc_timeout };
-    if episode.is_none() {
+    if current.flight.is_none() {
         let number = shared.status().episode + 1;
-        let mut ep = Episode::new(config, scenario.clone(), *mode, number).map_err(LoopError::Bad)?;
+        let settings = episode_settings(config, &current.scenario, current.mode);
+        let episode =
+            Episode::new(current.scenario.clone(), settings).map_err(|e| LoopError::Bad(e.to_string()))?;
         let sample = if config.reset_plant {
-            let reset = pb::ResetRequest { scenario: scenario.name.clone(), initial_state: None };
+            // The whole scenario, so that a plant (or gateway) flies exactly the controller's
+            // world, whether or not it knows the scenario by name.
+            let reset = pb::ResetRequest {
+                scenario: String::new(),
+                initial_state: None,
+                definition: Some((&current.scenario).into()),
+            };
             within(call_timeout, "Reset", client.reset(reset)).await?.sample
         } else {
             Some(within(call_timeout, "GetState", client.get_state(pb::GetStateRequest {})).await?)
         };
-        ep.pending_sample = sample;
         shared.update(|st| {
-            st.scenario = scenario.name.clone();
-            st.mode = mode.name().to_string();
-            st.goal_m = scenario.goal_m;
+            st.scenario = current.scenario.name.clone();
+            st.definition = Some(current.scenario.clone());
+            st.mode = current.mode.name().to_string();
+            st.goal_m = current.scenario.goal_m;
             st.cycles = 0;
             st.reached = false;
             st.episode = number;
             st.episode_finished = false;
             st.finish_reason.clear();
             (st.link_losses, st.link_down_s, st.longest_link_down_s) = (0, 0.0, 0.0);
-            st.sampling_times_s = ep.controller.definition().sampling_times_s.clone();
+            st.sampling_times_s = episode.controller().definition().sampling_times_s.clone();
         });
-        tracing::info!(scenario = %scenario.name, mode = mode.name(), lockstep, "episode started");
-        *episode = Some(ep);
+        tracing::info!(scenario = %current.scenario.name, mode = current.mode.name(), lockstep, "episode started");
+        current.flight = Some(Flight { episode, number, pending_sample: sample });
     }
-    let Some(ep) = episode.as_mut() else {
+    let Some(flight) = current.flight.as_mut() else {
         return Err(LoopError::Bad("no episode".into()));
     };
-    let hover = ep.scenario.model.hover_input();
-    let hover = [hover[0], hover[1], hover[2]];
-    let min_cycle = Duration::from_secs_f64(ep.scenario.min_cycle_s);
-    let min_cycle_ns = mav::s_to_ns(ep.scenario.min_cycle_s).unwrap_or(50_000_000);
-    let max_ns = mav::s_to_ns(ep.scenario.max_duration_s).unwrap_or(u64::MAX);
+    let min_cycle = Duration::from_nanos(flight.episode.min_cycle_ns());
+    let timing = if lockstep {
+        CycleTiming::Lockstep
+    } else {
+        CycleTiming::RealTime { deadline: min_cycle.mul_f64(config.deadline_fraction) }
+    };
     loop {
         if *stop.borrow() || shared.closed.load(Ordering::SeqCst) {
             return Ok(Outcome::Stopped);
         }
         let requests = shared.take_requests();
         if let Some((s, m)) = requests.scenario {
-            *scenario = s;
-            *mode = m.unwrap_or(*mode);
+            current.scenario = s;
+            current.mode = m.unwrap_or(current.mode);
             return Ok(Outcome::Restart);
         }
         if let Some(goal) = requests.goal {
-            scenario.goal_m = goal;
-            ep.scenario.goal_m = goal;
-            ep.controller = build_controller(config, &ep.scenario, ep.mode).map_err(LoopError::Bad)?;
+            flight.episode.set_goal(goal).map_err(|e| LoopError::Bad(e.to_string()))?;
+            current.scenario.goal_m = goal;
             shared.update(|st| {
                 st.goal_m = goal;
+                if let Some(d) = st.definition.as_mut() {
+                    d.goal_m = goal;
+                }
                 st.reached = false;
             });
         }
         let cycle_start = Instant::now();
-        let sample = match (lockstep, ep.pending_sample.take()) {
+        let wire_sample = match (lockstep, flight.pending_sample.take()) {
             (true, Some(s)) => s,
             _ => within(call_timeout, "GetState", client.get_state(pb::GetStateRequest {})).await?,
         };
-        let x = state_of(&sample)?;
-        if let Some(last) = &sample.last_command
-            && last.command_seq > ep.measured_seq
-            && last.command_seq <= ep.command_seq
-            && !last.initial
-        {
-            let d_ns = last.applied_time_ns.saturating_sub(last.based_on_sample_time_ns);
-            ep.last_delay_s = mav::ns_to_s(d_ns);
-            ep.weights.observe(ep.last_delay_s);
-            ep.measured_seq = last.command_seq;
-        }
-        let state = mav::State::from(x);
-        if ep.scenario.goal_reached(&state) {
-            shared.update(|st| st.reached = true);
-            if lockstep {
-                tracing::info!(t_s = mav::ns_to_s(sample.time_ns), cycles = ep.cycle, "goal reached");
-                finish(shared, "reached");
+        let sample = decode(&wire_sample)?;
+        match flight.episode.finish(&sample) {
+            Some(Finish::Reached) => {
+                shared.update(|st| st.reached = true);
+                if lockstep {
+                    tracing::info!(
+                        t_s = mav::ns_to_s(sample.time_ns),
+                        cycles = flight.episode.cycles(),
+                        "goal reached"
+                    );
+                    finish(shared, Finish::Reached);
+                    return Ok(Outcome::Finished);
+                }
+            }
+            Some(Finish::TimeLimit) if lockstep => {
+                tracing::info!(cycles = flight.episode.cycles(), "time limit reached");
+                finish(shared, Finish::TimeLimit);
                 return Ok(Outcome::Finished);
             }
+            _ => {}
         }
-        if lockstep && sample.time_ns >= max_ns {
-            tracing::info!(cycles = ep.cycle, "time limit reached");
-            finish(shared, "time_limit");
-            return Ok(Outcome::Finished);
-        }
-        let u_prev = applied_input(&sample, hover);
-        if !lockstep {
-            // What was sent and not seen applied is still on its way (the fail-safe check
-            // flies it; lockstep waits for each command to land, so nothing is in flight).
-            let applied_seq =
-                sample.last_command.as_ref().filter(|l| !l.initial).map_or(0, |l| l.command_seq);
-            ep.sent.retain(|(seq, _, _)| *seq > applied_seq);
-            ep.in_flight.clear();
-            ep.in_flight.extend(ep.sent.iter().map(|(_, sent_ns, command)| InFlight {
-                sent_ago_s: mav::ns_to_s(sample.time_ns.saturating_sub(*sent_ns)),
-                command: *command,
-            }));
-            ep.controller.set_in_flight(Some(&ep.in_flight));
-        }
-        let budget = if lockstep {
-            SolveBudget::default()
-        } else {
-            SolveBudget {
-                deadline: Some(min_cycle.mul_f64(config.deadline_fraction)),
-                ..SolveBudget::default()
-            }
-        };
-        let weights = ep.weights.weights().to_vec();
-        let outcome = ep
-            .controller
-            .step(ep.cycle, sample.time_ns, &x, &u_prev, &weights, &budget)
-            .map_err(|e| LoopError::Bad(e.to_string()))?;
-        // Finite and inside the bounds by construction; checked again at the edge.
-        let command = sanitize_command(outcome.command, &ep.scenario.bounds, hover);
-        ep.command_seq += 1;
-        let pb_command = pb::Command {
-            input: Some(pb::ControlInput {
-                thrust_mps2: command[0],
-                roll_rad: command[1],
-                pitch_rad: command[2],
-            }),
-            command_seq: ep.command_seq,
-            based_on_sample_seq: sample.seq,
-            based_on_sample_time_ns: sample.time_ns,
-        };
-        within(call_timeout, "ApplyCommand", client.apply_command(pb_command)).await?;
+        let out = flight.episode.on_sample(&sample, &timing).map_err(|e| LoopError::Bad(e.to_string()))?;
+        let command = pb::Command::from(&Command { input: out.record.command.into(), meta: out.meta });
+        within(call_timeout, "ApplyCommand", client.apply_command(command)).await?;
         shared.link_answered();
-        if !lockstep {
-            if ep.sent.len() == MAX_IN_FLIGHT {
-                ep.sent.pop_front();
-            }
-            ep.sent.push_back((ep.command_seq, sample.time_ns, command));
-        }
-        publish(shared, ep, &sample, command, &weights, &outcome);
+        publish(shared, flight, &wire_sample, out);
         if lockstep {
-            let advance =
-                pb::AdvanceRequest { duration_ns: min_cycle_ns, wait_for_command_seq: ep.command_seq };
-            ep.pending_sample = within(call_timeout, "Advance", client.advance(advance)).await?.sample;
+            let advance = pb::AdvanceRequest {
+                duration_ns: flight.episode.min_cycle_ns(),
+                wait_for_command_seq: flight.episode.commands_sent(),
+            };
+            flight.pending_sample = within(call_timeout, "Advance", client.advance(advance)).await?.sample;
         } else {
             let next = cycle_start + min_cycle;
             tokio::select! {
@@ -588,97 +466,39 @@ async fn fly(
                 _ = stop.changed() => return Ok(Outcome::Stopped),
             }
         }
-        ep.cycle += 1;
     }
 }
 
 /// Marks the current episode as ended (the loop idles until the next request).
-fn finish(shared: &Shared, reason: &str) {
+fn finish(shared: &Shared, reason: Finish) {
     shared.update(|st| {
         st.episode_finished = true;
         st.episodes_finished += 1;
-        st.finish_reason = reason.to_string();
+        st.finish_reason = reason.name().to_string();
     });
 }
 
-/// What the cycle sent, as the wire names it: the safety layer's decision, or without the
-/// layer PANOC (the previous plan shifted when it failed numerically).
-fn solver_kind(outcome: &CycleOutcome) -> pb::SolverKind {
-    match &outcome.selection {
-        Some(s) => s.decision.into(),
-        None if outcome.report.status == SolveStatus::NumericalFailure => pb::SolverKind::ShiftedPlan,
-        None => pb::SolverKind::Panoc,
-    }
-}
-
-fn publish(
-    shared: &Shared,
-    ep: &Episode,
-    sample: &pb::StateSample,
-    command: [f64; 3],
-    weights: &[f64],
-    outcome: &CycleOutcome,
-) {
-    let stats = pb::SolveStats::from(&outcome.report);
+/// The cycle's status, and its telemetry to the subscribers (predictions computed only when
+/// somebody listens).
+fn publish(shared: &Shared, flight: &Flight, wire_sample: &pb::StateSample, mut out: CycleOutput) {
+    let stats = pb::SolveStats::from(&out.record.solve);
     shared.update(|st| {
-        st.cycles = ep.cycle + 1;
-        st.weights = weights.to_vec();
+        st.cycles = flight.episode.cycles();
+        st.weights = out.record.weights.clone();
         st.last_solve = Some(stats);
     });
     if shared.telemetry.receiver_count() == 0 {
         return;
     }
-    let ts = &ep.controller.definition().sampling_times_s;
-    let predictions = ep
-        .controller
-        .predictions()
-        .iter()
-        .zip(ts)
-        .zip(weights)
-        .map(|((traj, &dt), &w)| pb::PredictedTrajectory {
-            sampling_time_s: dt,
-            weight: w,
-            positions_m: traj.iter().flat_map(|s| [s[0], s[1], s[2]]).collect(),
-        })
-        .collect();
-    let item = pb::CycleTelemetry {
-        cycle: ep.cycle,
-        sample: Some(sample.clone()),
-        command: Some(pb::ControlInput {
-            thrust_mps2: command[0],
-            roll_rad: command[1],
-            pitch_rad: command[2],
-        }),
-        command_seq: ep.command_seq,
-        scenario_weights: weights.to_vec(),
-        solve: Some(stats),
-        solver: solver_kind(outcome) as i32,
-        decision_reason: outcome.selection.as_ref().map(|s| s.reason()).unwrap_or_default(),
-        cost_gap: outcome.selection.as_ref().and_then(|s| s.cost_gap),
-        qp: outcome.selection.as_ref().and_then(|s| s.qp_report.as_ref()).map(pb::QpStats::from),
-        predictions,
-        measured_delay_s: if ep.last_delay_s.is_finite() { ep.last_delay_s } else { 0.0 },
-        episode: ep.number,
-    };
+    out.record.predictions = flight.episode.predictions(&out.record.weights);
+    let qp = out.outcome.selection.as_ref().and_then(|s| s.qp_report.as_ref());
     // No subscriber left is not an error.
-    let _ = shared.telemetry.send(item);
+    let _ = shared.telemetry.send(telemetry_of(&out.record, wire_sample, flight.number, qp));
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn commands_are_clipped_and_non_finite_ones_become_hover() {
-        let b = InputBounds::paper(9.81);
-        let hover = [9.81, 0.0, 0.0];
-        assert_eq!(
-            sanitize_command([30.0, -1.0, 0.05], &b, hover),
-            [19.62, -std::f64::consts::PI / 18.0, 0.05]
-        );
-        assert_eq!(sanitize_command([f64::NAN, 0.1, 0.1], &b, hover), hover);
-        assert_eq!(sanitize_command([f64::INFINITY, 0.1, 0.1], &b, hover), hover);
-    }
 
     fn field(r: Result<(), ScenarioError>) -> String {
         match r {

@@ -54,6 +54,7 @@ impl Controller for ControllerService {
             link_losses: s.link_losses,
             link_down_s: s.link_down_s,
             longest_link_down_s: s.longest_link_down_s,
+            definition: s.definition.as_ref().map(Into::into),
         }))
     }
 

@@ -23,9 +23,8 @@ fn bench(c: &mut Criterion) {
         g.bench_function(name, |b| b.iter(|| black_box(line.sample_delay_s())));
     }
     g.finish();
-    if let Some(mut line) = preset("paper", 42)
-        .ok()
-        .and_then(|p| DelayLine::new(Direction::ControllerToPlant, p.controller_to_plant).ok())
+    if let Some(mut line) =
+        preset("paper", 42).ok().and_then(|p| DelayLine::new(Direction::ControllerToPlant, p.to_plant).ok())
     {
         let mut t = 0u64;
         c.bench_function("send_paper_fifo", |b| {

@@ -11,29 +11,36 @@
 //! sequence of send times give the same decisions, bit for bit, in every time mode and with
 //! every version of `rand` that keeps ChaCha8 (unlike `StdRng`, whose algorithm may change).
 //!
-//! - [`profile`]: what a direction of the network does ([`DirectionProfile`]), validated with
-//!   errors naming the field, and the named presets ([`preset`], e.g. `"paper"`).
+//! - [`profile`]: the delay kinds ([`Distribution`], the one vocabulary of scenario files,
+//!   netem's API and its profile files), what a direction of the network does
+//!   ([`DirectionProfile`]) and both directions ([`NetworkProfile`]), validated with errors
+//!   naming the field, and the named presets ([`preset`], e.g. `"paper"`).
+//! - [`spec`]: the `[scenario.delays]` table of scenario files, as written, into a
+//!   [`NetworkProfile`].
 //! - [`line`]: the per-direction [`DelayLine`] that turns send times into [`Decision`]s.
 //! - [`queue`]: a [`ReleaseQueue`] ordering held messages by release time.
 //! - [`stats`]: counters, delay histogram and percentiles of one direction.
-//! - [`trace`]: parsing a recorded delay trace from CSV text.
+//! - [`trace`]: recorded delay traces ([`Trace`]) and their file format ([`parse_trace`]).
 //! - [`record`]: one line of a delivery trace.
 
 pub mod line;
 pub mod profile;
 pub mod queue;
 pub mod record;
+pub mod spec;
 pub mod stats;
 pub mod trace;
 
 pub use line::{Decision, DelayLine, Draw, Fate, Release};
 pub use profile::{
-    Direction, DirectionProfile, Distribution, MAX_DELAY_S, Ordering, PRESETS, Preset, ProfileError, preset,
+    Direction, DirectionProfile, Distribution, Dwell, MAX_DELAY_S, MAX_MEAN_DWELL, MAX_REGIME_STATES,
+    NetworkProfile, Ordering, PRESETS, ProfileError, RegimeState, preset,
 };
 pub use queue::ReleaseQueue;
 pub use record::Record;
+pub use spec::{DelaysTable, SpecError};
 pub use stats::{DirectionStats, Percentiles};
-pub use trace::{TraceError, parse_trace};
+pub use trace::{Trace, TraceEnd, TraceEnded, TraceError, parse_trace};
 
 /// Seconds to integer nanoseconds, rounded to the nearest, clamped to `[0, MAX_DELAY_S]`.
 pub fn secs_to_ns(s: f64) -> u64 {

@@ -1,13 +1,12 @@
 //! The delay line of one direction: send times in, release decisions out.
 
-use std::sync::Arc;
-
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution as _, Gamma, LogNormal, Normal, Pareto, Uniform};
 
-use crate::profile::{Direction, DirectionProfile, Distribution, Ordering, ProfileError};
+use crate::profile::{Direction, DirectionProfile, Distribution, Dwell, Ordering, ProfileError};
 use crate::secs_to_ns;
+use crate::trace::{Trace, TraceEnd, TraceEnded};
 
 /// A ready-to-draw form of a [`Distribution`], built once when the profile is set.
 #[derive(Debug, Clone)]
@@ -18,7 +17,68 @@ enum Sampler {
     Gamma(Gamma<f64>),
     Lognormal(LogNormal<f64>),
     Pareto(Pareto<f64>),
-    Trace { delays_s: Arc<[f64]>, looping: bool, next: usize },
+    Trace { trace: Trace, next: usize },
+    Regime(Box<RegimeSampler>),
+}
+
+/// The state of a regime process: its states' samplers, the current one, and when a state
+/// of [`Dwell::Seconds`] ends.
+#[derive(Debug, Clone)]
+struct RegimeSampler {
+    states: Vec<(Sampler, Dwell)>,
+    current: usize,
+    /// End of the current state's dwell, ns, for a state of [`Dwell::Seconds`] once entered
+    /// at a known time (`None` before the first message).
+    until_ns: Option<u64>,
+}
+
+impl RegimeSampler {
+    /// Moves to another state, uniformly among the others, entered at `time_ns`.
+    fn switch(&mut self, time_ns: u64, rng: &mut ChaCha8Rng) {
+        let n = self.states.len();
+        if n < 2 {
+            return;
+        }
+        let k = rng.random_range(0..n - 1);
+        self.current = if k >= self.current { k + 1 } else { k };
+        self.until_ns = self.dwell_end(time_ns, rng);
+    }
+
+    /// When the current state, entered at `time_ns`, ends (`None` for a state of messages).
+    fn dwell_end(&self, time_ns: u64, rng: &mut ChaCha8Rng) -> Option<u64> {
+        if self.states.len() < 2 {
+            return None;
+        }
+        match self.states[self.current].1 {
+            Dwell::Messages(_) => None,
+            Dwell::Seconds(mean_s) => {
+                // Inverse transform of Exp(1) on (0, 1]: never infinite.
+                let u: f64 = 1.0 - rng.random::<f64>();
+                Some(time_ns.saturating_add(secs_to_ns(-u.ln() * mean_s).max(1)))
+            }
+        }
+    }
+
+    /// The state of a message sent at `time_ns`; then its delay from `delay_rng`; then, for a
+    /// state of messages, whether the process leaves it after this message.
+    fn sample(&mut self, time_ns: u64, delay_rng: &mut ChaCha8Rng, regime_rng: &mut ChaCha8Rng) -> f64 {
+        if self.until_ns.is_none() {
+            self.until_ns = self.dwell_end(time_ns, regime_rng);
+        }
+        // Seconds states that ended by now are left at their end times (a continuous-time
+        // chain observed at this send time); a state of messages stops the walk.
+        while let Some(end) = self.until_ns.filter(|end| *end <= time_ns) {
+            self.switch(end, regime_rng);
+        }
+        let (sampler, dwell) = &mut self.states[self.current];
+        let delay_s = sampler.sample(time_ns, delay_rng, regime_rng).unwrap_or(0.0);
+        if let Dwell::Messages(mean) = *dwell
+            && regime_rng.random::<f64>() < 1.0 / mean
+        {
+            self.switch(time_ns, regime_rng);
+        }
+        delay_s
+    }
 }
 
 impl Sampler {
@@ -45,17 +105,30 @@ impl Sampler {
             Distribution::Lognormal { mu, sigma } => {
                 Sampler::Lognormal(LogNormal::new(*mu, *sigma).map_err(|e| bad("delay.lognormal", e))?)
             }
+            Distribution::LognormalMoments { mean_s, std_s } => {
+                let (mu, sigma) = Distribution::lognormal_from_moments(*mean_s, *std_s);
+                Sampler::Lognormal(LogNormal::new(mu, sigma).map_err(|e| bad("delay.lognormal_moments", e))?)
+            }
             Distribution::Pareto { scale_s, shape } => {
                 Sampler::Pareto(Pareto::new(*scale_s, *shape).map_err(|e| bad("delay.pareto", e))?)
             }
-            Distribution::Trace { delays_s, looping } => {
-                Sampler::Trace { delays_s: delays_s.clone(), looping: *looping, next: 0 }
-            }
+            Distribution::Trace(trace) => Sampler::Trace { trace: trace.clone(), next: 0 },
+            Distribution::Regime { states } => Sampler::Regime(Box::new(RegimeSampler {
+                states: states.iter().map(|s| Ok((Sampler::new(&s.delay)?, s.mean_dwell))).collect::<Result<
+                    _,
+                    ProfileError,
+                >>(
+                )?,
+                current: 0,
+                until_ns: None,
+            })),
         })
     }
 
-    fn sample(&mut self, rng: &mut ChaCha8Rng) -> f64 {
-        match self {
+    /// The delay of a message sent at `time_ns`, s; `None` past the end of a trace that
+    /// stops there.
+    fn sample(&mut self, time_ns: u64, rng: &mut ChaCha8Rng, regime_rng: &mut ChaCha8Rng) -> Option<f64> {
+        Some(match self {
             Sampler::Constant(d) => *d,
             Sampler::Uniform(u) => u.sample(rng),
             Sampler::Normal(n) => {
@@ -64,24 +137,36 @@ impl Sampler {
                 loop {
                     let d = n.sample(rng);
                     if d >= 0.0 {
-                        return d;
+                        break d;
                     }
                 }
             }
             Sampler::Gamma(g) => g.sample(rng),
             Sampler::Lognormal(l) => l.sample(rng),
             Sampler::Pareto(p) => p.sample(rng),
-            Sampler::Trace { delays_s, looping, next } => {
-                let n = delays_s.len();
-                let i = if *looping { *next % n } else { (*next).min(n - 1) };
+            Sampler::Trace { trace, next } => {
+                let d = trace.delay_of(*next);
                 *next = next.saturating_add(1);
-                delays_s[i]
+                return d;
             }
+            Sampler::Regime(r) => r.sample(time_ns, rng, regime_rng),
+        })
+    }
+
+    /// The trace has no delay for the next message.
+    fn ended(&self) -> Option<TraceEnded> {
+        match self {
+            Sampler::Trace { trace, next } if trace.delay_of(*next).is_none() => Some(TraceEnded {
+                name: trace.name.to_string(),
+                delays: trace.delays_s.len(),
+                message: *next as u64,
+            }),
+            _ => None,
         }
     }
 
     fn exhausted(&self) -> bool {
-        matches!(self, Sampler::Trace { delays_s, looping: false, next } if *next >= delays_s.len())
+        matches!(self, Sampler::Trace { trace, next } if trace.end != TraceEnd::Loop && *next >= trace.delays_s.len())
     }
 }
 
@@ -89,9 +174,14 @@ impl Sampler {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Draw {
     pub seq: u64,
+    /// NaN when the trace ended.
     pub sampled_delay_s: f64,
+    /// Lost on the way, or no delay left in a trace that stops at its end (`trace_ended`).
     pub lost: bool,
     pub duplicated: bool,
+    /// The line's trace ([`TraceEnd::Stop`]) had no delay for this message: it is lost, and the
+    /// run must stop ([`DelayLine::check_next`] says so before the message is sent).
+    pub trace_ended: bool,
 }
 
 /// One copy of a message and when it leaves the line.
@@ -123,9 +213,12 @@ pub struct Decision {
     pub seq: u64,
     pub send_time_ns: u64,
     /// The delay drawn for the message, s. It is drawn even for a lost message, so the delay of
-    /// message `k` does not depend on the loss or duplicate probability.
+    /// message `k` does not depend on the loss or duplicate probability. NaN when the trace
+    /// ended.
     pub sampled_delay_s: f64,
     pub fate: Fate,
+    /// Dropped because the line's trace has no delay left for it ([`TraceEnd::Stop`]).
+    pub trace_ended: bool,
 }
 
 impl Decision {
@@ -139,25 +232,35 @@ impl Decision {
     }
 }
 
-/// The four independent random streams of a line. Giving delay, loss, duplication and the
-/// duplicate's delay their own streams means that changing a probability never shifts the
-/// delays drawn for the other messages.
+/// The independent random streams of a line. Giving delay, loss, duplication, the
+/// duplicate's delay and a regime's state changes their own streams means that changing a
+/// probability never shifts the delays drawn for the other messages.
 #[derive(Debug, Clone)]
 struct Streams {
     delay: ChaCha8Rng,
     loss: ChaCha8Rng,
     duplicate: ChaCha8Rng,
     duplicate_delay: ChaCha8Rng,
+    regime: ChaCha8Rng,
 }
 
 impl Streams {
     fn new(seed: u64, direction: Direction) -> Self {
-        let stream = |k: u64| {
+        let stream = |id: u64| {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            rng.set_stream(direction.index() as u64 * 4 + k);
+            rng.set_stream(id);
             rng
         };
-        Self { delay: stream(0), loss: stream(1), duplicate: stream(2), duplicate_delay: stream(3) }
+        let d = direction.index() as u64;
+        // Streams 0..8 are the first four of each direction (as numbered since the first
+        // recorded runs); later streams go after them, so that those runs stay as they were.
+        Self {
+            delay: stream(d * 4),
+            loss: stream(d * 4 + 1),
+            duplicate: stream(d * 4 + 2),
+            duplicate_delay: stream(d * 4 + 3),
+            regime: stream(8 + d),
+        }
     }
 }
 
@@ -174,6 +277,8 @@ pub struct DelayLine {
     streams: Streams,
     last_release_ns: Option<u64>,
     next_seq: u64,
+    /// Send time of the latest message (the regime clock of [`DelayLine::sample_delay_s`]).
+    last_send_ns: u64,
 }
 
 impl DelayLine {
@@ -182,7 +287,7 @@ impl DelayLine {
         profile.validate()?;
         let sampler = Sampler::new(&profile.delay)?;
         let streams = Streams::new(profile.seed, direction);
-        Ok(Self { direction, profile, sampler, streams, last_release_ns: None, next_seq: 0 })
+        Ok(Self { direction, profile, sampler, streams, last_release_ns: None, next_seq: 0, last_send_ns: 0 })
     }
 
     pub fn direction(&self) -> Direction {
@@ -217,11 +322,20 @@ impl DelayLine {
         self.streams = Streams::new(self.profile.seed, self.direction);
         self.last_release_ns = None;
         self.next_seq = 0;
+        self.last_send_ns = 0;
     }
 
-    /// A non-looping trace has been used up and now holds its last delay.
+    /// A non-looping trace has been used up: it now holds its last delay
+    /// ([`TraceEnd::Hold`]) or has none left ([`TraceEnd::Stop`]).
     pub fn trace_exhausted(&self) -> bool {
         self.sampler.exhausted()
+    }
+
+    /// Whether the next message gets a delay: `Err` when the line replays a trace that stops
+    /// at its end and has none left. A caller that must not drop such a message (the run
+    /// stops instead) asks before sending it.
+    pub fn check_next(&self) -> Result<(), TraceEnded> {
+        self.sampler.ended().map_or(Ok(()), Err)
     }
 
     /// The latest release time handed out (what FIFO queues behind).
@@ -230,9 +344,16 @@ impl DelayLine {
     }
 
     /// Draws one delay, s, from the delay stream (what [`DelayLine::send`] does for each
-    /// message). Exposed for benchmarks and statistical tests.
+    /// message), at the time of the latest message; NaN past the end of a trace that stops
+    /// there. Exposed for benchmarks and statistical tests.
     pub fn sample_delay_s(&mut self) -> f64 {
-        self.sampler.sample(&mut self.streams.delay)
+        self.sample_delay_at(self.last_send_ns)
+    }
+
+    /// [`DelayLine::sample_delay_s`] for a message sent at `time_ns` (a regime's clock).
+    pub fn sample_delay_at(&mut self, time_ns: u64) -> f64 {
+        self.last_send_ns = time_ns;
+        self.sampler.sample(time_ns, &mut self.streams.delay, &mut self.streams.regime).unwrap_or(f64::NAN)
     }
 
     fn release(&mut self, send_time_ns: u64, sampled_delay_s: f64, duplicate: bool) -> Release {
@@ -245,23 +366,27 @@ impl DelayLine {
         Release { release_time_ns, delay_ns: release_time_ns - send_time_ns, sampled_delay_s, duplicate }
     }
 
-    /// Draws what happens to the next message without scheduling it (no FIFO state is used
-    /// or changed). [`DelayLine::send`] is `draw` plus scheduling; a shell that maps delays to
-    /// times its own way (netem's lockstep samples) uses `draw` directly.
-    pub fn draw(&mut self) -> Draw {
+    /// Draws what happens to a message sent at `time_ns` without scheduling it (no FIFO state
+    /// is used or changed). [`DelayLine::send`] is `draw` plus scheduling; a shell that maps
+    /// delays to times its own way (netem's lockstep samples) uses `draw` directly.
+    pub fn draw(&mut self, time_ns: u64) -> Draw {
         let seq = self.next_seq;
         self.next_seq += 1;
-        let sampled_delay_s = self.sampler.sample(&mut self.streams.delay);
+        self.last_send_ns = time_ns;
+        let sampled = self.sampler.sample(time_ns, &mut self.streams.delay, &mut self.streams.regime);
         // One draw per message on each of the loss and duplicate streams, always, so that the
         // streams stay aligned with the message numbers whatever the probabilities are.
         let lost = self.streams.loss.random::<f64>() < self.profile.loss_probability;
         let duplicated = self.streams.duplicate.random::<f64>() < self.profile.duplicate_probability;
-        Draw { seq, sampled_delay_s, lost, duplicated }
+        match sampled {
+            Some(sampled_delay_s) => Draw { seq, sampled_delay_s, lost, duplicated, trace_ended: false },
+            None => Draw { seq, sampled_delay_s: f64::NAN, lost: true, duplicated: false, trace_ended: true },
+        }
     }
 
     /// Decides the fate of a message sent at `send_time_ns`.
     pub fn send(&mut self, send_time_ns: u64) -> Decision {
-        let Draw { seq, sampled_delay_s, lost, duplicated } = self.draw();
+        let Draw { seq, sampled_delay_s, lost, duplicated, trace_ended } = self.draw(send_time_ns);
         let fate = if lost {
             Fate::Dropped
         } else {
@@ -272,20 +397,24 @@ impl DelayLine {
             });
             Fate::Delivered { original, duplicate }
         };
-        Decision { seq, send_time_ns, sampled_delay_s, fate }
+        Decision { seq, send_time_ns, sampled_delay_s, fate, trace_ended }
     }
 
-    /// The duplicate's delay: drawn from its own stream; a trace replays the original's delay.
+    /// The duplicate's delay: drawn from its own stream (a regime's from its current state,
+    /// which the duplicate does not move); a trace replays the original's delay.
     fn sampler_for_duplicate(&mut self) -> f64 {
+        let time_ns = self.last_send_ns;
         match &self.sampler {
-            Sampler::Trace { delays_s, looping, next } => {
-                let n = delays_s.len();
-                let last = next.saturating_sub(1);
-                delays_s[if *looping { last % n } else { last.min(n - 1) }]
+            Sampler::Trace { trace, next } => trace.delay_of(next.saturating_sub(1)).unwrap_or(0.0),
+            Sampler::Regime(r) => {
+                let mut s = r.states[r.current].0.clone();
+                s.sample(time_ns, &mut self.streams.duplicate_delay, &mut self.streams.regime.clone())
+                    .unwrap_or(0.0)
             }
             _ => {
                 let mut s = self.sampler.clone();
-                s.sample(&mut self.streams.duplicate_delay)
+                s.sample(time_ns, &mut self.streams.duplicate_delay, &mut self.streams.regime.clone())
+                    .unwrap_or(0.0)
             }
         }
     }
@@ -301,7 +430,7 @@ mod tests {
 
     #[test]
     fn fifo_queues_behind_a_slow_message_and_independent_reorders() -> Result<(), ProfileError> {
-        let trace = Distribution::Trace { delays_s: Arc::from(vec![0.5, 0.1]), looping: false };
+        let trace = Distribution::Trace(Trace::holding(vec![0.5, 0.1]));
         let mut fifo = line(trace.clone())?;
         let a = fifo.send(0);
         let b = fifo.send(1_000);
@@ -332,10 +461,28 @@ mod tests {
 
     #[test]
     fn non_looping_trace_holds_its_last_delay() -> Result<(), ProfileError> {
-        let mut l = line(Distribution::Trace { delays_s: Arc::from(vec![0.001, 0.002]), looping: false })?;
+        let mut l = line(Distribution::Trace(Trace::holding(vec![0.001, 0.002])))?;
         let d: Vec<f64> = (0..4).map(|_| l.sample_delay_s()).collect();
         assert_eq!(d, vec![0.001, 0.002, 0.002, 0.002]);
         assert!(l.trace_exhausted());
+        assert_eq!(l.check_next(), Ok(()));
+        Ok(())
+    }
+
+    #[test]
+    fn a_stopping_trace_gives_no_delay_past_its_end_and_says_so_before() -> Result<(), ProfileError> {
+        let mut l = line(Distribution::Trace(Trace::from_file("wifi.csv", vec![0.001, 0.002], false)))?;
+        for k in 0..2u64 {
+            assert_eq!(l.check_next(), Ok(()));
+            assert!(!l.send(k).trace_ended);
+        }
+        let ended = TraceEnded { name: "wifi.csv".into(), delays: 2, message: 2 };
+        assert_eq!(l.check_next(), Err(ended));
+        let d = l.send(2);
+        assert!(d.trace_ended && d.fate == Fate::Dropped && d.sampled_delay_s.is_nan());
+        assert!(l.check_next().is_err(), "it stays ended");
+        l.reset();
+        assert_eq!(l.check_next(), Ok(()));
         Ok(())
     }
 

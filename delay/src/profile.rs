@@ -2,6 +2,8 @@
 
 use std::sync::Arc;
 
+use crate::trace::Trace;
+
 /// Largest delay a profile may produce, s. Samples of unbounded distributions (Pareto,
 /// lognormal, Gamma) are clamped here so that release times stay representable.
 pub const MAX_DELAY_S: f64 = 3600.0;
@@ -27,8 +29,9 @@ impl Direction {
     }
 }
 
-/// The delay distribution of one direction. Every parameter is in seconds unless it is a shape
-/// or the `mu`/`sigma` of a log.
+/// The delay distribution of one direction: the one vocabulary of delay kinds (scenario files,
+/// netem's API and its `--profile-file` all name these). Every parameter is in seconds unless
+/// it is a shape or the `mu`/`sigma` of a log.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Distribution {
     /// Always `delay_s` (>= 0).
@@ -45,12 +48,49 @@ pub enum Distribution {
     GammaMoments { mean_s: f64, std_s: f64 },
     /// `ln(delay_s) ~ Normal(mu, sigma)`, `sigma >= 0`.
     Lognormal { mu: f64, sigma: f64 },
+    /// Lognormal given by the mean and standard deviation of the delay itself (`mean_s > 0`,
+    /// `std_s >= 0`): `sigma^2 = ln(1 + std^2 / mean^2)`, `mu = ln(mean) - sigma^2 / 2`.
+    LognormalMoments { mean_s: f64, std_s: f64 },
     /// Pareto (type I) with minimum `scale_s > 0` and tail index `shape > 0`.
     Pareto { scale_s: f64, shape: f64 },
-    /// Replay of recorded delays, in order. A non-looping trace holds its last delay once it is
-    /// exhausted (see [`crate::DelayLine::trace_exhausted`]).
-    Trace { delays_s: Arc<[f64]>, looping: bool },
+    /// Replay of recorded delays, in order; what happens past the end is the trace's
+    /// [`crate::TraceEnd`].
+    Trace(Trace),
+    /// A Markov-modulated process for bursty links (Wi-Fi, LTE): the link is in one of
+    /// `states`, each with its own delay law and mean dwell time; see [`RegimeState`].
+    Regime { states: Arc<[RegimeState]> },
 }
+
+/// How long a [`Distribution::Regime`] stays in a state, on average.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Dwell {
+    /// A geometric number of messages with this mean (>= 1): after each message the process
+    /// leaves the state with probability `1 / mean`.
+    Messages(f64),
+    /// An exponential time with this mean, s (> 0), on the clock of the send times.
+    Seconds(f64),
+}
+
+/// One state of a [`Distribution::Regime`].
+///
+/// The process starts in the first state at the first message. When it leaves a state it
+/// enters one of the others, chosen uniformly (with a single state it never leaves). A state
+/// of [`Dwell::Seconds`] is left at the first message sent at or after its end time; a state
+/// entered at time `t` then ends at `t` plus its own exponential dwell, so that the dwell
+/// times are those of a continuous-time Markov chain observed at the send times. Every draw
+/// comes from the line's seeded streams: the same seed and send times give the same states
+/// and delays.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RegimeState {
+    /// The delay law in this state: any kind but a trace or a regime.
+    pub delay: Distribution,
+    pub mean_dwell: Dwell,
+}
+
+/// Largest number of states of a regime process.
+pub const MAX_REGIME_STATES: usize = 64;
+/// Largest mean dwell of a regime state, in messages or seconds.
+pub const MAX_MEAN_DWELL: f64 = 1e12;
 
 impl Distribution {
     /// The Gamma parameters `(shape, scale_s)` of a `GammaMoments` distribution.
@@ -59,83 +99,166 @@ impl Distribution {
         (mean_s * mean_s / var, var / mean_s)
     }
 
+    /// The `(mu, sigma)` of the log of a lognormal delay of mean `mean_s` and standard
+    /// deviation `std_s`.
+    pub fn lognormal_from_moments(mean_s: f64, std_s: f64) -> (f64, f64) {
+        let var_log = (std_s / mean_s).powi(2).ln_1p();
+        (mean_s.ln() - var_log / 2.0, var_log.sqrt())
+    }
+
+    /// The kind's name, as in `hilbench.v1.DelayDistribution` and in scenario files.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Distribution::Constant { .. } => "constant",
+            Distribution::Uniform { .. } => "uniform",
+            Distribution::Normal { .. } => "normal",
+            Distribution::Gamma { .. } => "gamma",
+            Distribution::GammaMoments { .. } => "gamma_moments",
+            Distribution::Lognormal { .. } => "lognormal",
+            Distribution::LognormalMoments { .. } => "lognormal_moments",
+            Distribution::Pareto { .. } => "pareto",
+            Distribution::Trace(_) => "trace",
+            Distribution::Regime { .. } => "regime",
+        }
+    }
+
+    /// No delay at all: a constant zero.
+    pub fn is_zero(&self) -> bool {
+        matches!(self, Distribution::Constant { delay_s } if *delay_s == 0.0)
+    }
+
     /// Checks every parameter; the error names the field as `delay.<kind>.<field>`, the path of
-    /// the same field in the `hilbench.v1.DelayDistribution` message.
+    /// the same field in the `hilbench.v1.DirectionProfile` message.
     pub fn validate(&self) -> Result<(), ProfileError> {
-        fn nonneg(field: &str, v: f64) -> Result<(), ProfileError> {
+        self.validate_at("delay")
+    }
+
+    /// [`Distribution::validate`] with the path of the distribution given (`prefix`).
+    fn validate_at(&self, prefix: &str) -> Result<(), ProfileError> {
+        let field = |name: &str| format!("{prefix}.{}.{name}", self.kind());
+        let nonneg = |name: &str, v: f64| -> Result<(), ProfileError> {
             if !v.is_finite() || v < 0.0 {
-                return Err(ProfileError::new(field, format!("must be finite and >= 0, got {v}")));
+                return Err(ProfileError::new(field(name), format!("must be finite and >= 0, got {v}")));
             }
             if v > MAX_DELAY_S {
-                return Err(ProfileError::new(field, format!("must be at most {MAX_DELAY_S} s, got {v}")));
+                return Err(ProfileError::new(
+                    field(name),
+                    format!("must be at most {MAX_DELAY_S} s, got {v}"),
+                ));
             }
             Ok(())
-        }
-        fn positive(field: &str, v: f64) -> Result<(), ProfileError> {
+        };
+        let positive = |name: &str, v: f64| -> Result<(), ProfileError> {
             if !v.is_finite() || v <= 0.0 {
-                return Err(ProfileError::new(field, format!("must be finite and > 0, got {v}")));
+                return Err(ProfileError::new(field(name), format!("must be finite and > 0, got {v}")));
             }
             Ok(())
-        }
+        };
         match self {
-            Distribution::Constant { delay_s } => nonneg("delay.constant.delay_s", *delay_s),
+            Distribution::Constant { delay_s } => nonneg("delay_s", *delay_s),
             Distribution::Uniform { min_s, max_s } => {
-                nonneg("delay.uniform.min_s", *min_s)?;
-                nonneg("delay.uniform.max_s", *max_s)?;
+                nonneg("min_s", *min_s)?;
+                nonneg("max_s", *max_s)?;
                 if max_s < min_s {
                     return Err(ProfileError::new(
-                        "delay.uniform.max_s",
+                        field("max_s"),
                         format!("must be >= min_s ({min_s}), got {max_s}"),
                     ));
                 }
                 Ok(())
             }
             Distribution::Normal { mean_s, std_s } => {
-                nonneg("delay.normal.mean_s", *mean_s)?;
-                nonneg("delay.normal.std_s", *std_s)
+                nonneg("mean_s", *mean_s)?;
+                nonneg("std_s", *std_s)
             }
             Distribution::Gamma { shape, scale_s } => {
-                positive("delay.gamma.shape", *shape)?;
-                positive("delay.gamma.scale_s", *scale_s)?;
-                nonneg("delay.gamma.scale_s", *scale_s)
+                positive("shape", *shape)?;
+                positive("scale_s", *scale_s)?;
+                nonneg("scale_s", *scale_s)
             }
             Distribution::GammaMoments { mean_s, std_s } => {
-                positive("delay.gamma_moments.mean_s", *mean_s)?;
-                nonneg("delay.gamma_moments.mean_s", *mean_s)?;
-                positive("delay.gamma_moments.std_s", *std_s)?;
-                nonneg("delay.gamma_moments.std_s", *std_s)?;
+                positive("mean_s", *mean_s)?;
+                nonneg("mean_s", *mean_s)?;
+                positive("std_s", *std_s)?;
+                nonneg("std_s", *std_s)?;
                 let (shape, scale) = Self::gamma_from_moments(*mean_s, *std_s);
                 if !shape.is_finite() || !scale.is_finite() || shape <= 0.0 || scale <= 0.0 {
-                    return Err(ProfileError::new("delay.gamma_moments.std_s", "gives a degenerate Gamma"));
+                    return Err(ProfileError::new(field("std_s"), "gives a degenerate Gamma"));
                 }
                 Ok(())
             }
             Distribution::Lognormal { mu, sigma } => {
                 if !mu.is_finite() || *mu > MAX_DELAY_S.ln() {
                     return Err(ProfileError::new(
-                        "delay.lognormal.mu",
+                        field("mu"),
                         format!("must be finite and <= ln({MAX_DELAY_S}), got {mu}"),
                     ));
                 }
                 if !sigma.is_finite() || *sigma < 0.0 {
                     return Err(ProfileError::new(
-                        "delay.lognormal.sigma",
+                        field("sigma"),
                         format!("must be finite and >= 0, got {sigma}"),
                     ));
                 }
                 Ok(())
             }
-            Distribution::Pareto { scale_s, shape } => {
-                positive("delay.pareto.scale_s", *scale_s)?;
-                nonneg("delay.pareto.scale_s", *scale_s)?;
-                positive("delay.pareto.shape", *shape)
-            }
-            Distribution::Trace { delays_s, .. } => {
-                if delays_s.is_empty() {
-                    return Err(ProfileError::new("delay.trace.delays_s", "must hold at least one delay"));
+            Distribution::LognormalMoments { mean_s, std_s } => {
+                positive("mean_s", *mean_s)?;
+                nonneg("mean_s", *mean_s)?;
+                nonneg("std_s", *std_s)?;
+                let (mu, sigma) = Self::lognormal_from_moments(*mean_s, *std_s);
+                if !mu.is_finite() || !sigma.is_finite() {
+                    return Err(ProfileError::new(field("std_s"), "gives a degenerate lognormal"));
                 }
-                for (i, d) in delays_s.iter().enumerate() {
-                    nonneg(&format!("delay.trace.delays_s[{i}]"), *d)?;
+                Ok(())
+            }
+            Distribution::Pareto { scale_s, shape } => {
+                positive("scale_s", *scale_s)?;
+                nonneg("scale_s", *scale_s)?;
+                positive("shape", *shape)
+            }
+            Distribution::Trace(trace) => {
+                if trace.delays_s.is_empty() {
+                    return Err(ProfileError::new(field("delays_s"), "must hold at least one delay"));
+                }
+                for (i, d) in trace.delays_s.iter().enumerate() {
+                    nonneg(&format!("delays_s[{i}]"), *d)?;
+                }
+                Ok(())
+            }
+            Distribution::Regime { states } => {
+                if states.is_empty() {
+                    return Err(ProfileError::new(field("states"), "must hold at least one state"));
+                }
+                if states.len() > MAX_REGIME_STATES {
+                    return Err(ProfileError::new(
+                        field("states"),
+                        format!("must hold at most {MAX_REGIME_STATES} states, got {}", states.len()),
+                    ));
+                }
+                for (i, s) in states.iter().enumerate() {
+                    let at = field(&format!("states[{i}]"));
+                    if matches!(s.delay, Distribution::Trace(_) | Distribution::Regime { .. }) {
+                        return Err(ProfileError::new(
+                            format!("{at}.delay"),
+                            format!(
+                                "a state's delay may be any kind but trace or regime, got {}",
+                                s.delay.kind()
+                            ),
+                        ));
+                    }
+                    s.delay.validate_at(&format!("{at}.delay"))?;
+                    let (name, mean, least) = match s.mean_dwell {
+                        Dwell::Messages(m) => ("mean_dwell_messages", m, 1.0),
+                        Dwell::Seconds(t) => ("mean_dwell_s", t, f64::MIN_POSITIVE),
+                    };
+                    if !mean.is_finite() || mean < least || mean > MAX_MEAN_DWELL {
+                        let unit = if least == 1.0 { "at least 1 (message)" } else { "> 0" };
+                        return Err(ProfileError::new(
+                            format!("{at}.{name}"),
+                            format!("must be finite, {unit} and at most {MAX_MEAN_DWELL:e}, got {mean}"),
+                        ));
+                    }
                 }
                 Ok(())
             }
@@ -143,8 +266,9 @@ impl Distribution {
     }
 }
 
-/// Ordering of releases on one direction.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// Ordering of releases on one direction (`"fifo"` or `"independent"` in files).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Ordering {
     /// A message is never released before an earlier one (one TCP stream): the release time
     /// is `max(send + delay, previous release)`, so delays queue up behind a slow message.
@@ -219,19 +343,65 @@ impl ProfileError {
     }
 }
 
-/// A named pair of profiles, one per direction.
+/// What the network between a controller and its plant does, both ways: a scenario's delay
+/// process, and a netem preset.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Preset {
-    pub plant_to_controller: DirectionProfile,
-    pub controller_to_plant: DirectionProfile,
+pub struct NetworkProfile {
+    /// Commands, controller to plant. A scenario's round-trip delay lives here (paper mode:
+    /// the new input is applied at `t_k + d_k` to the exact sample `x(t_k)`).
+    pub to_plant: DirectionProfile,
+    /// State samples, plant to controller.
+    pub to_controller: DirectionProfile,
 }
 
-impl Preset {
+impl Default for NetworkProfile {
+    /// No delay, loss or duplication either way, seed 42.
+    fn default() -> Self {
+        Self::none(42)
+    }
+}
+
+impl NetworkProfile {
+    /// No delay, loss or duplication either way.
+    pub fn none(seed: u64) -> Self {
+        Self::round_trip(Distribution::Constant { delay_s: 0.0 }, seed)
+    }
+
+    /// The whole round trip `delay` on commands, nothing on samples, FIFO, no loss.
+    pub fn round_trip(delay: Distribution, seed: u64) -> Self {
+        Self {
+            to_plant: DirectionProfile::with_delay(delay, seed),
+            to_controller: DirectionProfile::with_delay(Distribution::Constant { delay_s: 0.0 }, seed),
+        }
+    }
+
     pub fn get(&self, direction: Direction) -> &DirectionProfile {
         match direction {
-            Direction::PlantToController => &self.plant_to_controller,
-            Direction::ControllerToPlant => &self.controller_to_plant,
+            Direction::PlantToController => &self.to_controller,
+            Direction::ControllerToPlant => &self.to_plant,
         }
+    }
+
+    /// Some message is delayed (a loss alone delays nothing). A controller expects delays, and
+    /// fits their law, exactly when this is true.
+    pub fn has_delays(&self) -> bool {
+        !self.to_plant.delay.is_zero() || !self.to_controller.delay.is_zero()
+    }
+
+    /// The same profile with `seed` for both directions (each direction draws from its own
+    /// random streams, so one seed does not make the two directions equal).
+    pub fn with_seed(mut self, seed: u64) -> Self {
+        self.to_plant.seed = seed;
+        self.to_controller.seed = seed;
+        self
+    }
+
+    /// Checks both directions; the error's field starts with `to_plant.` or `to_controller.`.
+    pub fn validate(&self) -> Result<(), ProfileError> {
+        for (name, p) in [("to_plant", &self.to_plant), ("to_controller", &self.to_controller)] {
+            p.validate().map_err(|e| ProfileError::new(format!("{name}.{}", e.field), e.reason))?;
+        }
+        Ok(())
     }
 }
 
@@ -245,20 +415,19 @@ pub const PRESETS: [(&str, &str); 3] = [
 /// The named preset `name`, with `seed` for both directions (each direction draws from its
 /// own random streams, so one seed does not make the two directions equal).
 ///
-/// SPEC.md's paper mode draws one round-trip delay `d_k ~ Gamma(12, 0.015)` per cycle and
+/// docs/spec.md's paper mode draws one round-trip delay `d_k ~ Gamma(12, 0.015)` per cycle and
 /// applies the new input at `t_k + d_k` to an exact sample `x(t_k)`. `"paper"` reproduces
 /// exactly that: the whole round trip is put on the command direction and the state samples
 /// travel without delay. `"paper-split"` is the alternative that keeps the round-trip law and
 /// splits it evenly: the sum of two independent Gamma(6, θ) is Gamma(12, θ), so the round trip
 /// has the paper's distribution while each sample is also stale.
-pub fn preset(name: &str, seed: u64) -> Result<Preset, ProfileError> {
-    let none = DirectionProfile::with_delay(Distribution::Constant { delay_s: 0.0 }, seed);
+pub fn preset(name: &str, seed: u64) -> Result<NetworkProfile, ProfileError> {
     let gamma =
         |shape: f64| DirectionProfile::with_delay(Distribution::Gamma { shape, scale_s: 0.015 }, seed);
     match name {
-        "paper" => Ok(Preset { plant_to_controller: none, controller_to_plant: gamma(12.0) }),
-        "paper-split" => Ok(Preset { plant_to_controller: gamma(6.0), controller_to_plant: gamma(6.0) }),
-        "none" => Ok(Preset { plant_to_controller: none.clone(), controller_to_plant: none }),
+        "paper" => Ok(NetworkProfile::round_trip(Distribution::Gamma { shape: 12.0, scale_s: 0.015 }, seed)),
+        "paper-split" => Ok(NetworkProfile { to_plant: gamma(6.0), to_controller: gamma(6.0) }),
+        "none" => Ok(NetworkProfile::none(seed)),
         other => {
             let known: Vec<&str> = PRESETS.iter().map(|(n, _)| *n).collect();
             Err(ProfileError::new("preset", format!("unknown preset `{other}`; known: {}", known.join(", "))))
@@ -297,14 +466,42 @@ mod tests {
             "delay.lognormal.sigma"
         );
         assert_eq!(field_of(with(Distribution::Pareto { scale_s: 0.01, shape: 0.0 })), "delay.pareto.shape");
+        assert_eq!(field_of(with(Distribution::Trace(Trace::holding(vec![])))), "delay.trace.delays_s");
         assert_eq!(
-            field_of(with(Distribution::Trace { delays_s: Arc::from(vec![]), looping: false })),
-            "delay.trace.delays_s"
-        );
-        assert_eq!(
-            field_of(with(Distribution::Trace { delays_s: Arc::from(vec![0.1, -0.1]), looping: false })),
+            field_of(with(Distribution::Trace(Trace::looping(vec![0.1, -0.1])))),
             "delay.trace.delays_s[1]"
         );
+        assert_eq!(
+            field_of(with(Distribution::LognormalMoments { mean_s: 0.0, std_s: 0.1 })),
+            "delay.lognormal_moments.mean_s"
+        );
+        let state = |delay, mean_dwell| RegimeState { delay, mean_dwell };
+        let regime = |states: Vec<RegimeState>| with(Distribution::Regime { states: states.into() });
+        let fast = Distribution::Constant { delay_s: 0.01 };
+        assert_eq!(field_of(regime(vec![])), "delay.regime.states");
+        assert_eq!(
+            field_of(regime(vec![
+                state(fast.clone(), Dwell::Messages(5.0)),
+                state(Distribution::Gamma { shape: -1.0, scale_s: 0.1 }, Dwell::Seconds(1.0)),
+            ])),
+            "delay.regime.states[1].delay.gamma.shape"
+        );
+        assert_eq!(
+            field_of(regime(vec![state(fast.clone(), Dwell::Messages(0.5))])),
+            "delay.regime.states[0].mean_dwell_messages"
+        );
+        assert_eq!(
+            field_of(regime(vec![state(fast.clone(), Dwell::Seconds(0.0))])),
+            "delay.regime.states[0].mean_dwell_s"
+        );
+        assert_eq!(
+            field_of(regime(vec![state(
+                Distribution::Trace(Trace::looping(vec![0.1])),
+                Dwell::Seconds(1.0)
+            )])),
+            "delay.regime.states[0].delay"
+        );
+        assert_eq!(field_of(regime(vec![state(fast, Dwell::Messages(1.0))])), "");
         let mut p = DirectionProfile { loss_probability: 1.5, ..DirectionProfile::default() };
         assert_eq!(field_of(p.clone()), "loss_probability");
         p.loss_probability = 0.5;
@@ -316,9 +513,11 @@ mod tests {
     #[test]
     fn paper_preset_is_the_spec_round_trip_on_commands() -> Result<(), ProfileError> {
         let p = preset("paper", 42)?;
-        assert_eq!(p.controller_to_plant.delay, Distribution::Gamma { shape: 12.0, scale_s: 0.015 });
-        assert_eq!(p.plant_to_controller.delay, Distribution::Constant { delay_s: 0.0 });
-        assert_eq!(p.controller_to_plant.seed, 42);
+        assert_eq!(p.to_plant.delay, Distribution::Gamma { shape: 12.0, scale_s: 0.015 });
+        assert_eq!(p.to_controller.delay, Distribution::Constant { delay_s: 0.0 });
+        assert_eq!(p.to_plant.seed, 42);
+        assert!(p.has_delays());
+        assert!(!preset("none", 1)?.has_delays());
         let split = preset("paper-split", 7)?;
         assert_eq!(
             split.get(Direction::PlantToController).delay,
@@ -327,8 +526,7 @@ mod tests {
         assert_eq!(preset("nope", 1).map_err(|e| e.field), Err("preset".to_string()));
         for (name, _) in PRESETS {
             let p = preset(name, 3)?;
-            p.plant_to_controller.validate()?;
-            p.controller_to_plant.validate()?;
+            p.validate()?;
         }
         Ok(())
     }

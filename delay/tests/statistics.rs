@@ -1,8 +1,6 @@
 //! The delay line against the laws it claims to draw from, and its reproducibility contract.
 
-use std::sync::Arc;
-
-use delay::{DelayLine, Direction, DirectionProfile, Distribution, Fate, Ordering, preset};
+use delay::{DelayLine, Direction, DirectionProfile, Distribution, Fate, Ordering, Trace, preset};
 use proptest::prelude::*;
 use statrs::distribution::{Continuous, ContinuousCDF, Gamma, Normal};
 
@@ -113,10 +111,7 @@ fn every_distribution_has_its_mean_and_variance() {
 #[test]
 fn trace_replay_reproduces_the_trace_exactly() -> Result<(), delay::TraceError> {
     let trace = delay::parse_trace("# recorded\n0.0125\n0.0031\n0.2\n0\n0.047\n")?;
-    let mut p = DirectionProfile::with_delay(
-        Distribution::Trace { delays_s: Arc::from(trace.clone()), looping: true },
-        1,
-    );
+    let mut p = DirectionProfile::with_delay(Distribution::Trace(Trace::looping(trace.clone())), 1);
     p.ordering = Ordering::Independent;
     let Ok(mut l) = DelayLine::new(Direction::PlantToController, p) else { panic!("valid trace refused") };
     for k in 0..3 * trace.len() {
@@ -133,7 +128,7 @@ fn trace_replay_reproduces_the_trace_exactly() -> Result<(), delay::TraceError> 
 #[test]
 fn same_seed_gives_the_same_delays_bit_for_bit_and_directions_differ() {
     let Ok(p) = preset("paper", 42) else { panic!("paper preset") };
-    let mut p = p.controller_to_plant;
+    let mut p = p.to_plant;
     p.loss_probability = 0.1;
     p.duplicate_probability = 0.1;
     let run = |dir| {
@@ -159,9 +154,7 @@ fn same_seed_gives_the_same_delays_bit_for_bit_and_directions_differ() {
 #[test]
 fn paper_delays_of_seed_42_are_pinned() {
     let Ok(p) = preset("paper", 42) else { panic!("paper preset") };
-    let Ok(mut l) = DelayLine::new(Direction::ControllerToPlant, p.controller_to_plant) else {
-        panic!("paper")
-    };
+    let Ok(mut l) = DelayLine::new(Direction::ControllerToPlant, p.to_plant) else { panic!("paper") };
     let got: Vec<u64> = (0..4).map(|_| l.sample_delay_s().to_bits()).collect();
     let want: Vec<u64> = PINNED.to_vec();
     assert_eq!(got, want, "as f64: {:?}", got.iter().map(|b| f64::from_bits(*b)).collect::<Vec<_>>());
@@ -178,7 +171,7 @@ fn any_distribution() -> impl Strategy<Value = Distribution> {
         (-6.0..-1.0f64, 0.0..1.5f64).prop_map(|(m, s)| Distribution::Lognormal { mu: m, sigma: s }),
         (0.001..0.05f64, 0.5..5.0f64).prop_map(|(s, a)| Distribution::Pareto { scale_s: s, shape: a }),
         (proptest::collection::vec(0.0..0.3f64, 1..20), any::<bool>())
-            .prop_map(|(v, l)| Distribution::Trace { delays_s: Arc::from(v), looping: l }),
+            .prop_map(|(v, l)| Distribution::Trace(if l { Trace::looping(v) } else { Trace::holding(v) })),
     ]
 }
 

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use mav::Scenario;
-use mpc::closed_loop::RunSummary;
+use mpc::RunSummary;
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
 
 use crate::grpc::{Endpoints, GrpcSettings, LinkFaults, RunTiming, run_against};
@@ -176,13 +176,14 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                     timing: run.timing,
                     loop_overhead_s: run.timing.loop_overhead_s(),
                 });
-                cycles.push(crate::cycle_log::from_telemetry(&run.telemetry));
+                cycles.push(crate::cycle_log::from_records(&run.records));
                 faults.push(run.faults);
                 run.summary
             }
             _ => {
-                let (summary, records) = run_closed_loop(scenario, &ClosedLoopSettings::paper(*mode))
+                let (summary, traces) = run_closed_loop(scenario, &ClosedLoopSettings::paper(*mode))
                     .with_context(|| format!("{name} with {}", mode.name()))?;
+                let records: Vec<_> = traces.into_iter().map(|t| t.record).collect();
                 cycles.push(crate::cycle_log::from_records(&records));
                 faults.push(LinkFaults::default());
                 summary
@@ -272,7 +273,7 @@ pub fn add_cycle_metrics(
     rows: &[crate::cycle_log::CycleRow],
     goal_m: &[f64; 3],
 ) {
-    use mpc::closed_loop::percentile;
+    use mpc::record::percentile;
     let deadline_misses = rows.iter().filter(|r| r.status == "deadline").count();
     // Row k knows the delay of command k-1; row 0 knows none.
     let mut latency_ms: Vec<f64> = rows.iter().skip(1).map(|r| r.known_delay_s * 1e3).collect();

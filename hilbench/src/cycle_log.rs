@@ -1,15 +1,12 @@
-//! The per-cycle log of a run as CSV, one row per control cycle, the same columns whether the
-//! run went over gRPC (built from telemetry) or in process (built from the closed loop's
-//! records), so that the two can be compared line by line (only `solve_ms`, a wall-clock time,
-//! differs).
+//! The per-cycle log of a run as CSV, one row per control cycle, built from the run's
+//! `mpc::CycleRecord`s whether it went over gRPC (telemetry decoded by `proto`) or in process,
+//! so that the two can be compared line by line (only `solve_ms`, a wall-clock time, differs).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use hilbench_proto::convert::controller::decision_from_pb;
-use hilbench_proto::pb;
-use mpc::closed_loop::CycleRecord;
+use mpc::CycleRecord;
 
 /// One control cycle.
 #[derive(Debug, Clone, PartialEq)]
@@ -36,79 +33,25 @@ pub struct CycleRow {
     pub cost_gap: Option<f64>,
 }
 
-/// Rows of an in-process run.
+/// The rows of a run's records (the same from a gRPC run and an in-process one).
 pub fn from_records(records: &[CycleRecord]) -> Vec<CycleRow> {
     records
         .iter()
-        .enumerate()
-        .map(|(k, r)| CycleRow {
+        .map(|r| CycleRow {
             cycle: r.cycle,
-            t_s: r.t_s,
+            t_s: r.t_s(),
             state: r.state,
             command: r.command,
-            known_delay_s: if k == 0 { 0.0 } else { records[k - 1].delay_s },
-            weights: r.weights_used.clone(),
-            status: r.report.status.name().to_string(),
-            iterations: r.report.iterations as u64,
-            solve_ms: r.report.solve_time.as_secs_f64() * 1e3,
-            cost: r.report.cost,
-            constraint_violation: r.report.constraint_violation,
-            predicted_clearance_m: r.report.min_clearance_m,
-            decision: r.selection.map_or(String::new(), |s| s.decision.name().to_string()),
-            cost_gap: r.selection.and_then(|s| s.cost_gap),
-        })
-        .collect()
-}
-
-fn status_name(code: i32) -> &'static str {
-    match pb::SolveStatus::try_from(code) {
-        Ok(pb::SolveStatus::Converged) => "converged",
-        Ok(pb::SolveStatus::IterationLimit) => "iteration_limit",
-        Ok(pb::SolveStatus::Deadline) => "deadline",
-        Ok(pb::SolveStatus::NumericalFailure) => "numerical_failure",
-        _ => "unspecified",
-    }
-}
-
-/// Rows of a gRPC run.
-pub fn from_telemetry(telemetry: &[pb::CycleTelemetry]) -> Vec<CycleRow> {
-    telemetry
-        .iter()
-        .map(|t| {
-            let sample = t.sample.as_ref();
-            let mut state = [f64::NAN; 8];
-            if let Some(x) = sample.and_then(|s| s.state.as_ref()) {
-                for (dst, src) in state.iter_mut().zip(&x.x) {
-                    *dst = *src;
-                }
-            }
-            let command =
-                t.command.as_ref().map_or([f64::NAN; 3], |c| [c.thrust_mps2, c.roll_rad, c.pitch_rad]);
-            let solve = t.solve.unwrap_or_default();
-            CycleRow {
-                cycle: t.cycle,
-                t_s: sample.map_or(f64::NAN, |s| mav::ns_to_s(s.time_ns)),
-                state,
-                command,
-                known_delay_s: t.measured_delay_s,
-                weights: t.scenario_weights.clone(),
-                status: status_name(solve.status).to_string(),
-                iterations: u64::from(solve.iterations),
-                solve_ms: solve.solve_ms,
-                cost: solve.cost,
-                constraint_violation: solve.constraint_violation,
-                predicted_clearance_m: if solve.min_clearance_m == f64::MAX {
-                    f64::INFINITY
-                } else {
-                    solve.min_clearance_m
-                },
-                decision: if t.decision_reason.is_empty() {
-                    String::new()
-                } else {
-                    decision_from_pb(t.solver).map_or("unspecified", |d| d.name()).to_string()
-                },
-                cost_gap: t.cost_gap,
-            }
+            known_delay_s: r.known_delay_s.unwrap_or(0.0),
+            weights: r.weights.clone(),
+            status: r.solve.status.name().to_string(),
+            iterations: r.solve.iterations,
+            solve_ms: r.solve.solve_ms,
+            cost: r.solve.cost,
+            constraint_violation: r.solve.constraint_violation,
+            predicted_clearance_m: r.solve.min_clearance_m,
+            decision: r.decision.map_or(String::new(), |d| d.name().to_string()),
+            cost_gap: r.cost_gap,
         })
         .collect()
 }

@@ -3,12 +3,12 @@
 //! Paper mode is lockstep; [`TimeMode::RealTime`] runs the same protocol on the wall clock.
 //!
 //! The controller is started idle (`autostart = false`) so that the telemetry subscription
-//! exists before its first cycle; `SetScenario` then starts the episode (for a scenario from a
-//! file, which the controller was started with, `SetGoal` with the scenario's own goal), and the
-//! run ends when `ControllerStatus.episode_finished` says so. Everything in the [`RunSummary`]
-//! comes from the wire: the trajectory numbers (path length, clearance, collisions, final state)
-//! from the plant's last state sample, the solve statistics from the controller's per-cycle
-//! telemetry.
+//! exists before its first cycle; `SetScenario` with the whole scenario then starts the episode
+//! (a built-in one or a file's, to a controller started here or elsewhere alike), and the run
+//! ends when `ControllerStatus.episode_finished` says so. Everything in the [`RunSummary`]
+//! comes from the wire, decoded by `proto`'s convert module: the per-cycle telemetry into
+//! `mpc::CycleRecord`s, the plant's last state sample into a `mav::PlantSample`; then
+//! `mpc::summarize` (the one summary, the in-process loop's too) makes the numbers.
 //!
 //! The delays: the scenario's Gamma model becomes netem's command-direction profile with the
 //! scenario's seed and no delay on samples (netem's `paper` preset for the paper scenarios); a
@@ -29,14 +29,12 @@ use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, anyhow, bail};
-use hilbench_proto::convert::controller::decision_from_pb;
 use hilbench_proto::pb;
 use hilbench_proto::pb::controller_client::ControllerClient;
 use hilbench_proto::pb::netem_control_client::NetemControlClient;
 use hilbench_proto::pb::plant_client::PlantClient;
-use mav::{DelayModel, Scenario};
-use mpc::closed_loop::{CollisionSummary, GapSummary, RunSummary, percentile};
-use mpc::{ControllerMode, Decision};
+use mav::{DelayModel, PlantSample, Scenario};
+use mpc::{ControllerMode, CycleRecord, RunSummary};
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 use tonic::transport::{Channel, Endpoint};
@@ -50,10 +48,10 @@ const STATUS_POLL: Duration = Duration::from_millis(10);
 #[derive(Debug, Clone)]
 pub struct GrpcRun {
     pub summary: RunSummary,
-    /// Every cycle's telemetry, in order (cycle 0 first).
-    pub telemetry: Vec<pb::CycleTelemetry>,
+    /// Every cycle's record, decoded from its telemetry, in order (cycle 0 first).
+    pub records: Vec<CycleRecord>,
     /// The plant's state sample when the episode ended.
-    pub final_sample: pb::StateSample,
+    pub final_sample: PlantSample,
     pub timing: RunTiming,
     pub faults: LinkFaults,
 }
@@ -75,15 +73,12 @@ pub struct LinkFaults {
 }
 
 impl LinkFaults {
-    fn of(status: &pb::ControllerStatus, telemetry: &[pb::CycleTelemetry]) -> Self {
+    fn of(status: &pb::ControllerStatus, records: &[CycleRecord]) -> Self {
         Self {
             link_losses: status.link_losses,
             link_down_s: status.link_down_s,
             longest_link_down_s: status.longest_link_down_s,
-            watchdog_cycles: telemetry
-                .iter()
-                .filter(|t| t.sample.as_ref().is_some_and(|s| s.watchdog_hover))
-                .count() as u64,
+            watchdog_cycles: records.iter().filter(|r| r.watchdog_hover).count() as u64,
         }
     }
 
@@ -228,7 +223,7 @@ pub struct EndpointArgs {
     #[arg(long)]
     pub netem: Option<String>,
     /// A running controller (HOST:PORT), already pointed at the netem (or plant) it should
-    /// fly; needs --plant or --netem to read the final state, and a built-in scenario.
+    /// fly; needs --plant or --netem to read the final state.
     #[arg(long)]
     pub controller: Option<String>,
 }
@@ -490,32 +485,20 @@ async fn drive(
     let setup_s = started.elapsed().as_secs_f64();
 
     let episode_started = Instant::now();
-    if Scenario::by_name(&scenario.name).is_ok_and(|b| b == *scenario) {
-        controller
-            .set_scenario(pb::SetScenarioRequest {
-                scenario: scenario.name.clone(),
-                mode: mode.name().into(),
-            })
-            .await
-            .context("controller SetScenario")?;
-    } else if services.controller.is_some() {
-        // A scenario from a file: `SetScenario` knows built-in names only, but the controller
-        // started here already holds the scenario and the mode, and idles until told; `SetGoal`
-        // with the scenario's own goal starts its episode.
-        controller
-            .set_goal(pb::SetGoalRequest { goal_m: scenario.goal_m.to_vec() })
-            .await
-            .context("controller SetGoal")?;
-    } else {
-        bail!(
-            "{} is not a built-in scenario: a controller at a given address cannot be given it over gRPC",
-            scenario.name
-        );
-    }
+    // The whole scenario travels with the request, so a controller started elsewhere flies a
+    // scenario file exactly as a built-in one (and resets the plant with it).
+    controller
+        .set_scenario(pb::SetScenarioRequest {
+            scenario: String::new(),
+            mode: mode.name().into(),
+            definition: Some(scenario.into()),
+        })
+        .await
+        .context("controller SetScenario")?;
     // The episode that runs this request is the last one started after `before`: one that was
     // running (or about to start at autostart) is restarted by the request, and a pending
     // request is taken before an episode can finish.
-    let mut episodes: BTreeMap<u64, Vec<pb::CycleTelemetry>> = BTreeMap::new();
+    let mut episodes: BTreeMap<u64, Vec<CycleRecord>> = BTreeMap::new();
     let mut poll = tokio::time::interval(STATUS_POLL);
     poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     // Real time: the episode whose telemetry ended the run, and the plant time of its goal.
@@ -538,19 +521,21 @@ async fn drive(
                 if item.episode <= before.episode {
                     continue;
                 }
+                let record = CycleRecord::try_from(&item)
+                    .map_err(|e| anyhow!("telemetry of cycle {} of episode {}: {e}", item.cycle, item.episode))?;
                 if real_time && real_time_end.is_none() {
-                    real_time_end = real_time_outcome(scenario, &item, max_ns)?.map(|t| (item.episode, t));
+                    real_time_end = real_time_outcome(scenario, &record, max_ns).map(|t| (item.episode, t));
                 }
                 let cycles = episodes.entry(item.episode).or_default();
-                if item.cycle != cycles.len() as u64 {
+                if record.cycle != cycles.len() as u64 {
                     bail!(
                         "telemetry gap in episode {}: expected cycle {}, got {}",
                         item.episode,
                         cycles.len(),
-                        item.cycle
+                        record.cycle
                     );
                 }
-                cycles.push(item);
+                cycles.push(record);
             }
             _ = poll.tick() => {
                 let s = controller.get_status(pb::GetStatusRequest {}).await?.into_inner();
@@ -582,120 +567,30 @@ async fn drive(
         );
     }
     let final_sample = plant.get_state(pb::GetStateRequest {}).await.context("plant GetState")?.into_inner();
+    let final_sample =
+        PlantSample::try_from(&final_sample).map_err(|e| anyhow!("the plant's last sample: {e}"))?;
     let time_to_goal_ns = match real_time_end {
         Some((_, goal)) => goal,
         None => (status.finish_reason == "reached").then_some(final_sample.time_ns),
     };
-    let summary = summarize(scenario, mode, time_to_goal_ns, &telemetry, &final_sample)?;
-    let faults = LinkFaults::of(&status, &telemetry);
-    let solver_s = telemetry.iter().filter_map(|t| t.solve.as_ref()).map(|s| s.solve_ms * 1e-3).sum();
+    let records = telemetry;
+    let summary = mpc::summarize(&scenario.name, mode, &records, &final_sample, time_to_goal_ns);
+    let faults = LinkFaults::of(&status, &records);
+    let solver_s = records.iter().map(|r| r.solve.solve_ms * 1e-3).sum();
     Ok(GrpcRun {
         summary,
-        telemetry,
+        records,
         final_sample,
         timing: RunTiming { setup_s, episode_s, solver_s, teardown_s: 0.0 },
         faults,
     })
 }
 
-/// Real time: whether the cycle of `item` ends the run: `Some(Some(t))` when its sample is at
-/// the goal (plant time `t`), `Some(None)` past the time limit, `None` to go on.
-fn real_time_outcome(
-    scenario: &Scenario,
-    item: &pb::CycleTelemetry,
-    max_ns: u64,
-) -> anyhow::Result<Option<Option<u64>>> {
-    let sample =
-        item.sample.as_ref().ok_or_else(|| anyhow!("telemetry cycle {} without a sample", item.cycle))?;
-    let x = sample.state.as_ref().map(|s| s.x.as_slice()).unwrap_or_default();
-    let x: [f64; 8] = x
-        .try_into()
-        .map_err(|_| anyhow!("telemetry cycle {}: {} state values, not 8", item.cycle, x.len()))?;
-    if scenario.goal_reached(&mav::State::from(x)) {
-        return Ok(Some(Some(sample.time_ns)));
+/// Real time: whether the cycle of `record` ends the run: `Some(Some(t))` when its sample is
+/// at the goal (plant time `t`), `Some(None)` past the time limit, `None` to go on.
+fn real_time_outcome(scenario: &Scenario, record: &CycleRecord, max_ns: u64) -> Option<Option<u64>> {
+    if scenario.goal_reached(&mav::State::from(record.state)) {
+        return Some(Some(record.sample_time_ns));
     }
-    Ok((sample.time_ns >= max_ns).then_some(None))
-}
-
-/// Cycles per decision from the telemetry's `solver` field, the same map as
-/// `mpc::closed_loop::decision_counts` (empty when the layer was off: no cycle has a reason).
-fn telemetry_decisions(telemetry: &[pb::CycleTelemetry]) -> BTreeMap<String, u64> {
-    let mut counts = BTreeMap::new();
-    if telemetry.iter().all(|t| t.decision_reason.is_empty()) {
-        return counts;
-    }
-    for d in [Decision::Panoc, Decision::Qp, Decision::ShiftedPlan, Decision::Brake] {
-        counts.insert(d.name().to_string(), 0);
-    }
-    for d in telemetry.iter().filter_map(|t| decision_from_pb(t.solver)) {
-        *counts.entry(d.name().to_string()).or_insert(0) += 1;
-    }
-    counts
-}
-
-/// The spec's per-run numbers from what came over the wire; `time_to_goal_ns` is the plant
-/// time at which the goal was reached (`None`: not reached).
-pub fn summarize(
-    scenario: &Scenario,
-    mode: ControllerMode,
-    time_to_goal_ns: Option<u64>,
-    telemetry: &[pb::CycleTelemetry],
-    last: &pb::StateSample,
-) -> anyhow::Result<RunSummary> {
-    let x = last.state.as_ref().map(|s| s.x.as_slice()).unwrap_or_default();
-    if x.len() != 8 {
-        bail!("the plant's last sample has {} state values, not 8", x.len());
-    }
-    let stats: Vec<&pb::SolveStats> = telemetry.iter().filter_map(|t| t.solve.as_ref()).collect();
-    if stats.len() != telemetry.len() {
-        bail!("telemetry without solve statistics");
-    }
-    let mut solve_ms: Vec<f64> = stats.iter().map(|s| s.solve_ms).collect();
-    let mut iterations: Vec<f64> = stats.iter().map(|s| f64::from(s.iterations)).collect();
-    let mean =
-        if solve_ms.is_empty() { f64::NAN } else { solve_ms.iter().sum::<f64>() / solve_ms.len() as f64 };
-    let count = |status: pb::SolveStatus| stats.iter().filter(|s| s.status == status as i32).count() as u64;
-    let reached = time_to_goal_ns.is_some();
-    let end_time_s = mav::ns_to_s(last.time_ns);
-    Ok(RunSummary {
-        scenario: scenario.name.clone(),
-        controller: mode.name().to_string(),
-        reached,
-        collided: last.collided,
-        time_to_goal_s: time_to_goal_ns.map(mav::ns_to_s),
-        end_time_s,
-        path_length_m: last.path_length_m,
-        min_clearance_m: last.min_clearance_m,
-        cycles: telemetry.len() as u64,
-        solve_ms_mean: mean,
-        solve_ms_median: percentile(&mut solve_ms, 50.0),
-        solve_ms_p95: percentile(&mut solve_ms, 95.0),
-        solve_ms_max: percentile(&mut solve_ms, 100.0),
-        iterations_median: percentile(&mut iterations, 50.0),
-        fallbacks: telemetry
-            .iter()
-            .filter(|t| decision_from_pb(t.solver).is_none_or(|d| d.is_fallback()))
-            .count() as u64,
-        decisions: telemetry_decisions(telemetry),
-        cost_gap: GapSummary::of(&telemetry.iter().filter_map(|t| t.cost_gap).collect::<Vec<_>>()),
-        iteration_limits: count(pb::SolveStatus::IterationLimit),
-        final_position_m: [x[0], x[1], x[2]],
-        collisions: last
-            .collisions
-            .iter()
-            .map(|c| {
-                let cylinder = c.kind == pb::CollisionKind::Cylinder as i32;
-                CollisionSummary {
-                    kind: if cylinder { "cylinder" } else { "ground" }.to_string(),
-                    obstacle_index: cylinder.then_some(c.obstacle_index),
-                    time_s: mav::ns_to_s(c.time_ns),
-                    position_m: [
-                        c.position_m.first().copied().unwrap_or(f64::NAN),
-                        c.position_m.get(1).copied().unwrap_or(f64::NAN),
-                        c.position_m.get(2).copied().unwrap_or(f64::NAN),
-                    ],
-                }
-            })
-            .collect(),
-    })
+    (record.sample_time_ns >= max_ns).then_some(None)
 }

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
+use clap::builder::PossibleValuesParser;
 use clap::{Parser, Subcommand, ValueEnum};
 use hilbench::bench::{
     Outcome, Transport, default_out_dir, file_jobs, paper_jobs, run_all, run_table, write_cycle_logs,
@@ -16,6 +17,7 @@ use hilbench::grpc::{EndpointArgs, Endpoints, TimeMode};
 use hilbench::report;
 use hilbench::report_md::{self, ReportText};
 use hilbench::scenario_file::{Mode, ScenarioFile};
+use mav::Scenario;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -53,9 +55,12 @@ enum Command {
         /// Print the summary as JSON on stdout instead of the tables.
         #[arg(long)]
         json: bool,
-        /// Only these scenarios (default: all three).
-        #[arg(long)]
+        /// Only this scenario (repeat the flag for more; default: all three).
+        #[arg(long, value_parser = PossibleValuesParser::new(Scenario::BUILT_IN))]
         scenario: Vec<String>,
+        /// Seed of the delay process instead of the scenarios' own (42).
+        #[arg(long)]
+        seed: Option<u64>,
         /// Run the closed loop in process (`mpc::run_closed_loop`) instead of over gRPC.
         #[arg(long, conflicts_with_all = ["plant", "netem", "controller"])]
         in_process: bool,
@@ -87,35 +92,44 @@ enum Command {
         /// Run the closed loop in process (`mpc::run_closed_loop`) instead of over gRPC.
         #[arg(long, conflicts_with_all = ["plant", "netem", "controller", "time_mode"])]
         in_process: bool,
-        /// How plant time moves (default: the file's `run.time_mode`).
+        /// How plant time moves (default: the file's `run.time_mode`, lockstep unless the file
+        /// says otherwise: a bench run should be deterministic; real time exercises the
+        /// services on the wall clock, as a vehicle would).
         #[arg(long, value_enum)]
         time_mode: Option<TimeMode>,
+        /// Seed of the delay process instead of the file's `scenario.seed`.
+        #[arg(long)]
+        seed: Option<u64>,
         #[command(flatten)]
         services: EndpointArgs,
     },
 }
+
+/// Exit codes: 0 every run ended without a collision, 1 an error (anyhow's), 2 a usage error
+/// (clap's), [`EXIT_COLLISION`] a run collided (a result scripts must be able to tell from both).
+const EXIT_COLLISION: i32 = 3;
 
 fn main() -> anyhow::Result<()> {
     let started = Instant::now();
     let cli = Cli::parse();
     let opts = Options { quiet: cli.quiet, plots: !cli.no_plots, started };
     let outcome = match cli.command {
-        Command::Reproduce { out, json, scenario, in_process, plant, netem, controller } => {
+        Command::Reproduce { out, json, scenario, seed, in_process, plant, netem, controller } => {
             let transport = if in_process {
                 Transport::InProcess
             } else {
                 Transport::Grpc(Endpoints { plant, netem, controller, ..Endpoints::default() })
             };
-            reproduce(out, json, &opts, &scenario, &transport)?
+            reproduce(out, json, &opts, &scenario, seed, &transport)?
         }
-        Command::Run { file, mode, out, json, in_process, time_mode, services } => {
+        Command::Run { file, mode, out, json, in_process, time_mode, seed, services } => {
             let transport = (!in_process).then_some((services, time_mode));
-            run(&file, mode, out, json, &opts, transport)?
+            run(&file, mode, out, json, &opts, seed, transport)?
         }
     };
     if outcome.any_collided() {
         // A collision is a result worth reporting, and scripts must see it.
-        std::process::exit(2);
+        std::process::exit(EXIT_COLLISION);
     }
     Ok(())
 }
@@ -191,11 +205,16 @@ fn reproduce(
     json: bool,
     opts: &Options,
     only: &[String],
+    seed: Option<u64>,
     transport: &Transport,
 ) -> anyhow::Result<Outcome> {
-    let jobs = paper_jobs(only)?;
+    let mut jobs = paper_jobs(only)?;
+    if let Some(seed) = seed {
+        jobs.iter_mut().for_each(|(scenario, _)| scenario.seed = seed);
+    }
     let header = format!(
-        "Paper reproduction: SPEC.md paper mode (RK4 plant at 1 ms, Gamma(12, 0.015) round-trip delays, seed 42), lockstep, {}",
+        "Paper reproduction: docs/spec.md paper mode (RK4 plant at 1 ms, Gamma(12, 0.015) round-trip delays, seed {}), lockstep, {}",
+        seed.unwrap_or(Scenario::paper_1().seed),
         transport.describe()
     );
     let Executed { outcome, summary, dir, show } =
@@ -230,9 +249,13 @@ fn run(
     out: Option<PathBuf>,
     json: bool,
     opts: &Options,
+    seed: Option<u64>,
     services: Option<(EndpointArgs, Option<TimeMode>)>,
 ) -> anyhow::Result<Outcome> {
-    let spec = ScenarioFile::load(file)?;
+    let mut spec = ScenarioFile::load(file)?;
+    if let Some(seed) = seed {
+        spec.scenario.seed = seed;
+    }
     let transport = &match services {
         Some((args, time_mode)) => Transport::Grpc(args.endpoints(time_mode.unwrap_or(spec.run.time_mode))),
         None if spec.run.time_mode == TimeMode::RealTime => {

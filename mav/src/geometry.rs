@@ -15,7 +15,7 @@ pub struct Cylinder {
 }
 
 impl Cylinder {
-    /// `SPEC.md`: `zo = 10 m`.
+    /// `docs/spec.md`: `zo = 10 m`.
     pub const PAPER_HEIGHT_M: f64 = 10.0;
 
     fn default_height_m() -> f64 {
@@ -51,7 +51,7 @@ impl Cylinder {
 
     /// Signed clearance of a point to the cylinder surface, negative inside.
     ///
-    /// Below the top this is the horizontal clearance `d - r` of `SPEC.md`; above the top it is
+    /// Below the top this is the horizontal clearance `d - r` of `docs/spec.md`; above the top it is
     /// the distance to the top cap (so flying over a short cylinder is not a collision).
     #[inline]
     pub fn clearance_m(&self, px: f64, py: f64, pz: f64) -> f64 {

@@ -1,6 +1,6 @@
 //! `mav` owns the physics of the bench: the paper's 8-state micro aerial vehicle model, its
 //! explicit-Euler (controller prediction) and RK4 (plant truth) integrators, the obstacle
-//! geometry (vertical cylinders and the ground), the scenario definitions of `SPEC.md`, and the
+//! geometry (vertical cylinders and the ground), the scenario definitions of `docs/spec.md`, and the
 //! truth simulation that the plant service wraps.
 //!
 //! It is a pure library: no clock, no I/O, no async. Time is an argument (integer nanoseconds
@@ -13,7 +13,10 @@ pub mod sim;
 
 pub use geometry::{Cylinder, GROUND_INDEX};
 pub use model::{Dynamics, Input, InputBounds, MavModel, ModelParams, State, euler_step, rk4_step};
-pub use scenario::{DelayModel, Scenario, ScenarioError};
+pub use scenario::{
+    DelayModel, MAX_ABS_ANGLE_RAD, MAX_ABS_POSITION_M, MAX_ABS_VELOCITY_MPS, MAX_COEFFICIENT,
+    MAX_OBSTACLE_SIZE_M, Scenario, ScenarioError,
+};
 pub use sim::{
     AppliedCommand, CollisionEvent, CollisionKind, CommandMeta, PlantSample, PlantSim, SimError, SimSettings,
 };

@@ -1,4 +1,4 @@
-//! The MAV model of `SPEC.md`: continuous dynamics and the two integrators.
+//! The MAV model of `docs/spec.md`: continuous dynamics and the two integrators.
 
 use nalgebra::SVector;
 
@@ -7,7 +7,7 @@ pub type State = SVector<f64, 8>;
 /// `[T, phi_d, theta_d]`: mass-normalised thrust in m/s^2, desired roll and pitch in rad.
 pub type Input = SVector<f64, 3>;
 
-/// Physical parameters of the model (defaults from `SPEC.md`).
+/// Physical parameters of the model (defaults from `docs/spec.md`).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ModelParams {
@@ -82,7 +82,7 @@ pub struct InputBounds {
 }
 
 impl InputBounds {
-    /// `SPEC.md`: `T in [0, 2g]`, angles in `[-pi/18, pi/18]` rad.
+    /// `docs/spec.md`: `T in [0, 2g]`, angles in `[-pi/18, pi/18]` rad.
     pub fn paper(gravity_mps2: f64) -> Self {
         let a = std::f64::consts::PI / 18.0;
         Self { min: [0.0, -a, -a], max: [2.0 * gravity_mps2, a, a] }
@@ -123,7 +123,7 @@ pub trait Dynamics<const NX: usize, const NU: usize> {
     fn derivative(&self, x: &SVector<f64, NX>, u: &SVector<f64, NU>) -> SVector<f64, NX>;
 }
 
-/// The MAV of `SPEC.md` with its parameters.
+/// The MAV of `docs/spec.md` with its parameters.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct MavModel {
     pub params: ModelParams,

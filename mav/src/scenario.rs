@@ -1,4 +1,4 @@
-//! Scenario definitions: everything `SPEC.md` pins down for one run, as validated data.
+//! Scenario definitions: everything `docs/spec.md` pins down for one run, as validated data.
 //! The three paper scenarios are built in; user scenarios come from files through serde.
 
 use crate::geometry::Cylinder;
@@ -15,7 +15,7 @@ pub enum DelayModel {
 }
 
 impl DelayModel {
-    /// `SPEC.md`: Gamma(12, 0.015), mean 0.18 s.
+    /// `docs/spec.md`: Gamma(12, 0.015), mean 0.18 s.
     pub const PAPER: DelayModel = DelayModel::Gamma { shape: 12.0, scale_s: 0.015 };
 }
 
@@ -27,11 +27,24 @@ pub enum ScenarioError {
     Invalid { field: String, reason: String },
 }
 
+/// Largest absolute coordinate of anything in a scenario (obstacles, start, goal, ground,
+/// floor), m: a world of 20 km. Beyond it the solvers' arithmetic loses meaning (a cylinder at
+/// 1e300 m made the augmented Lagrangian's norms overflow), so it is refused, not solved.
+pub const MAX_ABS_POSITION_M: f64 = 1.0e4;
+/// Largest absolute velocity component of a start state, m/s.
+pub const MAX_ABS_VELOCITY_MPS: f64 = 1.0e3;
+/// Largest absolute roll or pitch of a start state, rad (exclusive).
+pub const MAX_ABS_ANGLE_RAD: f64 = std::f64::consts::FRAC_PI_2;
+/// Largest cylinder radius or height, m.
+pub const MAX_OBSTACLE_SIZE_M: f64 = 1.0e3;
+/// Largest cost weight and model parameter.
+pub const MAX_COEFFICIENT: f64 = 1.0e9;
+
 fn invalid(field: impl Into<String>, reason: impl Into<String>) -> ScenarioError {
     ScenarioError::Invalid { field: field.into(), reason: reason.into() }
 }
 
-/// One scenario of `SPEC.md`: world, vehicle, controller tuning and delay process.
+/// One scenario of `docs/spec.md`: world, vehicle, controller tuning and delay process.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Scenario {
@@ -189,29 +202,98 @@ impl Scenario {
     /// Checks every field; the error names the first bad one.
     pub fn validate(&self) -> Result<(), ScenarioError> {
         self.model.validate().map_err(|f| invalid(format!("model.{f}"), "must be finite and positive"))?;
+        let m = &self.model;
+        for (name, v) in [
+            ("gravity_mps2", m.gravity_mps2),
+            ("drag_x_per_s", m.drag_x_per_s),
+            ("drag_y_per_s", m.drag_y_per_s),
+            ("drag_z_per_s", m.drag_z_per_s),
+            ("tau_roll_s", m.tau_roll_s),
+            ("tau_pitch_s", m.tau_pitch_s),
+            ("gain_roll", m.gain_roll),
+            ("gain_pitch", m.gain_pitch),
+        ] {
+            if v > MAX_COEFFICIENT {
+                return Err(invalid(format!("model.{name}"), format!("must be at most {MAX_COEFFICIENT}")));
+            }
+        }
         self.bounds
             .validate()
             .map_err(|f| invalid(format!("bounds.{f}"), "must be finite with min <= max"))?;
+        for (side, values) in [("min", self.bounds.min), ("max", self.bounds.max)] {
+            if values[0].abs() > MAX_COEFFICIENT {
+                return Err(invalid(
+                    format!("bounds.{side}[0]"),
+                    format!("must be within +-{MAX_COEFFICIENT}"),
+                ));
+            }
+            for (k, angle) in values.iter().enumerate().skip(1) {
+                if angle.abs() >= MAX_ABS_ANGLE_RAD {
+                    return Err(invalid(
+                        format!("bounds.{side}[{k}]"),
+                        "must be within +-pi/2 rad (exclusive)",
+                    ));
+                }
+            }
+        }
         for (i, c) in self.obstacles.iter().enumerate() {
             c.validate()
                 .map_err(|f| invalid(format!("obstacles[{i}].{f}"), "must be finite and positive"))?;
+            for (name, v, limit) in [
+                ("x_m", c.x_m.abs(), MAX_ABS_POSITION_M),
+                ("y_m", c.y_m.abs(), MAX_ABS_POSITION_M),
+                ("radius_m", c.radius_m, MAX_OBSTACLE_SIZE_M),
+                ("height_m", c.height_m, MAX_OBSTACLE_SIZE_M),
+            ] {
+                if v > limit {
+                    return Err(invalid(
+                        format!("obstacles[{i}].{name}"),
+                        format!("must be within {limit} m"),
+                    ));
+                }
+            }
         }
-        if let Some(i) = self.start.iter().position(|v| !v.is_finite()) {
-            return Err(invalid(format!("start[{i}]"), "must be finite"));
+        if self.obstacles.len() > 1000 {
+            return Err(invalid("obstacles", "must hold at most 1000 cylinders"));
+        }
+        for (i, v) in self.start.iter().enumerate() {
+            let limit = match i {
+                0..3 => MAX_ABS_POSITION_M,
+                3..6 => MAX_ABS_VELOCITY_MPS,
+                _ => MAX_ABS_ANGLE_RAD,
+            };
+            if !v.is_finite() {
+                return Err(invalid(format!("start[{i}]"), "must be finite"));
+            }
+            if v.abs() > limit || (i >= 6 && v.abs() >= limit) {
+                return Err(invalid(format!("start[{i}]"), format!("must be within +-{limit}")));
+            }
+        }
+        if !self.ground_z_m.is_finite() || self.ground_z_m.abs() > MAX_ABS_POSITION_M {
+            return Err(invalid("ground_z_m", format!("must be finite and within +-{MAX_ABS_POSITION_M} m")));
+        }
+        if self.min_altitude_m.is_some_and(|z| !z.is_finite() || z.abs() > MAX_ABS_POSITION_M) {
+            return Err(invalid(
+                "min_altitude_m",
+                format!("must be finite and within +-{MAX_ABS_POSITION_M} m"),
+            ));
         }
         self.check_goal(self.goal_m)?;
         let weights = [("q_x", &self.q_x[..]), ("q_u", &self.q_u[..]), ("q_du", &self.q_du[..])];
         for (name, w) in weights {
-            if let Some(i) = w.iter().position(|v| !v.is_finite() || *v < 0.0) {
-                return Err(invalid(format!("{name}[{i}]"), "must be finite and >= 0"));
+            if let Some(i) = w.iter().position(|v| !v.is_finite() || *v < 0.0 || *v > MAX_COEFFICIENT) {
+                return Err(invalid(
+                    format!("{name}[{i}]"),
+                    format!("must be finite and in [0, {MAX_COEFFICIENT}]"),
+                ));
             }
         }
         if self.horizon == 0 || self.horizon > 1000 {
             return Err(invalid("horizon", "must be in 1..=1000"));
         }
         let positive = |v: f64| v.is_finite() && v > 0.0;
-        if !positive(self.nmpc_sampling_time_s) {
-            return Err(invalid("nmpc_sampling_time_s", "must be finite and > 0"));
+        if !positive(self.nmpc_sampling_time_s) || self.nmpc_sampling_time_s > 60.0 {
+            return Err(invalid("nmpc_sampling_time_s", "must be in (0, 60] s"));
         }
         if self.sampling_times_s.is_empty() || self.sampling_times_s.len() > 16 {
             return Err(invalid("sampling_times_s", "must hold 1 to 16 values"));
@@ -221,24 +303,33 @@ impl Scenario {
                 return Err(invalid(format!("sampling_times_s[{}]", i + 1), "must be increasing"));
             }
         }
-        if let Some(i) = self.sampling_times_s.iter().position(|v| !positive(*v)) {
-            return Err(invalid(format!("sampling_times_s[{i}]"), "must be finite and > 0"));
+        if let Some(i) = self.sampling_times_s.iter().position(|v| !positive(*v) || *v > 60.0) {
+            return Err(invalid(format!("sampling_times_s[{i}]"), "must be in (0, 60] s"));
         }
         if self.nominal_weights.len() != self.sampling_times_s.len() {
             return Err(invalid("nominal_weights", "needs one weight per sampling time"));
         }
-        if let Some(i) = self.nominal_weights.iter().position(|v| !v.is_finite() || *v < 0.0) {
-            return Err(invalid(format!("nominal_weights[{i}]"), "must be finite and >= 0"));
+        if let Some(i) =
+            self.nominal_weights.iter().position(|v| !v.is_finite() || *v < 0.0 || *v > MAX_COEFFICIENT)
+        {
+            return Err(invalid(
+                format!("nominal_weights[{i}]"),
+                format!("must be finite and in [0, {MAX_COEFFICIENT}]"),
+            ));
         }
         // Every weight is finite and >= 0 here, so the sum cannot be NaN.
         if self.nominal_weights.iter().sum::<f64>() <= 0.0 {
             return Err(invalid("nominal_weights", "must not all be zero"));
         }
-        if !positive(self.prior_gamma.0) || !positive(self.prior_gamma.1) {
+        if !positive(self.prior_gamma.0)
+            || !positive(self.prior_gamma.1)
+            || self.prior_gamma.0 > MAX_COEFFICIENT
+            || self.prior_gamma.1 > 3600.0
+        {
             return Err(invalid("prior_gamma", "shape and scale must be finite and > 0"));
         }
-        if self.delay_window < 2 {
-            return Err(invalid("delay_window", "must be at least 2"));
+        if !(2..=100_000).contains(&self.delay_window) {
+            return Err(invalid("delay_window", "must be in 2..=100000"));
         }
         if let DelayModel::Gamma { shape, scale_s } = self.delays {
             if !positive(shape) {
@@ -248,23 +339,20 @@ impl Scenario {
                 return Err(invalid("delays.scale_s", "must be finite and > 0"));
             }
         }
-        if !positive(self.min_cycle_s) {
-            return Err(invalid("min_cycle_s", "must be finite and > 0"));
+        if !positive(self.min_cycle_s) || self.min_cycle_s > 3600.0 {
+            return Err(invalid("min_cycle_s", "must be in (0, 3600] s"));
         }
-        if !positive(self.goal_tolerance_m) {
-            return Err(invalid("goal_tolerance_m", "must be finite and > 0"));
+        if !positive(self.goal_tolerance_m) || self.goal_tolerance_m > MAX_ABS_POSITION_M {
+            return Err(invalid("goal_tolerance_m", format!("must be in (0, {MAX_ABS_POSITION_M}] m")));
         }
-        if !positive(self.goal_speed_tolerance_mps) {
-            return Err(invalid("goal_speed_tolerance_mps", "must be finite and > 0"));
+        if !positive(self.goal_speed_tolerance_mps) || self.goal_speed_tolerance_mps > MAX_ABS_VELOCITY_MPS {
+            return Err(invalid(
+                "goal_speed_tolerance_mps",
+                format!("must be in (0, {MAX_ABS_VELOCITY_MPS}] m/s"),
+            ));
         }
         if !positive(self.max_duration_s) || self.max_duration_s > 86_400.0 {
             return Err(invalid("max_duration_s", "must be in (0, 86400]"));
-        }
-        if !self.ground_z_m.is_finite() {
-            return Err(invalid("ground_z_m", "must be finite"));
-        }
-        if self.min_altitude_m.is_some_and(|z| !z.is_finite()) {
-            return Err(invalid("min_altitude_m", "must be finite"));
         }
         if self.obstacle_margin_m.is_some_and(|m| !(m.is_finite() && (0.0..=10.0).contains(&m))) {
             return Err(invalid("obstacle_margin_m", "must be in [0, 10]"));
@@ -279,6 +367,9 @@ impl Scenario {
         if let Some(i) = goal_m.iter().position(|v| !v.is_finite()) {
             return Err(invalid(format!("goal_m[{i}]"), "must be finite"));
         }
+        if let Some(i) = goal_m.iter().position(|v| v.abs() > MAX_ABS_POSITION_M) {
+            return Err(invalid(format!("goal_m[{i}]"), format!("must be within +-{MAX_ABS_POSITION_M} m")));
+        }
         let lowest = self.min_altitude_m.map_or(self.ground_z_m, |floor| floor.max(self.ground_z_m));
         if goal_m[2] < lowest {
             return Err(invalid("goal_m[2]", format!("must be at or above {lowest} m (ground or floor)")));
@@ -291,7 +382,7 @@ impl Scenario {
         Ok(())
     }
 
-    /// The end condition of `SPEC.md`: close to the goal and nearly at rest.
+    /// The end condition of `docs/spec.md`: close to the goal and nearly at rest.
     pub fn goal_reached(&self, x: &State) -> bool {
         let dp = ((x[0] - self.goal_m[0]).powi(2)
             + (x[1] - self.goal_m[1]).powi(2)
@@ -305,6 +396,45 @@ impl Scenario {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn magnitudes_no_solver_can_mean_are_refused_with_the_field_named() {
+        let field = |s: &Scenario| match s.validate() {
+            Err(ScenarioError::Invalid { field, .. }) => field,
+            other => format!("{other:?}"),
+        };
+        let base = Scenario::paper_2();
+        let mut s = base.clone();
+        s.obstacles[0].x_m = 1e300;
+        assert_eq!(field(&s), "obstacles[0].x_m");
+        let mut s = base.clone();
+        s.obstacles[0].radius_m = 5e3;
+        assert_eq!(field(&s), "obstacles[0].radius_m");
+        let mut s = base.clone();
+        s.start[1] = -2e4;
+        assert_eq!(field(&s), "start[1]");
+        let mut s = base.clone();
+        s.start[4] = 5e3;
+        assert_eq!(field(&s), "start[4]");
+        let mut s = base.clone();
+        s.goal_m[0] = 1e5;
+        assert_eq!(field(&s), "goal_m[0]");
+        let mut s = base.clone();
+        s.q_x[2] = 1e12;
+        assert_eq!(field(&s), "q_x[2]");
+        let mut s = base.clone();
+        s.ground_z_m = -1e6;
+        assert_eq!(field(&s), "ground_z_m");
+        let mut s = base.clone();
+        s.bounds.max[1] = 2.0;
+        assert_eq!(field(&s), "bounds.max[1]");
+        let mut s = base.clone();
+        s.sampling_times_s[4] = 1e3;
+        assert_eq!(field(&s), "sampling_times_s[4]");
+        for name in Scenario::BUILT_IN {
+            assert_eq!(Scenario::by_name(name).expect("built in").validate(), Ok(()), "{name}");
+        }
+    }
 
     #[test]
     fn built_in_scenarios_are_valid_and_match_the_spec() {
@@ -345,7 +475,7 @@ mod tests {
     fn validation_names_the_field() {
         let mut s = Scenario::paper_1();
         s.q_x[3] = f64::NAN;
-        assert_eq!(s.validate(), Err(invalid("q_x[3]", "must be finite and >= 0")));
+        assert_eq!(s.validate(), Err(invalid("q_x[3]", "must be finite and in [0, 1000000000]")));
         let mut s = Scenario::paper_1();
         s.sampling_times_s[2] = 0.01;
         assert!(

@@ -3,7 +3,7 @@
 //! MPC_NMPC_MEM, MPC_MEM, MPC_CTOL, MPC_C0, MPC_CMAX, MPC_OUTER, MPC_INNER, MPC_PSLACK (< 0: no
 //! penalty preconditioner), MPC_PER_OUTER (0: no cap), MPC_YMAX, MPC_ELAPSED; MPC_MODE (nmpc or multistage: that mode
 //! alone).
-use mpc::{ControllerMode, OcpDefinition, accuracy, closed_loop::percentile};
+use mpc::{ControllerMode, OcpDefinition, accuracy, record::percentile};
 
 #[path = "../benches/common/mpc_env.rs"]
 mod mpc_env;
@@ -22,11 +22,9 @@ fn main() {
         for name in mav::Scenario::BUILT_IN {
             let scenario = mav::Scenario::by_name(name).expect("built in");
             let def = OcpDefinition::from_scenario(&scenario, mode, s.obstacle_margin_m, s.formulation);
-            let before = mpc::problem::pass_counts();
             let solves = accuracy::loop_solves(&scenario, mode, &s).expect("loop");
-            let after = mpc::problem::pass_counts();
-            passes.0 += after.0 - before.0;
-            passes.1 += after.1 - before.1;
+            passes.0 += solves.iter().map(|l| l.report.passes.forward).sum::<u64>();
+            passes.1 += solves.iter().map(|l| l.report.passes.adjoint).sum::<u64>();
             limits += solves.iter().filter(|l| l.report.status == mpc::SolveStatus::IterationLimit).count();
             outers += solves.iter().map(|l| l.report.outer_iterations).sum::<usize>();
             for (k, ls) in solves.iter().enumerate() {

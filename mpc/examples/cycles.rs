@@ -20,13 +20,13 @@ fn main() {
     for r in &records {
         println!(
             "{:3} t={:6.2} p=[{}] v=[{}] u=[{:6.2} {:6.3} {:6.3}] d={:.3} {:?} it={} outer={} c={:.0e} viol={:.2e} clr={:.3} ms={:.2} cost={:.1} w={:.2?} {}",
-            r.cycle,
-            r.t_s,
-            fixed(&r.state[..3], 6, " "),
-            fixed(&r.state[3..6], 5, " "),
-            r.command[0],
-            r.command[1],
-            r.command[2],
+            r.record.cycle,
+            r.record.t_s(),
+            fixed(&r.record.state[..3], 6, " "),
+            fixed(&r.record.state[3..6], 5, " "),
+            r.record.command[0],
+            r.record.command[1],
+            r.record.command[2],
             r.delay_s,
             r.report.status,
             r.report.iterations,
@@ -36,7 +36,7 @@ fn main() {
             r.report.min_clearance_m,
             r.report.solve_time.as_secs_f64() * 1e3,
             r.report.cost,
-            r.weights,
+            r.record.weights,
             r.selection.as_ref().map_or(String::new(), |sel| sel.reason())
         );
     }

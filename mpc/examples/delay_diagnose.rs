@@ -25,8 +25,10 @@ fn main() {
     let dts = &scenario.sampling_times_s;
     for (k, r) in records.iter().enumerate() {
         let d_ns = mav::s_to_ns(r.delay_s).expect("delay");
-        let next_ns =
-            records.get(k + 1).map(|n| mav::s_to_ns(n.t_s).expect("t")).unwrap_or(sim.time_ns() + d_ns);
+        let next_ns = records
+            .get(k + 1)
+            .map(|n| mav::s_to_ns(n.record.t_s()).expect("t"))
+            .unwrap_or(sim.time_ns() + d_ns);
         let mut worst = (f64::INFINITY, None, 0.0);
         let mut watch = |s: &PlantSim| {
             let x = s.state();
@@ -36,19 +38,24 @@ fn main() {
             }
         };
         sim.advance(d_ns, &mut watch);
-        sim.apply(Input::from(r.command), CommandMeta { command_seq: k as u64 + 1, ..Default::default() })
-            .expect("apply");
+        sim.apply(
+            Input::from(r.record.command),
+            CommandMeta { command_seq: k as u64 + 1, ..Default::default() },
+        )
+        .expect("apply");
         sim.advance_to(next_ns, &mut watch);
-        let x = r.state;
+        let x = r.record.state;
         let speed = (x[3] * x[3] + x[4] * x[4] + x[5] * x[5]).sqrt();
         let sel = r.selection.as_ref().map(|s| s.reason()).unwrap_or_default();
         // The scenario nearest to the cycle's delay and its prediction at the next sample.
-        let dt_next = mav::ns_to_s(next_ns) - r.t_s;
+        let dt_next = mav::ns_to_s(next_ns) - r.record.t_s();
         let miss: Vec<String> = r
+            .record
             .predictions
             .iter()
             .zip(dts)
             .map(|(p, dt)| {
+                let p = &p.positions_m;
                 // Prediction at time dt_next (linear interpolation between points).
                 let s = dt_next / dt;
                 let j = (s.floor() as usize).min(p.len() - 2);
@@ -60,8 +67,8 @@ fn main() {
             .collect();
         println!(
             "{:3} t={:5.2} p=[{:4.2},{:4.2},{:4.2}] |v|={:4.2} d={:.3} plant {:+.3} (cyl {:?} at {:.2}) err [{}] {sel}",
-            r.cycle,
-            r.t_s,
+            r.record.cycle,
+            r.record.t_s(),
             x[0],
             x[1],
             x[2],

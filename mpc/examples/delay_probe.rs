@@ -42,11 +42,11 @@ fn main() {
                 for r in &records {
                     println!(
                         "  {:3} t={:5.2} p=[{}] v=[{}] w={:?} pred_clear={:.3} {}",
-                        r.cycle,
-                        r.t_s,
-                        fixed(&r.state[..3], 5, ","),
-                        fixed(&r.state[3..6], 5, ","),
-                        r.weights_used.iter().map(|w| (w * 100.0).round() / 100.0).collect::<Vec<_>>(),
+                        r.record.cycle,
+                        r.record.t_s(),
+                        fixed(&r.record.state[..3], 5, ","),
+                        fixed(&r.record.state[3..6], 5, ","),
+                        r.record.weights.iter().map(|w| (w * 100.0).round() / 100.0).collect::<Vec<_>>(),
                         r.report.min_clearance_m,
                         r.selection.as_ref().map(|s| s.reason()).unwrap_or_default()
                     );

@@ -27,11 +27,16 @@ fn main() {
             let (s, records) = run_closed_loop(&scenario, &settings).expect("run");
             if only.is_some() {
                 for r in &records {
-                    let p = &r.state;
+                    let p = &r.record.state;
                     let reason = r.selection.as_ref().map(|s| s.reason()).unwrap_or_default();
                     println!(
                         "{:4} t={:6.2} p=[{:5.2},{:5.2},{:5.2}] d={:.3} {reason}",
-                        r.cycle, r.t_s, p[0], p[1], p[2], r.delay_s
+                        r.record.cycle,
+                        r.record.t_s(),
+                        p[0],
+                        p[1],
+                        p[2],
+                        r.delay_s
                     );
                 }
             }

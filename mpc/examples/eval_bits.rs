@@ -110,11 +110,11 @@ fn closed_loops() {
                         s.path_length_m.to_bits(),
                         s.final_position_m.map(f64::to_bits),
                         s.reached,
-                        hash(records.iter().flat_map(|r| r.command)),
+                        hash(records.iter().flat_map(|r| r.record.command)),
                         hash(records.iter().flat_map(|r| r.plan.iter().copied())),
                     );
                     for r in &records {
-                        println!("  {} {:?}", r.cycle, r.command.map(f64::to_bits));
+                        println!("  {} {:?}", r.record.cycle, r.record.command.map(f64::to_bits));
                     }
                 }
                 Err(e) => println!("{} {}: error {e}", scenario.name, mode.name()),

@@ -13,7 +13,7 @@ fn main() {
     let s = mpc_env::settings_from_env();
     for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
         let (mut iters, mut limits, mut cost, mut times) = (Vec::new(), 0, 0.0, Vec::new());
-        let before = mpc::problem::pass_counts();
+        let mut passes = mpc::PassCounts::default();
         for name in mav::Scenario::BUILT_IN {
             let scenario = mav::Scenario::by_name(name).expect("built in");
             let def = OcpDefinition::from_scenario(&scenario, mode, s.obstacle_margin_m, s.formulation);
@@ -24,26 +24,27 @@ fn main() {
                 mpc.set_warm_start(&i.warm_start).expect("valid");
                 let r = mpc.solve(&i.x0, &i.u_prev, &i.weights, &SolveBudget::default()).expect("valid");
                 iters.push(r.iterations as f64);
+                passes.forward += r.passes.forward;
+                passes.adjoint += r.passes.adjoint;
                 times.push(r.solve_time.as_secs_f64() * 1e3);
                 limits += usize::from(r.status == SolveStatus::IterationLimit);
                 // Relative to the closed loop's own solve of the same instance.
                 cost += (r.cost - ls.report.cost) / ls.report.cost.abs().max(1e-12);
             }
         }
-        let after = mpc::problem::pass_counts();
         let n = iters.len() as f64;
         println!(
-            "{}: {} instances; iterations total {} median {} p99 {}; at the limit {limits}; mean cost change {:+.3} %; ms median {:.3} p99 {:.3}; passes (incl. loop replay) fwd {} adj {}",
+            "{}: {} instances; iterations total {} median {} p99 {}; at the limit {limits}; mean cost change {:+.3} %; ms median {:.3} p99 {:.3}; passes fwd {} adj {}",
             mode.name(),
             iters.len(),
             iters.iter().sum::<f64>(),
-            mpc::closed_loop::percentile(&mut iters.clone(), 50.0),
-            mpc::closed_loop::percentile(&mut iters, 99.0),
+            mpc::record::percentile(&mut iters.clone(), 50.0),
+            mpc::record::percentile(&mut iters, 99.0),
             cost / n * 100.0,
-            mpc::closed_loop::percentile(&mut times.clone(), 50.0),
-            mpc::closed_loop::percentile(&mut times, 99.0),
-            after.0 - before.0,
-            after.1 - before.1,
+            mpc::record::percentile(&mut times.clone(), 50.0),
+            mpc::record::percentile(&mut times, 99.0),
+            passes.forward,
+            passes.adjoint,
         );
     }
 }

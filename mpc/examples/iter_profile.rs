@@ -39,16 +39,14 @@ fn main() {
             });
             let i = &ls.instance;
             mpc.set_warm_start(&i.warm_start).expect("valid");
-            let before = mpc::problem::pass_counts();
             let t = std::time::Instant::now();
             let r = mpc.solve(&i.x0, &i.u_prev, &i.weights, &SolveBudget::default()).expect("valid");
             let wall_us = t.elapsed().as_secs_f64() * 1e6;
-            let after = mpc::problem::pass_counts();
             replayed.push(Row {
                 at_budget: r.status == SolveStatus::IterationLimit,
                 iterations: r.iterations,
                 outer: r.outer_iterations,
-                passes: Some((after.0 - before.0, after.1 - before.1)),
+                passes: Some((r.passes.forward, r.passes.adjoint)),
                 wall_us,
                 open_us: r.solve_time.as_secs_f64() * 1e6,
             });

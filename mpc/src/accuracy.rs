@@ -6,8 +6,9 @@
 //! warm start and the fast solution), keeping the better feasible one. It is a *local* optimum
 //! in the same basin, which is what "within 1 % of a tight local optimum" asks for.
 
+use crate::error::MpcError;
 use crate::problem::{ControllerMode, OcpDefinition};
-use crate::solver::{Mpc, MpcError, MpcSettings, SolveBudget, SolveReport};
+use crate::solver::{Mpc, MpcSettings, SolveBudget, SolveReport};
 
 /// One problem instance as the controller saw it in a closed loop.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -128,18 +129,19 @@ pub fn loop_solves(
             let mut warm = crate::solver::shifted_plan(&prev.plan);
             if settings.warm_start_by_elapsed_time && mode == ControllerMode::Nmpc {
                 // As `CycleController::step` does, from the records' times.
-                let steps = ((records[k].t_s - prev.t_s) / scenario.sampling_times_s[0]).round();
+                let steps =
+                    ((records[k].record.t_s() - prev.record.t_s()) / scenario.sampling_times_s[0]).round();
                 for _ in 1..(steps as usize) {
                     warm = crate::solver::shifted_plan(&warm);
                 }
             }
-            (warm, prev.command)
+            (warm, prev.record.command)
         };
         out.push(LoopSolve {
             instance: Instance {
-                x0: records[k].state,
+                x0: records[k].record.state,
                 u_prev,
-                weights: records[k].weights_used.clone(),
+                weights: records[k].record.weights.clone(),
                 warm_start: warm,
             },
             report: records[k].report,

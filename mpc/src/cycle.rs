@@ -3,12 +3,16 @@
 //! and the controller service both call [`CycleController::step`], so that their decisions,
 //! and hence their trajectories, are the same bit for bit.
 
+use crate::command::sanitize_command;
+use crate::error::MpcError;
 use crate::problem::{OcpDefinition, validate_instance};
 use crate::qp::QpBudget;
-use crate::safety::{SafetyLayer, SafetySettings, Selection, sanitize_command};
-use crate::solver::{Mpc, MpcError, MpcSettings, SolveBudget, SolveReport};
+use crate::safety::{SafetyLayer, SafetySettings, Selection};
+use crate::solver::{Mpc, MpcSettings, SolveBudget, SolveReport};
 
-/// A fault forced on PANOC, to test that the fallbacks take over (never on by default).
+/// A fault forced on PANOC, to test that the fallbacks take over (cargo feature
+/// `fault-injection`, for tests only: the product never carries it).
+#[cfg(feature = "fault-injection")]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PanocFault {
@@ -19,6 +23,7 @@ pub enum PanocFault {
 }
 
 /// A fault on the cycles `first_cycle..first_cycle + cycles`.
+#[cfg(feature = "fault-injection")]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct FaultInjection {
     pub fault: PanocFault,
@@ -26,6 +31,7 @@ pub struct FaultInjection {
     pub cycles: u64,
 }
 
+#[cfg(feature = "fault-injection")]
 impl FaultInjection {
     pub fn active(&self, cycle: u64) -> bool {
         cycle >= self.first_cycle && cycle - self.first_cycle < self.cycles
@@ -42,6 +48,7 @@ pub struct CycleOutcome {
     /// The safety layer's decision and checks (`None` when the layer is off).
     pub selection: Option<Selection>,
     /// The fault forced on this cycle, if any.
+    #[cfg(feature = "fault-injection")]
     pub fault: Option<PanocFault>,
 }
 
@@ -53,6 +60,7 @@ pub struct CycleOutcome {
 pub struct CycleController {
     mpc: Mpc,
     safety: Option<SafetyLayer>,
+    #[cfg(feature = "fault-injection")]
     fault: Option<FaultInjection>,
     /// The selected plan of the last cycle (`N x 3`).
     plan: Vec<f64>,
@@ -71,10 +79,19 @@ impl CycleController {
         let safety = safety.map(|s| SafetyLayer::new(&def, s)).transpose()?;
         let mpc = Mpc::new(def, mpc)?;
         let plan = mpc.solution().to_vec();
-        Ok(Self { scratch: plan.clone(), plan, mpc, safety, fault: None, last_sample_ns: None })
+        Ok(Self {
+            scratch: plan.clone(),
+            plan,
+            mpc,
+            safety,
+            #[cfg(feature = "fault-injection")]
+            fault: None,
+            last_sample_ns: None,
+        })
     }
 
     /// Forces `fault` on PANOC on the given cycles (tests of the fallbacks).
+    #[cfg(feature = "fault-injection")]
     pub fn with_fault(mut self, fault: Option<FaultInjection>) -> Self {
         self.fault = fault;
         self
@@ -142,29 +159,44 @@ impl CycleController {
                 }
             }
         }
+        #[cfg(feature = "fault-injection")]
         let fault = self.fault.filter(|f| f.active(cycle)).map(|f| f.fault);
+        #[cfg(feature = "fault-injection")]
         let zero = SolveBudget { max_inner_iterations: Some(0), ..*budget };
+        #[cfg(feature = "fault-injection")]
         let budget = if fault == Some(PanocFault::ZeroBudget) { &zero } else { budget };
+        #[cfg(not(feature = "fault-injection"))]
+        let _ = cycle;
         let report = self.mpc.solve(x0, u_prev, weights, budget)?;
         let def = self.mpc.definition();
         let Some(layer) = self.safety.as_mut() else {
             self.plan.copy_from_slice(self.mpc.solution());
+            #[cfg(feature = "fault-injection")]
             if fault == Some(PanocFault::NanPlan) {
                 self.plan.iter_mut().for_each(|u| *u = f64::NAN);
             }
             let first = [self.plan[0], self.plan[1], self.plan[2]];
             let command = sanitize_command(&def.model, &def.bounds, first);
-            return Ok(CycleOutcome { command, report, selection: None, fault });
+            return Ok(CycleOutcome {
+                command,
+                report,
+                selection: None,
+                #[cfg(feature = "fault-injection")]
+                fault,
+            });
         };
         // The deadline is the cycle's: the QP gets what PANOC left of it.
         let qp_deadline = budget.deadline.map(|d| d.saturating_sub(report.solve_time));
         layer.set_qp_budget(QpBudget { max_iterations: None, deadline: qp_deadline });
+        #[cfg(feature = "fault-injection")]
         let selection = if fault == Some(PanocFault::NanPlan) {
             self.scratch.iter_mut().for_each(|u| *u = f64::NAN);
             layer.select_plan(x0, u_prev, weights, Ok((&self.scratch, report.status)))
         } else {
             layer.select(x0, u_prev, weights, &self.mpc, &report)
         };
+        #[cfg(not(feature = "fault-injection"))]
+        let selection = layer.select(x0, u_prev, weights, &self.mpc, &report);
         if let Some(plan) = layer.plan() {
             self.plan.copy_from_slice(plan);
         }
@@ -174,7 +206,13 @@ impl CycleController {
             crate::solver::shift_plan_into(&self.plan, &mut self.scratch);
             self.mpc.set_warm_start(&self.scratch)?;
         }
-        Ok(CycleOutcome { command: selection.command, report, selection: Some(selection), fault })
+        Ok(CycleOutcome {
+            command: selection.command,
+            report,
+            selection: Some(selection),
+            #[cfg(feature = "fault-injection")]
+            fault,
+        })
     }
 }
 
@@ -211,6 +249,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "fault-injection")]
     fn forced_faults_hand_over_to_a_fallback_with_a_bounded_command() {
         for fault in [PanocFault::ZeroBudget, PanocFault::NanPlan] {
             let mut c = controller(Some(SafetySettings::default())).with_fault(Some(FaultInjection {
@@ -247,6 +286,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "fault-injection")]
     fn the_warm_start_follows_the_elapsed_time_for_nmpc_when_asked_and_one_step_otherwise() {
         // A zero budget on the second cycle returns the warm start as the plan.
         let s = Scenario::paper_2();
@@ -281,6 +321,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "fault-injection")]
     fn without_the_layer_a_nan_plan_becomes_hover() {
         let mut c = controller(None).with_fault(Some(FaultInjection {
             fault: PanocFault::NanPlan,

@@ -32,8 +32,8 @@ use std::collections::VecDeque;
 
 use mav::{Cylinder, InputBounds, MavModel, ModelParams, Scenario, State, rk4_step};
 
-use crate::safety::braking_command;
-use crate::solver::MpcError;
+use crate::command::braking_command;
+use crate::error::MpcError;
 
 /// Settings of the fail-safe check (validated with the safety layer's settings).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -4,7 +4,7 @@
 //! gradient; the delay statistics that weight the scenarios; the QP-linearised fallback
 //! (clarabel) and the safety layer that cross-checks PANOC against it and picks each cycle's
 //! command (`cycle::CycleController`, shared by the in-process loop and the controller
-//! service); and the deterministic in-process closed loop of `SPEC.md`'s paper mode.
+//! service); and the deterministic in-process closed loop of `docs/spec.md`'s paper mode.
 //!
 //! No clock is read here except by the solvers' own timers and optional wall-clock deadlines
 //! (OpEn's, clarabel's); no I/O, no async. Services wrap it.
@@ -15,22 +15,32 @@
 
 pub mod accuracy;
 pub mod closed_loop;
+pub mod command;
 pub mod cycle;
 pub mod delays;
+pub mod episode;
+pub mod error;
 pub mod fail_safe;
 pub mod problem;
 pub mod qp;
+pub mod record;
 pub mod safety;
 pub mod solver;
 
-pub use closed_loop::{ClosedLoopSettings, CycleRecord, DelaySource, RunSummary, run_closed_loop};
-pub use cycle::{CycleController, CycleOutcome, FaultInjection, PanocFault};
+pub use closed_loop::{ClosedLoopSettings, CycleTrace, DelaySource, run_closed_loop};
+pub use command::{braking_command, sanitize_command};
+pub use cycle::{CycleController, CycleOutcome};
+#[cfg(feature = "fault-injection")]
+pub use cycle::{FaultInjection, PanocFault};
 pub use delays::{DelayWindow, GammaParams, ScenarioWeights, WeightSettings, WeightSource};
+pub use episode::{CycleOutput, CycleTiming, Episode, EpisodeSettings, Finish};
+pub use error::MpcError;
 pub use fail_safe::{BrakingCheck, Envelope, FailSafe, InFlight};
-pub use problem::{ControllerMode, Evaluator, ObstacleFormulation, OcpDefinition};
+pub use problem::{ControllerMode, Evaluator, ObstacleFormulation, OcpDefinition, PassCounts};
 pub use qp::{QpBudget, QpFallback, QpReport, QpSettings, QpStatus};
+pub use record::{CycleRecord, PredictedPath, RunSummary, SolveStats, summarize};
 pub use safety::{Decision, QpSchedule, Rejection, SafetyLayer, SafetySettings, Selection};
 pub use solver::{
-    InactiveSetTolerances, Mpc, MpcError, MpcSettings, SolveBudget, SolveReport, SolveStatus,
-    shift_plan_into, shifted_plan,
+    InactiveSetTolerances, Mpc, MpcSettings, SolveBudget, SolveReport, SolveStatus, shift_plan_into,
+    shifted_plan,
 };

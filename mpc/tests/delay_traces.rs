@@ -216,7 +216,7 @@ fn the_fallbacks_take_over_when_panoc_is_forced_to_fail() {
         assert_eq!(faulty.len(), 15, "{fault:?}");
         for r in &faulty {
             let s = r.selection.as_ref().expect("the layer is on");
-            assert!(s.decision.is_fallback(), "{fault:?} cycle {}: {}", r.cycle, s.reason());
+            assert!(s.decision.is_fallback(), "{fault:?} cycle {}: {}", r.record.cycle, s.reason());
         }
         assert!(summary.fallbacks >= 15, "{fault:?}: {} fallbacks", summary.fallbacks);
         let after = records

@@ -86,10 +86,15 @@ impl Config {
     /// Both directions from a named preset (`paper`, `paper-split`, `none`) with `seed`.
     pub fn with_preset(mut self, name: &str, seed: u64) -> Result<Self, ProfileError> {
         let p = delay::preset(name, seed)?;
-        self.plant_to_controller = p.plant_to_controller;
-        self.controller_to_plant = p.controller_to_plant;
         self.seed = seed;
-        Ok(self)
+        Ok(self.with_network(p))
+    }
+
+    /// Both directions from `network` (its seeds are its profiles').
+    pub fn with_network(mut self, network: delay::NetworkProfile) -> Self {
+        self.plant_to_controller = network.to_controller;
+        self.controller_to_plant = network.to_plant;
+        self
     }
 
     pub fn validate(&self) -> Result<(), NetemError> {

@@ -7,7 +7,7 @@ use netem::{Config, TimeModeSetting};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 enum TimeModeArg {
-    /// Follow the upstream plant (asked with Describe).
+    /// Follow the plant behind (asked with Describe).
     Auto,
     /// Release every message on netem's clock.
     RealTime,
@@ -16,24 +16,26 @@ enum TimeModeArg {
 }
 
 /// hilbench netem: serves the Plant API (and NetemControl, health, reflection), forwarding
-/// every message to the upstream plant after a delay drawn per message and direction.
+/// every message to the plant behind it after a delay drawn per message and direction.
 #[derive(Debug, Parser)]
 #[command(name = "netem", version)]
 struct Args {
     /// Address to listen on, HOST:PORT.
     #[arg(long, default_value = "127.0.0.1:50052")]
     listen: String,
-    /// Upstream plant, HOST:PORT.
-    #[arg(long, default_value = "127.0.0.1:50051")]
-    upstream: String,
+    /// The Plant API behind netem, HOST:PORT: a plant or a vehicle gateway (the controller's
+    /// `--plant` names the same kind of endpoint; `--upstream` is an alias).
+    #[arg(long, visible_alias = "upstream", default_value = "127.0.0.1:50051")]
+    plant: String,
     /// Named profile of both directions: paper (Gamma(12, 0.015) round trip on commands, as in
-    /// SPEC.md), paper-split (Gamma(6, 0.015) each way), none.
+    /// docs/spec.md), paper-split (Gamma(6, 0.015) each way), none.
     #[arg(long, default_value = "paper")]
     profile: String,
     /// Seed of the delay generators.
     #[arg(long, default_value_t = 42)]
     seed: u64,
-    /// How time moves.
+    /// How time moves. `auto` (the default) asks the plant behind with Describe and follows
+    /// it, so that only the plant's `--time-mode` has to be chosen.
     #[arg(long, value_enum, default_value_t = TimeModeArg::Auto)]
     time_mode: TimeModeArg,
 }
@@ -42,7 +44,7 @@ struct Args {
 async fn main() -> anyhow::Result<()> {
     hilbench_svc::init_tracing();
     let args = Args::parse();
-    let mut config = Config::new(&args.upstream)
+    let mut config = Config::new(&args.plant)
         .with_preset(&args.profile, args.seed)
         .with_context(|| format!("--profile {}", args.profile))?;
     config.time_mode = match args.time_mode {

@@ -175,7 +175,7 @@ impl Proxy {
     /// its release time, and returns the sample the controller receives at the end.
     ///
     /// With `wait_for_command_seq` set (not 0) and that command still held, the call goes on
-    /// past `duration_ns` to the command's release (SPEC.md's `t_k + max(T, d_k)`); a command
+    /// past `duration_ns` to the command's release (docs/spec.md's `t_k + max(T, d_k)`); a command
     /// already applied or lost does not extend it.
     async fn lockstep_advance(
         &self,
@@ -198,7 +198,8 @@ impl Proxy {
             }
         }
         let duration_ns = target - t0;
-        let draw = self.shared.lock().lines[Direction::PlantToController.index()].draw();
+        // A regime's clock for a lockstep sample is the time it arrives.
+        let (draw, reason) = self.shared.lock().draw_sample(target);
         let staleness = delay::secs_to_ns(draw.sampled_delay_s).min(duration_ns);
         let t_s = target - staleness;
         let mut now = t0;
@@ -228,7 +229,7 @@ impl Proxy {
         let mut inner = self.shared.lock();
         inner.plant_time_ns = Some(end.time_ns);
         let sample = stale_sample.unwrap_or(end);
-        let m = inner.lockstep_sample(t_s, target, &draw, sample.seq);
+        let m = inner.lockstep_sample(t_s, target, &draw, &reason, sample.seq);
         let delivered = if draw.lost {
             stamp(md, "sample", &m, OUTCOME_DROPPED);
             inner.last_sample.clone().unwrap_or(sample)

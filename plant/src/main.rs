@@ -3,6 +3,7 @@
 
 use anyhow::Context;
 use clap::Parser;
+use clap::builder::PossibleValuesParser;
 use mav::Scenario;
 use plant::{PlantConfig, TimeMode};
 
@@ -22,10 +23,13 @@ struct Args {
     /// Address to listen on, HOST:PORT.
     #[arg(long, default_value = "127.0.0.1:50051")]
     listen: String,
-    /// Scenario loaded at start (paper-1, paper-2, paper-3).
-    #[arg(long, default_value = "paper-1")]
+    /// Scenario loaded at start. A controller resets the plant to its own scenario when an
+    /// episode starts (unless it runs with `--no-reset`).
+    #[arg(long, default_value = "paper-1", value_parser = PossibleValuesParser::new(Scenario::BUILT_IN))]
     scenario: String,
-    /// How plant time moves.
+    /// How plant time moves. The plant decides for the whole bench: netem and the controller
+    /// follow it (their `--time-mode auto`). Real time by default, as a vehicle runs; the bench
+    /// (`hilbench`) starts its plants in lockstep, which is deterministic.
     #[arg(long, value_enum, default_value_t = Mode::RealTime)]
     time_mode: Mode,
     /// RK4 integration rate, Hz (the step is 1/rate).

@@ -281,7 +281,10 @@ impl pb::plant_server::Plant for PlantService {
         let req = Reset::try_from(request.get_ref())?;
         let shared = &self.shared;
         let mut inner = shared.lock();
-        let scenario = shared.resolve(&inner.scenario, req.scenario.as_deref())?;
+        let scenario = match req.definition {
+            Some(definition) => definition,
+            None => shared.resolve(&inner.scenario, req.scenario.as_deref())?,
+        };
         let start = req.initial_state.unwrap_or_else(|| scenario.start_state());
         // Build the new simulation completely before touching the current one.
         let mut sim = PlantSim::new(&scenario, shared.settings)

@@ -11,6 +11,13 @@ use tonic_health::ServingStatus;
 use tonic_health::server::HealthReporter;
 
 /// Why a service's gRPC server could not serve (each service's error wraps it).
+/// The services every server has beside its own: health and reflection (both versions).
+pub const REFLECTION_AND_HEALTH: [&str; 3] = [
+    "grpc.health.v1.Health",
+    "grpc.reflection.v1.ServerReflection",
+    "grpc.reflection.v1alpha.ServerReflection",
+];
+
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
     #[error("reflection service: {0}")]
@@ -48,11 +55,23 @@ impl GrpcServer {
         for name in services {
             health.set_service_status(*name, ServingStatus::Serving).await;
         }
-        let reflection = tonic_reflection::server::Builder::configure()
-            .register_encoded_file_descriptor_set(hilbench_proto::FILE_DESCRIPTOR_SET)
-            .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
-            .build_v1()?;
-        let router = Server::builder().add_service(health_service).add_service(reflection);
+        // Reflection lists what this server serves and nothing else (the descriptor set holds
+        // every hilbench service), in both protocol versions: grpcurl and grpcio-reflection
+        // still speak v1alpha.
+        let advertised =
+            services.iter().copied().chain(REFLECTION_AND_HEALTH).map(str::to_string).collect::<Vec<_>>();
+        let builder = || {
+            advertised.iter().fold(
+                tonic_reflection::server::Builder::configure()
+                    .register_encoded_file_descriptor_set(hilbench_proto::FILE_DESCRIPTOR_SET)
+                    .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET),
+                |b, name| b.with_service_name(name.clone()),
+            )
+        };
+        let router = Server::builder()
+            .add_service(health_service)
+            .add_service(builder().build_v1()?)
+            .add_service(builder().build_v1alpha()?);
         let incoming = TcpIncoming::from(listener).with_nodelay(nodelay.then_some(true));
         let services = services.iter().map(|name| name.to_string()).collect();
         Ok(Self { addr, health, services, router, incoming })
@@ -151,6 +170,44 @@ mod tests {
         not_serving.await;
         assert_eq!(status("a.A").await?, Status::NotServing as i32);
         assert_eq!(status("b.B").await?, Status::NotServing as i32);
+        let _ = stop.send(());
+        task.await??;
+        Ok(())
+    }
+
+    #[tokio::test]
+    async fn reflection_lists_only_the_services_served_to_a_v1alpha_client_too()
+    -> Result<(), Box<dyn std::error::Error>> {
+        use tokio_stream::StreamExt;
+        use tonic_reflection::pb::v1alpha::ServerReflectionRequest;
+        use tonic_reflection::pb::v1alpha::server_reflection_client::ServerReflectionClient;
+        use tonic_reflection::pb::v1alpha::server_reflection_request::MessageRequest;
+        use tonic_reflection::pb::v1alpha::server_reflection_response::MessageResponse;
+
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+        let server = GrpcServer::new(listener, false, &["hilbench.v1.Plant"]).await?;
+        let addr = server.addr;
+        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+        let task = tokio::spawn(server.serve(|router| router, async {
+            let _ = stopped.await;
+        }));
+        let channel = tonic::transport::Channel::from_shared(format!("http://{addr}"))?.connect().await?;
+        let mut client = ServerReflectionClient::new(channel);
+        let request = ServerReflectionRequest {
+            host: String::new(),
+            message_request: Some(MessageRequest::ListServices(String::new())),
+        };
+        let mut answers = client.server_reflection_info(tokio_stream::once(request)).await?.into_inner();
+        let answer = answers.next().await.ok_or("no answer")??;
+        let Some(MessageResponse::ListServicesResponse(list)) = answer.message_response else {
+            return Err(format!("not a service list: {answer:?}").into());
+        };
+        let mut names: Vec<String> = list.service.into_iter().map(|s| s.name).collect();
+        names.sort();
+        let mut expected: Vec<String> =
+            ["hilbench.v1.Plant"].into_iter().chain(REFLECTION_AND_HEALTH).map(String::from).collect();
+        expected.sort();
+        assert_eq!(names, expected, "the plant's server lists NetemControl or Controller too");
         let _ = stop.send(());
         task.await??;
         Ok(())

@@ -1,10 +1,12 @@
 //! Conversions of the controller API messages (see the module above for the rules).
 
-use mav::Scenario;
-use mpc::{ControllerMode, Decision, QpReport, SolveReport, SolveStatus};
+use mav::{PlantSample, Scenario};
+use mpc::{
+    ControllerMode, CycleRecord, Decision, PredictedPath, QpReport, SolveReport, SolveStats, SolveStatus,
+};
 
-use super::FieldError;
 use super::plant::MAX_ABS_POSITION_M;
+use super::{FieldError, finite_array, required};
 use crate::pb;
 
 /// A validated `SetGoalRequest`: the new goal position, m.
@@ -33,10 +35,9 @@ pub fn mode_from_pb(field: &str, name: &str) -> Result<Option<ControllerMode>, F
 pub fn scenario_from_pb(
     r: &pb::SetScenarioRequest,
 ) -> Result<(Scenario, Option<ControllerMode>), FieldError> {
-    if r.scenario.is_empty() {
-        return Err(FieldError::new("scenario", "is required"));
-    }
-    let scenario = super::plant::scenario_by_name("scenario", &r.scenario)?;
+    let scenario =
+        super::scenario::scenario_choice("scenario", &r.scenario, "definition", r.definition.as_ref())?
+            .ok_or_else(|| FieldError::new("scenario", "is required (a built-in name or a definition)"))?;
     let mode = mode_from_pb("mode", &r.mode)?;
     Ok((scenario, mode))
 }
@@ -52,16 +53,149 @@ impl From<SolveStatus> for pb::SolveStatus {
     }
 }
 
+/// The solve status a `SolveStatus` on the wire stands for.
+pub fn solve_status_from_pb(field: &str, code: i32) -> Result<SolveStatus, FieldError> {
+    match pb::SolveStatus::try_from(code) {
+        Ok(pb::SolveStatus::Converged) => Ok(SolveStatus::Converged),
+        Ok(pb::SolveStatus::IterationLimit) => Ok(SolveStatus::IterationLimit),
+        Ok(pb::SolveStatus::Deadline) => Ok(SolveStatus::Deadline),
+        Ok(pb::SolveStatus::NumericalFailure) => Ok(SolveStatus::NumericalFailure),
+        _ => Err(FieldError::new(field, format!("unknown solve status {code}"))),
+    }
+}
+
+impl From<&SolveStats> for pb::SolveStats {
+    fn from(s: &SolveStats) -> Self {
+        Self {
+            status: pb::SolveStatus::from(s.status) as i32,
+            iterations: u32::try_from(s.iterations).unwrap_or(u32::MAX),
+            solve_ms: s.solve_ms,
+            cost: s.cost,
+            constraint_violation: s.constraint_violation,
+            // +inf (no obstacle) travels as the largest double, which JSON can carry.
+            min_clearance_m: if s.min_clearance_m.is_finite() { s.min_clearance_m } else { f64::MAX },
+        }
+    }
+}
+
 impl From<&SolveReport> for pb::SolveStats {
     fn from(r: &SolveReport) -> Self {
-        Self {
-            status: pb::SolveStatus::from(r.status) as i32,
-            iterations: u32::try_from(r.iterations).unwrap_or(u32::MAX),
-            solve_ms: r.solve_time.as_secs_f64() * 1e3,
-            cost: r.cost,
-            constraint_violation: r.constraint_violation,
-            min_clearance_m: if r.min_clearance_m.is_finite() { r.min_clearance_m } else { f64::MAX },
+        pb::SolveStats::from(&SolveStats::from(r))
+    }
+}
+
+impl TryFrom<&pb::SolveStats> for SolveStats {
+    type Error = FieldError;
+
+    fn try_from(s: &pb::SolveStats) -> Result<Self, FieldError> {
+        if s.min_clearance_m.is_nan() || s.cost.is_nan() {
+            return Err(FieldError::new("min_clearance_m", "must not be NaN"));
         }
+        Ok(Self {
+            status: solve_status_from_pb("status", s.status)?,
+            iterations: u64::from(s.iterations),
+            solve_ms: super::finite("solve_ms", s.solve_ms)?,
+            cost: s.cost,
+            constraint_violation: s.constraint_violation,
+            min_clearance_m: if s.min_clearance_m == f64::MAX { f64::INFINITY } else { s.min_clearance_m },
+        })
+    }
+}
+
+/// The telemetry of one cycle: `record` with the wire sample it solved from, the episode it
+/// belongs to, and the QP fallback's solve when it ran.
+pub fn telemetry_of(
+    record: &CycleRecord,
+    sample: &pb::StateSample,
+    episode: u64,
+    qp: Option<&QpReport>,
+) -> pb::CycleTelemetry {
+    let [thrust_mps2, roll_rad, pitch_rad] = record.command;
+    pb::CycleTelemetry {
+        cycle: record.cycle,
+        sample: Some(sample.clone()),
+        command: Some(pb::ControlInput { thrust_mps2, roll_rad, pitch_rad }),
+        command_seq: record.command_seq,
+        scenario_weights: record.weights.clone(),
+        solve: Some(pb::SolveStats::from(&record.solve)),
+        solver: solver_kind(record) as i32,
+        predictions: record
+            .predictions
+            .iter()
+            .map(|p| pb::PredictedTrajectory {
+                sampling_time_s: p.sampling_time_s,
+                weight: p.weight,
+                positions_m: p.positions_m.iter().flatten().copied().collect(),
+            })
+            .collect(),
+        measured_delay_s: record.known_delay_s,
+        episode,
+        decision_reason: record.reason.clone(),
+        cost_gap: record.cost_gap,
+        qp: qp.map(pb::QpStats::from),
+    }
+}
+
+/// What the cycle sent, as the wire names it: the safety layer's decision, or without the
+/// layer PANOC (the previous plan shifted when it failed numerically).
+fn solver_kind(record: &CycleRecord) -> pb::SolverKind {
+    match record.decision {
+        Some(d) => d.into(),
+        None if record.solve.status == SolveStatus::NumericalFailure => pb::SolverKind::ShiftedPlan,
+        None => pb::SolverKind::Panoc,
+    }
+}
+
+impl TryFrom<&pb::CycleTelemetry> for CycleRecord {
+    type Error = FieldError;
+
+    fn try_from(t: &pb::CycleTelemetry) -> Result<Self, FieldError> {
+        let sample = PlantSample::try_from(required("sample", &t.sample)?).map_err(|e| e.within("sample"))?;
+        let command = required("command", &t.command)?;
+        let command =
+            finite_array::<3>("command", &[command.thrust_mps2, command.roll_rad, command.pitch_rad])?;
+        let solve = SolveStats::try_from(required("solve", &t.solve)?).map_err(|e| e.within("solve"))?;
+        // The layer gives every decision a reason; without one the layer was off.
+        let decision = if t.decision_reason.is_empty() {
+            None
+        } else {
+            Some(decision_from_pb(t.solver).ok_or_else(|| {
+                FieldError::new("solver", format!("unknown decision {} with a reason", t.solver))
+            })?)
+        };
+        let predictions = t
+            .predictions
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                if p.positions_m.len() % 3 != 0 {
+                    return Err(FieldError::new(
+                        format!("predictions[{i}].positions_m"),
+                        "must hold whole [x, y, z] points",
+                    ));
+                }
+                Ok(PredictedPath {
+                    sampling_time_s: p.sampling_time_s,
+                    weight: p.weight,
+                    positions_m: p.positions_m.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Self {
+            cycle: t.cycle,
+            sample_time_ns: sample.time_ns,
+            state: sample.state.into(),
+            watchdog_hover: sample.watchdog_hover,
+            command,
+            command_seq: t.command_seq,
+            known_delay_s: t.measured_delay_s,
+            weights: t.scenario_weights.clone(),
+            solve,
+            decision,
+            reason: t.decision_reason.clone(),
+            cost_gap: t.cost_gap,
+            predictions,
+        })
     }
 }
 
@@ -120,12 +254,12 @@ mod tests {
 
     #[test]
     fn scenarios_and_modes_are_validated_by_field() {
-        let r = pb::SetScenarioRequest { scenario: "paper-2".into(), mode: "nmpc".into() };
+        let r = pb::SetScenarioRequest { scenario: "paper-2".into(), mode: "nmpc".into(), definition: None };
         let (s, m) = scenario_from_pb(&r).expect("valid");
         assert_eq!((s.name.as_str(), m), ("paper-2", Some(ControllerMode::Nmpc)));
-        let r = pb::SetScenarioRequest { scenario: "paper-7".into(), mode: String::new() };
+        let r = pb::SetScenarioRequest { scenario: "paper-7".into(), mode: String::new(), definition: None };
         assert_eq!(scenario_from_pb(&r).map_err(|e| e.field), Err("scenario".to_string()));
-        let r = pb::SetScenarioRequest { scenario: "paper-1".into(), mode: "fast".into() };
+        let r = pb::SetScenarioRequest { scenario: "paper-1".into(), mode: "fast".into(), definition: None };
         assert_eq!(scenario_from_pb(&r).map_err(|e| e.field), Err("mode".to_string()));
     }
 

@@ -3,9 +3,14 @@
 //! offending field, which services turn into `INVALID_ARGUMENT` via `From<FieldError> for
 //! tonic::Status`. Outgoing conversions (`From<&core> for pb::X`) cannot fail.
 
+#[cfg(feature = "controller")]
 pub mod controller;
+#[cfg(feature = "netem")]
 pub mod netem;
+#[cfg(feature = "plant")]
 pub mod plant;
+#[cfg(feature = "plant")]
+pub mod scenario;
 
 /// A field of an incoming message that failed validation.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -6,7 +6,10 @@
 
 use std::sync::Arc;
 
-use delay::{Direction, DirectionProfile, DirectionStats, Distribution, Ordering, ProfileError, Record};
+use delay::{
+    Direction, DirectionProfile, DirectionStats, Distribution, Dwell, Ordering, ProfileError, Record,
+    RegimeState, Trace, TraceEnd,
+};
 
 use super::{FieldError, finite, required};
 use crate::pb;
@@ -37,22 +40,55 @@ impl From<Direction> for pb::Direction {
     }
 }
 
-/// A validated profile. `ORDERING_UNSPECIFIED` means FIFO (what one gRPC connection does).
-pub fn profile_from_pb(p: &pb::DirectionProfile) -> Result<DirectionProfile, FieldError> {
-    let kind = required("delay", &p.delay)?;
-    let kind = required("delay.kind", &kind.kind)?;
-    let delay = match kind {
+/// The distribution of a `DelayDistribution` at `field` (unvalidated: the profile's
+/// validation names bad parameters).
+fn distribution_from_pb(field: &str, d: Option<&pb::DelayDistribution>) -> Result<Distribution, FieldError> {
+    let d = d.ok_or_else(|| FieldError::new(field, "is required"))?;
+    let kind = required(&format!("{field}.kind"), &d.kind)?;
+    Ok(match kind {
         Kind::Constant(c) => Distribution::Constant { delay_s: c.delay_s },
         Kind::Uniform(u) => Distribution::Uniform { min_s: u.min_s, max_s: u.max_s },
         Kind::Normal(n) => Distribution::Normal { mean_s: n.mean_s, std_s: n.std_s },
         Kind::Gamma(g) => Distribution::Gamma { shape: g.shape, scale_s: g.scale_s },
         Kind::GammaMoments(g) => Distribution::GammaMoments { mean_s: g.mean_s, std_s: g.std_s },
         Kind::Lognormal(l) => Distribution::Lognormal { mu: l.mu, sigma: l.sigma },
+        Kind::LognormalMoments(l) => Distribution::LognormalMoments { mean_s: l.mean_s, std_s: l.std_s },
         Kind::Pareto(p) => Distribution::Pareto { scale_s: p.scale_s, shape: p.shape },
-        Kind::Trace(t) => {
-            Distribution::Trace { delays_s: Arc::from(t.delays_s.as_slice()), looping: t.looping }
+        Kind::Trace(t) => Distribution::Trace(Trace {
+            delays_s: Arc::from(t.delays_s.as_slice()),
+            end: match (t.looping, t.stop_at_end) {
+                (true, _) => TraceEnd::Loop,
+                (false, false) => TraceEnd::Hold,
+                (false, true) => TraceEnd::Stop,
+            },
+            name: Arc::from(t.name.as_str()),
+        }),
+        Kind::Regime(r) => {
+            if r.states.len() > delay::MAX_REGIME_STATES {
+                return Err(FieldError::new(
+                    format!("{field}.regime.states"),
+                    format!("must hold at most {} states, got {}", delay::MAX_REGIME_STATES, r.states.len()),
+                ));
+            }
+            let mut states = Vec::with_capacity(r.states.len());
+            for (i, s) in r.states.iter().enumerate() {
+                let at = format!("{field}.regime.states[{i}]");
+                let mean_dwell = match s.mean_dwell {
+                    Some(pb::regime_state::MeanDwell::MeanDwellMessages(m)) => Dwell::Messages(m),
+                    Some(pb::regime_state::MeanDwell::MeanDwellS(t)) => Dwell::Seconds(t),
+                    None => return Err(FieldError::new(format!("{at}.mean_dwell"), "is required")),
+                };
+                let delay = distribution_from_pb(&format!("{at}.delay"), s.delay.as_ref())?;
+                states.push(RegimeState { delay, mean_dwell });
+            }
+            Distribution::Regime { states: Arc::from(states) }
         }
-    };
+    })
+}
+
+/// A validated profile. `ORDERING_UNSPECIFIED` means FIFO (what one gRPC connection does).
+pub fn profile_from_pb(p: &pb::DirectionProfile) -> Result<DirectionProfile, FieldError> {
+    let delay = distribution_from_pb("delay", p.delay.as_ref())?;
     let ordering = match pb::Ordering::try_from(p.ordering) {
         Ok(pb::Ordering::Unspecified | pb::Ordering::Fifo) => Ordering::Fifo,
         Ok(pb::Ordering::Independent) => Ordering::Independent,
@@ -69,9 +105,9 @@ pub fn profile_from_pb(p: &pb::DirectionProfile) -> Result<DirectionProfile, Fie
     Ok(profile)
 }
 
-impl From<&DirectionProfile> for pb::DirectionProfile {
-    fn from(p: &DirectionProfile) -> Self {
-        let kind = match &p.delay {
+impl From<&Distribution> for pb::DelayDistribution {
+    fn from(d: &Distribution) -> Self {
+        let kind = match d {
             Distribution::Constant { delay_s } => Kind::Constant(pb::ConstantDelay { delay_s: *delay_s }),
             Distribution::Uniform { min_s, max_s } => {
                 Kind::Uniform(pb::UniformDelay { min_s: *min_s, max_s: *max_s })
@@ -88,15 +124,39 @@ impl From<&DirectionProfile> for pb::DirectionProfile {
             Distribution::Lognormal { mu, sigma } => {
                 Kind::Lognormal(pb::LognormalDelay { mu: *mu, sigma: *sigma })
             }
+            Distribution::LognormalMoments { mean_s, std_s } => {
+                Kind::LognormalMoments(pb::LognormalMomentsDelay { mean_s: *mean_s, std_s: *std_s })
+            }
             Distribution::Pareto { scale_s, shape } => {
                 Kind::Pareto(pb::ParetoDelay { scale_s: *scale_s, shape: *shape })
             }
-            Distribution::Trace { delays_s, looping } => {
-                Kind::Trace(pb::TraceDelay { delays_s: delays_s.to_vec(), looping: *looping })
-            }
+            Distribution::Trace(t) => Kind::Trace(pb::TraceDelay {
+                delays_s: t.delays_s.to_vec(),
+                looping: t.end == TraceEnd::Loop,
+                stop_at_end: t.end == TraceEnd::Stop,
+                name: t.name.to_string(),
+            }),
+            Distribution::Regime { states } => Kind::Regime(pb::RegimeDelay {
+                states: states
+                    .iter()
+                    .map(|s| pb::RegimeState {
+                        delay: Some((&s.delay).into()),
+                        mean_dwell: Some(match s.mean_dwell {
+                            Dwell::Messages(m) => pb::regime_state::MeanDwell::MeanDwellMessages(m),
+                            Dwell::Seconds(t) => pb::regime_state::MeanDwell::MeanDwellS(t),
+                        }),
+                    })
+                    .collect(),
+            }),
         };
+        pb::DelayDistribution { kind: Some(kind) }
+    }
+}
+
+impl From<&DirectionProfile> for pb::DirectionProfile {
+    fn from(p: &DirectionProfile) -> Self {
         pb::DirectionProfile {
-            delay: Some(pb::DelayDistribution { kind: Some(kind) }),
+            delay: Some((&p.delay).into()),
             loss_probability: p.loss_probability,
             duplicate_probability: p.duplicate_probability,
             ordering: match p.ordering {
@@ -189,6 +249,43 @@ mod tests {
         assert_eq!(profile_from_pb(&bad).map_err(|e| e.field), Err("ordering".into()));
         assert_eq!(direction_from_pb("direction", 7).map_err(|e| e.field), Err("direction".into()));
         assert_eq!(direction_from_pb("direction", 0)?, None);
+        Ok(())
+    }
+
+    #[test]
+    fn every_kind_round_trips_and_a_bad_regime_state_is_named() -> Result<(), FieldError> {
+        let state = |delay, mean_dwell| RegimeState { delay, mean_dwell };
+        let kinds = [
+            Distribution::LognormalMoments { mean_s: 0.1, std_s: 0.05 },
+            Distribution::Trace(Trace::holding(vec![0.1, 0.2])),
+            Distribution::Trace(Trace::looping(vec![0.1])),
+            Distribution::Trace(Trace::from_file("wifi.csv", vec![0.3], false)),
+            Distribution::Regime {
+                states: Arc::from(vec![
+                    state(Distribution::Gamma { shape: 2.0, scale_s: 0.01 }, Dwell::Messages(10.0)),
+                    state(Distribution::Uniform { min_s: 0.1, max_s: 0.3 }, Dwell::Seconds(2.5)),
+                ]),
+            },
+        ];
+        for delay in kinds {
+            let p = DirectionProfile::with_delay(delay, 3);
+            assert_eq!(profile_from_pb(&pb::DirectionProfile::from(&p))?, p);
+        }
+        let bad = DirectionProfile::with_delay(
+            Distribution::Regime {
+                states: Arc::from(vec![state(Distribution::Constant { delay_s: -1.0 }, Dwell::Seconds(1.0))]),
+            },
+            3,
+        );
+        let mut m = pb::DirectionProfile::from(&bad);
+        assert_eq!(
+            profile_from_pb(&m).map_err(|e| e.field),
+            Err("delay.regime.states[0].delay.constant.delay_s".into())
+        );
+        if let Some(Kind::Regime(r)) = m.delay.as_mut().and_then(|d| d.kind.as_mut()) {
+            r.states[0].mean_dwell = None;
+        }
+        assert_eq!(profile_from_pb(&m).map_err(|e| e.field), Err("delay.regime.states[0].mean_dwell".into()));
         Ok(())
     }
 }

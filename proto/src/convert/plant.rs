@@ -20,12 +20,7 @@ use mav::{
 /// Largest mass-normalised thrust a command may ask for, m/s^2 (about 100 g); the plant then
 /// saturates it to the scenario's limit.
 pub const MAX_THRUST_MPS2: f64 = 1000.0;
-/// Largest absolute roll or pitch a command or a state may hold, rad (exclusive).
-pub const MAX_ABS_ANGLE_RAD: f64 = std::f64::consts::FRAC_PI_2;
-/// Largest absolute position component of a reset state, m.
-pub const MAX_ABS_POSITION_M: f64 = 1.0e4;
-/// Largest absolute velocity component of a reset state, m/s.
-pub const MAX_ABS_VELOCITY_MPS: f64 = 1.0e3;
+pub use mav::{MAX_ABS_ANGLE_RAD, MAX_ABS_POSITION_M, MAX_ABS_VELOCITY_MPS};
 /// Longest plant-time advance of one request, ns (one hour of plant time).
 pub const MAX_ADVANCE_NS: u64 = 3_600 * 1_000_000_000;
 
@@ -48,9 +43,11 @@ pub struct Command {
 /// A validated `ResetRequest`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Reset {
-    /// Scenario to load; `None` keeps the current one. The name is not resolved here: the
-    /// plant knows its catalogue (see [`scenario_by_name`] for the built-in one).
+    /// Scenario to load by name; `None` keeps the current one. The name is not resolved here:
+    /// the plant knows its catalogue (see [`scenario_by_name`] for the built-in one).
     pub scenario: Option<String>,
+    /// A whole scenario to load (validated; `scenario` is then its name or `None`).
+    pub definition: Option<Scenario>,
     /// Start state overriding the scenario's.
     pub initial_state: Option<State>,
 }
@@ -143,6 +140,15 @@ impl TryFrom<&pb::ResetRequest> for Reset {
     type Error = FieldError;
 
     fn try_from(r: &pb::ResetRequest) -> Result<Self, FieldError> {
+        let definition = match &r.definition {
+            Some(_) => super::scenario::scenario_choice(
+                "scenario",
+                &r.scenario,
+                "definition",
+                r.definition.as_ref(),
+            )?,
+            None => None,
+        };
         let scenario = match r.scenario.as_str() {
             "" => None,
             name if name.trim() != name || name.len() > 256 => {
@@ -152,7 +158,7 @@ impl TryFrom<&pb::ResetRequest> for Reset {
         };
         let initial_state =
             r.initial_state.as_ref().map(|s| initial_state_from_pb("initial_state", s)).transpose()?;
-        Ok(Self { scenario, initial_state })
+        Ok(Self { scenario, definition, initial_state })
     }
 }
 
@@ -324,6 +330,7 @@ pub fn plant_description(
         goal_m: scenario.goal_m.to_vec(),
         ground_z_m: scenario.ground_z_m,
         implementation: implementation.to_string(),
+        definition: Some(scenario.into()),
     }
 }
 
@@ -511,16 +518,20 @@ mod tests {
     #[test]
     fn reset_requests_are_checked() {
         let r = Reset::try_from(&pb::ResetRequest::default()).expect("valid");
-        assert_eq!(r, Reset { scenario: None, initial_state: None });
+        assert_eq!(r, Reset { definition: None, scenario: None, initial_state: None });
         let r = Reset::try_from(&pb::ResetRequest {
+            definition: None,
             scenario: "paper-2".into(),
             initial_state: Some(pb::MavState { x: vec![1.0; 8] }),
         });
         assert_eq!(r.expect("valid").initial_state.map(|s| s[3]), Some(1.0));
-        let bad =
-            pb::ResetRequest { scenario: String::new(), initial_state: Some(pb::MavState { x: vec![1.0] }) };
+        let bad = pb::ResetRequest {
+            definition: None,
+            scenario: String::new(),
+            initial_state: Some(pb::MavState { x: vec![1.0] }),
+        };
         assert_eq!(field(Reset::try_from(&bad)), "initial_state.x");
-        let bad = pb::ResetRequest { scenario: " paper-1".into(), initial_state: None };
+        let bad = pb::ResetRequest { definition: None, scenario: " paper-1".into(), initial_state: None };
         assert_eq!(field(Reset::try_from(&bad)), "scenario");
         assert_eq!(field(scenario_by_name("scenario", "paper-9")), "scenario");
         assert_eq!(scenario_by_name("scenario", "paper-3").expect("built in").name, "paper-3");

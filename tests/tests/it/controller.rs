@@ -75,7 +75,11 @@ async fn nmpc_reaches_the_goal_of_paper_3_against_a_lockstep_plant() {
     // The loop idles after the episode: the cycle count stays put, and a new SetScenario
     // starts a second episode.
     client
-        .set_scenario(pb::SetScenarioRequest { scenario: "paper-3".into(), mode: "nmpc".into() })
+        .set_scenario(pb::SetScenarioRequest {
+            definition: None,
+            scenario: "paper-3".into(),
+            mode: "nmpc".into(),
+        })
         .await
         .expect("SetScenario");
     let s2 = wait_for(&mut client, "the second episode to finish", |s| s.episodes_finished >= 2).await;
@@ -118,12 +122,30 @@ async fn bad_goal_and_scenario_are_invalid_argument_naming_the_field_and_the_loo
         [("paper-7", "nmpc", "scenario"), ("", "nmpc", "scenario"), ("paper-2", "fast", "mode")];
     for (name, mode, field) in bad_scenarios {
         let err = client
-            .set_scenario(pb::SetScenarioRequest { scenario: name.into(), mode: mode.into() })
+            .set_scenario(pb::SetScenarioRequest {
+                definition: None,
+                scenario: name.into(),
+                mode: mode.into(),
+            })
             .await
             .expect_err("refused");
         assert_eq!(err.code(), Code::InvalidArgument, "{name}/{mode}: {err:?}");
         assert!(err.message().contains(field), "{name}/{mode}: message {:?} names no {field}", err.message());
     }
+    // A whole scenario no solver can mean (a cylinder at 1e300 m once hung the solver).
+    let mut far = pb::Scenario::from(&Scenario::paper_2());
+    far.name = "far".into();
+    far.obstacles[0].x_m = 1e300;
+    let err = client
+        .set_scenario(pb::SetScenarioRequest {
+            scenario: String::new(),
+            mode: String::new(),
+            definition: Some(far),
+        })
+        .await
+        .expect_err("refused");
+    assert_eq!(err.code(), Code::InvalidArgument, "{err:?}");
+    assert!(err.message().contains("`definition.obstacles[0].x_m`"), "{:?}", err.message());
 
     // Nothing changed, and the loop keeps cycling.
     let after =
@@ -133,6 +155,9 @@ async fn bad_goal_and_scenario_are_invalid_argument_naming_the_field_and_the_loo
     assert_eq!(after.goal_m, scenario.goal_m.to_vec());
     assert_eq!(after.episode, 1);
     assert!(after.plant_connected);
+    // The status carries the whole scenario flown.
+    let flown = after.definition.as_ref().expect("the scenario of the episode");
+    assert_eq!(Scenario::try_from(flown).expect("valid"), scenario);
 
     // A good goal is taken.
     client.set_goal(pb::SetGoalRequest { goal_m: vec![1.0, 2.0, 1.5] }).await.expect("SetGoal");

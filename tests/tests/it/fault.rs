@@ -139,12 +139,8 @@ async fn netem_going_away_mid_run_is_held_by_the_watchdog_survived_and_recorded(
     assert!(faults.link_down_s >= faults.longest_link_down_s, "{faults:?}");
     // The first cycle after the outage starts from a sample in which the watchdog holds hover.
     assert!(faults.watchdog_cycles >= 1, "{faults:?}");
-    let resumed = run
-        .telemetry
-        .iter()
-        .position(|t| t.sample.as_ref().is_some_and(|x| x.watchdog_hover))
-        .expect("a cycle after the outage");
-    assert!(resumed > 0 && resumed + 1 < run.telemetry.len(), "cycles before and after the outage");
+    let resumed = run.records.iter().position(|r| r.watchdog_hover).expect("a cycle after the outage");
+    assert!(resumed > 0 && resumed + 1 < run.records.len(), "cycles before and after the outage");
     assert!(s.time_to_goal_s.is_some_and(|t| t > mav::ns_to_s(held.time_ns)), "{s:?}");
 
     netem.stop().await;

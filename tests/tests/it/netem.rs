@@ -100,7 +100,7 @@ async fn lockstep_run(
     cycles: u64,
 ) -> (Vec<pb::StateSample>, Vec<(u64, u64)>) {
     let reset = client
-        .reset(pb::ResetRequest { scenario: "paper-1".into(), initial_state: None })
+        .reset(pb::ResetRequest { definition: None, scenario: "paper-1".into(), initial_state: None })
         .await
         .expect("reset through netem")
         .into_inner();
@@ -194,11 +194,11 @@ async fn lockstep_command_takes_effect_exactly_at_send_time_plus_delay() {
 async fn lockstep_runs_through_netem_are_bit_identical_with_sample_delays_loss_and_duplicates() {
     let plant = start_plant(PlantConfig::lockstep(Scenario::paper_1())).await;
     let preset = delay::preset("paper-split", 11).expect("preset");
-    let mut c2p = preset.controller_to_plant;
+    let mut c2p = preset.to_plant;
     c2p.loss_probability = 0.1;
     c2p.duplicate_probability = 0.2;
     c2p.ordering = Ordering::Independent;
-    let mut p2c = preset.plant_to_controller;
+    let mut p2c = preset.to_controller;
     p2c.loss_probability = 0.1;
     let netem = start_netem(lockstep_netem(plant.addr, c2p, p2c)).await;
     let mut client = netem.plant().await;
@@ -246,7 +246,7 @@ async fn profiles_change_at_run_time_and_invalid_ones_are_refused_keeping_the_ol
     let c2p = pb::Direction::ControllerToPlant as i32;
 
     let p = control.get_profile(pb::GetProfileRequest { direction: c2p }).await.expect("get").into_inner();
-    let want: pb::DirectionProfile = (&delay::preset("paper", 42).expect("paper").controller_to_plant).into();
+    let want: pb::DirectionProfile = (&delay::preset("paper", 42).expect("paper").to_plant).into();
     assert_eq!(p, want);
 
     let constant = |delay_s: f64| pb::DirectionProfile {
@@ -295,6 +295,7 @@ async fn profiles_change_at_run_time_and_invalid_ones_are_refused_keeping_the_ol
             kind: Some(pb::delay_distribution::Kind::Trace(pb::TraceDelay {
                 delays_s: vec![],
                 looping: true,
+                ..Default::default()
             })),
         }),
         ..Default::default()
@@ -344,7 +345,7 @@ async fn profiles_change_at_run_time_and_invalid_ones_are_refused_keeping_the_ol
     let p2c = pb::Direction::PlantToController as i32;
     let p = control.get_profile(pb::GetProfileRequest { direction: p2c }).await.expect("get").into_inner();
     let want: pb::DirectionProfile =
-        (&delay::preset("paper-split", 42).expect("preset").plant_to_controller).into();
+        (&delay::preset("paper-split", 42).expect("preset").to_controller).into();
     assert_eq!(p, want);
     netem.stop().await.expect("netem served cleanly");
     plant.stop().await.expect("plant stops");

@@ -76,7 +76,7 @@ async fn lockstep_over_grpc_is_bit_identical_to_the_in_process_simulation() {
 
     // Reset the server to paper-2 (it starts on paper-1) and describe it.
     let reset = client
-        .reset(pb::ResetRequest { scenario: "paper-2".into(), initial_state: None })
+        .reset(pb::ResetRequest { definition: None, scenario: "paper-2".into(), initial_state: None })
         .await
         .expect("reset")
         .into_inner();
@@ -203,24 +203,35 @@ async fn bad_input_is_invalid_argument_naming_the_field_while_the_stream_keeps_g
         assert_invalid(client.apply_command(nan(-1.0, 0.0, 0.0)).await, "input.thrust_mps2");
         assert_invalid(client.apply_command(pb::Command::default()).await, "input");
         assert_invalid(
-            client.reset(pb::ResetRequest { scenario: "paper-9".into(), initial_state: None }).await,
+            client
+                .reset(pb::ResetRequest { definition: None, scenario: "paper-9".into(), initial_state: None })
+                .await,
             "scenario",
         );
         assert_invalid(
             client
-                .reset(pb::ResetRequest { scenario: String::new(), initial_state: Some(short_state.clone()) })
+                .reset(pb::ResetRequest {
+                    definition: None,
+                    scenario: String::new(),
+                    initial_state: Some(short_state.clone()),
+                })
                 .await,
             "initial_state.x",
         );
         assert_invalid(
             client
-                .reset(pb::ResetRequest { scenario: String::new(), initial_state: Some(nan_state.clone()) })
+                .reset(pb::ResetRequest {
+                    definition: None,
+                    scenario: String::new(),
+                    initial_state: Some(nan_state.clone()),
+                })
                 .await,
             "initial_state.x[2]",
         );
         assert_invalid(
             client
                 .reset(pb::ResetRequest {
+                    definition: None,
                     scenario: "paper-1".into(),
                     initial_state: Some(tilted_state.clone()),
                 })
@@ -288,6 +299,7 @@ async fn reset_to_a_custom_start_restarts_time_and_numbering() {
     let start = [1.0, 2.0, 3.0, 0.5, -0.5, 0.0, 0.1, -0.1];
     let r = client
         .reset(pb::ResetRequest {
+            definition: None,
             scenario: String::new(),
             initial_state: Some(pb::MavState { x: start.to_vec() }),
         })
@@ -421,6 +433,8 @@ async fn health_is_serving_and_reflection_lists_the_plant() {
     let names: Vec<_> = list.service.into_iter().map(|s| s.name).collect();
     assert!(names.contains(&"hilbench.v1.Plant".to_string()), "{names:?}");
     assert!(names.contains(&"grpc.health.v1.Health".to_string()), "{names:?}");
+    // Only what the plant serves: not netem's control API nor the controller's.
+    assert!(!names.iter().any(|n| n.contains("NetemControl") || n.contains("Controller")), "{names:?}");
     drop(responses);
     server.stop().await.expect("clean shutdown");
 }
@@ -450,4 +464,55 @@ fn in_process_reference_is_itself_deterministic() {
         bits(sim.state().as_slice())
     };
     assert_eq!(run(), run());
+}
+
+#[tokio::test]
+async fn reset_with_a_whole_scenario_flies_it_describe_returns_it_and_a_bad_one_changes_nothing() {
+    let server = start_plant(PlantConfig::default()).await;
+    let mut client = server.client().await;
+    let mut custom = Scenario::paper_2();
+    custom.name = "two-cylinders".into();
+    custom.obstacles.push(mav::Cylinder { x_m: -1.0, y_m: 6.0, radius_m: 0.3, height_m: 5.0 });
+    custom.goal_m = [0.5, 8.0, 1.5];
+    let reset = client
+        .reset(pb::ResetRequest {
+            scenario: String::new(),
+            initial_state: None,
+            definition: Some((&custom).into()),
+        })
+        .await
+        .expect("a valid scenario is loaded")
+        .into_inner();
+    let described = reset.description.expect("a description");
+    assert_eq!(described.scenario, "two-cylinders");
+    assert_eq!(described.obstacles.len(), custom.obstacles.len());
+    let in_force = client.describe(pb::DescribeRequest {}).await.expect("describe").into_inner();
+    let definition = in_force.definition.as_ref().expect("the scenario in force");
+    assert_eq!(Scenario::try_from(definition).expect("valid"), custom);
+
+    // A scenario no solver can mean: refused with its field, and the plant keeps flying the
+    // one in force.
+    let mut far = pb::Scenario::from(&custom);
+    far.obstacles[1].x_m = 1e300;
+    assert_invalid(
+        client
+            .reset(pb::ResetRequest { scenario: String::new(), initial_state: None, definition: Some(far) })
+            .await,
+        "definition.obstacles[1].x_m",
+    );
+    let mut mismatched = pb::Scenario::from(&custom);
+    mismatched.name = "other".into();
+    assert_invalid(
+        client
+            .reset(pb::ResetRequest {
+                scenario: "paper-2".into(),
+                initial_state: None,
+                definition: Some(mismatched),
+            })
+            .await,
+        "scenario",
+    );
+    let after = client.describe(pb::DescribeRequest {}).await.expect("describe").into_inner();
+    assert_eq!(after, in_force, "a refused reset changes nothing");
+    server.stop().await.expect("plant stops cleanly");
 }

@@ -1,0 +1,538 @@
+//! The `[scenario.delays]` table of a scenario file (and the whole of a `netem --profile-file`),
+//! as written, and the one conversion into a [`NetworkProfile`].
+//!
+//! ```toml
+//! [scenario.delays]          # the whole round trip, on commands (nothing on samples)
+//! kind = "gamma"             # constant, uniform, normal, gamma, lognormal, pareto, trace, regime
+//! shape = 12.0               # gamma: shape and scale_s, or mean_s and std_s
+//! scale_s = 0.015
+//! loss_probability = 0.0     # optional, per direction: loss, duplication, ordering
+//! duplicate_probability = 0.0
+//! ordering = "fifo"          # or "independent"
+//! ```
+//!
+//! Each direction instead: `[scenario.delays.to_plant]` (commands) and
+//! `[scenario.delays.to_controller]` (state samples), each a table of the same keys; a
+//! direction left out has no delay. The kinds and their keys:
+//!
+//! | kind | keys |
+//! |---|---|
+//! | `none` | (no delay) |
+//! | `constant` | `delay_s` |
+//! | `uniform` | `min_s`, `max_s` |
+//! | `normal` | `mean_s`, `std_s` (truncated at 0) |
+//! | `gamma` | `shape`, `scale_s`; or `mean_s`, `std_s` |
+//! | `lognormal` | `mean_s`, `std_s` of the delay itself; or `mu`, `sigma` of its log |
+//! | `pareto` | `scale_s` (the minimum), `shape` (the tail index) |
+//! | `trace` | `file` (one delay in s per line, optional first line `delay_s`), `looping` (default false) |
+//! | `regime` | `[[...states]]`: each a kind above but trace, with `mean_dwell_messages` or `mean_dwell_s` |
+//!
+//! `gamma_moments` and `lognormal_moments`, the names of netem's API, are accepted too. A
+//! trace without `looping = true` ends the run when it is used up ([`crate::TraceEnd::Stop`]).
+//!
+//! Reading trace files is the caller's (this crate does no I/O): [`DelaysTable::to_network`]
+//! asks for each `file` through a closure.
+
+use std::sync::Arc;
+
+use crate::profile::{DirectionProfile, Distribution, Dwell, NetworkProfile, Ordering, RegimeState};
+use crate::trace::Trace;
+
+/// A delays table as written: every key of every kind, checked against its `kind` by
+/// [`DelaysTable::to_network`]. Unknown keys are refused by serde with the key named.
+#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DelaysTable {
+    pub kind: Option<String>,
+    pub delay_s: Option<f64>,
+    pub min_s: Option<f64>,
+    pub max_s: Option<f64>,
+    pub mean_s: Option<f64>,
+    pub std_s: Option<f64>,
+    pub shape: Option<f64>,
+    pub scale_s: Option<f64>,
+    pub mu: Option<f64>,
+    pub sigma: Option<f64>,
+    /// A trace's file.
+    pub file: Option<String>,
+    /// A trace replays from its start once used up (default: the run ends there).
+    pub looping: Option<bool>,
+    /// A regime's states, each a table of a kind's keys and a mean dwell.
+    pub states: Option<Vec<DelaysTable>>,
+    /// A regime state's mean dwell, in messages (>= 1)...
+    pub mean_dwell_messages: Option<f64>,
+    /// ...or in seconds (> 0).
+    pub mean_dwell_s: Option<f64>,
+    pub loss_probability: Option<f64>,
+    pub duplicate_probability: Option<f64>,
+    pub ordering: Option<Ordering>,
+    /// Commands, controller to plant (instead of a round trip).
+    pub to_plant: Option<Box<DelaysTable>>,
+    /// State samples, plant to controller.
+    pub to_controller: Option<Box<DelaysTable>>,
+}
+
+/// A delays table that does not describe a network: the key (a path relative to the table,
+/// e.g. `to_plant.shape` or `states[1].mean_dwell_s`) and why.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("invalid field `{field}`: {reason}")]
+pub struct SpecError {
+    pub field: String,
+    pub reason: String,
+}
+
+fn err(field: impl Into<String>, reason: impl Into<String>) -> SpecError {
+    SpecError { field: field.into(), reason: reason.into() }
+}
+
+fn join(path: &str, key: &str) -> String {
+    if path.is_empty() { key.to_string() } else { format!("{path}.{key}") }
+}
+
+/// The keys of each kind: alternatives of required keys, then optional keys.
+fn kind_keys(kind: &str) -> Option<(&'static [&'static [&'static str]], &'static [&'static str])> {
+    Some(match kind {
+        "none" => (&[&[]], &[]),
+        "constant" => (&[&["delay_s"]], &[]),
+        "uniform" => (&[&["min_s", "max_s"]], &[]),
+        "normal" | "gamma_moments" | "lognormal_moments" => (&[&["mean_s", "std_s"]], &[]),
+        "gamma" => (&[&["shape", "scale_s"], &["mean_s", "std_s"]], &[]),
+        "lognormal" => (&[&["mean_s", "std_s"], &["mu", "sigma"]], &[]),
+        "pareto" => (&[&["scale_s", "shape"]], &[]),
+        "trace" => (&[&["file"]], &["looping"]),
+        "regime" => (&[&["states"]], &[]),
+        _ => return None,
+    })
+}
+
+/// Every kind a table may name.
+pub const KINDS: [&str; 11] = [
+    "none",
+    "constant",
+    "uniform",
+    "normal",
+    "gamma",
+    "gamma_moments",
+    "lognormal",
+    "lognormal_moments",
+    "pareto",
+    "trace",
+    "regime",
+];
+
+/// Where a table sits, which decides the keys it may hold besides its kind's.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Place {
+    /// `[scenario.delays]` itself: a round trip, or the two direction tables.
+    Top,
+    /// `to_plant` or `to_controller`.
+    Direction,
+}
+
+impl DelaysTable {
+    /// The keys of a distribution that are present.
+    fn distribution_keys(&self) -> Vec<&'static str> {
+        let keys = [
+            ("delay_s", self.delay_s.is_some()),
+            ("min_s", self.min_s.is_some()),
+            ("max_s", self.max_s.is_some()),
+            ("mean_s", self.mean_s.is_some()),
+            ("std_s", self.std_s.is_some()),
+            ("shape", self.shape.is_some()),
+            ("scale_s", self.scale_s.is_some()),
+            ("mu", self.mu.is_some()),
+            ("sigma", self.sigma.is_some()),
+            ("file", self.file.is_some()),
+            ("looping", self.looping.is_some()),
+            ("states", self.states.is_some()),
+        ];
+        keys.into_iter().filter(|(_, set)| *set).map(|(k, _)| k).collect()
+    }
+
+    /// The network this table describes, both directions seeded with `seed`.
+    /// `read_trace(file)` gives the delays of a trace file named in the table (resolving a
+    /// relative path is the caller's business), or why it cannot. Errors name the key as a
+    /// path relative to the table.
+    pub fn to_network(
+        &self,
+        seed: u64,
+        read_trace: &mut dyn FnMut(&str) -> Result<Vec<f64>, String>,
+    ) -> Result<NetworkProfile, SpecError> {
+        if self.to_plant.is_none() && self.to_controller.is_none() {
+            let to_plant = self.direction("", Place::Top, seed, read_trace)?;
+            let mut network = NetworkProfile::none(seed);
+            network.to_plant = to_plant;
+            return Ok(network);
+        }
+        // Each direction in its own table: nothing else at the top.
+        let mut top: Vec<&str> = self.distribution_keys();
+        for (key, set) in [
+            ("kind", self.kind.is_some()),
+            ("loss_probability", self.loss_probability.is_some()),
+            ("duplicate_probability", self.duplicate_probability.is_some()),
+            ("ordering", self.ordering.is_some()),
+            ("mean_dwell_messages", self.mean_dwell_messages.is_some()),
+            ("mean_dwell_s", self.mean_dwell_s.is_some()),
+        ] {
+            if set {
+                top.push(key);
+            }
+        }
+        if let Some(key) = top.first() {
+            return Err(err(
+                *key,
+                "with to_plant or to_controller, each direction is described in its own table (a round trip at the top is the alternative)",
+            ));
+        }
+        let mut network = NetworkProfile::none(seed);
+        if let Some(t) = &self.to_plant {
+            network.to_plant = t.direction("to_plant", Place::Direction, seed, read_trace)?;
+        }
+        if let Some(t) = &self.to_controller {
+            network.to_controller = t.direction("to_controller", Place::Direction, seed, read_trace)?;
+        }
+        Ok(network)
+    }
+
+    /// One direction's profile, the table at `path`.
+    fn direction(
+        &self,
+        path: &str,
+        place: Place,
+        seed: u64,
+        read_trace: &mut dyn FnMut(&str) -> Result<Vec<f64>, String>,
+    ) -> Result<DirectionProfile, SpecError> {
+        for (key, set) in [
+            ("to_plant", self.to_plant.is_some()),
+            ("to_controller", self.to_controller.is_some()),
+            ("mean_dwell_messages", self.mean_dwell_messages.is_some()),
+            ("mean_dwell_s", self.mean_dwell_s.is_some()),
+        ] {
+            if set {
+                let reason = if place == Place::Direction {
+                    "does not belong in a direction's table"
+                } else {
+                    "belongs to a regime's state ([[...states]])"
+                };
+                return Err(err(join(path, key), reason));
+            }
+        }
+        let profile = DirectionProfile {
+            delay: self.distribution(path, read_trace)?,
+            loss_probability: self.loss_probability.unwrap_or(0.0),
+            duplicate_probability: self.duplicate_probability.unwrap_or(0.0),
+            ordering: self.ordering.unwrap_or_default(),
+            seed,
+        };
+        profile.validate().map_err(|e| err(join(path, &file_field(&e.field)), e.reason))?;
+        Ok(profile)
+    }
+
+    /// The distribution of the table at `path` (its kind and the kind's keys).
+    fn distribution(
+        &self,
+        path: &str,
+        read_trace: &mut dyn FnMut(&str) -> Result<Vec<f64>, String>,
+    ) -> Result<Distribution, SpecError> {
+        let Some(kind) = self.kind.as_deref() else {
+            return Err(err(join(path, "kind"), format!("missing (one of {})", KINDS.join(", "))));
+        };
+        let Some((alternatives, optional)) = kind_keys(kind) else {
+            return Err(err(
+                join(path, "kind"),
+                format!("unknown kind {kind:?} (known: {})", KINDS.join(", ")),
+            ));
+        };
+        let present = self.distribution_keys();
+        let takes = alternatives.iter().map(|a| a.join(" and ")).collect::<Vec<_>>().join(", or ");
+        let takes = if takes.is_empty() { "no key".to_string() } else { takes };
+        // The first alternative whose keys are all there; else the one with most of them, to
+        // name what it misses.
+        let chosen = alternatives.iter().find(|a| a.iter().all(|k| present.contains(k)));
+        let Some(chosen) = chosen else {
+            let best = alternatives
+                .iter()
+                .max_by_key(|a| a.iter().filter(|k| present.contains(k)).count())
+                .copied()
+                .unwrap_or(&[]);
+            let missing = best.iter().find(|k| !present.contains(k)).copied().unwrap_or("kind");
+            return Err(err(join(path, missing), format!("missing: kind {kind:?} takes {takes}")));
+        };
+        if let Some(extra) = present.iter().find(|k| !chosen.contains(k) && !optional.contains(k)) {
+            return Err(err(
+                join(path, extra),
+                format!("does not apply to kind {kind:?} (it takes {takes})"),
+            ));
+        }
+        let f = |v: Option<f64>| v.unwrap_or(f64::NAN);
+        let by_moments = chosen.contains(&"mean_s");
+        Ok(match kind {
+            "none" => Distribution::Constant { delay_s: 0.0 },
+            "constant" => Distribution::Constant { delay_s: f(self.delay_s) },
+            "uniform" => Distribution::Uniform { min_s: f(self.min_s), max_s: f(self.max_s) },
+            "normal" => Distribution::Normal { mean_s: f(self.mean_s), std_s: f(self.std_s) },
+            "gamma" | "gamma_moments" if by_moments => {
+                Distribution::GammaMoments { mean_s: f(self.mean_s), std_s: f(self.std_s) }
+            }
+            "gamma" => Distribution::Gamma { shape: f(self.shape), scale_s: f(self.scale_s) },
+            "lognormal" | "lognormal_moments" if by_moments => {
+                Distribution::LognormalMoments { mean_s: f(self.mean_s), std_s: f(self.std_s) }
+            }
+            "lognormal" => Distribution::Lognormal { mu: f(self.mu), sigma: f(self.sigma) },
+            "pareto" => Distribution::Pareto { scale_s: f(self.scale_s), shape: f(self.shape) },
+            "trace" => {
+                let file = self.file.as_deref().unwrap_or_default();
+                let delays = read_trace(file).map_err(|reason| err(join(path, "file"), reason))?;
+                Distribution::Trace(Trace::from_file(file, delays, self.looping.unwrap_or(false)))
+            }
+            _ => {
+                let tables = self.states.as_deref().unwrap_or_default();
+                let mut states = Vec::with_capacity(tables.len());
+                for (i, s) in tables.iter().enumerate() {
+                    states.push(s.state(&join(path, &format!("states[{i}]")), read_trace)?);
+                }
+                Distribution::Regime { states: Arc::from(states) }
+            }
+        })
+    }
+
+    /// A regime's state, the table at `path`.
+    fn state(
+        &self,
+        path: &str,
+        read_trace: &mut dyn FnMut(&str) -> Result<Vec<f64>, String>,
+    ) -> Result<RegimeState, SpecError> {
+        for (key, set) in [
+            ("loss_probability", self.loss_probability.is_some()),
+            ("duplicate_probability", self.duplicate_probability.is_some()),
+            ("ordering", self.ordering.is_some()),
+            ("to_plant", self.to_plant.is_some()),
+            ("to_controller", self.to_controller.is_some()),
+        ] {
+            if set {
+                return Err(err(join(path, key), "belongs to a direction, not to a regime's state"));
+            }
+        }
+        if matches!(self.kind.as_deref(), Some("trace" | "regime")) {
+            return Err(err(join(path, "kind"), "a regime's state may be any kind but trace or regime"));
+        }
+        let mean_dwell = match (self.mean_dwell_messages, self.mean_dwell_s) {
+            (Some(m), None) => Dwell::Messages(m),
+            (None, Some(s)) => Dwell::Seconds(s),
+            (Some(_), Some(_)) => {
+                return Err(err(
+                    join(path, "mean_dwell_s"),
+                    "give mean_dwell_messages or mean_dwell_s, not both",
+                ));
+            }
+            (None, None) => {
+                return Err(err(
+                    join(path, "mean_dwell_s"),
+                    "missing: a state needs mean_dwell_messages or mean_dwell_s",
+                ));
+            }
+        };
+        Ok(RegimeState { delay: self.distribution(path, read_trace)?, mean_dwell })
+    }
+}
+
+/// The table key of a field that [`DirectionProfile::validate`] names by its path in the
+/// `hilbench.v1.DirectionProfile` message: `delay.gamma.shape` is `shape`,
+/// `delay.regime.states[1].delay.uniform.max_s` is `states[1].max_s` (a state's keys sit in
+/// its table), a trace's delays are its `file`.
+pub fn file_field(path: &str) -> String {
+    let mut out: Vec<&str> = Vec::new();
+    let mut parts = path.split('.').peekable();
+    while let Some(part) = parts.next() {
+        if part == "delay" {
+            match parts.peek() {
+                Some(k) if KINDS.contains(k) => {
+                    parts.next();
+                }
+                Some(_) => out.push(part),
+                None => out.push("kind"),
+            }
+            continue;
+        }
+        if part.starts_with("delays_s") {
+            out.push("file");
+            break;
+        }
+        out.push(part);
+    }
+    out.join(".")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::TraceEnd;
+
+    fn parse(text: &str) -> DelaysTable {
+        match toml::from_str(text) {
+            Ok(t) => t,
+            Err(e) => panic!("{e}"),
+        }
+    }
+
+    fn network(text: &str) -> Result<NetworkProfile, SpecError> {
+        parse(text).to_network(7, &mut |file| match file {
+            "wifi.csv" => Ok(vec![0.01, 0.02, 0.03]),
+            other => Err(format!("cannot read {other}")),
+        })
+    }
+
+    fn field_of(text: &str) -> String {
+        match network(text) {
+            Ok(n) => panic!("accepted: {n:?}"),
+            Err(e) => e.field,
+        }
+    }
+
+    #[test]
+    fn a_round_trip_is_on_commands_and_every_kind_is_read() -> Result<(), SpecError> {
+        let n = network("kind = \"gamma\"\nshape = 12.0\nscale_s = 0.015\n")?;
+        assert_eq!(n, crate::preset("paper", 7).map_err(|e| err(e.field, e.reason))?);
+        let cases = [
+            ("kind = \"none\"", Distribution::Constant { delay_s: 0.0 }),
+            ("kind = \"constant\"\ndelay_s = 0.1", Distribution::Constant { delay_s: 0.1 }),
+            (
+                "kind = \"uniform\"\nmin_s = 0.1\nmax_s = 0.2",
+                Distribution::Uniform { min_s: 0.1, max_s: 0.2 },
+            ),
+            (
+                "kind = \"normal\"\nmean_s = 0.1\nstd_s = 0.02",
+                Distribution::Normal { mean_s: 0.1, std_s: 0.02 },
+            ),
+            (
+                "kind = \"gamma\"\nmean_s = 0.1\nstd_s = 0.02",
+                Distribution::GammaMoments { mean_s: 0.1, std_s: 0.02 },
+            ),
+            (
+                "kind = \"gamma_moments\"\nmean_s = 0.1\nstd_s = 0.02",
+                Distribution::GammaMoments { mean_s: 0.1, std_s: 0.02 },
+            ),
+            (
+                "kind = \"lognormal\"\nmean_s = 0.1\nstd_s = 0.02",
+                Distribution::LognormalMoments { mean_s: 0.1, std_s: 0.02 },
+            ),
+            (
+                "kind = \"lognormal\"\nmu = -2.0\nsigma = 0.5",
+                Distribution::Lognormal { mu: -2.0, sigma: 0.5 },
+            ),
+            (
+                "kind = \"pareto\"\nscale_s = 0.01\nshape = 3.0",
+                Distribution::Pareto { scale_s: 0.01, shape: 3.0 },
+            ),
+            (
+                "kind = \"trace\"\nfile = \"wifi.csv\"",
+                Distribution::Trace(Trace::from_file("wifi.csv", vec![0.01, 0.02, 0.03], false)),
+            ),
+        ];
+        for (text, want) in cases {
+            let n = network(text)?;
+            assert_eq!(n.to_plant.delay, want, "{text}");
+            assert!(n.to_controller.delay.is_zero());
+            assert_eq!((n.to_plant.seed, n.to_controller.seed), (7, 7));
+        }
+        let n = network("kind = \"trace\"\nfile = \"wifi.csv\"\nlooping = true")?;
+        assert!(matches!(n.to_plant.delay, Distribution::Trace(Trace { end: TraceEnd::Loop, .. })));
+        Ok(())
+    }
+
+    #[test]
+    fn each_direction_in_its_own_table_with_loss_duplication_and_ordering() -> Result<(), SpecError> {
+        let n = network(
+            "[to_plant]\nkind = \"constant\"\ndelay_s = 0.05\nloss_probability = 0.1\n\
+             [to_controller]\nkind = \"uniform\"\nmin_s = 0.0\nmax_s = 0.02\nduplicate_probability = 0.2\nordering = \"independent\"\n",
+        )?;
+        assert_eq!(n.to_plant.delay, Distribution::Constant { delay_s: 0.05 });
+        assert_eq!((n.to_plant.loss_probability, n.to_plant.ordering), (0.1, Ordering::Fifo));
+        assert_eq!(n.to_controller.duplicate_probability, 0.2);
+        assert_eq!(n.to_controller.ordering, Ordering::Independent);
+        let only = network("[to_controller]\nkind = \"constant\"\ndelay_s = 0.05\n")?;
+        assert!(only.to_plant.delay.is_zero());
+        Ok(())
+    }
+
+    #[test]
+    fn a_regime_reads_its_states_with_their_dwells() -> Result<(), SpecError> {
+        let n = network(
+            "kind = \"regime\"\n\
+             [[states]]\nkind = \"gamma\"\nshape = 8.0\nscale_s = 0.005\nmean_dwell_messages = 50\n\
+             [[states]]\nkind = \"uniform\"\nmin_s = 0.2\nmax_s = 0.4\nmean_dwell_s = 1.5\n",
+        )?;
+        let Distribution::Regime { states } = &n.to_plant.delay else { panic!("{n:?}") };
+        assert_eq!(states.len(), 2);
+        assert_eq!(states[0].mean_dwell, Dwell::Messages(50.0));
+        assert_eq!(states[1].delay, Distribution::Uniform { min_s: 0.2, max_s: 0.4 });
+        assert_eq!(states[1].mean_dwell, Dwell::Seconds(1.5));
+        Ok(())
+    }
+
+    #[test]
+    fn every_bad_table_names_its_key() {
+        assert_eq!(field_of("kind = \"lognormall\""), "kind");
+        assert_eq!(field_of("shape = 1.0"), "kind");
+        assert_eq!(field_of("kind = \"gamma\"\nshape = 1.0"), "scale_s");
+        assert_eq!(field_of("kind = \"gamma\"\nshape = 1.0\nscale_s = 0.1\nmu = 1.0"), "mu");
+        assert_eq!(field_of("kind = \"constant\"\ndelay_s = -0.1"), "delay_s");
+        assert_eq!(field_of("kind = \"constant\"\ndelay_s = nan"), "delay_s");
+        assert_eq!(field_of("kind = \"constant\"\ndelay_s = 3601.0"), "delay_s");
+        assert_eq!(field_of("kind = \"uniform\"\nmin_s = 0.2\nmax_s = 0.1"), "max_s");
+        assert_eq!(field_of("kind = \"gamma\"\nmean_s = 0.1\nstd_s = 0.0"), "std_s");
+        assert_eq!(field_of("kind = \"none\"\nloss_probability = 1.5"), "loss_probability");
+        assert_eq!(field_of("kind = \"none\"\nduplicate_probability = -0.1"), "duplicate_probability");
+        assert_eq!(field_of("kind = \"trace\"\nfile = \"gone.csv\""), "file");
+        assert_eq!(field_of("kind = \"none\"\nmean_dwell_s = 1.0"), "mean_dwell_s");
+        assert_eq!(field_of("kind = \"none\"\n[to_plant]\nkind = \"none\""), "kind");
+        assert_eq!(
+            field_of("[to_plant]\nkind = \"none\"\n[to_plant.to_controller]\nkind = \"none\""),
+            "to_plant.to_controller"
+        );
+        assert_eq!(
+            field_of("[to_controller]\nkind = \"pareto\"\nscale_s = 0.0\nshape = 2.0"),
+            "to_controller.scale_s"
+        );
+        assert_eq!(field_of("kind = \"regime\"\nstates = []"), "states");
+        let regime = |state: &str| {
+            field_of(&format!(
+                "kind = \"regime\"\n[[states]]\nkind = \"none\"\nmean_dwell_s = 1.0\n[[states]]\n{state}"
+            ))
+        };
+        assert_eq!(regime("kind = \"constant\"\ndelay_s = 0.1"), "states[1].mean_dwell_s");
+        assert_eq!(
+            regime("kind = \"constant\"\ndelay_s = 0.1\nmean_dwell_s = 0.0"),
+            "states[1].mean_dwell_s"
+        );
+        assert_eq!(
+            regime("kind = \"constant\"\ndelay_s = 0.1\nmean_dwell_messages = 0.5"),
+            "states[1].mean_dwell_messages"
+        );
+        assert_eq!(regime("kind = \"constant\"\ndelay_s = -1.0\nmean_dwell_s = 1.0"), "states[1].delay_s");
+        assert_eq!(regime("kind = \"trace\"\nfile = \"wifi.csv\"\nmean_dwell_s = 1.0"), "states[1].kind");
+        assert_eq!(
+            regime("kind = \"none\"\nmean_dwell_s = 1.0\nloss_probability = 0.1"),
+            "states[1].loss_probability"
+        );
+        // Unknown keys are serde's, with the key named.
+        let e = toml::from_str::<DelaysTable>("kind = \"none\"\nshap = 1.0")
+            .map(|_| ())
+            .map_err(|e| e.to_string());
+        assert!(e.as_ref().is_err_and(|m| m.contains("unknown field `shap`")), "{e:?}");
+        let e = toml::from_str::<DelaysTable>("ordering = \"lifo\"").map(|_| ()).map_err(|e| e.to_string());
+        assert!(e.is_err(), "{e:?}");
+    }
+
+    #[test]
+    fn profile_paths_become_table_keys() {
+        assert_eq!(file_field("delay.gamma.shape"), "shape");
+        assert_eq!(file_field("delay.gamma_moments.std_s"), "std_s");
+        assert_eq!(file_field("loss_probability"), "loss_probability");
+        assert_eq!(file_field("delay.trace.delays_s[4]"), "file");
+        assert_eq!(file_field("delay.regime.states"), "states");
+        assert_eq!(file_field("delay.regime.states[2].delay.uniform.max_s"), "states[2].max_s");
+        assert_eq!(file_field("delay.regime.states[2].delay"), "states[2].kind");
+        assert_eq!(file_field("delay.regime.states[0].mean_dwell_s"), "states[0].mean_dwell_s");
+    }
+}

@@ -1,0 +1,82 @@
+//! Styling shared by every figure: the embedded font, sizes, colours and labels, and the
+//! axis ranges and series drawn from the per-cycle rows.
+
+use plotters::prelude::*;
+
+use crate::cycle_log::CycleRow;
+
+pub(super) const FONT: &str = "sans-serif";
+pub(super) const FONT_BYTES: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
+
+pub(super) const TITLE_PX: u32 = 26;
+pub(super) const LABEL_PX: u32 = 18;
+pub(super) const TICK_PX: u32 = 15;
+pub(super) const BOUND: RGBColor = RGBColor(200, 30, 30);
+pub(super) const CYLINDER: RGBColor = RGBColor(120, 120, 120);
+pub(super) const PALETTE: [RGBColor; 6] = [
+    RGBColor(27, 110, 180),
+    RGBColor(217, 95, 2),
+    RGBColor(27, 158, 119),
+    RGBColor(117, 112, 179),
+    RGBColor(231, 41, 138),
+    RGBColor(102, 102, 102),
+];
+
+pub(super) fn controller_color(controller: &str, i: usize) -> RGBColor {
+    match controller {
+        "multistage" => PALETTE[0],
+        "nmpc" => PALETTE[1],
+        _ => PALETTE[(i + 2) % PALETTE.len()],
+    }
+}
+
+pub(super) fn controller_label(controller: &str) -> &str {
+    match controller {
+        "multistage" => "multi-stage NMPC",
+        "nmpc" => "standard NMPC",
+        other => other,
+    }
+}
+
+pub(super) fn title_font() -> TextStyle<'static> {
+    (FONT, TITLE_PX).into_font().color(&BLACK)
+}
+
+pub(super) fn panel_font() -> TextStyle<'static> {
+    (FONT, LABEL_PX + 2).into_font().color(&BLACK)
+}
+
+/// Finite `(min, max)` of `values`, or `fallback` when there is none.
+pub(super) fn extent(values: impl Iterator<Item = f64>, fallback: (f64, f64)) -> (f64, f64) {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
+    if lo.is_finite() && hi.is_finite() { (lo, hi) } else { fallback }
+}
+
+/// Widens `(lo, hi)` by `frac` of its span (at least `min_pad`).
+pub(super) fn pad((lo, hi): (f64, f64), frac: f64, min_pad: f64) -> std::ops::Range<f64> {
+    let p = ((hi - lo) * frac).max(min_pad);
+    (lo - p)..(hi + p)
+}
+
+/// `(t, f(row))` for the rows where both are finite; commands hold until the next cycle, so
+/// they are drawn as steps.
+pub(super) fn steps(rows: &[CycleRow], f: impl Fn(&CycleRow) -> f64) -> Vec<(f64, f64)> {
+    let mut out = Vec::with_capacity(2 * rows.len());
+    for (k, row) in rows.iter().enumerate() {
+        let v = f(row);
+        if !(row.t_s.is_finite() && v.is_finite()) {
+            continue;
+        }
+        out.push((row.t_s, v));
+        if let Some(next) = rows.get(k + 1).filter(|n| n.t_s.is_finite()) {
+            out.push((next.t_s, v));
+        }
+    }
+    out
+}
+
+pub(super) fn samples(rows: &[CycleRow], f: impl Fn(&CycleRow) -> f64) -> Vec<(f64, f64)> {
+    rows.iter().map(|r| (r.t_s, f(r))).filter(|(t, v)| t.is_finite() && v.is_finite()).collect()
+}

@@ -1,0 +1,57 @@
+//! The scenario weights of one multi-stage run against time.
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use super::style::{FONT, LABEL_PX, PALETTE, TICK_PX, controller_label, extent, steps, title_font};
+use super::{DrawResult, RunData};
+
+pub(super) fn draw_weights<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    r: &RunData<'_>,
+) -> DrawResult<DB> {
+    let s = r.scenario;
+    let m = r.rows.first().map_or(0, |row| row.weights.len());
+    let t = extent(r.rows.iter().map(|row| row.t_s), (0.0, 1.0));
+    let mut chart = ChartBuilder::on(root)
+        .caption(
+            format!("{} with the {}: scenario weights", s.name, controller_label(&r.summary.controller)),
+            title_font(),
+        )
+        .margin(15)
+        .margin_right(25)
+        .x_label_area_size(50)
+        .y_label_area_size(70)
+        .build_cartesian_2d(t.0..t.1.max(t.0 + 1e-3), 0.0..1.05)?;
+    chart
+        .configure_mesh()
+        .x_desc("plant time [s]")
+        .y_desc("weight [-]")
+        .axis_desc_style((FONT, LABEL_PX))
+        .label_style((FONT, TICK_PX))
+        .light_line_style(BLACK.mix(0.05))
+        .bold_line_style(BLACK.mix(0.15))
+        .draw()?;
+    for i in 0..m {
+        let color = PALETTE[i % PALETTE.len()];
+        let label = match s.sampling_times_s.get(i) {
+            Some(ts) => format!("scenario {i}: sampling time {:.0} ms", ts * 1e3),
+            None => format!("scenario {i}"),
+        };
+        chart
+            .draw_series(LineSeries::new(
+                steps(r.rows, |row| row.weights.get(i).copied().unwrap_or(f64::NAN)),
+                color.stroke_width(2),
+            ))?
+            .label(label)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .label_font((FONT, TICK_PX))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.4))
+        .draw()?;
+    Ok(())
+}

@@ -1,0 +1,49 @@
+//! `hilbench`'s exit codes, as a script sees them: 0 no collision, 1 an error, 2 a usage error,
+//! 3 a run collided.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn hilbench(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_hilbench")).args(args).output().expect("hilbench runs")
+}
+
+/// paper-2 with the vehicle launched at 12 m/s straight at a cylinder 1.5 m ahead it cannot stop in front of
+/// (tilt limited to 10 degrees), for 2 s of plant time.
+fn colliding_scenario(dir: &Path) -> std::path::PathBuf {
+    let paper_2 =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/paper-2.toml"))
+            .expect("scenarios/paper-2.toml");
+    let text = paper_2
+        .replace("name = \"paper-2\"", "name = \"launched\"")
+        .replace(
+            "start = [3.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]",
+            "start = [3.5, 0.0, 1.0, 0.0, 12.0, 0.0, 0.0, 0.0]",
+        )
+        .replace("max_duration_s = 60.0", "max_duration_s = 2.0");
+    assert_ne!(text, paper_2);
+    let path = dir.join("launched.toml");
+    std::fs::write(&path, text).expect("write the scenario");
+    path
+}
+
+#[test]
+fn a_usage_error_exits_2_and_a_collision_exits_3() {
+    let usage = hilbench(&["run", "scenarios/slalom-4.toml", "--mode", "Both"]);
+    assert_eq!(usage.status.code(), Some(2), "{usage:?}");
+
+    let dir = std::env::temp_dir().join(format!("hilbench-exit-codes-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a temporary directory");
+    let file = colliding_scenario(&dir);
+    let out = dir.join("out");
+    let args =
+        ["run", file.to_str().expect("utf-8"), "--in-process", "--mode", "nmpc", "--no-plots", "--quiet"];
+    let collided = hilbench(&[&args[..], &["--out", out.to_str().expect("utf-8")]].concat());
+    assert_eq!(collided.status.code(), Some(3), "{collided:?}");
+    let summary = std::fs::read_to_string(out.join("summary.json")).expect("summary.json");
+    assert!(summary.contains("\"collided\": true"), "{summary}");
+
+    let missing = hilbench(&["run", dir.join("nothing.toml").to_str().expect("utf-8"), "--in-process"]);
+    assert_eq!(missing.status.code(), Some(1), "{missing:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -1,0 +1,271 @@
+//! What a run leaves behind, whichever way it flew: one [`CycleRecord`] per control cycle (what
+//! the controller service streams as telemetry, and what the in-process loop keeps), and the
+//! one function that turns records and the plant's last sample into a [`RunSummary`].
+//!
+//! Both drivers produce the same records from the same [`crate::Episode`], and `proto`'s
+//! convert module carries them over the wire, so a summary computed from a gRPC run and one
+//! computed in process are the same numbers (but for solve times, a wall-clock measurement).
+
+use std::collections::BTreeMap;
+
+use mav::{CollisionKind, PlantSample, ns_to_s};
+
+use crate::cycle::CycleOutcome;
+use crate::problem::ControllerMode;
+use crate::safety::Decision;
+use crate::solver::{SolveReport, SolveStatus};
+
+/// PANOC's solve of one cycle, as logged.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct SolveStats {
+    pub status: SolveStatus,
+    /// PANOC iterations, summed over the outer iterations.
+    pub iterations: u64,
+    /// Wall-clock time of the solve, ms.
+    pub solve_ms: f64,
+    /// The spec's objective at the returned inputs.
+    pub cost: f64,
+    pub constraint_violation: f64,
+    /// Smallest true clearance of any predicted point (+inf: no obstacle), m.
+    pub min_clearance_m: f64,
+}
+
+impl From<&SolveReport> for SolveStats {
+    fn from(r: &SolveReport) -> Self {
+        Self {
+            status: r.status,
+            iterations: r.iterations as u64,
+            solve_ms: r.solve_time.as_secs_f64() * 1e3,
+            cost: r.cost,
+            constraint_violation: r.constraint_violation,
+            min_clearance_m: r.min_clearance_m,
+        }
+    }
+}
+
+/// One scenario's predicted positions under the plan flown.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct PredictedPath {
+    pub sampling_time_s: f64,
+    /// The scenario's weight in the solve.
+    pub weight: f64,
+    /// `N + 1` positions from the cycle's state, m.
+    pub positions_m: Vec<[f64; 3]>,
+}
+
+/// One control cycle.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct CycleRecord {
+    pub cycle: u64,
+    /// Plant time of the sample the controller solved from, ns.
+    pub sample_time_ns: u64,
+    /// The sampled state.
+    pub state: [f64; 8],
+    /// The plant's watchdog held hover when the sample was taken (no command for longer than its
+    /// timeout).
+    pub watchdog_hover: bool,
+    /// The command sent: finite and inside the input bounds.
+    pub command: [f64; 3],
+    pub command_seq: u64,
+    /// The round-trip delay the controller knew at this cycle (the last one measured from plant
+    /// stamps), s; `None` before the first measurement.
+    pub known_delay_s: Option<f64>,
+    /// The scenario weights the solve used.
+    pub weights: Vec<f64>,
+    pub solve: SolveStats,
+    /// What the safety layer sent (`None` when the layer is off).
+    pub decision: Option<Decision>,
+    /// Why (empty when the layer is off).
+    pub reason: String,
+    /// QP cost minus PANOC cost on the nonlinear model, when the cross-check ran.
+    pub cost_gap: Option<f64>,
+    /// Predicted positions per scenario, when asked for.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub predictions: Vec<PredictedPath>,
+}
+
+impl CycleRecord {
+    /// The record of a cycle that solved from `sample` and sent `command`.
+    pub fn of_cycle(
+        cycle: u64,
+        sample: &PlantSample,
+        command: [f64; 3],
+        command_seq: u64,
+        known_delay_s: Option<f64>,
+        weights: Vec<f64>,
+        outcome: &CycleOutcome,
+    ) -> Self {
+        Self {
+            cycle,
+            sample_time_ns: sample.time_ns,
+            state: sample.state.into(),
+            watchdog_hover: sample.watchdog_hover,
+            command,
+            command_seq,
+            known_delay_s,
+            weights,
+            solve: SolveStats::from(&outcome.report),
+            decision: outcome.selection.as_ref().map(|s| s.decision),
+            reason: outcome.selection.as_ref().map(|s| s.reason()).unwrap_or_default(),
+            cost_gap: outcome.selection.as_ref().and_then(|s| s.cost_gap),
+            predictions: Vec::new(),
+        }
+    }
+
+    /// Plant time of the sample, s.
+    pub fn t_s(&self) -> f64 {
+        ns_to_s(self.sample_time_ns)
+    }
+
+    /// True when the cycle did not send PANOC's plan: the safety layer chose a fallback (or,
+    /// without the layer, PANOC failed numerically and the previous plan was flown).
+    pub fn is_fallback(&self) -> bool {
+        match self.decision {
+            Some(d) => d.is_fallback(),
+            None => self.solve.status == SolveStatus::NumericalFailure,
+        }
+    }
+}
+
+/// What `docs/spec.md` asks to report per run.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct RunSummary {
+    pub scenario: String,
+    pub controller: String,
+    pub reached: bool,
+    pub collided: bool,
+    pub time_to_goal_s: Option<f64>,
+    pub end_time_s: f64,
+    pub path_length_m: f64,
+    /// Smallest true clearance to any cylinder surface on the plant, m (negative: collision).
+    pub min_clearance_m: f64,
+    pub cycles: u64,
+    pub solve_ms_mean: f64,
+    pub solve_ms_median: f64,
+    pub solve_ms_p95: f64,
+    pub solve_ms_max: f64,
+    pub iterations_median: f64,
+    /// Cycles that did not send PANOC's plan (see [`CycleRecord::is_fallback`]).
+    pub fallbacks: u64,
+    /// Cycles per decision of the safety layer (`panoc`, `qp`, `shifted_plan`, `brake`; every
+    /// one listed, zeros included, when the layer was on; empty when it was off).
+    pub decisions: BTreeMap<String, u64>,
+    /// QP cost minus PANOC cost on the nonlinear model, over the cycles where both were
+    /// evaluated (positive: PANOC's plan is cheaper).
+    pub cost_gap: GapSummary,
+    /// Cycles that stopped at the iteration limit.
+    pub iteration_limits: u64,
+    pub final_position_m: [f64; 3],
+    /// Every entry into a cylinder or the ground.
+    pub collisions: Vec<CollisionSummary>,
+}
+
+/// Statistics of the cross-check's cost gap.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct GapSummary {
+    /// Cycles where both costs were evaluated.
+    pub cycles: u64,
+    pub median: Option<f64>,
+    pub min: Option<f64>,
+    pub max: Option<f64>,
+}
+
+impl GapSummary {
+    pub fn of(gaps: &[f64]) -> Self {
+        let mut g = gaps.to_vec();
+        let stat = |g: &mut [f64], p: f64| (!g.is_empty()).then(|| percentile(g, p));
+        Self {
+            cycles: g.len() as u64,
+            median: stat(&mut g, 50.0),
+            min: g.iter().copied().reduce(f64::min),
+            max: stat(&mut g, 100.0),
+        }
+    }
+}
+
+/// One collision event of a run.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct CollisionSummary {
+    /// `cylinder` or `ground`.
+    pub kind: String,
+    /// Index of the cylinder (none for the ground).
+    pub obstacle_index: Option<u32>,
+    pub time_s: f64,
+    pub position_m: [f64; 3],
+}
+
+/// Nearest-rank percentile of a slice (sorted in place); NaN when empty.
+pub fn percentile(values: &mut [f64], p: f64) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    values.sort_by(f64::total_cmp);
+    let rank = ((p / 100.0) * values.len() as f64).ceil() as usize;
+    values[rank.clamp(1, values.len()) - 1]
+}
+
+/// Cycles per decision (every decision listed, zeros included, when the layer was on).
+pub fn decision_counts(records: &[CycleRecord]) -> BTreeMap<String, u64> {
+    let mut counts = BTreeMap::new();
+    for d in records.iter().filter_map(|r| r.decision) {
+        if counts.is_empty() {
+            for d in [Decision::Panoc, Decision::Qp, Decision::ShiftedPlan, Decision::Brake] {
+                counts.insert(d.name().to_string(), 0);
+            }
+        }
+        *counts.entry(d.name().to_string()).or_insert(0) += 1;
+    }
+    counts
+}
+
+/// The run's numbers: the trajectory's from the plant's last sample (`last`), the solver's from
+/// the records; `time_to_goal_ns` is the plant time at which the goal was reached (`None`: not
+/// reached).
+pub fn summarize(
+    scenario: &str,
+    mode: ControllerMode,
+    records: &[CycleRecord],
+    last: &PlantSample,
+    time_to_goal_ns: Option<u64>,
+) -> RunSummary {
+    let mut solve_ms: Vec<f64> = records.iter().map(|r| r.solve.solve_ms).collect();
+    let mut iterations: Vec<f64> = records.iter().map(|r| r.solve.iterations as f64).collect();
+    let mean =
+        if solve_ms.is_empty() { f64::NAN } else { solve_ms.iter().sum::<f64>() / solve_ms.len() as f64 };
+    let x = &last.state;
+    RunSummary {
+        scenario: scenario.to_string(),
+        controller: mode.name().to_string(),
+        reached: time_to_goal_ns.is_some(),
+        collided: last.collided,
+        time_to_goal_s: time_to_goal_ns.map(ns_to_s),
+        end_time_s: ns_to_s(last.time_ns),
+        path_length_m: last.path_length_m,
+        min_clearance_m: last.min_clearance_m,
+        cycles: records.len() as u64,
+        solve_ms_mean: mean,
+        solve_ms_median: percentile(&mut solve_ms, 50.0),
+        solve_ms_p95: percentile(&mut solve_ms, 95.0),
+        solve_ms_max: percentile(&mut solve_ms, 100.0),
+        iterations_median: percentile(&mut iterations, 50.0),
+        fallbacks: records.iter().filter(|r| r.is_fallback()).count() as u64,
+        decisions: decision_counts(records),
+        cost_gap: GapSummary::of(&records.iter().filter_map(|r| r.cost_gap).collect::<Vec<_>>()),
+        iteration_limits: records.iter().filter(|r| r.solve.status == SolveStatus::IterationLimit).count()
+            as u64,
+        final_position_m: [x[0], x[1], x[2]],
+        collisions: last
+            .collisions
+            .iter()
+            .map(|c| CollisionSummary {
+                kind: match c.kind {
+                    CollisionKind::Cylinder => "cylinder".to_string(),
+                    CollisionKind::Ground => "ground".to_string(),
+                },
+                obstacle_index: (c.kind == CollisionKind::Cylinder).then_some(c.obstacle_index),
+                time_s: ns_to_s(c.time_ns),
+                position_m: c.position_m,
+            })
+            .collect(),
+    }
+}

@@ -1,0 +1,370 @@
+use std::time::Duration;
+
+use optimization_engine::FunctionCallResult;
+use optimization_engine::alm::{AlmOptimizer, AlmProblem};
+use optimization_engine::constraints::Rectangle;
+
+use super::alm::{is_open_time_up_before_first_solve, projected_gradient_norm};
+use super::*;
+use crate::error::invalid_input;
+use crate::problem::ControllerMode;
+use mav::Scenario;
+
+fn mpc_for(scenario: &Scenario, mode: ControllerMode, settings: MpcSettings) -> Mpc {
+    let def = OcpDefinition::from_scenario(scenario, mode, settings.obstacle_margin_m, settings.formulation);
+    Mpc::new(def, settings).expect("valid settings")
+}
+
+const W5: [f64; 5] = [0.05, 0.15, 0.45, 0.30, 0.05];
+
+#[test]
+fn solves_the_paper_start_safely_within_bounds() {
+    for formulation in [ObstacleFormulation::DistanceAlm, ObstacleFormulation::PaperPenalty] {
+        let s = Scenario::paper_2();
+        let mut mpc =
+            mpc_for(&s, ControllerMode::Multistage, MpcSettings { formulation, ..Default::default() });
+        let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid");
+        assert_ne!(r.status, SolveStatus::NumericalFailure);
+        assert!(r.cost.is_finite() && r.cost > 0.0);
+        assert!(r.min_clearance_m >= 0.0, "{formulation:?}: predicted clearance {}", r.min_clearance_m);
+        let u = mpc.first_input();
+        assert!(s.bounds.contains(&mav::Input::from(u)));
+        assert!(u[0] > 9.81, "climbs towards the goal 1 m up: {u:?}");
+    }
+}
+
+#[test]
+fn a_warm_started_second_solve_is_cheaper() {
+    let s = Scenario::paper_3();
+    let mut mpc = mpc_for(&s, ControllerMode::Nmpc, MpcSettings::default());
+    let first = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &[1.0], &SolveBudget::default()).expect("valid");
+    let second = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &[1.0], &SolveBudget::default()).expect("valid");
+    assert!(second.iterations <= first.iterations, "{} > {}", second.iterations, first.iterations);
+}
+
+#[test]
+fn the_warm_start_advances_by_whole_steps_repeating_the_last_input() {
+    let s = Scenario::paper_2();
+    let mut mpc = mpc_for(&s, ControllerMode::Nmpc, MpcSettings::default());
+    let n = s.horizon;
+    let plan: Vec<f64> = (0..3 * n).map(|k| [9.0, 0.01, -0.01][k % 3] + 0.001 * (k / 3) as f64).collect();
+    let zero = SolveBudget { max_inner_iterations: Some(0), deadline: None };
+    for steps in [0, 1, 3, n - 1, n + 5] {
+        mpc.set_warm_start(&plan).expect("valid");
+        mpc.advance_warm_start(steps);
+        // A zero budget returns the warm start as the solution (through the scaling: to
+        // rounding).
+        mpc.solve(&s.start, &[9.81, 0.0, 0.0], &[1.0], &zero).expect("valid");
+        let got = mpc.solution();
+        let shift = steps.min(n - 1);
+        for j in 0..3 * n {
+            let from = 3 * (j / 3 + shift).min(n - 1) + j % 3;
+            assert!(
+                (got[j] - plan[from]).abs() < 1e-12,
+                "steps {steps}, value {j}: {} vs {}",
+                got[j],
+                plan[from]
+            );
+        }
+    }
+}
+
+#[test]
+fn advancing_the_warm_start_shifts_each_scenarios_multipliers_by_points() {
+    let s = Scenario::paper_2();
+    let mut mpc = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
+    let (n, nc, m) = (s.horizon, mpc.def.constraints_per_point(), mpc.def.num_scenarios());
+    assert_eq!(mpc.warm_multipliers.len(), m * n * nc);
+    let value = |i: usize, j: usize, c: usize| (1000 * i + 10 * j + c) as f64;
+    for i in 0..m {
+        for j in 0..n {
+            for c in 0..nc {
+                mpc.warm_multipliers[(i * n + j) * nc + c] = value(i, j, c);
+            }
+        }
+    }
+    mpc.advance_warm_start(3);
+    for i in 0..m {
+        for j in 0..n {
+            for c in 0..nc {
+                let from = (j + 3).min(n - 1);
+                assert_eq!(mpc.warm_multipliers[(i * n + j) * nc + c], value(i, from, c), "{i} {j} {c}");
+            }
+        }
+    }
+}
+
+#[test]
+fn the_iteration_budget_is_respected_and_reported() {
+    let s = Scenario::paper_1();
+    let settings = MpcSettings { max_outer_iterations: 1, ..Default::default() };
+    let mut mpc = mpc_for(&s, ControllerMode::Multistage, settings);
+    let budget = SolveBudget { max_inner_iterations: Some(2), deadline: None };
+    let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &budget).expect("valid");
+    assert_eq!(r.status, SolveStatus::IterationLimit);
+    assert!(r.iterations <= 2);
+    assert!(s.bounds.contains(&mav::Input::from(mpc.first_input())));
+}
+
+#[test]
+fn each_solve_reports_its_own_passes_and_an_identical_solve_reports_the_same() {
+    // Two workspaces solving the same instance: per-evaluator counts, so neither sees the
+    // other's passes (a process-global counter would count both).
+    let s = Scenario::paper_1();
+    let mut a = mpc_for(&s, ControllerMode::Nmpc, MpcSettings::default());
+    let mut b = mpc_for(&s, ControllerMode::Nmpc, MpcSettings::default());
+    let hover = [9.81, 0.0, 0.0];
+    let ra = a.solve(&s.start, &hover, &[1.0], &SolveBudget::default()).expect("valid");
+    let rb = b.solve(&s.start, &hover, &[1.0], &SolveBudget::default()).expect("valid");
+    assert_eq!(ra.passes, rb.passes);
+    // At least one forward pass per PANOC iteration and the final evaluation; one adjoint
+    // pass per gradient.
+    assert!(ra.passes.forward > ra.iterations as u64, "{ra:?}");
+    assert!(ra.passes.adjoint >= ra.iterations as u64, "{ra:?}");
+}
+
+#[test]
+fn a_wall_clock_deadline_stops_the_solve_with_its_best_iterate_inside_the_bounds() {
+    // Real time: a deadline too short for even one PANOC iteration of the paper-1 start
+    // (a hard solve: 200 iterations without one) ends the solve with `Deadline`.
+    let s = Scenario::paper_1();
+    let mut mpc = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
+    let budget = SolveBudget { max_inner_iterations: None, deadline: Some(Duration::from_nanos(1)) };
+    let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &budget).expect("valid");
+    assert_eq!(r.status, SolveStatus::Deadline, "{r:?}");
+    assert!(r.iterations < MpcSettings::default().max_inner_iterations, "{r:?}");
+    assert!(mpc.solution().iter().all(|u| u.is_finite()));
+    for u in mpc.solution().chunks(3) {
+        assert!(s.bounds.contains(&mav::Input::new(u[0], u[1], u[2])), "{u:?}");
+    }
+    assert!(r.cost.is_finite() && r.min_clearance_m.is_finite(), "{r:?}");
+    // Deadlines that run out inside the solve, one outer iteration or another: a status,
+    // never a panic, and a plan inside the bounds.
+    for micros in [20, 21, 30, 50, 100, 300, 1000, 3000] {
+        let budget =
+            SolveBudget { max_inner_iterations: None, deadline: Some(Duration::from_micros(micros)) };
+        let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &budget).expect("valid");
+        assert_ne!(r.status, SolveStatus::NumericalFailure, "{micros} us: {r:?}");
+        assert!(mpc.solution().iter().all(|u| u.is_finite()));
+    }
+    // A generous deadline changes nothing against no deadline (lockstep's iteration budget).
+    let mut timed = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
+    let mut counted = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
+    let long = SolveBudget { max_inner_iterations: None, deadline: Some(Duration::from_secs(3600)) };
+    let a = timed.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &long).expect("valid");
+    let b = counted.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid");
+    assert_eq!((a.status, a.iterations), (b.status, b.iterations));
+    assert_eq!(timed.solution(), counted.solution());
+}
+
+#[test]
+fn the_panic_of_an_open_call_out_of_time_before_its_first_solve_is_recognized() {
+    // OpEn's own panic, reproduced on a fresh cache with no time at all: the solver turns
+    // exactly this one into `Deadline` (and lets any other panic unwind).
+    let cache = AlmCache::new(PANOCCache::new(2, 1e-5, 3), 0, 0);
+    let (lo, hi) = ([-1.0, -1.0], [1.0, 1.0]);
+    let cost = |u: &[f64], _: &[f64], c: &mut f64| -> FunctionCallResult {
+        *c = u[0] * u[0] + u[1] * u[1];
+        Ok(())
+    };
+    let grad = |u: &[f64], _: &[f64], g: &mut [f64]| -> FunctionCallResult {
+        g[0] = 2.0 * u[0];
+        g[1] = 2.0 * u[1];
+        Ok(())
+    };
+    type NoMapping = fn(&[f64], &mut [f64]) -> FunctionCallResult;
+    let problem = AlmProblem::new(
+        Rectangle::new(Some(&lo), Some(&hi)),
+        None::<Rectangle>,
+        None::<Rectangle>,
+        cost,
+        grad,
+        None::<NoMapping>,
+        None::<NoMapping>,
+        0,
+        0,
+    );
+    let mut cache = cache;
+    let mut u = [0.5, 0.5];
+    let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        AlmOptimizer::new(&mut cache, problem).with_max_duration(Duration::ZERO).solve(&mut u)
+    }));
+    match outcome {
+        Err(payload) => assert!(is_open_time_up_before_first_solve(payload.as_ref())),
+        Ok(r) => panic!("OpEn no longer panics out of time (the guard can go): {r:?}"),
+    }
+    assert!(!is_open_time_up_before_first_solve(&"index out of bounds"));
+    assert!(!is_open_time_up_before_first_solve(&String::from("already borrowed")));
+}
+
+#[test]
+fn bad_input_is_refused_naming_the_field_and_changes_nothing() {
+    let s = Scenario::paper_1();
+    let mut mpc = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
+    let before = mpc.solution().to_vec();
+    let mut x0 = s.start;
+    x0[4] = f64::NAN;
+    let e = mpc.solve(&x0, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default());
+    assert_eq!(e, Err(invalid_input("x0[4]", "must be finite")));
+    let e = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &[1.0], &SolveBudget::default());
+    assert!(matches!(e, Err(MpcError::InvalidInput { field, .. }) if field == "weights"));
+    let e = mpc.solve(&s.start, &[9.81, f64::INFINITY, 0.0], &W5, &SolveBudget::default());
+    assert!(matches!(e, Err(MpcError::InvalidInput { field, .. }) if field == "u_prev[1]"));
+    let e = mpc.set_warm_start(&[1.0; 7]);
+    assert!(matches!(e, Err(MpcError::InvalidInput { field, .. }) if field == "warm_start"));
+    assert_eq!(mpc.solution(), &before[..]);
+    assert!(matches!(
+        MpcSettings { penalty_update_factor: 1.0, ..Default::default() }.validate(),
+        Err(MpcError::InvalidSetting { field: "penalty_update_factor", .. })
+    ));
+}
+
+#[test]
+fn standard_nmpc_has_its_own_panoc_tolerances_and_memory() {
+    let s = MpcSettings {
+        tolerance: 1e-3,
+        akkt_tolerance: 1e-2,
+        lbfgs_memory: 10,
+        single_scenario_tolerance: 3e-2,
+        single_scenario_akkt_tolerance: 1e-1,
+        single_scenario_lbfgs_memory: 7,
+        ..Default::default()
+    };
+    assert_eq!(s.panoc_for(1), (3e-2, 1e-1, 7));
+    assert_eq!(s.panoc_for(5), (1e-3, 1e-2, 10));
+    for (bad, field) in [
+        (MpcSettings { single_scenario_tolerance: f64::NAN, ..s }, "single_scenario_tolerance"),
+        (MpcSettings { single_scenario_akkt_tolerance: 0.0, ..s }, "single_scenario_akkt_tolerance"),
+        (MpcSettings { single_scenario_lbfgs_memory: 0, ..s }, "single_scenario_lbfgs_memory"),
+    ] {
+        assert!(matches!(bad.validate(), Err(MpcError::InvalidSetting { field: f, .. }) if f == field));
+    }
+    // A tighter NMPC tolerance costs iterations on the same problem: the setting is used.
+    let scenario = Scenario::paper_1();
+    let x0 = [0.2, 3.0, 0.9, 0.1, 1.2, 0.05, 0.02, -0.01];
+    let iterations = |settings: MpcSettings| {
+        let mut mpc = mpc_for(&scenario, ControllerMode::Nmpc, settings);
+        mpc.solve(&x0, &[9.81, 0.0, 0.0], &[1.0], &SolveBudget::default()).expect("valid").iterations
+    };
+    let tight = MpcSettings { single_scenario_tolerance: 1e-6, single_scenario_akkt_tolerance: 1e-5, ..s };
+    assert!(iterations(tight) > iterations(s), "{} vs {}", iterations(tight), iterations(s));
+}
+
+#[test]
+fn inactive_set_tolerances_are_validated_naming_the_field() {
+    let t = InactiveSetTolerances::MEASURED;
+    let with = |t: InactiveSetTolerances| MpcSettings { inactive_set: Some(t), ..Default::default() };
+    assert_eq!(with(t).validate(), Ok(()));
+    for (bad, field) in [
+        (InactiveSetTolerances { tolerance: f64::NAN, ..t }, "inactive_set.tolerance"),
+        (InactiveSetTolerances { akkt_tolerance: 0.0, ..t }, "inactive_set.akkt_tolerance"),
+        (InactiveSetTolerances { gradient_tolerance: f64::INFINITY, ..t }, "inactive_set.gradient_tolerance"),
+    ] {
+        assert!(matches!(with(bad).validate(), Err(MpcError::InvalidSetting { field: f, .. }) if f == field));
+    }
+}
+
+/// Paper-2 with its cylinders moved 20 m away, out of reach whatever the inputs do: no
+/// constraint term ever.
+fn open_space() -> Scenario {
+    let mut s = Scenario::paper_2();
+    for c in &mut s.obstacles {
+        c.x_m += 20.0;
+    }
+    s
+}
+
+/// Report and solution bits of one solve from a fresh workspace.
+fn solve_bits(
+    scenario: &Scenario,
+    mode: ControllerMode,
+    settings: MpcSettings,
+    x0: &[f64; 8],
+    weights: &[f64],
+) -> (SolveReport, Vec<u64>) {
+    let mut mpc = mpc_for(scenario, mode, settings);
+    let r = mpc.solve(x0, &[9.81, 0.0, 0.0], weights, &SolveBudget::default()).expect("valid");
+    (r, mpc.solution().iter().map(|v| v.to_bits()).collect())
+}
+
+#[test]
+fn inactive_set_tolerances_apply_where_no_constraint_term_is_active() {
+    let loose = MpcSettings { inactive_set: Some(InactiveSetTolerances::MEASURED), ..Default::default() };
+    let open_space = open_space();
+    let x0 = [3.1, 1.2, 0.6, 0.1, 1.4, 0.2, 0.05, -0.02];
+    let (tight_report, _) =
+        solve_bits(&open_space, ControllerMode::Multistage, MpcSettings::default(), &x0, &W5);
+    let (loose_report, _) = solve_bits(&open_space, ControllerMode::Multistage, loose, &x0, &W5);
+    assert_eq!(loose_report.status, SolveStatus::Converged);
+    assert!(
+        loose_report.iterations < tight_report.iterations,
+        "{} vs {} iterations",
+        loose_report.iterations,
+        tight_report.iterations
+    );
+    // The looser test still stops close to the optimum on this smooth problem.
+    let gap = (loose_report.cost - tight_report.cost) / tight_report.cost;
+    assert!(gap.abs() < 1e-2, "cost gap {gap}");
+
+    // Inside the inflated radius of a cylinder, moving towards it: the first predicted points
+    // cannot leave it, so a term is active at every outer iteration and the solve is the
+    // one of the default settings, bit for bit.
+    let scenario = Scenario::paper_2();
+    let c = scenario.obstacles[1];
+    let x0 = [c.x_m + c.radius_m + 0.05, c.y_m, 1.0, -0.5, 0.0, 0.0, 0.0, 0.0];
+    let (a, a_bits) = solve_bits(&scenario, ControllerMode::Multistage, MpcSettings::default(), &x0, &W5);
+    let (b, b_bits) = solve_bits(&scenario, ControllerMode::Multistage, loose, &x0, &W5);
+    assert!(a.constraint_violation > 0.0, "a term must be active");
+    assert_eq!((a.iterations, a.cost.to_bits(), a_bits), (b.iterations, b.cost.to_bits(), b_bits));
+
+    // Standard NMPC ignores the option (it has its own tolerances).
+    let x0 = [3.1, 1.2, 0.6, 0.1, 1.4, 0.2, 0.05, -0.02];
+    let (a, a_bits) = solve_bits(&open_space, ControllerMode::Nmpc, MpcSettings::default(), &x0, &[1.0]);
+    let (b, b_bits) = solve_bits(&open_space, ControllerMode::Nmpc, loose, &x0, &[1.0]);
+    assert_eq!((a.iterations, a.cost.to_bits(), a_bits), (b.iterations, b.cost.to_bits(), b_bits));
+}
+
+#[test]
+fn an_inactive_set_result_must_have_a_small_projected_gradient() {
+    // A gradient tolerance no result can meet: every inactive-set outer iteration is
+    // handed on, so the solve runs all its outer iterations and never reports convergence.
+    let open_space = open_space();
+    let unreachable = InactiveSetTolerances { gradient_tolerance: 1e-300, ..InactiveSetTolerances::MEASURED };
+    let s = MpcSettings { inactive_set: Some(unreachable), ..Default::default() };
+    let x0 = [3.1, 1.2, 0.6, 0.1, 1.4, 0.2, 0.05, -0.02];
+    let (r, _) = solve_bits(&open_space, ControllerMode::Multistage, s, &x0, &W5);
+    assert_eq!(r.status, SolveStatus::IterationLimit);
+    assert_eq!(r.outer_iterations, s.max_outer_iterations);
+}
+
+#[test]
+fn projected_gradient_norm_is_the_unit_step_residual_on_the_box() {
+    let (lo, hi) = ([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]);
+    // Interior: the gradient itself; at a bound, only the part pointing into the box.
+    assert_eq!(projected_gradient_norm(&[0.0, 0.0, 0.0], &[0.3, 0.0, -0.4], &lo, &hi), 0.5);
+    assert_eq!(projected_gradient_norm(&[1.0, -1.0, 0.0], &[-2.0, -5.0, 0.0], &lo, &hi), 2.0);
+    assert_eq!(projected_gradient_norm(&[0.5, 0.0, 0.0], &[-3.0, 0.0, 0.0], &lo, &hi), 0.5);
+}
+
+#[test]
+fn solves_are_deterministic() {
+    let s = Scenario::paper_2();
+    let x0 = [3.1, 1.2, 0.6, 0.1, 1.4, 0.2, 0.05, -0.02];
+    let run = || {
+        let mut mpc = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
+        let r = mpc.solve(&x0, &[10.0, 0.01, 0.0], &W5, &SolveBudget::default()).expect("valid");
+        (r.cost.to_bits(), r.iterations, mpc.solution().iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+    };
+    assert_eq!(run(), run());
+}
+
+#[test]
+fn a_numerical_failure_returns_the_warm_start_inside_the_bounds() {
+    let s = Scenario::paper_1();
+    let mut mpc = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
+    // Finite but absurd: the predicted cost overflows to infinity.
+    let x0 = [0.0, 0.0, 0.0, 1e200, 1e200, 1e200, 0.0, 0.0];
+    let r = mpc.solve(&x0, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid input");
+    assert_eq!(r.status, SolveStatus::NumericalFailure);
+    assert_eq!(mpc.first_input(), [9.81, 0.0, 0.0]);
+}
