@@ -6,6 +6,7 @@ use std::path::PathBuf;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let files = [
+        "proto/hilbench/v1/delay.proto",
         "proto/hilbench/v1/plant.proto",
         "proto/hilbench/v1/netem.proto",
         "proto/hilbench/v1/controller.proto",

@@ -215,7 +215,7 @@ fn episode_settings(config: &ControllerConfig, scenario: &Scenario, mode: Contro
     let mut settings = EpisodeSettings::new(mode, config.mpc);
     settings.safety = config.safety;
     settings.fail_safe = config.fail_safe;
-    settings.delays_expected = scenario.delays != mav::DelayModel::None;
+    settings.delays_expected = scenario.delays_expected();
     settings
 }
 
@@ -237,6 +237,25 @@ enum LoopError {
     Connect(#[from] tonic::transport::Error),
     #[error("{0}")]
     Bad(String),
+}
+
+impl LoopError {
+    /// The plant (or netem) refused what the controller sent, for a reason a retry would meet
+    /// again: the episode ends with this error rather than retrying forever. A lost or silent
+    /// link, or a bad sample, is retried.
+    fn ends_episode(&self) -> bool {
+        use tonic::Code;
+        matches!(self, LoopError::Rpc(s) if matches!(
+            s.code(),
+            Code::InvalidArgument
+                | Code::OutOfRange
+                | Code::FailedPrecondition
+                | Code::Unimplemented
+                | Code::NotFound
+                | Code::PermissionDenied
+                | Code::Unauthenticated
+        ))
+    }
 }
 
 /// Runs until `stop` turns true.
@@ -295,6 +314,17 @@ pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch:
             Ok(Outcome::Restart) => {
                 current.flight = None;
                 backoff = config.backoff_min;
+            }
+            Err(e) if e.ends_episode() => {
+                tracing::error!(error = %e, "the plant refused the episode's call; the episode ends");
+                shared.update(|st| {
+                    st.last_error = e.to_string();
+                    st.episode_finished = true;
+                    st.episodes_finished += 1;
+                    st.finish_reason = FINISH_ERROR.to_string();
+                });
+                active = false;
+                current.flight = None;
             }
             Err(e) => {
                 if !matches!(e, LoopError::Bad(_)) && shared.link_lost() {
@@ -470,6 +500,9 @@ async fn fly(
 }
 
 /// Marks the current episode as ended (the loop idles until the next request).
+/// `ControllerStatus.finish_reason` of an episode ended by an error (`last_error` says which).
+pub const FINISH_ERROR: &str = "error";
+
 fn finish(shared: &Shared, reason: Finish) {
     shared.update(|st| {
         st.episode_finished = true;

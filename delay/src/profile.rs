@@ -267,7 +267,7 @@ impl Distribution {
 }
 
 /// Ordering of releases on one direction (`"fifo"` or `"independent"` in files).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Ordering {
     /// A message is never released before an earlier one (one TCP stream): the release time

@@ -40,35 +40,59 @@ use crate::trace::Trace;
 
 /// A delays table as written: every key of every kind, checked against its `kind` by
 /// [`DelaysTable::to_network`]. Unknown keys are refused by serde with the key named.
-#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DelaysTable {
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub kind: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub delay_s: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub min_s: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub max_s: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub mean_s: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub std_s: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub shape: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub scale_s: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub mu: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub sigma: Option<f64>,
     /// A trace's file.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub file: Option<String>,
+    /// A trace's delays written inline, s (the scenario file loader puts a trace file's delays
+    /// here, keeping `file` as the trace's name, so that a loaded scenario is self-contained).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub delays_s: Option<Vec<f64>>,
     /// A trace replays from its start once used up (default: the run ends there).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub looping: Option<bool>,
     /// A regime's states, each a table of a kind's keys and a mean dwell.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub states: Option<Vec<DelaysTable>>,
     /// A regime state's mean dwell, in messages (>= 1)...
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub mean_dwell_messages: Option<f64>,
     /// ...or in seconds (> 0).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub mean_dwell_s: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub loss_probability: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub duplicate_probability: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub ordering: Option<Ordering>,
     /// Commands, controller to plant (instead of a round trip).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub to_plant: Option<Box<DelaysTable>>,
     /// State samples, plant to controller.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub to_controller: Option<Box<DelaysTable>>,
 }
 
@@ -99,7 +123,7 @@ fn kind_keys(kind: &str) -> Option<(&'static [&'static [&'static str]], &'static
         "gamma" => (&[&["shape", "scale_s"], &["mean_s", "std_s"]], &[]),
         "lognormal" => (&[&["mean_s", "std_s"], &["mu", "sigma"]], &[]),
         "pareto" => (&[&["scale_s", "shape"]], &[]),
-        "trace" => (&[&["file"]], &["looping"]),
+        "trace" => (&[&["delays_s"], &["file"]], &["looping", "file"]),
         "regime" => (&[&["states"]], &[]),
         _ => return None,
     })
@@ -143,6 +167,7 @@ impl DelaysTable {
             ("mu", self.mu.is_some()),
             ("sigma", self.sigma.is_some()),
             ("file", self.file.is_some()),
+            ("delays_s", self.delays_s.is_some()),
             ("looping", self.looping.is_some()),
             ("states", self.states.is_some()),
         ];
@@ -282,8 +307,12 @@ impl DelaysTable {
             "pareto" => Distribution::Pareto { scale_s: f(self.scale_s), shape: f(self.shape) },
             "trace" => {
                 let file = self.file.as_deref().unwrap_or_default();
-                let delays = read_trace(file).map_err(|reason| err(join(path, "file"), reason))?;
-                Distribution::Trace(Trace::from_file(file, delays, self.looping.unwrap_or(false)))
+                let delays = match &self.delays_s {
+                    Some(inline) => inline.clone(),
+                    None => read_trace(file).map_err(|reason| err(join(path, "file"), reason))?,
+                };
+                let name = if file.is_empty() { "(inline)" } else { file };
+                Distribution::Trace(Trace::from_file(name, delays, self.looping.unwrap_or(false)))
             }
             _ => {
                 let tables = self.states.as_deref().unwrap_or_default();
@@ -333,6 +362,139 @@ impl DelaysTable {
             }
         };
         Ok(RegimeState { delay: self.distribution(path, read_trace)?, mean_dwell })
+    }
+}
+
+impl DelaysTable {
+    /// No delay (what a scenario without a `[scenario.delays]` table has).
+    pub fn none() -> Self {
+        Self { kind: Some("none".into()), ..Self::default() }
+    }
+
+    /// A round trip `~ Gamma(shape, scale_s)` on commands (the paper's process).
+    pub fn gamma(shape: f64, scale_s: f64) -> Self {
+        Self { kind: Some("gamma".into()), shape: Some(shape), scale_s: Some(scale_s), ..Self::default() }
+    }
+
+    /// A round trip replaying `delays_s` (ending the run once used up unless `looping`),
+    /// named `name` in errors.
+    pub fn trace(name: &str, delays_s: Vec<f64>, looping: bool) -> Self {
+        Self {
+            kind: Some("trace".into()),
+            file: Some(name.to_string()),
+            delays_s: Some(delays_s),
+            looping: looping.then_some(true),
+            ..Self::default()
+        }
+    }
+
+    /// Reads the delays of every trace named by `file` and not yet loaded into `delays_s`
+    /// (keeping `file` as its name). Errors name the key as [`DelaysTable::to_network`] does.
+    pub fn load_traces(
+        &mut self,
+        read_trace: &mut dyn FnMut(&str) -> Result<Vec<f64>, String>,
+    ) -> Result<(), SpecError> {
+        fn load(
+            t: &mut DelaysTable,
+            path: &str,
+            read_trace: &mut dyn FnMut(&str) -> Result<Vec<f64>, String>,
+        ) -> Result<(), SpecError> {
+            if t.kind.as_deref() == Some("trace")
+                && t.delays_s.is_none()
+                && let Some(file) = t.file.clone()
+            {
+                t.delays_s = Some(read_trace(&file).map_err(|reason| err(join(path, "file"), reason))?);
+            }
+            Ok(())
+        }
+        load(self, "", read_trace)?;
+        if let Some(t) = self.to_plant.as_deref_mut() {
+            load(t, "to_plant", read_trace)?;
+        }
+        if let Some(t) = self.to_controller.as_deref_mut() {
+            load(t, "to_controller", read_trace)?;
+        }
+        Ok(())
+    }
+
+    /// The table that describes `network` (seeds aside: a table takes its seed from the
+    /// scenario): the inverse of [`DelaysTable::to_network`], a round trip at the top when
+    /// samples go undisturbed, else a table per direction. A trace is written inline.
+    pub fn from_network(network: &NetworkProfile) -> Self {
+        let undisturbed = |p: &DirectionProfile| {
+            p.delay.is_zero()
+                && p.loss_probability == 0.0
+                && p.duplicate_probability == 0.0
+                && p.ordering == Ordering::default()
+        };
+        if undisturbed(&network.to_controller) {
+            return Self::of_direction(&network.to_plant);
+        }
+        Self {
+            to_plant: Some(Box::new(Self::of_direction(&network.to_plant))),
+            to_controller: Some(Box::new(Self::of_direction(&network.to_controller))),
+            ..Self::default()
+        }
+    }
+
+    /// A direction's table: its distribution, and loss, duplication and ordering when they
+    /// are not the defaults.
+    fn of_direction(p: &DirectionProfile) -> Self {
+        let mut t = Self::of_distribution(&p.delay);
+        t.loss_probability = (p.loss_probability != 0.0).then_some(p.loss_probability);
+        t.duplicate_probability = (p.duplicate_probability != 0.0).then_some(p.duplicate_probability);
+        t.ordering = (p.ordering != Ordering::default()).then_some(p.ordering);
+        t
+    }
+
+    /// A distribution's keys (a zero constant is kind `none`).
+    fn of_distribution(d: &Distribution) -> Self {
+        let with = |kind: &str| Self { kind: Some(kind.to_string()), ..Self::default() };
+        match d {
+            d if d.is_zero() => with("none"),
+            Distribution::Constant { delay_s } => Self { delay_s: Some(*delay_s), ..with("constant") },
+            Distribution::Uniform { min_s, max_s } => {
+                Self { min_s: Some(*min_s), max_s: Some(*max_s), ..with("uniform") }
+            }
+            Distribution::Normal { mean_s, std_s } => {
+                Self { mean_s: Some(*mean_s), std_s: Some(*std_s), ..with("normal") }
+            }
+            Distribution::Gamma { shape, scale_s } => Self::gamma(*shape, *scale_s),
+            Distribution::GammaMoments { mean_s, std_s } => {
+                Self { mean_s: Some(*mean_s), std_s: Some(*std_s), ..with("gamma") }
+            }
+            Distribution::Lognormal { mu, sigma } => {
+                Self { mu: Some(*mu), sigma: Some(*sigma), ..with("lognormal") }
+            }
+            Distribution::LognormalMoments { mean_s, std_s } => {
+                Self { mean_s: Some(*mean_s), std_s: Some(*std_s), ..with("lognormal") }
+            }
+            Distribution::Pareto { scale_s, shape } => {
+                Self { scale_s: Some(*scale_s), shape: Some(*shape), ..with("pareto") }
+            }
+            Distribution::Trace(t) => Self {
+                file: (!t.name.is_empty() && &*t.name != "(inline)").then(|| t.name.to_string()),
+                delays_s: Some(t.delays_s.to_vec()),
+                looping: (t.end == crate::TraceEnd::Loop).then_some(true),
+                ..with("trace")
+            },
+            Distribution::Regime { states } => Self {
+                states: Some(
+                    states
+                        .iter()
+                        .map(|s| {
+                            let mut t = Self::of_distribution(&s.delay);
+                            match s.mean_dwell {
+                                Dwell::Messages(m) => t.mean_dwell_messages = Some(m),
+                                Dwell::Seconds(d) => t.mean_dwell_s = Some(d),
+                            }
+                            t
+                        })
+                        .collect(),
+                ),
+                ..with("regime")
+            },
+        }
     }
 }
 
@@ -534,5 +696,48 @@ mod tests {
         assert_eq!(file_field("delay.regime.states[2].delay.uniform.max_s"), "states[2].max_s");
         assert_eq!(file_field("delay.regime.states[2].delay"), "states[2].kind");
         assert_eq!(file_field("delay.regime.states[0].mean_dwell_s"), "states[0].mean_dwell_s");
+    }
+
+    #[test]
+    fn every_network_a_table_describes_comes_back_from_its_own_table() -> Result<(), SpecError> {
+        let texts = [
+            "kind = \"none\"",
+            "kind = \"constant\"\ndelay_s = 0.1\nloss_probability = 0.2",
+            "kind = \"uniform\"\nmin_s = 0.1\nmax_s = 0.2\nordering = \"independent\"",
+            "kind = \"normal\"\nmean_s = 0.1\nstd_s = 0.02\nduplicate_probability = 0.1",
+            "kind = \"gamma\"\nshape = 12.0\nscale_s = 0.015",
+            "kind = \"gamma\"\nmean_s = 0.1\nstd_s = 0.02",
+            "kind = \"lognormal\"\nmean_s = 0.1\nstd_s = 0.02",
+            "kind = \"lognormal\"\nmu = -2.0\nsigma = 0.5",
+            "kind = \"pareto\"\nscale_s = 0.05\nshape = 2.5",
+            "kind = \"trace\"\nfile = \"wifi.csv\"",
+            "kind = \"trace\"\nfile = \"wifi.csv\"\nlooping = true",
+            "kind = \"trace\"\ndelays_s = [0.1, 0.3]",
+            "kind = \"regime\"\n[[states]]\nkind = \"constant\"\ndelay_s = 0.02\nmean_dwell_messages = 20.0\n[[states]]\nkind = \"uniform\"\nmin_s = 0.1\nmax_s = 0.3\nmean_dwell_s = 1.5",
+            "[to_plant]\nkind = \"constant\"\ndelay_s = 0.1\n[to_controller]\nkind = \"gamma\"\nshape = 2.0\nscale_s = 0.01",
+        ];
+        for text in texts {
+            let n = network(text)?;
+            let back = DelaysTable::from_network(&n);
+            let again = back.to_network(7, &mut |f| Err(format!("{f} read twice")))?;
+            assert_eq!(again, n, "{text}");
+        }
+        Ok(())
+    }
+
+    #[test]
+    fn loading_traces_inlines_their_delays_and_keeps_the_file_as_the_name() -> Result<(), SpecError> {
+        let mut t =
+            parse("[to_plant]\nkind = \"trace\"\nfile = \"wifi.csv\"\n[to_controller]\nkind = \"none\"");
+        t.load_traces(&mut |f| if f == "wifi.csv" { Ok(vec![0.5, 0.25]) } else { Err(f.to_string()) })?;
+        let inline = t.to_plant.as_ref().and_then(|p| p.delays_s.clone());
+        assert_eq!(inline, Some(vec![0.5, 0.25]));
+        let n = t.to_network(1, &mut |f| Err(format!("{f} read again")))?;
+        let Distribution::Trace(trace) = &n.to_plant.delay else { panic!("{n:?}") };
+        assert_eq!((&*trace.name, trace.end), ("wifi.csv", crate::TraceEnd::Stop));
+        let mut missing = parse("kind = \"trace\"\nfile = \"gone.csv\"");
+        let e = missing.load_traces(&mut |f| Err(format!("cannot read {f}")));
+        assert_eq!(e.map_err(|e| e.field), Err("file".to_string()));
+        Ok(())
     }
 }

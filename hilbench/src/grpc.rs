@@ -33,7 +33,7 @@ use hilbench_proto::pb;
 use hilbench_proto::pb::controller_client::ControllerClient;
 use hilbench_proto::pb::netem_control_client::NetemControlClient;
 use hilbench_proto::pb::plant_client::PlantClient;
-use mav::{DelayModel, PlantSample, Scenario};
+use mav::{PlantSample, Scenario};
 use mpc::{ControllerMode, CycleRecord, RunSummary};
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
@@ -128,24 +128,17 @@ impl Default for GrpcSettings {
     }
 }
 
-/// netem's settings for `scenario`: its delay model on commands (seeded with the scenario's
-/// seed), none on samples, in `time_mode`.
+/// netem's settings for `scenario`: its network (seeded with the scenario's seed; none when
+/// the scenario describes no network), in `time_mode`.
 pub fn netem_config(
     upstream: &str,
     scenario: &Scenario,
     time_mode: TimeMode,
 ) -> anyhow::Result<netem::Config> {
-    let mut config = match scenario.delays {
-        DelayModel::None => netem::Config::new(upstream).with_preset("none", scenario.seed)?,
-        DelayModel::Gamma { shape, scale_s } => {
-            let mut c = netem::Config::new(upstream).with_preset("paper", scenario.seed)?;
-            c.controller_to_plant = delay::DirectionProfile::with_delay(
-                delay::Distribution::Gamma { shape, scale_s },
-                scenario.seed,
-            );
-            c
-        }
-    };
+    let network = scenario.network()?.unwrap_or_else(|| delay::NetworkProfile::none(scenario.seed));
+    let mut config = netem::Config::new(upstream).with_preset("none", scenario.seed)?;
+    config.controller_to_plant = network.to_plant;
+    config.plant_to_controller = network.to_controller;
     config.time_mode = match time_mode {
         TimeMode::Lockstep => netem::TimeModeSetting::Lockstep,
         TimeMode::RealTime => netem::TimeModeSetting::RealTime,
@@ -544,6 +537,14 @@ async fn drive(
                 {
                     let telemetry = episodes.remove(&episode).unwrap_or_default();
                     break (s, telemetry);
+                }
+                if s.episode > before.episode && s.episode_finished && s.finish_reason == "error" {
+                    bail!(
+                        "{} with {}: the controller's episode ended with an error: {}",
+                        scenario.name,
+                        mode.name(),
+                        s.last_error
+                    );
                 }
                 let seen = episodes.get(&s.episode).map_or(0, Vec::len) as u64;
                 if !real_time && s.episode > before.episode && s.episode_finished && seen >= s.cycles {

@@ -192,6 +192,15 @@ impl ScenarioFile {
                 let span = e.span();
                 error(span, field, e.message().to_string())
             })?;
+        // Trace files, relative to the scenario file, are read into the scenario (inline), so
+        // that it travels whole to the services and replays without the file.
+        if let Some(table) = file.scenario.delays.as_mut() {
+            let dir = path.parent().unwrap_or(Path::new("."));
+            table.load_traces(&mut |name| read_trace(&dir.join(name))).map_err(|e| {
+                let field = format!("scenario.delays.{}", e.field);
+                error(span_of(&root, &field), Some(field), e.reason)
+            })?;
+        }
         file.validate().map_err(|(field, message)| {
             let span = span_of(&root, &field);
             error(span, Some(field), message)
@@ -254,6 +263,12 @@ impl ScenarioFile {
         }
         Ok(())
     }
+}
+
+/// The delays of a trace file (`delay::parse_trace`'s format), or why not, naming the file.
+pub fn read_trace(path: &Path) -> Result<Vec<f64>, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    delay::parse_trace(&text).map_err(|e| format!("{}: {e}", path.display()))
 }
 
 /// 1-based line of byte `offset` in `text`.

@@ -14,8 +14,8 @@ pub mod sim;
 pub use geometry::{Cylinder, GROUND_INDEX};
 pub use model::{Dynamics, Input, InputBounds, MavModel, ModelParams, State, euler_step, rk4_step};
 pub use scenario::{
-    DelayModel, MAX_ABS_ANGLE_RAD, MAX_ABS_POSITION_M, MAX_ABS_VELOCITY_MPS, MAX_COEFFICIENT,
-    MAX_OBSTACLE_SIZE_M, Scenario, ScenarioError,
+    MAX_ABS_ANGLE_RAD, MAX_ABS_POSITION_M, MAX_ABS_VELOCITY_MPS, MAX_COEFFICIENT, MAX_OBSTACLE_SIZE_M,
+    PAPER_DELAY_GAMMA, Scenario, ScenarioError,
 };
 pub use sim::{
     AppliedCommand, CollisionEvent, CollisionKind, CommandMeta, PlantSample, PlantSim, SimError, SimSettings,

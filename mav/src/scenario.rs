@@ -4,20 +4,10 @@
 use crate::geometry::Cylinder;
 use crate::model::{InputBounds, ModelParams, State};
 
-/// The round-trip delay process of a scenario.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum DelayModel {
-    /// No communication delay (`d_k = 0`).
-    None,
-    /// `d_k ~ Gamma(shape, scale_s)`.
-    Gamma { shape: f64, scale_s: f64 },
-}
+use delay::{DelaysTable, NetworkProfile};
 
-impl DelayModel {
-    /// `docs/spec.md`: Gamma(12, 0.015), mean 0.18 s.
-    pub const PAPER: DelayModel = DelayModel::Gamma { shape: 12.0, scale_s: 0.015 };
-}
+/// `docs/spec.md`'s round-trip delay: Gamma(12, 0.015), mean 0.18 s.
+pub const PAPER_DELAY_GAMMA: (f64, f64) = (12.0, 0.015);
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ScenarioError {
@@ -80,8 +70,13 @@ pub struct Scenario {
     pub prior_gamma: (f64, f64),
     /// Size of the delay window `n_max`.
     pub delay_window: usize,
-    /// Round-trip delay process.
-    pub delays: DelayModel,
+    /// The network's delay process as written in a scenario file's `[scenario.delays]` (see
+    /// `delay::spec`): a round trip on commands, or each direction, any kind, traces and
+    /// regimes included (a trace's delays inline once the file loader has read them).
+    /// `None`: the scenario says nothing of the network (a run over netem keeps the profile
+    /// in force; in process there is no delay).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub delays: Option<DelaysTable>,
     /// Seed of the delay generator.
     pub seed: u64,
     /// Shortest cycle period, s (`t_{k+1} = t_k + max(this, d_k)`).
@@ -146,7 +141,7 @@ impl Scenario {
             nominal_weights: vec![0.05, 0.15, 0.45, 0.30, 0.05],
             prior_gamma: (12.0, 0.015),
             delay_window: 50,
-            delays: DelayModel::PAPER,
+            delays: Some(DelaysTable::gamma(PAPER_DELAY_GAMMA.0, PAPER_DELAY_GAMMA.1)),
             seed: 42,
             min_cycle_s: 0.05,
             goal_tolerance_m: 0.15,
@@ -191,12 +186,42 @@ impl Scenario {
 
     /// As paper-2, without delays.
     pub fn paper_3() -> Self {
-        Self { name: "paper-3".to_string(), delays: DelayModel::None, ..Self::paper_2() }
+        Self { name: "paper-3".to_string(), delays: Some(DelaysTable::none()), ..Self::paper_2() }
     }
 
     /// The initial state as a vector.
     pub fn start_state(&self) -> State {
         State::from(self.start)
+    }
+
+    /// The network of [`Scenario::delays`], seeded with [`Scenario::seed`]; `None` when the
+    /// scenario does not describe it. A trace must be loaded (inline): this reads no file.
+    pub fn network(&self) -> Result<Option<NetworkProfile>, ScenarioError> {
+        let Some(table) = &self.delays else { return Ok(None) };
+        let mut unread = |file: &str| {
+            Err(format!("trace file {file:?} is not loaded (a scenario file's loader reads its traces)"))
+        };
+        table
+            .to_network(self.seed, &mut unread)
+            .map(Some)
+            .map_err(|e| invalid(format!("delays.{}", e.field), e.reason))
+    }
+
+    /// A controller expects delays, and fits their law, unless the scenario says its network
+    /// delays nothing (an undescribed network may delay anything: its delays are measured).
+    pub fn delays_expected(&self) -> bool {
+        !matches!(self.network(), Ok(Some(n)) if !n.has_delays())
+    }
+
+    /// The `(shape, scale_s)` of a Gamma round trip on commands, when that is the process.
+    pub fn gamma_round_trip(&self) -> Option<(f64, f64)> {
+        let network = self.network().ok()??;
+        if network.to_controller.delay.is_zero()
+            && let delay::Distribution::Gamma { shape, scale_s } = network.to_plant.delay
+        {
+            return Some((shape, scale_s));
+        }
+        None
     }
 
     /// Checks every field; the error names the first bad one.
@@ -331,14 +356,7 @@ impl Scenario {
         if !(2..=100_000).contains(&self.delay_window) {
             return Err(invalid("delay_window", "must be in 2..=100000"));
         }
-        if let DelayModel::Gamma { shape, scale_s } = self.delays {
-            if !positive(shape) {
-                return Err(invalid("delays.shape", "must be finite and > 0"));
-            }
-            if !positive(scale_s) {
-                return Err(invalid("delays.scale_s", "must be finite and > 0"));
-            }
-        }
+        self.network()?;
         if !positive(self.min_cycle_s) || self.min_cycle_s > 3600.0 {
             return Err(invalid("min_cycle_s", "must be in (0, 3600] s"));
         }
@@ -445,7 +463,7 @@ mod tests {
         }
         let p2 = Scenario::paper_2();
         assert_eq!(p2.q_du, [40.0, 165.0, 165.0]);
-        assert_eq!(Scenario::paper_3().delays, DelayModel::None);
+        assert_eq!(Scenario::paper_3().delays, Some(DelaysTable::none()));
         assert_eq!(Scenario::paper_3().obstacles, p2.obstacles);
         assert!(matches!(Scenario::by_name("paper-9"), Err(ScenarioError::Unknown(_))));
     }

@@ -3,7 +3,7 @@
 //! `t_k + d_k`, the next cycle at `t_k + max(0.05, d_k)`. The cycle itself is
 //! [`crate::episode::Episode`]'s, the same one the controller service runs over gRPC.
 
-use mav::{DelayModel, Input, PlantSim, Scenario, SimSettings};
+use mav::{Input, PlantSim, Scenario, SimSettings};
 
 use crate::episode::{CycleTiming, Episode, EpisodeSettings, Finish};
 use crate::error::MpcError;
@@ -21,17 +21,32 @@ pub enum DelaySource {
     Gamma { shape: f64, scale_s: f64, seed: u64 },
     /// A recorded trace, replayed in order and looped.
     Trace(Vec<f64>),
+    /// Whatever the command direction of a scenario's network does (`delay::spec`'s kinds,
+    /// loss included), seeded.
+    Commands(delay::DirectionProfile),
 }
 
 impl DelaySource {
-    /// The delays of `scenario` (its delay model and seed).
-    pub fn of_scenario(scenario: &Scenario) -> Self {
-        match scenario.delays {
-            DelayModel::None => DelaySource::None,
-            DelayModel::Gamma { shape, scale_s } => {
-                DelaySource::Gamma { shape, scale_s, seed: scenario.seed }
-            }
+    /// The delays of `scenario`'s network (its `[scenario.delays]`, seeded with its seed); no
+    /// delay when the scenario describes none. An in-process run puts the round trip on
+    /// commands, as paper mode does: a network that delays, loses or reorders samples, or
+    /// duplicates commands, needs netem and is refused here with the field named.
+    pub fn of_scenario(scenario: &Scenario) -> Result<Self, MpcError> {
+        let network = scenario.network().map_err(|e| MpcError::InvalidProblem(e.to_string()))?;
+        let Some(network) = network else { return Ok(DelaySource::None) };
+        let samples = &network.to_controller;
+        let over_netem =
+            "an in-process run delays commands only; run it over the services (without --in-process)";
+        if !samples.delay.is_zero() || samples.loss_probability > 0.0 || samples.duplicate_probability > 0.0 {
+            return Err(crate::error::invalid_input("delays.to_controller", over_netem));
         }
+        if network.to_plant.duplicate_probability > 0.0 {
+            return Err(crate::error::invalid_input("delays.to_plant.duplicate_probability", over_netem));
+        }
+        if !network.has_delays() && network.to_plant.loss_probability == 0.0 {
+            return Ok(DelaySource::None);
+        }
+        Ok(DelaySource::Commands(network.to_plant))
     }
 
     /// The command-direction delay line netem's lockstep uses for the same profile and seed,
@@ -45,6 +60,11 @@ impl DelaySource {
             DelaySource::Trace(trace) => {
                 (delay::Distribution::Trace(delay::Trace::looping(trace.clone())), 0)
             }
+            DelaySource::Commands(profile) => {
+                return delay::DelayLine::new(delay::Direction::ControllerToPlant, profile.clone())
+                    .map(Some)
+                    .map_err(|e| crate::error::invalid_input(format!("delays.{}", e.field), e.reason));
+            }
         };
         let profile = delay::DirectionProfile::with_delay(distribution, seed);
         delay::DelayLine::new(delay::Direction::ControllerToPlant, profile)
@@ -52,8 +72,14 @@ impl DelaySource {
             .map_err(|e| MpcError::InvalidInput { field: format!("delays.{}", e.field), reason: e.reason })
     }
 
+    /// Some command is delayed (a loss alone delays nothing): what the controller's
+    /// `delays_expected` is, as `mav::Scenario::delays_expected` for a scenario's network.
     pub fn has_delays(&self) -> bool {
-        !matches!(self, DelaySource::None)
+        match self {
+            DelaySource::None => false,
+            DelaySource::Commands(profile) => !profile.delay.is_zero(),
+            DelaySource::Gamma { .. } | DelaySource::Trace(_) => true,
+        }
     }
 }
 
@@ -112,11 +138,17 @@ pub fn run_closed_loop(
     scenario: &Scenario,
     settings: &ClosedLoopSettings,
 ) -> Result<(RunSummary, Vec<CycleTrace>), MpcError> {
-    let delays = settings.delays.clone().unwrap_or_else(|| DelaySource::of_scenario(scenario));
+    let delays = match &settings.delays {
+        Some(d) => d.clone(),
+        None => DelaySource::of_scenario(scenario)?,
+    };
     let mut delay_line = delays.delay_line()?;
     let mut episode_settings = EpisodeSettings::new(settings.mode, settings.mpc);
     episode_settings.safety = settings.safety;
-    episode_settings.delays_expected = delays.has_delays();
+    // As the controller service does from the scenario it flies, unless the delays are the
+    // caller's own.
+    episode_settings.delays_expected =
+        if settings.delays.is_some() { delays.has_delays() } else { scenario.delays_expected() };
     #[cfg(feature = "fault-injection")]
     {
         episode_settings.fault = settings.fault;
@@ -142,10 +174,14 @@ pub fn run_closed_loop(
         if settings.record_predictions {
             out.record.predictions = episode.predictions(&weights);
         }
+        // A trace that ends the run: an error naming it and the cycle, never a made-up delay.
+        if let Some(Err(ended)) = delay_line.as_ref().map(|line| line.check_next()) {
+            return Err(crate::error::invalid_input("delays", format!("cycle {}: {ended}", traces.len())));
+        }
         let delay_ns = match delay_line.as_mut().map(|line| line.send(sample.time_ns).fate) {
             None => Some(0),
             Some(delay::Fate::Delivered { original, .. }) => Some(original.delay_ns),
-            // A loss profile is not part of paper mode; a lost command leaves the old input on.
+            // A lost command leaves the old input on (as through netem in lockstep).
             Some(delay::Fate::Dropped) => None,
         };
         sim.advance(delay_ns.unwrap_or(0), |_| {});

@@ -100,6 +100,12 @@ impl Inner {
         }
     }
 
+    /// The end of a trace that stops there, when the next message of `dir` has no delay left:
+    /// such a message is refused to its sender (the run must stop), not dropped.
+    pub fn trace_ended(&self, dir: Direction) -> Option<delay::TraceEnded> {
+        self.lines[dir.index()].check_next().err()
+    }
+
     /// Runs message `payload_seq`, sent at `send_ns`, through the line of `dir`.
     pub fn decide(&mut self, dir: Direction, send_ns: u64, payload_seq: u64) -> Decision {
         let reason = self.drop_reason(dir);

@@ -122,6 +122,9 @@ impl Proxy {
         let mut due_now = Vec::new();
         {
             let mut inner = self.shared.lock();
+            if let Some(ended) = inner.trace_ended(Direction::ControllerToPlant) {
+                return Err(trace_ended_status("command", &ended));
+            }
             let d = inner.decide(Direction::ControllerToPlant, t, command.command_seq);
             match d.fate {
                 Fate::Dropped => {
@@ -198,6 +201,9 @@ impl Proxy {
             }
         }
         let duration_ns = target - t0;
+        if let Some(ended) = self.shared.lock().trace_ended(Direction::PlantToController) {
+            return Err(trace_ended_status("sample", &ended));
+        }
         // A regime's clock for a lockstep sample is the time it arrives.
         let (draw, reason) = self.shared.lock().draw_sample(target);
         let staleness = delay::secs_to_ns(draw.sampled_delay_s).min(duration_ns);
@@ -250,6 +256,9 @@ impl Proxy {
         let now = self.shared.clock.now_ns();
         let (d, epoch) = {
             let mut inner = self.shared.lock();
+            if let Some(ended) = inner.trace_ended(Direction::ControllerToPlant) {
+                return Err(trace_ended_status("command", &ended));
+            }
             if !inner.upstream_connected {
                 return Err(Status::unavailable(format!(
                     "netem: the upstream plant at {} is unavailable",
@@ -581,4 +590,11 @@ fn async_stream_map(upstream: tonic::Streaming<pb::StateSample>, shared: Arc<Sha
         Err(s) => Err(s),
     });
     Box::pin(crate::core::until_closed(items, closing))
+}
+
+/// A message of a direction whose delay trace has ended (and stops there): refused to its
+/// sender, so that the run stops with an error naming the trace and the message, never a
+/// silent drop or a made-up delay.
+fn trace_ended_status(what: &str, ended: &delay::TraceEnded) -> Status {
+    Status::out_of_range(format!("netem: this {what} has no delay: {ended}"))
 }

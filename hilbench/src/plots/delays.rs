@@ -1,7 +1,6 @@
 //! The round-trip delays of one run against time, their histogram, the Gamma fitted to them
 //! and the scenario's own delay model.
 
-use mav::scenario::DelayModel;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use statrs::distribution::{Continuous, Gamma};
@@ -89,10 +88,7 @@ pub(super) fn draw_delays<DB: DrawingBackend>(
     let n = ms.len().max(1) as f64;
     let density: Vec<f64> = counts.iter().map(|&c| c as f64 / (n * width)).collect();
     let fit = gamma_fit(&d.iter().map(|q| q.1).collect::<Vec<_>>());
-    let model = match r.scenario.delays {
-        DelayModel::Gamma { shape, scale_s } => Some((shape, scale_s)),
-        DelayModel::None => None,
-    };
+    let model = r.scenario.gamma_round_trip();
     let x_hi = x0 + width * (bins + 1) as f64;
     let x_lo = (x0 - width).max(0.0);
     let curve = |(shape, scale_s): (f64, f64)| -> Vec<(f64, f64)> {

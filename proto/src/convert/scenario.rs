@@ -4,7 +4,8 @@
 //! `mav::Scenario::validate`, the scenario file loader's too, with the field named as a path
 //! into the message (`definition.obstacles[2].radius_m`).
 
-use mav::{DelayModel, Scenario, ScenarioError};
+use delay::DelaysTable;
+use mav::{Scenario, ScenarioError};
 
 use super::{FieldError, finite_array, required};
 use crate::pb;
@@ -28,12 +29,16 @@ impl From<&Scenario> for pb::Scenario {
             prior_gamma_shape: s.prior_gamma.0,
             prior_gamma_scale_s: s.prior_gamma.1,
             delay_window: u32::try_from(s.delay_window).unwrap_or(u32::MAX),
-            delays: match s.delays {
-                DelayModel::None => None,
-                DelayModel::Gamma { shape, scale_s } => {
-                    Some(pb::RoundTripDelay { kind: "gamma".into(), shape, scale_s })
-                }
-            },
+            // A validated scenario's network always converts (its traces are inline).
+            delays: s.delays.is_none().then(|| pb::RoundTripDelay {
+                kind: "measured".into(),
+                shape: 0.0,
+                scale_s: 0.0,
+            }),
+            network: s.network().ok().flatten().map(|n| pb::NetworkDelays {
+                to_plant: Some((&n.to_plant).into()),
+                to_controller: Some((&n.to_controller).into()),
+            }),
             seed: s.seed,
             min_cycle_s: s.min_cycle_s,
             goal_tolerance_m: s.goal_tolerance_m,
@@ -48,13 +53,31 @@ impl From<&Scenario> for pb::Scenario {
     }
 }
 
-/// The scenario's delay process from the wire.
-fn delays_from_pb(d: Option<&pb::RoundTripDelay>) -> Result<DelayModel, FieldError> {
-    let Some(d) = d else { return Ok(DelayModel::None) };
+/// The scenario's delay process from the wire: `network` when set (validated as netem's
+/// profiles are; its seeds are the scenario's), else the round trip of `delays`.
+fn delays_from_pb(
+    d: Option<&pb::RoundTripDelay>,
+    network: Option<&pb::NetworkDelays>,
+) -> Result<Option<DelaysTable>, FieldError> {
+    if let Some(n) = network {
+        let to_plant = super::netem::profile_from_pb(required("network.to_plant", &n.to_plant)?)
+            .map_err(|e| e.within("network.to_plant"))?;
+        let to_controller =
+            super::netem::profile_from_pb(required("network.to_controller", &n.to_controller)?)
+                .map_err(|e| e.within("network.to_controller"))?;
+        return Ok(Some(DelaysTable::from_network(&delay::NetworkProfile { to_plant, to_controller })));
+    }
+    let Some(d) = d else { return Ok(Some(DelaysTable::none())) };
     match d.kind.as_str() {
-        "" | "none" => Ok(DelayModel::None),
-        "gamma" => Ok(DelayModel::Gamma { shape: d.shape, scale_s: d.scale_s }),
-        other => Err(FieldError::new("delays.kind", format!("unknown kind {other:?} (known: none, gamma)"))),
+        "" | "none" => Ok(Some(DelaysTable::none())),
+        "gamma" => Ok(Some(DelaysTable::gamma(d.shape, d.scale_s))),
+        "measured" => Ok(None),
+        other => Err(FieldError::new(
+            "delays.kind",
+            format!(
+                "unknown kind {other:?} (known: none, gamma, measured; any other kind goes in `network`)"
+            ),
+        )),
     }
 }
 
@@ -105,7 +128,7 @@ impl TryFrom<&pb::Scenario> for Scenario {
             nominal_weights: m.nominal_weights.clone(),
             prior_gamma: (m.prior_gamma_shape, m.prior_gamma_scale_s),
             delay_window: m.delay_window as usize,
-            delays: delays_from_pb(m.delays.as_ref())?,
+            delays: delays_from_pb(m.delays.as_ref(), m.network.as_ref())?,
             seed: m.seed,
             min_cycle_s: m.min_cycle_s,
             goal_tolerance_m: m.goal_tolerance_m,
@@ -165,8 +188,18 @@ mod tests {
         custom.obstacle_margin_m = Some(0.2);
         custom.delay_compensation = true;
         custom.fail_safe = true;
-        custom.delays = DelayModel::None;
-        for s in Scenario::BUILT_IN.iter().map(|n| Scenario::by_name(n).expect("built in")).chain([custom]) {
+        custom.delays = Some(DelaysTable::none());
+        let mut measured = custom.clone();
+        measured.delays = None;
+        let mut bursty = custom.clone();
+        let regime = "kind = \"regime\"\nloss_probability = 0.05\n[[states]]\nkind = \"constant\"\ndelay_s = 0.02\nmean_dwell_messages = 20.0\n[[states]]\nkind = \"lognormal\"\nmean_s = 0.2\nstd_s = 0.1\nmean_dwell_s = 1.5";
+        bursty.delays = Some(toml::from_str(regime).expect("a delays table"));
+        let mut split = custom.clone();
+        let both = "[to_plant]\nkind = \"trace\"\nfile = \"wifi.csv\"\ndelays_s = [0.1, 0.25]\n[to_controller]\nkind = \"uniform\"\nmin_s = 0.0\nmax_s = 0.1\nordering = \"independent\"";
+        split.delays = Some(toml::from_str(both).expect("a delays table"));
+        let built_in = Scenario::BUILT_IN.iter().map(|n| Scenario::by_name(n).expect("built in"));
+        for s in built_in.chain([custom, measured, bursty, split]) {
+            assert_eq!(s.validate(), Ok(()));
             let back = Scenario::try_from(&pb::Scenario::from(&s)).expect("valid");
             assert_eq!(back, s);
         }
@@ -194,8 +227,14 @@ mod tests {
         m.limits = None;
         assert_eq!(field(&m), Err("definition.limits".into()));
         let mut m = good.clone();
+        m.network = None;
         m.delays = Some(pb::RoundTripDelay { kind: "lognormal".into(), shape: 1.0, scale_s: 1.0 });
         assert_eq!(field(&m), Err("definition.delays.kind".into()));
+        let mut m = good.clone();
+        if let Some(p) = m.network.as_mut().and_then(|n| n.to_plant.as_mut()) {
+            p.loss_probability = 1.5;
+        }
+        assert_eq!(field(&m), Err("definition.network.to_plant.loss_probability".into()));
         let mut m = good.clone();
         m.horizon = 0;
         assert_eq!(field(&m), Err("definition.horizon".into()));

@@ -241,3 +241,62 @@ async fn the_per_cycle_csv_of_a_grpc_run_is_byte_identical_to_the_in_process_one
     }
     assert_eq!(grpc, local);
 }
+
+fn scenario_file(name: &str) -> Scenario {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios").join(name);
+    hilbench::scenario_file::ScenarioFile::load(&path).unwrap_or_else(|e| panic!("{e}")).scenario
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_recorded_delay_trace_file_flies_over_grpc_bit_identically_to_in_process() {
+    // scenarios/wifi-trace.toml names wifi-trace.csv: the loader reads it into the scenario,
+    // which then travels whole; netem replays it on commands, the in-process loop on its line.
+    let scenario = scenario_file("wifi-trace.toml");
+    let mode = ControllerMode::Nmpc;
+    let run = run_over_grpc(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(300) })
+        .await
+        .expect("gRPC run");
+    assert_bit_identical(&scenario, mode, &run);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_run_that_outlasts_its_delay_trace_stops_with_an_error_naming_the_file_and_the_cycle() {
+    let mut scenario = scenario_file("wifi-trace.toml");
+    scenario.delays = Some(delay::DelaysTable::trace("short.csv", vec![0.1, 0.2, 0.05], false));
+    let mode = ControllerMode::Nmpc;
+    let in_process = run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode)).map(|_| ());
+    let message = format!("{:?}", in_process.expect_err("the in-process run must stop"));
+    assert!(message.contains("short.csv") && message.contains("cycle 3"), "{message}");
+    let over_grpc = run_over_grpc(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(120) }).await;
+    let message = format!("{:#}", over_grpc.map(|_| ()).expect_err("the gRPC run must stop"));
+    // netem refuses the command that has no delay (message 3 of the line: cycle 3's command).
+    assert!(message.contains("short.csv") && message.contains("message 3 has none"), "{message}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_regime_process_with_delayed_samples_flies_over_grpc_with_both_directions_in_force() {
+    // scenarios/bursty-lte.toml: a two-state regime with loss on commands, a constant delay on
+    // samples (which the in-process loop refuses to model).
+    let scenario = scenario_file("bursty-lte.toml");
+    let mode = ControllerMode::Multistage;
+    let refused = run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode)).map(|_| ());
+    assert!(format!("{refused:?}").contains("delays.to_controller"), "{refused:?}");
+    let run = run_over_grpc(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(300) })
+        .await
+        .expect("gRPC run");
+    assert!(run.summary.cycles > 20, "{} cycles", run.summary.cycles);
+    // The same network without the samples' delay: cycle 0's command draws the same delay
+    // (same seed, same send time), so cycle 1's sample is read exactly 10 ms earlier with it.
+    let mut undelayed = scenario.clone();
+    if let Some(t) = undelayed.delays.as_mut() {
+        t.to_controller = Some(Box::new(delay::DelaysTable::none()));
+    }
+    let reference = run_over_grpc(&undelayed, mode, &GrpcSettings { timeout: Duration::from_secs(300) })
+        .await
+        .expect("gRPC run without the samples' delay");
+    assert_eq!(
+        run.records[1].sample_time_ns + 10_000_000,
+        reference.records[1].sample_time_ns,
+        "cycle 1's sample is 10 ms stale"
+    );
+}
