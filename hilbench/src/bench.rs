@@ -9,7 +9,7 @@ use mav::Scenario;
 use mpc::RunSummary;
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
 
-use crate::grpc::{Endpoints, GrpcSettings, LinkFaults, RunTiming, run_against};
+use crate::grpc::{DelayProfileInForce, Endpoints, GrpcSettings, LinkFaults, RunTiming, run_against};
 use crate::report;
 use crate::scenario_file::{Mode, ScenarioFile};
 
@@ -92,6 +92,8 @@ pub struct Outcome {
     pub timings: Vec<TimedRun>,
     /// Link faults of each run, in the order of `runs` (none in process).
     pub faults: Vec<LinkFaults>,
+    /// The delay process of each run, in the order of `runs`.
+    pub delay_profiles: Vec<DelayProfileInForce>,
     pub transport: &'static str,
     /// `lockstep` or `real-time`.
     pub time_mode: &'static str,
@@ -125,10 +127,12 @@ impl Outcome {
                 .zip(&self.cycles)
                 .zip(&self.goals)
                 .zip(&self.faults)
-                .map(|(((r, rows), goal), faults)| {
+                .zip(&self.delay_profiles)
+                .map(|((((r, rows), goal), faults), delay_profile)| {
                     let mut v = run_json(r);
                     add_cycle_metrics(&mut v, rows, goal);
                     faults.add_to(&mut v);
+                    v["delay_profile"] = serde_json::json!(delay_profile);
                     v
                 })
                 .collect::<Vec<_>>(),
@@ -160,6 +164,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
     let mut goals = Vec::with_capacity(jobs.len());
     let mut timings = Vec::new();
     let mut faults = Vec::with_capacity(jobs.len());
+    let mut delay_profiles = Vec::with_capacity(jobs.len());
     let bar = crate::progress::bar(jobs.len() as u64, "runs", progress);
     for (scenario, mode) in jobs {
         let name = &scenario.name;
@@ -178,6 +183,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                 });
                 cycles.push(crate::cycle_log::from_records(&run.records));
                 faults.push(run.faults);
+                delay_profiles.push(run.delay_profile);
                 run.summary
             }
             _ => {
@@ -186,6 +192,9 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                 let records: Vec<_> = traces.into_iter().map(|t| t.record).collect();
                 cycles.push(crate::cycle_log::from_records(&records));
                 faults.push(LinkFaults::default());
+                let network =
+                    scenario.network()?.unwrap_or_else(|| delay::NetworkProfile::none(scenario.seed));
+                delay_profiles.push(DelayProfileInForce::of("scenario", &network));
                 summary
             }
         };
@@ -206,6 +215,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
         goals,
         timings,
         faults,
+        delay_profiles,
         transport: transport.name(),
         time_mode: match transport {
             Transport::Grpc(e) => e.time_mode.name(),

@@ -54,6 +54,39 @@ pub struct GrpcRun {
     pub final_sample: PlantSample,
     pub timing: RunTiming,
     pub faults: LinkFaults,
+    /// The delay process netem had in force for the run.
+    pub delay_profile: DelayProfileInForce,
+}
+
+/// What delayed the run's messages: `summary.json`'s `delay_profile` (a stable key).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct DelayProfileInForce {
+    /// `scenario`: the scenario's `[scenario.delays]` (set on netem, or run in process);
+    /// `netem`: the profile a netem running elsewhere had, left alone (`--keep-netem-profile`,
+    /// or a scenario that does not describe its network); `none`: no netem between the
+    /// controller and the plant (the link's own delays, unknown to the bench).
+    pub source: &'static str,
+    /// The process, as a `[scenario.delays]` table (seeds aside: `scenario.seed` or netem's);
+    /// a trace read from a file is named by its file, its delays left out.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub delays: Option<delay::DelaysTable>,
+}
+
+impl DelayProfileInForce {
+    /// The table of `network`, traces from files named rather than listed.
+    pub fn of(source: &'static str, network: &delay::NetworkProfile) -> Self {
+        fn name_only(t: &mut delay::DelaysTable) {
+            if t.file.is_some() {
+                t.delays_s = None;
+            }
+        }
+        let mut table = delay::DelaysTable::from_network(network);
+        name_only(&mut table);
+        for direction in [&mut table.to_plant, &mut table.to_controller].into_iter().flatten() {
+            name_only(direction);
+        }
+        Self { source, delays: Some(table) }
+    }
 }
 
 /// Faults of a run's plant link, from the controller's status and telemetry (all zero when the
@@ -203,6 +236,8 @@ pub struct Endpoints {
     pub netem: Option<String>,
     pub controller: Option<String>,
     pub time_mode: TimeMode,
+    /// Leave the profile of the netem at `netem` alone (what `delay_profile` then reports).
+    pub keep_netem_profile: bool,
 }
 
 /// `--plant`, `--netem`, `--controller` of the CLI: services already running.
@@ -219,11 +254,22 @@ pub struct EndpointArgs {
     /// fly; needs --plant or --netem to read the final state.
     #[arg(long)]
     pub controller: Option<String>,
+    /// Leave the profile of the netem at --netem as it is (the file's [scenario.delays] is
+    /// then not used); a file without [scenario.delays] leaves it alone anyway. summary.json's
+    /// `delay_profile` says what was in force.
+    #[arg(long, requires = "netem")]
+    pub keep_netem_profile: bool,
 }
 
 impl EndpointArgs {
     pub fn endpoints(self, time_mode: TimeMode) -> Endpoints {
-        Endpoints { plant: self.plant, netem: self.netem, controller: self.controller, time_mode }
+        Endpoints {
+            plant: self.plant,
+            netem: self.netem,
+            controller: self.controller,
+            time_mode,
+            keep_netem_profile: self.keep_netem_profile,
+        }
     }
 }
 
@@ -243,6 +289,8 @@ pub struct Services {
     controller_addr: String,
     /// netem runs elsewhere: give it the scenario's profiles before the run.
     configure_netem: bool,
+    /// ...unless told to leave its profile alone.
+    keep_netem_profile: bool,
     time_mode: TimeMode,
 }
 
@@ -272,6 +320,7 @@ impl Services {
                 netem_addr: endpoints.netem.clone(),
                 controller_addr: controller_addr.clone(),
                 configure_netem: endpoints.netem.is_some(),
+                keep_netem_profile: endpoints.keep_netem_profile,
                 time_mode: endpoints.time_mode,
             });
         }
@@ -332,6 +381,7 @@ impl Services {
             controller: Some(controller),
             plant_addr: Some(plant_addr),
             configure_netem: endpoints.netem.is_some(),
+            keep_netem_profile: endpoints.keep_netem_profile,
             netem_addr: Some(netem_addr),
             controller_addr: controller_addr.to_string(),
             time_mode: endpoints.time_mode,
@@ -438,6 +488,22 @@ async fn configure_netem(
     Ok(())
 }
 
+/// The profile netem has in force, both directions.
+async fn netem_profile(addr: &str, deadline: Instant) -> anyhow::Result<delay::NetworkProfile> {
+    let mut control = NetemControlClient::new(connect(addr, deadline).await?);
+    let mut get = async |direction: pb::Direction| -> anyhow::Result<delay::DirectionProfile> {
+        let p = control
+            .get_profile(pb::GetProfileRequest { direction: direction as i32 })
+            .await
+            .with_context(|| format!("netem GetProfile at {addr}"))?
+            .into_inner();
+        hilbench_proto::convert::netem::profile_from_pb(&p).map_err(|e| anyhow!("netem's profile: {e}"))
+    };
+    let to_plant = get(pb::Direction::ControllerToPlant).await?;
+    let to_controller = get(pb::Direction::PlantToController).await?;
+    Ok(delay::NetworkProfile { to_plant, to_controller })
+}
+
 async fn drive(
     services: &Services,
     scenario: &Scenario,
@@ -446,11 +512,25 @@ async fn drive(
     started: Instant,
 ) -> anyhow::Result<GrpcRun> {
     let deadline = Instant::now() + settings.timeout;
+    // A netem running elsewhere gets the scenario's network, unless told to keep its own or
+    // the scenario describes none; one started here was started with the scenario's.
+    let keep = services.keep_netem_profile || scenario.delays.is_none();
     if services.configure_netem
+        && !keep
         && let Some(addr) = services.netem_addr()
     {
         configure_netem(addr, scenario, services.time_mode, deadline).await?;
     }
+    let delay_profile = match services.netem_addr() {
+        Some(addr) => {
+            let network = netem_profile(addr, deadline).await?;
+            DelayProfileInForce::of(
+                if services.configure_netem && keep { "netem" } else { "scenario" },
+                &network,
+            )
+        }
+        None => DelayProfileInForce { source: "none", delays: None },
+    };
     let mut controller = ControllerClient::new(connect(services.controller_addr(), deadline).await?);
     // The final state: from the plant, else through netem (an undelayed read).
     let state_addr = services
@@ -584,6 +664,7 @@ async fn drive(
         final_sample,
         timing: RunTiming { setup_s, episode_s, solver_s, teardown_s: 0.0 },
         faults,
+        delay_profile,
     })
 }
 

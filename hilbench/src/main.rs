@@ -100,6 +100,11 @@ enum Command {
         /// Seed of the delay process instead of the file's `scenario.seed`.
         #[arg(long)]
         seed: Option<u64>,
+        /// Replay this delay trace as the round trip instead of the file's [scenario.delays]:
+        /// one delay in s per line (optional first line `delay_s`), cycle k's command takes
+        /// line k, and a run that outlasts it stops with an error.
+        #[arg(long, value_name = "TRACE.csv", conflicts_with = "keep_netem_profile")]
+        delay_trace: Option<PathBuf>,
         #[command(flatten)]
         services: EndpointArgs,
     },
@@ -122,9 +127,10 @@ fn main() -> anyhow::Result<()> {
             };
             reproduce(out, json, &opts, &scenario, seed, &transport)?
         }
-        Command::Run { file, mode, out, json, in_process, time_mode, seed, services } => {
+        Command::Run { file, mode, out, json, in_process, time_mode, seed, delay_trace, services } => {
             let transport = (!in_process).then_some((services, time_mode));
-            run(&file, mode, out, json, &opts, seed, transport)?
+            let overrides = Overrides { seed, delay_trace };
+            run(&file, mode, out, json, &opts, &overrides, transport)?
         }
     };
     if outcome.any_collided() {
@@ -243,18 +249,33 @@ fn reproduce(
     Ok(outcome)
 }
 
+/// What `hilbench run`'s flags change in the file's scenario.
+struct Overrides {
+    /// `--seed`.
+    seed: Option<u64>,
+    /// `--delay-trace`.
+    delay_trace: Option<PathBuf>,
+}
+
 fn run(
     file: &std::path::Path,
     mode: Option<ModeArg>,
     out: Option<PathBuf>,
     json: bool,
     opts: &Options,
-    seed: Option<u64>,
+    overrides: &Overrides,
     services: Option<(EndpointArgs, Option<TimeMode>)>,
 ) -> anyhow::Result<Outcome> {
     let mut spec = ScenarioFile::load(file)?;
-    if let Some(seed) = seed {
+    if let Some(seed) = overrides.seed {
         spec.scenario.seed = seed;
+    }
+    if let Some(trace) = &overrides.delay_trace {
+        let delays =
+            hilbench::scenario_file::read_trace(trace).map_err(|e| anyhow::anyhow!("--delay-trace: {e}"))?;
+        let name = trace.display().to_string();
+        spec.scenario.delays = Some(delay::DelaysTable::trace(&name, delays, false));
+        spec.scenario.validate().map_err(|e| anyhow::anyhow!("--delay-trace {name}: {e}"))?;
     }
     let transport = &match services {
         Some((args, time_mode)) => Transport::Grpc(args.endpoints(time_mode.unwrap_or(spec.run.time_mode))),

@@ -31,6 +31,12 @@ struct Args {
     /// docs/spec.md), paper-split (Gamma(6, 0.015) each way), none.
     #[arg(long, default_value = "paper")]
     profile: String,
+    /// Both directions from a TOML file instead: a scenario file's [scenario.delays] table
+    /// alone (every kind: constant, uniform, normal, gamma, lognormal, pareto, trace, regime;
+    /// `to_plant` and `to_controller` tables for each direction; see docs/scenario-file.md).
+    /// A trace's `file` is relative to this file.
+    #[arg(long, value_name = "FILE.toml", conflicts_with = "profile")]
+    profile_file: Option<std::path::PathBuf>,
     /// Seed of the delay generators.
     #[arg(long, default_value_t = 42)]
     seed: u64,
@@ -44,9 +50,12 @@ struct Args {
 async fn main() -> anyhow::Result<()> {
     hilbench_svc::init_tracing();
     let args = Args::parse();
-    let mut config = Config::new(&args.plant)
-        .with_preset(&args.profile, args.seed)
-        .with_context(|| format!("--profile {}", args.profile))?;
+    let mut config = match &args.profile_file {
+        Some(path) => Config::new(&args.plant).with_network(load_profile_file(path, args.seed)?),
+        None => Config::new(&args.plant)
+            .with_preset(&args.profile, args.seed)
+            .with_context(|| format!("--profile {}", args.profile))?,
+    };
     config.time_mode = match args.time_mode {
         TimeModeArg::Auto => TimeModeSetting::Auto,
         TimeModeArg::RealTime => TimeModeSetting::RealTime,
@@ -57,4 +66,24 @@ async fn main() -> anyhow::Result<()> {
         .with_context(|| format!("cannot listen on {}", args.listen))?;
     netem::serve(listener, config, hilbench_svc::shutdown_signal()).await?;
     Ok(())
+}
+
+/// The network of a `--profile-file`, seeded with `seed`; errors name the file and the key
+/// (serde's with their line).
+fn load_profile_file(path: &std::path::Path, seed: u64) -> anyhow::Result<delay::NetworkProfile> {
+    let shown = path.display();
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("--profile-file {shown}: cannot read"))?;
+    let table: delay::DelaysTable =
+        toml::from_str(&text).map_err(|e| anyhow::anyhow!("--profile-file {shown}: {e}"))?;
+    let dir = path.parent().unwrap_or(std::path::Path::new("."));
+    let mut read_trace = |name: &str| {
+        let trace = dir.join(name);
+        let text =
+            std::fs::read_to_string(&trace).map_err(|e| format!("cannot read {}: {e}", trace.display()))?;
+        delay::parse_trace(&text).map_err(|e| format!("{}: {e}", trace.display()))
+    };
+    table
+        .to_network(seed, &mut read_trace)
+        .map_err(|e| anyhow::anyhow!("--profile-file {shown}: field `{}`: {}", e.field, e.reason))
 }

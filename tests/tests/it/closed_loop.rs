@@ -300,3 +300,51 @@ async fn a_regime_process_with_delayed_samples_flies_over_grpc_with_both_directi
         "cycle 1's sample is 10 ms stale"
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_netem_profile_set_by_the_user_is_kept_when_asked_or_when_the_file_has_no_delays() {
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("keep-netem-profile");
+    std::fs::create_dir_all(&dir).expect("a temporary directory");
+    let profile = dir.join("lte.toml");
+    std::fs::write(&profile, "kind = \"lognormal\"\nmean_s = 0.08\nstd_s = 0.03\n")
+        .expect("write the profile");
+    let (plant, netem, controller) =
+        (free_loopback_address(), free_loopback_address(), free_loopback_address());
+    let _plant = Service::start("plant", &["--listen", &plant, "--time-mode", "lockstep"]);
+    let profile_arg = profile.display().to_string();
+    let _netem =
+        Service::start("netem", &["--listen", &netem, "--plant", &plant, "--profile-file", &profile_arg]);
+    let _controller = Service::start(
+        "controller",
+        &["--listen", &controller, "--plant", &netem, "--time-mode", "lockstep", "--no-autostart"],
+    );
+    let endpoints = |keep_netem_profile| Endpoints {
+        plant: Some(plant.clone()),
+        netem: Some(netem.clone()),
+        controller: Some(controller.clone()),
+        keep_netem_profile,
+        ..Endpoints::default()
+    };
+    let lognormal = Some(delay::DelaysTable {
+        kind: Some("lognormal".into()),
+        mean_s: Some(0.08),
+        std_s: Some(0.03),
+        ..delay::DelaysTable::default()
+    });
+    let settings = GrpcSettings { timeout: Duration::from_secs(300) };
+    let mode = ControllerMode::Nmpc;
+    // slalom-4 says Gamma(8, 0.02); kept, netem's lognormal is in force, and said so.
+    let slalom = scenario_file("slalom-4.toml");
+    let kept =
+        run_against(&slalom, mode, &settings, &endpoints(true)).await.expect("a run keeping the profile");
+    assert_eq!((kept.delay_profile.source, &kept.delay_profile.delays), ("netem", &lognormal));
+    // A scenario that does not describe its network leaves it alone without being asked.
+    let mut undescribed = slalom.clone();
+    undescribed.delays = None;
+    let run = run_against(&undescribed, mode, &settings, &endpoints(false)).await.expect("a run");
+    assert_eq!((run.delay_profile.source, &run.delay_profile.delays), ("netem", &lognormal));
+    // Otherwise the scenario's network replaces it.
+    let run = run_against(&slalom, mode, &settings, &endpoints(false)).await.expect("a run");
+    assert_eq!(run.delay_profile.source, "scenario");
+    assert_eq!(run.delay_profile.delays, slalom.delays);
+}

@@ -96,6 +96,7 @@ async fn netem_going_away_mid_run_is_held_by_the_watchdog_survived_and_recorded(
         netem: Some(netem_addr.to_string()),
         controller: None,
         time_mode: TimeMode::RealTime,
+        keep_netem_profile: false,
     };
     let run = tokio::spawn({
         let scenario = scenario.clone();

@@ -1,0 +1,74 @@
+//! `hilbench run --delay-trace`: a recorded trace replayed as a file's round trip, as a user
+//! gives it on the command line.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn hilbench(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_hilbench")).args(args).output().expect("hilbench runs")
+}
+
+fn repo(path: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(path).display().to_string()
+}
+
+fn out_dir(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+#[test]
+fn a_delay_trace_replaces_the_files_delays_and_summary_json_names_it() {
+    let out = out_dir("delay-trace-replaces");
+    let (file, trace) = (repo("scenarios/slalom-4.toml"), repo("scenarios/wifi-trace.csv"));
+    let args =
+        ["run", &file, "--in-process", "--mode", "nmpc", "--no-plots", "--quiet", "--delay-trace", &trace];
+    let run = hilbench(&[&args[..], &["--out", out.to_str().expect("utf-8")]].concat());
+    assert!(run.status.success(), "{run:?}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary.json"))
+            .expect("JSON");
+    let profile = &summary["runs"][0]["delay_profile"];
+    assert_eq!(profile["source"], "scenario", "{profile}");
+    assert_eq!(profile["delays"]["kind"], "trace", "{profile}");
+    assert_eq!(profile["delays"]["file"], trace.as_str(), "{profile}");
+    // The CSV's measured delays are the trace's, line by line (cycle k measures cycle k-1's).
+    let trace_delays =
+        delay::parse_trace(&std::fs::read_to_string(&trace).expect("the trace")).expect("a trace");
+    let csv = std::fs::read_to_string(out.join("slalom-4-nmpc.csv")).expect("the per-cycle CSV");
+    let header: Vec<&str> = csv.lines().next().expect("a header").split(',').collect();
+    let column = header.iter().position(|h| *h == "known_delay_s").expect("a known_delay_s column");
+    let measured: Vec<f64> = csv
+        .lines()
+        .skip(2)
+        .map(|l| l.split(',').nth(column).expect("a cell").parse().expect("a number"))
+        .collect();
+    assert!(measured.len() > 100, "{} cycles", measured.len());
+    for (k, d) in measured.iter().enumerate() {
+        assert!(
+            (d - trace_delays[k]).abs() < 1e-9,
+            "cycle {}: measured {d}, trace {}",
+            k + 1,
+            trace_delays[k]
+        );
+    }
+}
+
+#[test]
+fn a_missing_or_bad_delay_trace_is_refused_naming_it() {
+    let file = repo("scenarios/slalom-4.toml");
+    let missing = hilbench(&["run", &file, "--in-process", "--quiet", "--delay-trace", "no-such-trace.csv"]);
+    assert_eq!(missing.status.code(), Some(1), "{missing:?}");
+    let stderr = String::from_utf8_lossy(&missing.stderr);
+    assert!(stderr.contains("--delay-trace") && stderr.contains("no-such-trace.csv"), "{stderr}");
+    let dir = out_dir("delay-trace-bad");
+    std::fs::create_dir_all(&dir).expect("a temporary directory");
+    let bad = dir.join("bad.csv");
+    std::fs::write(&bad, "delay_s\n0.1\n-0.2\n").expect("write the trace");
+    let run =
+        hilbench(&["run", &file, "--in-process", "--quiet", "--delay-trace", bad.to_str().expect("utf-8")]);
+    assert_eq!(run.status.code(), Some(1), "{run:?}");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("bad.csv") && stderr.contains("line 3"), "{stderr}");
+}
