@@ -366,6 +366,16 @@ async fn within<T>(
     }
 }
 
+/// The delay netem stamped on a command it did not drop (`netem-command-delay-ns`), s; `None`
+/// without netem's stamps or for a dropped command.
+fn injected_delay_s(md: &tonic::metadata::MetadataMap) -> Option<f64> {
+    let text = |key: &str| md.get(key).and_then(|v| v.to_str().ok());
+    if text("netem-command-outcome")? == "dropped" {
+        return None;
+    }
+    text("netem-command-delay-ns")?.parse::<u64>().ok().map(mav::ns_to_s)
+}
+
 /// A sample from the plant, validated by `proto`'s conversion.
 fn decode(sample: &pb::StateSample) -> Result<PlantSample, LoopError> {
     PlantSample::try_from(sample).map_err(|e| LoopError::Bad(format!("plant sent {e}")))
@@ -478,9 +488,14 @@ async fn fly(
             }
             _ => {}
         }
-        let out = flight.episode.on_sample(&sample, &timing).map_err(|e| LoopError::Bad(e.to_string()))?;
+        let mut out =
+            flight.episode.on_sample(&sample, &timing).map_err(|e| LoopError::Bad(e.to_string()))?;
         let command = pb::Command::from(&Command { input: out.record.command.into(), meta: out.meta });
-        within(call_timeout, "ApplyCommand", client.apply_command(command)).await?;
+        let answer = match tokio::time::timeout(call_timeout, client.apply_command(command)).await {
+            Ok(answer) => answer?,
+            Err(_) => return Err(LoopError::Timeout { call: "ApplyCommand", after: call_timeout }),
+        };
+        out.record.injected_delay_s = injected_delay_s(answer.metadata());
         shared.link_answered();
         publish(shared, flight, &wire_sample, out);
         if lockstep {

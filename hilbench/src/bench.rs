@@ -447,6 +447,7 @@ mod tests {
             state: [px, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
             command: [9.81, 0.0, 0.0],
             known_delay_s: delay_s,
+            injected_delay_s: Some(delay_s),
             weights: vec![1.0],
             status: status.to_string(),
             iterations: 3,

@@ -19,6 +19,9 @@ pub struct CycleRow {
     /// The round-trip delay the controller knew at this cycle (that of the previous command,
     /// measured from plant stamps), s; 0 before the first measurement.
     pub known_delay_s: f64,
+    /// The delay the network put on this cycle's command (netem's stamp, or the in-process
+    /// delay line's draw), s; `None` (an empty cell) when the command was lost.
+    pub injected_delay_s: Option<f64>,
     pub weights: Vec<f64>,
     pub status: String,
     pub iterations: u64,
@@ -43,6 +46,7 @@ pub fn from_records(records: &[CycleRecord]) -> Vec<CycleRow> {
             state: r.state,
             command: r.command,
             known_delay_s: r.known_delay_s.unwrap_or(0.0),
+            injected_delay_s: r.injected_delay_s,
             weights: r.weights.clone(),
             status: r.solve.status.name().to_string(),
             iterations: r.solve.iterations,
@@ -60,7 +64,7 @@ pub fn from_records(records: &[CycleRecord]) -> Vec<CycleRow> {
 pub fn to_csv(rows: &[CycleRow]) -> String {
     let m = rows.first().map_or(0, |r| r.weights.len());
     let mut out = String::from(
-        "cycle,t_s,px_m,py_m,pz_m,vx_mps,vy_mps,vz_mps,roll_rad,pitch_rad,thrust_cmd_mps2,roll_cmd_rad,pitch_cmd_rad,known_delay_s",
+        "cycle,t_s,px_m,py_m,pz_m,vx_mps,vy_mps,vz_mps,roll_rad,pitch_rad,thrust_cmd_mps2,roll_cmd_rad,pitch_cmd_rad,known_delay_s,injected_delay_s",
     );
     for i in 0..m {
         let _ = write!(out, ",w{i}");
@@ -74,6 +78,7 @@ pub fn to_csv(rows: &[CycleRow]) -> String {
             let _ = write!(out, ",{v}");
         }
         let _ = write!(out, ",{}", r.known_delay_s);
+        let _ = write!(out, ",{}", r.injected_delay_s.map_or(String::new(), |d| d.to_string()));
         for i in 0..m {
             let _ = write!(out, ",{}", r.weights.get(i).copied().unwrap_or(f64::NAN));
         }

@@ -45,6 +45,12 @@ fn a_delay_trace_replaces_the_files_delays_and_summary_json_names_it() {
         .map(|l| l.split(',').nth(column).expect("a cell").parse().expect("a number"))
         .collect();
     assert!(measured.len() > 100, "{} cycles", measured.len());
+    // The delay injected on cycle k's command is line k of the trace, to the nanosecond.
+    let injected = header.iter().position(|h| *h == "injected_delay_s").expect("an injected_delay_s column");
+    for (k, line) in csv.lines().skip(1).enumerate() {
+        let cell: f64 = line.split(',').nth(injected).expect("a cell").parse().expect("a number");
+        assert_eq!((cell * 1e9).round(), (trace_delays[k] * 1e9).round(), "cycle {k}: injected delay");
+    }
     for (k, d) in measured.iter().enumerate() {
         assert!(
             (d - trace_delays[k]).abs() < 1e-9,

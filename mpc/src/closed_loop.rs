@@ -189,6 +189,7 @@ pub fn run_closed_loop(
             sim.apply(Input::from(out.record.command), out.meta)
                 .map_err(|e| MpcError::InvalidProblem(e.to_string()))?;
         }
+        out.record.injected_delay_s = delay_ns.map(mav::ns_to_s);
         let delay_ns = delay_ns.unwrap_or(0);
         sim.advance(min_cycle_ns.max(delay_ns) - delay_ns, |_| {});
         traces.push(CycleTrace {

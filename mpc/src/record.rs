@@ -70,6 +70,10 @@ pub struct CycleRecord {
     /// The round-trip delay the controller knew at this cycle (the last one measured from plant
     /// stamps), s; `None` before the first measurement.
     pub known_delay_s: Option<f64>,
+    /// The delay the network put on this cycle's command, s: from netem's stamps over gRPC,
+    /// the delay line's draw in process; `None` when the command was lost, or when nothing
+    /// between the controller and the plant stamps it (no netem).
+    pub injected_delay_s: Option<f64>,
     /// The scenario weights the solve used.
     pub weights: Vec<f64>,
     pub solve: SolveStats,
@@ -103,6 +107,7 @@ impl CycleRecord {
             command,
             command_seq,
             known_delay_s,
+            injected_delay_s: None,
             weights,
             solve: SolveStats::from(&outcome.report),
             decision: outcome.selection.as_ref().map(|s| s.decision),

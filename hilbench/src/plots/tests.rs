@@ -40,6 +40,7 @@ fn rows(scenario: &Scenario, m: usize) -> Vec<CycleRow> {
                 command: [9.81 + (k as f64).sin(), 0.05 * (k as f64 * 0.3).cos(), -0.05],
                 command_seq: k as u64 + 1,
                 known_delay_s: (k > 0).then(|| 0.15 + 0.05 * ((k * 7 % 11) as f64 / 11.0)),
+                injected_delay_s: Some(0.15 + 0.05 * (((k + 1) * 7 % 11) as f64 / 11.0)),
                 weights: (0..m)
                     .map(|i| if i == k % m { 0.6 } else { 0.4 / (m as f64 - 1.0).max(1.0) })
                     .collect(),

@@ -129,6 +129,7 @@ pub fn telemetry_of(
             })
             .collect(),
         measured_delay_s: record.known_delay_s,
+        injected_delay_s: record.injected_delay_s,
         episode,
         decision_reason: record.reason.clone(),
         cost_gap: record.cost_gap,
@@ -189,6 +190,7 @@ impl TryFrom<&pb::CycleTelemetry> for CycleRecord {
             command,
             command_seq: t.command_seq,
             known_delay_s: t.measured_delay_s,
+            injected_delay_s: t.injected_delay_s,
             weights: t.scenario_weights.clone(),
             solve,
             decision,

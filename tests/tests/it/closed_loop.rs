@@ -257,6 +257,13 @@ async fn a_recorded_delay_trace_file_flies_over_grpc_bit_identically_to_in_proce
         .await
         .expect("gRPC run");
     assert_bit_identical(&scenario, mode, &run);
+    // What netem stamped on cycle k's command is line k of the file, to the nanosecond.
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/wifi-trace.csv");
+    let trace = delay::parse_trace(&std::fs::read_to_string(path).expect("the trace")).expect("a trace");
+    for (k, r) in run.records.iter().enumerate() {
+        let ns = r.injected_delay_s.map(|d| (d * 1e9).round() as u64);
+        assert_eq!(ns, Some((trace[k] * 1e9).round() as u64), "cycle {k}: injected delay");
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
