@@ -5,7 +5,6 @@ use std::io::BufReader;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use clap::builder::PossibleValuesParser;
 use clap::{Parser, Subcommand, ValueEnum};
 use controller::solve_lines::LineSolver;
 use controller::{ControllerConfig, TimeModeSetting};
@@ -23,10 +22,11 @@ struct Cli {
     /// names the same kind of endpoint).
     #[arg(long, default_value = "127.0.0.1:50052")]
     plant: String,
-    /// Scenario flown at start (problem, goal and limits); SetScenario flies another. The plant
-    /// is reset to it when an episode starts (unless `--no-reset`), whatever scenario the plant
-    /// was started with.
-    #[arg(long, default_value = "paper-1", value_parser = PossibleValuesParser::new(mav::Scenario::BUILT_IN))]
+    /// Scenario flown at start (problem, goal and limits): a built-in name (paper-1, paper-2,
+    /// paper-3) or a scenario file (as `hilbench run` takes, its [run] options included);
+    /// SetScenario flies another. The plant is reset to it when an episode starts (unless
+    /// `--no-reset`), whatever scenario the plant was started with.
+    #[arg(long, default_value = "paper-1", value_name = "NAME|FILE.toml")]
     scenario: String,
     /// Controller: the standard NMPC or the multi-stage NMPC.
     #[arg(long, value_enum, default_value_t = Mode::Multistage)]
@@ -145,7 +145,8 @@ fn main() -> anyhow::Result<()> {
         return Ok(());
     }
     hilbench_svc::init_tracing();
-    let scenario = mav::Scenario::by_name(&cli.scenario).context("--scenario")?;
+    let scenario = hilbench_svc::scenario_file::scenario_arg(&cli.scenario)
+        .map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
     let mode = match cli.mode {
         Mode::Nmpc => ControllerMode::Nmpc,
         Mode::Multistage => ControllerMode::Multistage,

@@ -56,7 +56,8 @@ pub struct Status {
     pub link_down_s: f64,
     /// The longest of those outages, s.
     pub longest_link_down_s: f64,
-    /// The scenario of the current episode (`None` before the first).
+    /// The scenario of the current episode; before the first, the one the controller was
+    /// started with (`--scenario`), as it will fly it.
     pub definition: Option<Scenario>,
 }
 
@@ -104,6 +105,7 @@ impl Shared {
             mode: config.mode.name().to_string(),
             plant_address: config.plant.clone(),
             goal_m: config.scenario.goal_m,
+            definition: Some(config.adapt(config.scenario.clone())),
             ..Status::default()
         };
         Arc::new(Self {

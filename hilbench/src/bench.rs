@@ -40,7 +40,15 @@ pub fn paper_jobs(only: &[String]) -> anyhow::Result<Vec<Job>> {
 /// `hilbench run`: the file's scenario with `modes`, or with the file's `run.modes`.
 pub fn file_jobs(file: &ScenarioFile, modes: Option<&[Mode]>) -> Vec<Job> {
     let modes = modes.unwrap_or(&file.run.modes);
-    modes.iter().map(|m| (file.scenario.clone(), m.controller())).collect()
+    modes.iter().map(|m| (file.scenario.clone(), controller_mode(*m))).collect()
+}
+
+/// The controller a file's or the command line's mode names.
+pub fn controller_mode(mode: Mode) -> ControllerMode {
+    match mode {
+        Mode::Nmpc => ControllerMode::Nmpc,
+        Mode::Multistage => ControllerMode::Multistage,
+    }
 }
 
 /// How the runs talk to the plant.

@@ -10,10 +10,11 @@
 //! `mpc::CycleRecord`s, the plant's last state sample into a `mav::PlantSample`; then
 //! `mpc::summarize` (the one summary, the in-process loop's too) makes the numbers.
 //!
-//! The delays: the scenario's Gamma model becomes netem's command-direction profile with the
-//! scenario's seed and no delay on samples (netem's `paper` preset for the paper scenarios); a
-//! scenario without delays gets the `none` preset. `mpc::run_closed_loop` draws its `d_k` from
-//! the same `delay::DelayLine`, so both runs are bit-identical.
+//! The delays: the scenario's network (`mav::Scenario::network`, seeded with the scenario's
+//! seed) becomes netem's two profiles; a netem given by address keeps its own when asked or
+//! when the scenario describes none ([`DelayProfileInForce`] says which). `mpc::run_closed_loop`
+//! draws its `d_k` from the same `delay::DelayLine` as netem's command direction, so both runs
+//! are bit-identical.
 //!
 //! Real time: the plant integrates on its clock (with its command watchdog), netem releases
 //! commands on its own thread, and the controller cycles every `min_cycle_s` of wall time and

@@ -10,4 +10,4 @@ pub mod plots;
 pub mod progress;
 pub mod report;
 pub mod report_md;
-pub mod scenario_file;
+pub use hilbench_svc::scenario_file;

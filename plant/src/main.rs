@@ -3,8 +3,6 @@
 
 use anyhow::Context;
 use clap::Parser;
-use clap::builder::PossibleValuesParser;
-use mav::Scenario;
 use plant::{PlantConfig, TimeMode};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -23,9 +21,10 @@ struct Args {
     /// Address to listen on, HOST:PORT.
     #[arg(long, default_value = "127.0.0.1:50051")]
     listen: String,
-    /// Scenario loaded at start. A controller resets the plant to its own scenario when an
+    /// Scenario loaded at start: a built-in name (paper-1, paper-2, paper-3) or a scenario file
+    /// (as `hilbench run` takes). A controller resets the plant to its own scenario when an
     /// episode starts (unless it runs with `--no-reset`).
-    #[arg(long, default_value = "paper-1", value_parser = PossibleValuesParser::new(Scenario::BUILT_IN))]
+    #[arg(long, default_value = "paper-1", value_name = "NAME|FILE.toml")]
     scenario: String,
     /// How plant time moves. The plant decides for the whole bench: netem and the controller
     /// follow it (their `--time-mode auto`). Real time by default, as a vehicle runs; the bench
@@ -42,7 +41,8 @@ struct Args {
 }
 
 fn config(args: &Args) -> anyhow::Result<PlantConfig> {
-    let scenario = Scenario::by_name(&args.scenario)?;
+    let scenario = hilbench_svc::scenario_file::scenario_arg(&args.scenario)
+        .map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
     let mut config = match args.time_mode {
         Mode::RealTime => PlantConfig::real_time(scenario),
         Mode::Lockstep => PlantConfig::lockstep(scenario),

@@ -21,3 +21,24 @@ fn an_unknown_scenario_is_refused_at_start_with_its_name() {
     assert!(!out.status.success(), "{out:?}");
     assert!(String::from_utf8_lossy(&out.stderr).contains("paper-9"), "{out:?}");
 }
+
+#[test]
+fn a_bad_scenario_file_is_refused_at_start_with_its_line_and_field() {
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("plant-scenario-file");
+    std::fs::create_dir_all(&dir).expect("a temporary directory");
+    let good = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/slalom-4.toml"),
+    )
+    .expect("scenarios/slalom-4.toml");
+    let bad = good.replace("radius_m = 0.35", "radius_m = -0.35");
+    let file = dir.join("bad.toml");
+    std::fs::write(&file, bad).expect("write the file");
+    let out = Command::new(env!("CARGO_BIN_EXE_plant"))
+        .args(["--listen", "127.0.0.1:0", "--scenario"])
+        .arg(&file)
+        .output()
+        .expect("plant runs");
+    assert!(!out.status.success(), "{out:?}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("bad.toml:") && stderr.contains("scenario.obstacles[0].radius_m"), "{stderr}");
+}

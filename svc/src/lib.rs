@@ -1,6 +1,9 @@
 //! `hilbench-svc` owns what the services (`plant`, `netem`, `controller`) do the same way: in
 //! their libraries' `serve`, the gRPC server with health and reflection ([`GrpcServer`]); in
-//! their `main`s, structured logs with `tracing` and the shutdown signal passed to `serve`.
+//! their `main`s, structured logs with `tracing` and the shutdown signal passed to `serve`;
+//! and the scenario file loader ([`scenario_file`]) behind `--scenario FILE`.
+
+pub mod scenario_file;
 
 use std::future::Future;
 use std::net::SocketAddr;

@@ -355,3 +355,31 @@ async fn a_netem_profile_set_by_the_user_is_kept_when_asked_or_when_the_file_has
     assert_eq!(run.delay_profile.source, "scenario");
     assert_eq!(run.delay_profile.delays, slalom.delays);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn plant_and_controller_binaries_take_a_scenario_file_as_their_scenario() {
+    use hilbench_proto::pb;
+    let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/bursty-lte.toml");
+    let file = file.display().to_string();
+    let expected = scenario_file("bursty-lte.toml");
+    let (plant, controller) = (free_loopback_address(), free_loopback_address());
+    let _plant =
+        Service::start("plant", &["--listen", &plant, "--time-mode", "lockstep", "--scenario", &file]);
+    let _controller = Service::start(
+        "controller",
+        &["--listen", &controller, "--plant", &plant, "--no-autostart", "--scenario", &file],
+    );
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    let mut client =
+        pb::plant_client::PlantClient::new(hilbench::grpc::connect(&plant, deadline).await.expect("plant"));
+    let described = client.describe(pb::DescribeRequest {}).await.expect("Describe").into_inner();
+    let definition = described.definition.as_ref().expect("the scenario in force");
+    assert_eq!(Scenario::try_from(definition).expect("a valid scenario"), expected);
+    let mut client = pb::controller_client::ControllerClient::new(
+        hilbench::grpc::connect(&controller, deadline).await.expect("controller"),
+    );
+    let status = client.get_status(pb::GetStatusRequest {}).await.expect("GetStatus").into_inner();
+    assert_eq!(status.scenario, expected.name);
+    let definition = status.definition.as_ref().expect("the controller's scenario");
+    assert_eq!(Scenario::try_from(definition).expect("a valid scenario"), expected);
+}

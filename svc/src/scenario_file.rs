@@ -1,4 +1,6 @@
-//! Scenario files: one TOML file holds everything of a run of `hilbench run`.
+//! Scenario files: one TOML file holds everything of a run of `hilbench run`, and what
+//! `plant --scenario FILE` and `controller --scenario FILE` load (the same loader, so a file
+//! means the same to every program).
 //!
 //! ```toml
 //! [run]                         # optional; what hilbench does with the scenario
@@ -10,9 +12,9 @@
 //! ...
 //! ```
 //!
-//! netem's profiles are derived from the scenario's delay model (`scenario.delays`, seeded with
-//! `scenario.seed`): the whole round trip on commands, nothing on samples, as in
-//! [`crate::grpc::netem_config`].
+//! netem's profiles are the scenario's network (`[scenario.delays]`, seeded with
+//! `scenario.seed`; see `delay::spec`); trace files named there are read, relative to the
+//! scenario file, into the scenario.
 //!
 //! Every error names the file, the line and the field: parse and type errors through toml's
 //! spans, `Scenario::validate` errors by looking the field's path up in the parsed document.
@@ -22,7 +24,6 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use mav::{Scenario, ScenarioError};
-use mpc::ControllerMode;
 use toml::Spanned;
 use toml::de::{DeTable, DeValue};
 
@@ -35,10 +36,11 @@ pub enum Mode {
 }
 
 impl Mode {
-    pub fn controller(self) -> ControllerMode {
+    /// As written in files and on the command line.
+    pub fn name(self) -> &'static str {
         match self {
-            Mode::Nmpc => ControllerMode::Nmpc,
-            Mode::Multistage => ControllerMode::Multistage,
+            Mode::Nmpc => "nmpc",
+            Mode::Multistage => "multistage",
         }
     }
 }
@@ -263,6 +265,23 @@ impl ScenarioFile {
         }
         Ok(())
     }
+}
+
+/// A `--scenario` argument: a built-in name (`paper-1`, `paper-2`, `paper-3`), else the path
+/// of a scenario file (loaded and validated as `hilbench run` loads it, `[run]`'s controller
+/// options included).
+pub fn scenario_arg(arg: &str) -> Result<Scenario, String> {
+    if let Ok(built_in) = Scenario::by_name(arg) {
+        return Ok(built_in);
+    }
+    let path = Path::new(arg);
+    if !path.exists() {
+        return Err(format!(
+            "{arg:?} is neither a built-in scenario ({}) nor a scenario file",
+            Scenario::BUILT_IN.join(", ")
+        ));
+    }
+    ScenarioFile::load(path).map(|f| f.scenario).map_err(|e| e.to_string())
 }
 
 /// The delays of a trace file (`delay::parse_trace`'s format), or why not, naming the file.
