@@ -509,6 +509,35 @@ mod tests {
     }
 
     #[test]
+    fn bad_delays_are_refused_with_their_line_and_key() {
+        // (table replacing paper-3's `kind = "none"`, the key named, its line below `kind`).
+        let cases = [
+            ("kind = \"constant\"\ndelay_s = 4000.0", "scenario.delays.delay_s", 1),
+            ("kind = \"normal\"\nmean_s = 0.1\nstd_s = -1.0", "scenario.delays.std_s", 2),
+            ("kind = \"gamma\"\nshape = nan\nscale_s = 0.01", "scenario.delays.shape", 1),
+            ("kind = \"trace\"\nfile = \"no-such-trace.csv\"", "scenario.delays.file", 1),
+            ("kind = \"regime\"\nstates = []", "scenario.delays.states", 1),
+            ("kind = \"none\"\nloss_probability = 1.5", "scenario.delays.loss_probability", 1),
+            ("kind = \"lognormal\"\nmean_s = 0.1", "scenario.delays.std_s", 0),
+            (
+                "kind = \"regime\"\n[[scenario.delays.states]]\nkind = \"constant\"\ndelay_s = 0.1\nmean_dwell_s = 0.0",
+                "scenario.delays.states[0].mean_dwell_s",
+                4,
+            ),
+        ];
+        for (table, field, below) in cases {
+            let (text, line) = edited("kind = \"none\"", table);
+            let e = error_of(&text);
+            assert_eq!(e.field.as_deref(), Some(field), "{table}: {e}");
+            if below > 0 {
+                assert_eq!(e.line, Some(line + below), "{table}: {e}");
+            }
+        }
+        let (text, _) = edited("kind = \"none\"", "kind = \"trace\"\nfile = \"no-such-trace.csv\"");
+        assert!(error_of(&text).message.contains("no-such-trace.csv"), "the missing file is named");
+    }
+
+    #[test]
     fn run_section_and_names_are_checked() {
         let (text, line) = edited("time_mode = \"lockstep\"", "time_mode = \"realtime\"");
         let e = error_of(&text);
