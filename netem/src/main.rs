@@ -77,12 +77,7 @@ fn load_profile_file(path: &std::path::Path, seed: u64) -> anyhow::Result<delay:
     let table: delay::DelaysTable =
         toml::from_str(&text).map_err(|e| anyhow::anyhow!("--profile-file {shown}: {e}"))?;
     let dir = path.parent().unwrap_or(std::path::Path::new("."));
-    let mut read_trace = |name: &str| {
-        let trace = dir.join(name);
-        let text =
-            std::fs::read_to_string(&trace).map_err(|e| format!("cannot read {}: {e}", trace.display()))?;
-        delay::parse_trace(&text).map_err(|e| format!("{}: {e}", trace.display()))
-    };
+    let mut read_trace = |name: &str| hilbench_svc::scenario_file::read_trace(&dir.join(name));
     table
         .to_network(seed, &mut read_trace)
         .map_err(|e| anyhow::anyhow!("--profile-file {shown}: field `{}`: {}", e.field, e.reason))
