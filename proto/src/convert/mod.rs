@@ -12,6 +12,8 @@ pub mod plant;
 #[cfg(feature = "plant")]
 pub mod scenario;
 
+use crate::pb;
+
 /// A field of an incoming message that failed validation.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("invalid field `{field}`: {reason}")]
@@ -37,6 +39,31 @@ impl From<FieldError> for tonic::Status {
     fn from(e: FieldError) -> Self {
         tonic::Status::invalid_argument(e.to_string())
     }
+}
+
+/// Largest mass-normalised thrust a command may ask for, m/s^2 (about 100 g); the plant then
+/// saturates it to the scenario's limit.
+pub const MAX_THRUST_MPS2: f64 = 1000.0;
+
+/// A control input every plant accepts (what the plant checks, and netem before it holds a
+/// command): finite, thrust in `[0, MAX_THRUST_MPS2]`, roll and pitch in `(-pi/2, pi/2)` rad.
+/// `field` is the path of the `ControlInput`; the result is `[thrust, roll, pitch]`.
+pub fn check_input(field: &str, u: &pb::ControlInput) -> Result<[f64; 3], FieldError> {
+    let range = |f: &str, v: f64, range: &str| FieldError::new(f, format!("must be in {range}, got {v}"));
+    let thrust_field = format!("{field}.thrust_mps2");
+    let thrust = finite(&thrust_field, u.thrust_mps2)?;
+    if !(0.0..=MAX_THRUST_MPS2).contains(&thrust) {
+        return Err(range(&thrust_field, thrust, &format!("[0, {MAX_THRUST_MPS2}] m/s^2")));
+    }
+    let mut angles = [0.0; 2];
+    for (out, (name, v)) in angles.iter_mut().zip([("roll_rad", u.roll_rad), ("pitch_rad", u.pitch_rad)]) {
+        let f = format!("{field}.{name}");
+        *out = finite(&f, v)?;
+        if out.abs() >= std::f64::consts::FRAC_PI_2 {
+            return Err(range(&f, v, "(-pi/2, pi/2) rad"));
+        }
+    }
+    Ok([thrust, angles[0], angles[1]])
 }
 
 /// A finite number, or an error naming `field`.

@@ -11,7 +11,7 @@ use delay::{
     RegimeState, Trace, TraceEnd,
 };
 
-use super::{FieldError, finite, required};
+use super::{FieldError, required};
 use crate::pb;
 use crate::pb::delay_distribution::Kind;
 
@@ -211,9 +211,7 @@ impl From<&Record> for pb::TraceRecord {
 /// the plant is refused now, while the controller is still waiting for an answer.
 pub fn check_command(field: &str, c: &pb::Command) -> Result<(), FieldError> {
     let input = required(&format!("{field}.input"), &c.input)?;
-    finite(&format!("{field}.input.thrust_mps2"), input.thrust_mps2)?;
-    finite(&format!("{field}.input.roll_rad"), input.roll_rad)?;
-    finite(&format!("{field}.input.pitch_rad"), input.pitch_rad)?;
+    super::check_input(&format!("{field}.input"), input)?;
     Ok(())
 }
 

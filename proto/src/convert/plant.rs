@@ -17,9 +17,7 @@ use mav::{
     PlantSample, Scenario, SimSettings, State,
 };
 
-/// Largest mass-normalised thrust a command may ask for, m/s^2 (about 100 g); the plant then
-/// saturates it to the scenario's limit.
-pub const MAX_THRUST_MPS2: f64 = 1000.0;
+pub use super::MAX_THRUST_MPS2;
 pub use mav::{MAX_ABS_ANGLE_RAD, MAX_ABS_POSITION_M, MAX_ABS_VELOCITY_MPS};
 /// Longest plant-time advance of one request, ns (one hour of plant time).
 pub const MAX_ADVANCE_NS: u64 = 3_600 * 1_000_000_000;
@@ -70,20 +68,8 @@ pub struct StreamState {
 /// A control input: finite, thrust in `[0, MAX_THRUST_MPS2]`, angles in
 /// `(-MAX_ABS_ANGLE_RAD, MAX_ABS_ANGLE_RAD)`. `field` is the path of the `ControlInput`.
 pub fn input_from_pb(field: &str, u: &pb::ControlInput) -> Result<Input, FieldError> {
-    let thrust_field = format!("{field}.thrust_mps2");
-    let thrust = finite(&thrust_field, u.thrust_mps2)?;
-    if !(0.0..=MAX_THRUST_MPS2).contains(&thrust) {
-        return Err(out_of_range(&thrust_field, thrust, &format!("[0, {MAX_THRUST_MPS2}] m/s^2")));
-    }
-    let mut angles = [0.0; 2];
-    for (out, (name, v)) in angles.iter_mut().zip([("roll_rad", u.roll_rad), ("pitch_rad", u.pitch_rad)]) {
-        let f = format!("{field}.{name}");
-        *out = finite(&f, v)?;
-        if out.abs() >= MAX_ABS_ANGLE_RAD {
-            return Err(out_of_range(&f, v, "(-pi/2, pi/2) rad"));
-        }
-    }
-    Ok(Input::new(thrust, angles[0], angles[1]))
+    let [thrust, roll, pitch] = super::check_input(field, u)?;
+    Ok(Input::new(thrust, roll, pitch))
 }
 
 /// A state of exactly 8 finite values (no range check: for samples reported by a plant).

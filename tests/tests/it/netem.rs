@@ -503,3 +503,36 @@ async fn real_time_streams_and_commands_are_delayed_and_stamped() {
     netem.stop().await.expect("netem served cleanly");
     plant.stop().await.expect("plant stops");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_command_the_plant_would_refuse_is_refused_by_netem_and_time_does_not_move() {
+    let plant = start_plant(PlantConfig::lockstep(Scenario::paper_1())).await;
+    let c2p = DirectionProfile::with_delay(Distribution::Constant { delay_s: 0.1 }, 7);
+    let netem = start_netem(lockstep_netem(plant.addr, c2p, DirectionProfile::default())).await;
+    let mut client = netem.plant().await;
+    let reset = client
+        .reset(pb::ResetRequest { definition: None, scenario: "paper-1".into(), initial_state: None })
+        .await
+        .expect("reset through netem")
+        .into_inner()
+        .sample
+        .expect("reset sample");
+    for (thrust, roll, field) in [
+        (-1.0, 0.0, "command.input.thrust_mps2"),
+        (5000.0, 0.0, "command.input.thrust_mps2"),
+        (1e308, 0.0, "command.input.thrust_mps2"),
+        (9.81, 2.0, "command.input.roll_rad"),
+    ] {
+        let mut bad = command(1, &reset);
+        bad.input = Some(pb::ControlInput { thrust_mps2: thrust, roll_rad: roll, pitch_rad: 0.0 });
+        assert_invalid(client.apply_command(bad).await, field);
+        let step = pb::StepRequest { command: Some(bad), duration_ns: 50_000_000, ..Default::default() };
+        assert_invalid(client.step(step).await, field);
+    }
+    // Nothing was held, applied or advanced: the plant is where the reset left it.
+    let now = client.get_state(pb::GetStateRequest {}).await.expect("state").into_inner();
+    assert_eq!(now.time_ns, reset.time_ns);
+    let stats = netem.control().await.get_stats(pb::GetStatsRequest {}).await.expect("stats").into_inner();
+    let commands = stats.controller_to_plant.expect("command stats");
+    assert_eq!((commands.sent, commands.dropped, commands.in_flight), (0, 0, 0), "{commands:?}");
+}
