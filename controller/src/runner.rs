@@ -483,6 +483,15 @@ async fn fly(
                     return Ok(Outcome::Finished);
                 }
             }
+            Some(Finish::Collided) if lockstep => {
+                tracing::warn!(
+                    t_s = mav::ns_to_s(sample.time_ns),
+                    cycles = flight.episode.cycles(),
+                    "the vehicle collided; the episode ends"
+                );
+                finish(shared, Finish::Collided);
+                return Ok(Outcome::Finished);
+            }
             Some(Finish::TimeLimit) if lockstep => {
                 tracing::info!(cycles = flight.episode.cycles(), "time limit reached");
                 finish(shared, Finish::TimeLimit);

@@ -266,6 +266,7 @@ pub fn run_json(r: &RunSummary) -> serde_json::Value {
         "controller": r.controller,
         "reached": r.reached,
         "collided": r.collided,
+        "end_reason": r.end_reason,
         "time_to_goal_s": r.time_to_goal_s,
         "path_length_m": r.path_length_m,
         "min_clearance_m": r.min_clearance_m,

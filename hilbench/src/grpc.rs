@@ -656,7 +656,10 @@ async fn drive(
         None => (status.finish_reason == "reached").then_some(final_sample.time_ns),
     };
     let records = telemetry;
-    let summary = mpc::summarize(&scenario.name, mode, &records, &final_sample, time_to_goal_ns);
+    let mut summary = mpc::summarize(&scenario.name, mode, &records, &final_sample, time_to_goal_ns);
+    if !real_time && status.finish_reason == "collided" {
+        summary.end_reason = status.finish_reason.clone();
+    }
     let faults = LinkFaults::of(&status, &records);
     let solver_s = records.iter().map(|r| r.solve.solve_ms * 1e-3).sum();
     Ok(GrpcRun {

@@ -61,6 +61,10 @@ enum Command {
         /// Seed of the delay process instead of the scenarios' own (42).
         #[arg(long)]
         seed: Option<u64>,
+        /// Go on flying after the vehicle's first collision (lockstep); by default a run ends
+        /// there, as a real flight does, and summary.json's `end_reason` is "collided".
+        #[arg(long)]
+        continue_after_collision: bool,
         /// Run the closed loop in process (`mpc::run_closed_loop`) instead of over gRPC.
         #[arg(long, conflicts_with_all = ["plant", "netem", "controller"])]
         in_process: bool,
@@ -105,6 +109,10 @@ enum Command {
         /// line k, and a run that outlasts it stops with an error.
         #[arg(long, value_name = "TRACE.csv", conflicts_with = "keep_netem_profile")]
         delay_trace: Option<PathBuf>,
+        /// Go on flying after the vehicle's first collision (lockstep); by default a run ends
+        /// there, as a real flight does, and summary.json's `end_reason` is "collided".
+        #[arg(long)]
+        continue_after_collision: bool,
         #[command(flatten)]
         services: EndpointArgs,
     },
@@ -119,17 +127,39 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     let opts = Options { quiet: cli.quiet, plots: !cli.no_plots, started };
     let outcome = match cli.command {
-        Command::Reproduce { out, json, scenario, seed, in_process, plant, netem, controller } => {
+        Command::Reproduce {
+            out,
+            json,
+            scenario,
+            seed,
+            continue_after_collision,
+            in_process,
+            plant,
+            netem,
+            controller,
+        } => {
             let transport = if in_process {
                 Transport::InProcess
             } else {
                 Transport::Grpc(Endpoints { plant, netem, controller, ..Endpoints::default() })
             };
-            reproduce(out, json, &opts, &scenario, seed, &transport)?
+            let overrides = Overrides { seed, delay_trace: None, continue_after_collision };
+            reproduce(out, json, &opts, &scenario, &overrides, &transport)?
         }
-        Command::Run { file, mode, out, json, in_process, time_mode, seed, delay_trace, services } => {
+        Command::Run {
+            file,
+            mode,
+            out,
+            json,
+            in_process,
+            time_mode,
+            seed,
+            delay_trace,
+            continue_after_collision,
+            services,
+        } => {
             let transport = (!in_process).then_some((services, time_mode));
-            let overrides = Overrides { seed, delay_trace };
+            let overrides = Overrides { seed, delay_trace, continue_after_collision };
             run(&file, mode, out, json, &opts, &overrides, transport)?
         }
     };
@@ -211,12 +241,14 @@ fn reproduce(
     json: bool,
     opts: &Options,
     only: &[String],
-    seed: Option<u64>,
+    overrides: &Overrides,
     transport: &Transport,
 ) -> anyhow::Result<Outcome> {
+    let seed = overrides.seed;
     let mut jobs = paper_jobs(only)?;
-    if let Some(seed) = seed {
-        jobs.iter_mut().for_each(|(scenario, _)| scenario.seed = seed);
+    for (scenario, _) in &mut jobs {
+        scenario.seed = seed.unwrap_or(scenario.seed);
+        scenario.continue_after_collision = overrides.continue_after_collision;
     }
     let header = format!(
         "Paper reproduction: docs/spec.md paper mode (RK4 plant at 1 ms, Gamma(12, 0.015) round-trip delays, seed {}), lockstep, {}",
@@ -255,6 +287,8 @@ struct Overrides {
     seed: Option<u64>,
     /// `--delay-trace`.
     delay_trace: Option<PathBuf>,
+    /// `--continue-after-collision`.
+    continue_after_collision: bool,
 }
 
 fn run(
@@ -270,6 +304,7 @@ fn run(
     if let Some(seed) = overrides.seed {
         spec.scenario.seed = seed;
     }
+    spec.scenario.continue_after_collision |= overrides.continue_after_collision;
     if let Some(trace) = &overrides.delay_trace {
         let delays =
             hilbench::scenario_file::read_trace(trace).map_err(|e| anyhow::anyhow!("--delay-trace: {e}"))?;

@@ -47,3 +47,32 @@ fn a_usage_error_exits_2_and_a_collision_exits_3() {
     assert_eq!(missing.status.code(), Some(1), "{missing:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_run_ends_at_its_first_collision_unless_asked_to_continue() {
+    let dir = std::env::temp_dir().join(format!("hilbench-first-collision-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a temporary directory");
+    let file = colliding_scenario(&dir);
+    let run = |extra: &[&str], out: &str| -> serde_json::Value {
+        let out = dir.join(out);
+        let args =
+            ["run", file.to_str().expect("utf-8"), "--in-process", "--mode", "nmpc", "--no-plots", "--quiet"];
+        let done = hilbench(&[&args[..], extra, &["--out", out.to_str().expect("utf-8")]].concat());
+        assert_eq!(done.status.code(), Some(3), "{done:?}");
+        let text = std::fs::read_to_string(out.join("summary.json")).expect("summary.json");
+        serde_json::from_str::<serde_json::Value>(&text).expect("JSON")["runs"][0].clone()
+    };
+    let ended = run(&[], "ended");
+    let went_on = run(&["--continue-after-collision"], "went-on");
+    assert_eq!(ended["end_reason"], "collided", "{ended}");
+    assert_eq!(went_on["end_reason"], "time_limit", "{went_on}");
+    let cycles = |v: &serde_json::Value| v["cycles"].as_u64().expect("cycles");
+    assert!(cycles(&ended) < cycles(&went_on), "{} cycles against {}", cycles(&ended), cycles(&went_on));
+    // The run stopped at the first cycle whose sample shows the collision.
+    let first = ended["collisions"][0]["time_s"].as_f64().expect("a collision time");
+    let csv = std::fs::read_to_string(dir.join("ended/launched-nmpc.csv")).expect("the per-cycle CSV");
+    let last_t: f64 =
+        csv.lines().last().and_then(|l| l.split(',').nth(1)).expect("t_s").parse().expect("a number");
+    assert!(last_t < first, "last cycle at {last_t} s, collision at {first} s");
+    let _ = std::fs::remove_dir_all(&dir);
+}

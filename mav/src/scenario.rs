@@ -107,6 +107,11 @@ pub struct Scenario {
     /// their plans' predictions. Off in paper mode and by default in scenario files.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub fail_safe: bool,
+    /// A lockstep run goes on after the vehicle's first collision (to see the rest of the
+    /// flight). Off by default: a run ends at its first collision, as a real vehicle's flight
+    /// does.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub continue_after_collision: bool,
 }
 
 impl Scenario {
@@ -152,6 +157,7 @@ impl Scenario {
             delay_compensation: false,
             obstacle_margin_m: None,
             fail_safe: false,
+            continue_after_collision: false,
         }
     }
 

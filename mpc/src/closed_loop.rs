@@ -159,6 +159,7 @@ pub fn run_closed_loop(
     let min_cycle_ns = episode.min_cycle_ns();
     let mut traces = Vec::new();
     let mut time_to_goal_ns = None;
+    let mut end = None;
     loop {
         let sample = sim.sample();
         match episode.finish(&sample) {
@@ -167,6 +168,10 @@ pub fn run_closed_loop(
                 break;
             }
             Some(Finish::TimeLimit) => break,
+            Some(Finish::Collided) => {
+                end = Some(Finish::Collided);
+                break;
+            }
             None => {}
         }
         let weights = episode.weights().to_vec();
@@ -203,6 +208,9 @@ pub fn run_closed_loop(
         });
     }
     let records: Vec<CycleRecord> = traces.iter().map(|t| t.record.clone()).collect();
-    let summary = summarize(&scenario.name, settings.mode, &records, &sim.peek(), time_to_goal_ns);
+    let mut summary = summarize(&scenario.name, settings.mode, &records, &sim.peek(), time_to_goal_ns);
+    if let Some(end) = end {
+        summary.end_reason = end.name().to_string();
+    }
     Ok((summary, traces))
 }

@@ -84,6 +84,9 @@ pub enum Finish {
     Reached,
     /// The sample is at or past the scenario's `max_duration_s` of plant time.
     TimeLimit,
+    /// The vehicle has collided (a cylinder or the ground), and the scenario does not ask to
+    /// go on (`continue_after_collision`).
+    Collided,
 }
 
 impl Finish {
@@ -91,6 +94,7 @@ impl Finish {
         match self {
             Finish::Reached => "reached",
             Finish::TimeLimit => "time_limit",
+            Finish::Collided => "collided",
         }
     }
 }
@@ -213,11 +217,14 @@ impl Episode {
         self.last_delay_s
     }
 
-    /// Whether `sample` ends the episode: at the goal, or at the time limit. A driver in
+    /// Whether `sample` ends the episode: after a collision (unless the scenario asks to go on),
+    /// at the goal, or at the time limit. A driver in
     /// lockstep stops there; one in real time keeps holding the goal (a vehicle must not be left
     /// uncontrolled) and only reports it.
     pub fn finish(&self, sample: &PlantSample) -> Option<Finish> {
-        if self.scenario.goal_reached(&sample.state) {
+        if sample.collided && !self.scenario.continue_after_collision {
+            Some(Finish::Collided)
+        } else if self.scenario.goal_reached(&sample.state) {
             Some(Finish::Reached)
         } else if sample.time_ns >= self.max_ns {
             Some(Finish::TimeLimit)

@@ -139,6 +139,9 @@ pub struct RunSummary {
     pub controller: String,
     pub reached: bool,
     pub collided: bool,
+    /// Why the run ended: `reached`, `time_limit`, or `collided` (at the first collision,
+    /// unless the scenario's `continue_after_collision`).
+    pub end_reason: String,
     pub time_to_goal_s: Option<f64>,
     pub end_time_s: f64,
     pub path_length_m: f64,
@@ -233,6 +236,8 @@ pub fn summarize(
     last: &PlantSample,
     time_to_goal_ns: Option<u64>,
 ) -> RunSummary {
+    // The driver knows when the run ended at a collision and says so (see `Finish`).
+    let end_reason = if time_to_goal_ns.is_some() { "reached" } else { "time_limit" };
     let mut solve_ms: Vec<f64> = records.iter().map(|r| r.solve.solve_ms).collect();
     let mut iterations: Vec<f64> = records.iter().map(|r| r.solve.iterations as f64).collect();
     let mean =
@@ -242,6 +247,7 @@ pub fn summarize(
         scenario: scenario.to_string(),
         controller: mode.name().to_string(),
         reached: time_to_goal_ns.is_some(),
+        end_reason: end_reason.to_string(),
         collided: last.collided,
         time_to_goal_s: time_to_goal_ns.map(ns_to_s),
         end_time_s: ns_to_s(last.time_ns),

@@ -110,6 +110,10 @@ pub struct RunSection {
     /// `slalom-4` reached its goal in 25.1 s without it and not within the 40 s with it.
     #[serde(default)]
     pub fail_safe: bool,
+    /// Go on after the first collision (lockstep). Off by default: a run ends at its first
+    /// collision, as a real flight does.
+    #[serde(default)]
+    pub continue_after_collision: bool,
 }
 
 /// The margin of the bench's controller (with dead-time compensation), m.
@@ -128,6 +132,7 @@ impl Default for RunSection {
             delay_compensation: default_floor(),
             obstacle_margin_m: None,
             fail_safe: false,
+            continue_after_collision: false,
         }
     }
 }
@@ -211,6 +216,7 @@ impl ScenarioFile {
         file.scenario.obstacle_margin_m =
             file.run.obstacle_margin_m.or(file.run.delay_compensation.then_some(BENCH_MARGIN_M));
         file.scenario.fail_safe = file.run.fail_safe;
+        file.scenario.continue_after_collision = file.run.continue_after_collision;
         if !file.run.floor {
             file.scenario.min_altitude_m = None;
         } else if file.scenario.min_altitude_m.is_none() {
@@ -238,6 +244,7 @@ impl ScenarioFile {
             ("delay_compensation", s.delay_compensation),
             ("obstacle_margin_m", s.obstacle_margin_m.is_some()),
             ("fail_safe", s.fail_safe),
+            ("continue_after_collision", s.continue_after_collision),
         ];
         if let Some((key, _)) = from_run.iter().find(|(_, set)| *set) {
             return Err((format!("scenario.{key}"), format!("belongs in [run] (run.{key})")));

@@ -49,6 +49,7 @@ impl From<&Scenario> for pb::Scenario {
             delay_compensation: s.delay_compensation,
             obstacle_margin_m: s.obstacle_margin_m,
             fail_safe: s.fail_safe,
+            continue_after_collision: s.continue_after_collision,
         }
     }
 }
@@ -139,6 +140,7 @@ impl TryFrom<&pb::Scenario> for Scenario {
             delay_compensation: m.delay_compensation,
             obstacle_margin_m: m.obstacle_margin_m,
             fail_safe: m.fail_safe,
+            continue_after_collision: m.continue_after_collision,
         };
         scenario.validate().map_err(|e| match e {
             ScenarioError::Invalid { field, reason } => FieldError::new(wire_field(&field), reason),
@@ -188,6 +190,7 @@ mod tests {
         custom.obstacle_margin_m = Some(0.2);
         custom.delay_compensation = true;
         custom.fail_safe = true;
+        custom.continue_after_collision = true;
         custom.delays = Some(DelaysTable::none());
         let mut measured = custom.clone();
         measured.delays = None;

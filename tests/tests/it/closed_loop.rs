@@ -57,6 +57,7 @@ fn assert_bit_identical(scenario: &Scenario, mode: ControllerMode, run: &GrpcRun
     let got = &run.summary;
     assert_eq!(got.reached, expected.reached, "{what}: reached");
     assert_eq!(got.collided, expected.collided, "{what}: collided");
+    assert_eq!(got.end_reason, expected.end_reason, "{what}: end reason");
     assert_eq!(got.cycles, expected.cycles, "{what}: cycles");
     assert_eq!(got.end_time_s.to_bits(), expected.end_time_s.to_bits(), "{what}: end time");
     assert_eq!(
@@ -382,4 +383,24 @@ async fn plant_and_controller_binaries_take_a_scenario_file_as_their_scenario() 
     assert_eq!(status.scenario, expected.name);
     let definition = status.definition.as_ref().expect("the controller's scenario");
     assert_eq!(Scenario::try_from(definition).expect("a valid scenario"), expected);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_run_ends_at_its_first_collision_over_grpc_as_in_process() {
+    // paper-2 launched at 12 m/s at a cylinder it cannot stop in front of.
+    let mut scenario = Scenario::paper_2();
+    scenario.name = "launched".into();
+    scenario.start = [3.5, 0.0, 1.0, 0.0, 12.0, 0.0, 0.0, 0.0];
+    scenario.max_duration_s = 2.0;
+    let mode = ControllerMode::Nmpc;
+    let settings = GrpcSettings { timeout: Duration::from_secs(120) };
+    let run = run_over_grpc(&scenario, mode, &settings).await.expect("gRPC run");
+    assert!(run.summary.collided, "the launched vehicle must collide");
+    assert_eq!(run.summary.end_reason, "collided");
+    assert_bit_identical(&scenario, mode, &run);
+    scenario.continue_after_collision = true;
+    let went_on = run_over_grpc(&scenario, mode, &settings).await.expect("gRPC run");
+    assert_eq!(went_on.summary.end_reason, "time_limit");
+    assert!(went_on.summary.cycles > run.summary.cycles);
+    assert_bit_identical(&scenario, mode, &went_on);
 }
