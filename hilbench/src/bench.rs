@@ -206,12 +206,13 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                 summary
             }
         };
-        bar.println(format!(
+        let done = format!(
             "  {name} {:<11} done ({} cycles, {:.2} s)",
             mode.name(),
             summary.cycles,
             run_started.elapsed().as_secs_f64()
-        ));
+        );
+        crate::progress::line(&bar, progress, &done);
         bar.inc(1);
         runs.push(summary);
         goals.push(scenario.goal_m);

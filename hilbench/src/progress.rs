@@ -8,6 +8,20 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 /// A progress bar of `len` steps of `unit` on stderr, or a hidden one (which prints nothing,
 /// `println` included) unless `show` is set and stderr is a terminal.
+/// A line about progress on stderr: above the bar on a terminal, or on its own when stderr is
+/// not a terminal (a log file, CI), so that a long run is never silent until it ends; nothing
+/// when progress is not shown (`--quiet`, `--json`).
+pub fn line(bar: &ProgressBar, show: bool, text: &str) {
+    if !show {
+        return;
+    }
+    if bar.is_hidden() {
+        eprintln!("{text}");
+    } else {
+        bar.println(text);
+    }
+}
+
 pub fn bar(len: u64, unit: &str, show: bool) -> ProgressBar {
     if !show || !std::io::stderr().is_terminal() {
         return ProgressBar::hidden();

@@ -42,3 +42,20 @@ fn a_bad_scenario_file_is_refused_at_start_with_its_line_and_field() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("bad.toml:") && stderr.contains("scenario.obstacles[0].radius_m"), "{stderr}");
 }
+
+#[test]
+fn logs_written_to_a_pipe_carry_no_colour_codes() {
+    use std::io::BufRead;
+    let mut plant = Command::new(env!("CARGO_BIN_EXE_plant"))
+        .args(["--listen", "127.0.0.1:0"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("plant starts");
+    let mut first = String::new();
+    let read = plant.stdout.take().map(|s| std::io::BufReader::new(s).read_line(&mut first));
+    let _ = plant.kill();
+    let _ = plant.wait();
+    assert!(matches!(read, Some(Ok(n)) if n > 0), "no log line: {read:?}");
+    assert!(!first.contains('\u{1b}'), "colour codes in {first:?}");
+}
