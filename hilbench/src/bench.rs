@@ -102,6 +102,9 @@ pub struct Outcome {
     pub faults: Vec<LinkFaults>,
     /// The delay process of each run, in the order of `runs`.
     pub delay_profiles: Vec<DelayProfileInForce>,
+    /// The error that ended the command early (a run that failed: a service died, a trace
+    /// ran out, ...): `runs` holds the runs that finished before it, and no later run started.
+    pub error: Option<String>,
     pub transport: &'static str,
     /// `lockstep` or `real-time`.
     pub time_mode: &'static str,
@@ -149,6 +152,7 @@ impl Outcome {
             "time_mode": self.time_mode,
             "wall_time_s": self.wall_time_s,
             "timing": timing,
+            "error": self.error,
         })
     }
 }
@@ -173,6 +177,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
     let mut timings = Vec::new();
     let mut faults = Vec::with_capacity(jobs.len());
     let mut delay_profiles = Vec::with_capacity(jobs.len());
+    let mut error = None;
     let bar = crate::progress::bar(jobs.len() as u64, "runs", progress);
     for (scenario, mode) in jobs {
         let name = &scenario.name;
@@ -180,9 +185,14 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
         let run_started = Instant::now();
         let summary = match (&runtime, transport) {
             (Some(rt), Transport::Grpc(endpoints)) => {
-                let run = rt
-                    .block_on(run_against(scenario, *mode, &GrpcSettings::default(), endpoints))
-                    .with_context(|| format!("{name} with {} over gRPC", mode.name()))?;
+                let run = match rt.block_on(run_against(scenario, *mode, &GrpcSettings::default(), endpoints))
+                {
+                    Ok(run) => run,
+                    Err(e) => {
+                        error = Some(format!("{name} with {} over gRPC: {e:#}", mode.name()));
+                        break;
+                    }
+                };
                 timings.push(TimedRun {
                     scenario: name.clone(),
                     controller: mode.name().to_string(),
@@ -195,8 +205,13 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                 run.summary
             }
             _ => {
-                let (summary, traces) = run_closed_loop(scenario, &ClosedLoopSettings::paper(*mode))
-                    .with_context(|| format!("{name} with {}", mode.name()))?;
+                let (summary, traces) = match run_closed_loop(scenario, &ClosedLoopSettings::paper(*mode)) {
+                    Ok(run) => run,
+                    Err(e) => {
+                        error = Some(format!("{name} with {}: {e}", mode.name()));
+                        break;
+                    }
+                };
                 let records: Vec<_> = traces.into_iter().map(|t| t.record).collect();
                 cycles.push(crate::cycle_log::from_records(&records));
                 faults.push(LinkFaults::default());
@@ -225,6 +240,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
         timings,
         faults,
         delay_profiles,
+        error,
         transport: transport.name(),
         time_mode: match transport {
             Transport::Grpc(e) => e.time_mode.name(),

@@ -209,6 +209,21 @@ fn execute(
     let dir = out.unwrap_or_else(default_out_dir);
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let mut plotting_s = None;
+    if let Some(error) = &outcome.error {
+        // What finished is kept: summary.json (with the error) and the per-cycle logs.
+        let mut summary = outcome.summary_json();
+        summary["timing"]["plotting_s"] = serde_json::json!(plotting_s);
+        write_summary(&dir, &summary)?;
+        write_cycle_logs(&dir, &outcome)?;
+        if json {
+            println!("{}", serde_json::to_string_pretty(&summary)?);
+        }
+        anyhow::bail!(
+            "{error}\n({} run(s) finished before it; they and the error are in {})",
+            outcome.runs.len(),
+            dir.join("summary.json").display()
+        );
+    }
     if opts.plots {
         let plotting = Instant::now();
         let bar = hilbench::progress::bar(1, "plot sets", show);

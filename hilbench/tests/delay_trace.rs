@@ -78,3 +78,34 @@ fn a_missing_or_bad_delay_trace_is_refused_naming_it() {
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(stderr.contains("bad.csv") && stderr.contains("line 3"), "{stderr}");
 }
+
+#[test]
+fn a_run_that_fails_still_writes_summary_json_with_the_error_and_exits_1() {
+    let dir = out_dir("delay-trace-runs-out");
+    std::fs::create_dir_all(&dir).expect("a temporary directory");
+    let short = dir.join("short.csv");
+    std::fs::write(&short, "delay_s\n0.1\n0.2\n0.05\n").expect("write the trace");
+    let out = dir.join("out");
+    let file = repo("scenarios/slalom-4.toml");
+    // Over the services: netem refuses cycle 3's command, the controller ends its episode.
+    let run = hilbench(&[
+        "run",
+        &file,
+        "--mode",
+        "nmpc",
+        "--no-plots",
+        "--quiet",
+        "--delay-trace",
+        short.to_str().expect("utf-8"),
+        "--out",
+        out.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(run.status.code(), Some(1), "{run:?}");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("short.csv") && stderr.contains("summary.json"), "{stderr}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary.json"))
+            .expect("JSON");
+    let error = summary["error"].as_str().expect("an error key");
+    assert!(error.contains("short.csv") && error.contains("message 3"), "{error}");
+}
