@@ -105,6 +105,8 @@ pub struct Outcome {
     /// The error that ended the command early (a run that failed: a service died, a trace
     /// ran out, ...): `runs` holds the runs that finished before it, and no later run started.
     pub error: Option<String>,
+    /// Ctrl-C stopped the command: `runs` holds the runs that finished before it.
+    pub interrupted: bool,
     pub transport: &'static str,
     /// `lockstep` or `real-time`.
     pub time_mode: &'static str,
@@ -153,7 +155,29 @@ impl Outcome {
             "wall_time_s": self.wall_time_s,
             "timing": timing,
             "error": self.error,
+            "interrupted": self.interrupted,
         })
+    }
+}
+
+/// One run's result, from either transport.
+enum Ran {
+    Grpc(Box<anyhow::Result<crate::grpc::GrpcRun>>),
+    Local(Box<Result<(mpc::RunSummary, Vec<mpc::CycleTrace>), String>>),
+}
+
+/// What a task that panicked said, as an error of its run.
+fn panic_message(e: tokio::task::JoinError) -> String {
+    match e.try_into_panic() {
+        Ok(payload) => {
+            let text = payload
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| payload.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "a panic without a message".into());
+            format!("the closed loop panicked: {text}")
+        }
+        Err(e) => format!("the closed loop did not finish: {e}"),
     }
 }
 
@@ -161,16 +185,12 @@ impl Outcome {
 /// bar and a line per finished run on stderr when it is a terminal.
 pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::Result<Outcome> {
     let started = Instant::now();
-    let runtime = match transport {
-        Transport::InProcess => None,
-        Transport::Grpc(_) => Some(
-            tokio::runtime::Builder::new_multi_thread()
-                .worker_threads(2)
-                .enable_all()
-                .build()
-                .context("cannot start the tokio runtime")?,
-        ),
-    };
+    // In process too: the runtime watches for Ctrl-C while a run goes on.
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("cannot start the tokio runtime")?;
     let mut runs = Vec::with_capacity(jobs.len());
     let mut cycles = Vec::with_capacity(jobs.len());
     let mut goals = Vec::with_capacity(jobs.len());
@@ -178,15 +198,42 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
     let mut faults = Vec::with_capacity(jobs.len());
     let mut delay_profiles = Vec::with_capacity(jobs.len());
     let mut error = None;
+    let mut interrupted = false;
     let bar = crate::progress::bar(jobs.len() as u64, "runs", progress);
     for (scenario, mode) in jobs {
         let name = &scenario.name;
         bar.set_message(format!("{name} with {}", mode.name()));
         let run_started = Instant::now();
-        let summary = match (&runtime, transport) {
-            (Some(rt), Transport::Grpc(endpoints)) => {
-                let run = match rt.block_on(run_against(scenario, *mode, &GrpcSettings::default(), endpoints))
-                {
+        let ran = runtime.block_on(async {
+            let job = async {
+                match transport {
+                    Transport::Grpc(endpoints) => Ran::Grpc(Box::new(
+                        run_against(scenario, *mode, &GrpcSettings::default(), endpoints).await,
+                    )),
+                    Transport::InProcess => {
+                        let (scenario, mode) = (scenario.clone(), *mode);
+                        let task = tokio::task::spawn_blocking(move || {
+                            run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode))
+                        });
+                        match task.await {
+                            Ok(run) => Ran::Local(Box::new(run.map_err(|e| e.to_string()))),
+                            Err(e) => Ran::Local(Box::new(Err(panic_message(e)))),
+                        }
+                    }
+                }
+            };
+            tokio::select! {
+                ran = job => Some(ran),
+                _ = tokio::signal::ctrl_c() => None,
+            }
+        });
+        let Some(ran) = ran else {
+            interrupted = true;
+            break;
+        };
+        let summary = match ran {
+            Ran::Grpc(run) => {
+                let run = match *run {
                     Ok(run) => run,
                     Err(e) => {
                         error = Some(format!("{name} with {} over gRPC: {e:#}", mode.name()));
@@ -204,8 +251,8 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                 delay_profiles.push(run.delay_profile);
                 run.summary
             }
-            _ => {
-                let (summary, traces) = match run_closed_loop(scenario, &ClosedLoopSettings::paper(*mode)) {
+            Ran::Local(run) => {
+                let (summary, traces) = match *run {
                     Ok(run) => run,
                     Err(e) => {
                         error = Some(format!("{name} with {}: {e}", mode.name()));
@@ -233,6 +280,8 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
         goals.push(scenario.goal_m);
     }
     bar.finish_and_clear();
+    // An interrupted run's services and solve are abandoned, not awaited.
+    runtime.shutdown_background();
     Ok(Outcome {
         runs,
         cycles,
@@ -241,6 +290,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
         faults,
         delay_profiles,
         error,
+        interrupted,
         transport: transport.name(),
         time_mode: match transport {
             Transport::Grpc(e) => e.time_mode.name(),

@@ -121,6 +121,8 @@ enum Command {
 /// Exit codes: 0 every run ended without a collision, 1 an error (anyhow's), 2 a usage error
 /// (clap's), [`EXIT_COLLISION`] a run collided (a result scripts must be able to tell from both).
 const EXIT_COLLISION: i32 = 3;
+/// Ctrl-C (SIGINT), after what had finished was written (the shells' 128 + 2).
+const EXIT_INTERRUPTED: i32 = 130;
 
 fn main() -> anyhow::Result<()> {
     let started = Instant::now();
@@ -209,6 +211,17 @@ fn execute(
     let dir = out.unwrap_or_else(default_out_dir);
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let mut plotting_s = None;
+    if outcome.interrupted {
+        let summary = outcome.summary_json();
+        write_summary(&dir, &summary)?;
+        write_cycle_logs(&dir, &outcome)?;
+        eprintln!(
+            "interrupted: {} run(s) had finished; they are in {}",
+            outcome.runs.len(),
+            dir.join("summary.json").display()
+        );
+        std::process::exit(EXIT_INTERRUPTED);
+    }
     if let Some(error) = &outcome.error {
         // What finished is kept: summary.json (with the error) and the per-cycle logs.
         let mut summary = outcome.summary_json();

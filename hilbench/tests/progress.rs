@@ -28,3 +28,34 @@ fn without_a_terminal_each_finished_run_prints_a_plain_line_on_stderr() {
         .expect("hilbench runs");
     assert!(quiet.stderr.is_empty(), "{}", String::from_utf8_lossy(&quiet.stderr));
 }
+
+#[test]
+fn ctrl_c_writes_what_finished_marks_the_summary_interrupted_and_exits_130() {
+    use std::io::BufRead;
+    let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("interrupted");
+    let _ = std::fs::remove_dir_all(&out);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hilbench"))
+        .args(["reproduce", "--no-plots", "--out"])
+        .arg(&out)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("hilbench starts");
+    let stderr = child.stderr.take().expect("stderr");
+    let mut lines = std::io::BufReader::new(stderr).lines();
+    // The first finished run (of six), then Ctrl-C.
+    let first = lines.by_ref().map_while(Result::ok).find(|l| l.contains("done ("));
+    assert!(first.is_some(), "no run finished");
+    let signal = Command::new("kill").args(["-INT", &child.id().to_string()]).status().expect("kill runs");
+    assert!(signal.success());
+    let rest: Vec<String> = lines.map_while(Result::ok).collect();
+    let status = child.wait().expect("hilbench ends");
+    assert_eq!(status.code(), Some(130), "{rest:?}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary.json"))
+            .expect("JSON");
+    assert_eq!(summary["interrupted"], true);
+    let runs = summary["runs"].as_array().expect("runs").len();
+    assert!((1..6).contains(&runs), "{runs} runs written");
+    assert!(rest.iter().any(|l| l.contains("interrupted")), "{rest:?}");
+}
