@@ -303,6 +303,12 @@ impl Scenario {
         if !self.ground_z_m.is_finite() || self.ground_z_m.abs() > MAX_ABS_POSITION_M {
             return Err(invalid("ground_z_m", format!("must be finite and within +-{MAX_ABS_POSITION_M} m")));
         }
+        if self.start[2] < self.ground_z_m {
+            return Err(invalid(
+                "start[2]",
+                format!("is below the ground (ground_z_m = {} m)", self.ground_z_m),
+            ));
+        }
         if self.min_altitude_m.is_some_and(|z| !z.is_finite() || z.abs() > MAX_ABS_POSITION_M) {
             return Err(invalid(
                 "min_altitude_m",

@@ -286,6 +286,15 @@ impl pb::plant_server::Plant for PlantService {
             None => shared.resolve(&inner.scenario, req.scenario.as_deref())?,
         };
         let start = req.initial_state.unwrap_or_else(|| scenario.start_state());
+        // A start under the ground would be a collision before the first step: refused, with
+        // nothing changed (the scenario's own start is checked by `Scenario::validate`).
+        if start[2] < scenario.ground_z_m {
+            return Err(FieldError::new(
+                "initial_state.x[2]",
+                format!("is below the ground (ground_z_m = {} m), got {} m", scenario.ground_z_m, start[2]),
+            )
+            .into());
+        }
         // Build the new simulation completely before touching the current one.
         let mut sim = PlantSim::new(&scenario, shared.settings)
             .map_err(|e| Status::internal(format!("scenario: {e}")))?;

@@ -239,6 +239,11 @@ mod tests {
         }
         assert_eq!(field(&m), Err("definition.network.to_plant.loss_probability".into()));
         let mut m = good.clone();
+        if let Some(start) = m.start.as_mut() {
+            start.x[2] = -1.0;
+        }
+        assert_eq!(field(&m), Err("definition.start[2]".into()));
+        let mut m = good.clone();
         m.horizon = 0;
         assert_eq!(field(&m), Err("definition.horizon".into()));
         let mut m = good.clone();

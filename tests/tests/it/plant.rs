@@ -194,6 +194,8 @@ async fn bad_input_is_invalid_argument_naming_the_field_while_the_stream_keeps_g
     nan_state.x[2] = f64::NAN;
     let mut tilted_state = pb::MavState { x: vec![0.0; 8] };
     tilted_state.x[6] = 2.0;
+    let mut underground_state = pb::MavState { x: vec![0.0; 8] };
+    underground_state.x[2] = -0.5;
 
     for round in 0..3u64 {
         // Several kinds of bad input, each rejected with the field named ...
@@ -237,6 +239,17 @@ async fn bad_input_is_invalid_argument_naming_the_field_while_the_stream_keeps_g
                 })
                 .await,
             "initial_state.x[6]",
+        );
+        // Below the ground (paper-1's is at 0 m): a collision before the first step.
+        assert_invalid(
+            client
+                .reset(pb::ResetRequest {
+                    definition: None,
+                    scenario: "paper-1".into(),
+                    initial_state: Some(underground_state.clone()),
+                })
+                .await,
+            "initial_state.x[2]",
         );
         assert_invalid(
             client.advance(pb::AdvanceRequest { duration_ns: 0, ..Default::default() }).await,
