@@ -30,7 +30,11 @@ fn check_multistage_accuracy(settings: MpcSettings, required: f64, negative_allo
     let mut gaps = Vec::new();
     let mut negative_clearance = Vec::new();
     for name in mav::Scenario::BUILT_IN {
-        let scenario = mav::Scenario::by_name(name).expect("built in");
+        let mut scenario = mav::Scenario::by_name(name).expect("built in");
+        // The states sampled are those of the whole flight: a loop with the inactive-set
+        // tolerances touches paper-1's cylinder, and the solves after that are part of what
+        // this measures (a run would otherwise end at the collision).
+        scenario.continue_after_collision = true;
         let def = OcpDefinition::from_scenario(
             &scenario,
             ControllerMode::Multistage,
@@ -89,7 +93,8 @@ fn at_least_95_percent_of_nmpc_solves_are_within_one_percent_of_the_reference() 
     let settings = MpcSettings::default();
     let mut gaps = Vec::new();
     for name in mav::Scenario::BUILT_IN {
-        let scenario = mav::Scenario::by_name(name).expect("built in");
+        let mut scenario = mav::Scenario::by_name(name).expect("built in");
+        scenario.continue_after_collision = true;
         let def = OcpDefinition::from_scenario(
             &scenario,
             ControllerMode::Nmpc,
