@@ -503,8 +503,18 @@ async fn fly(
             flight.episode.on_sample(&sample, &timing).map_err(|e| LoopError::Bad(e.to_string()))?;
         let command = pb::Command::from(&Command { input: out.record.command.into(), meta: out.meta });
         let answer = match tokio::time::timeout(call_timeout, client.apply_command(command)).await {
-            Ok(answer) => answer?,
-            Err(_) => return Err(LoopError::Timeout { call: "ApplyCommand", after: call_timeout }),
+            Ok(answer) => answer.map_err(LoopError::from),
+            Err(_) => Err(LoopError::Timeout { call: "ApplyCommand", after: call_timeout }),
+        };
+        // The cycle happened (it was solved and its command numbered) whether or not the
+        // command got through: its telemetry is published either way, so that the record of
+        // an episode has no gap (a command that did not get through has no injected delay).
+        let answer = match answer {
+            Ok(answer) => answer,
+            Err(e) => {
+                publish(shared, flight, &wire_sample, out);
+                return Err(e);
+            }
         };
         out.record.injected_delay_s = injected_delay_s(answer.metadata());
         shared.link_answered();
