@@ -10,7 +10,8 @@
 //! answer does not depend on the lines before it.
 //! Output keys: `line`, `scenario`, `mode`, `status`, `iterations`, `solve_ms`, `cost` (the
 //! spec's objective, unscaled), `u` (N x 3), `min_clearance_m`, `constraint_violation`; or
-//! `line`, `error` and `field`.
+//! `line`, `error` and `field`. Unknown and repeated keys are errors naming the key, and a
+//! line longer than [`MAX_LINE_BYTES`] is refused without being held in memory.
 
 use std::collections::HashMap;
 use std::io::{BufRead, Write};
@@ -18,6 +19,36 @@ use std::io::{BufRead, Write};
 use hilbench_proto::convert::plant::check_state_envelope;
 use mpc::{ControllerMode, Mpc, MpcSettings, OcpDefinition, SolveBudget};
 use serde_json::{Value, json};
+
+/// Longest input line, bytes (a warm start of a 1000-step horizon takes about 60 kB).
+pub const MAX_LINE_BYTES: usize = 1 << 20;
+
+/// The keys a problem line may hold.
+const KEYS: [&str; 6] = ["scenario", "mode", "x0", "u_prev", "weights", "warm_start"];
+
+/// A JSON object's entries in order, repeated keys kept (a `serde_json::Map` keeps only the
+/// last of them, which would hide a mistake).
+struct Entries(Vec<(String, Value)>);
+
+impl<'de> serde::Deserialize<'de> for Entries {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visit;
+        impl<'de> serde::de::Visitor<'de> for Visit {
+            type Value = Entries;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a JSON object")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<Entries, A::Error> {
+                let mut entries = Vec::new();
+                while let Some(entry) = map.next_entry::<String, Value>()? {
+                    entries.push(entry);
+                }
+                Ok(Entries(entries))
+            }
+        }
+        d.deserialize_map(Visit)
+    }
+}
 
 /// A request line that failed validation.
 #[derive(Debug, Clone, PartialEq)]
@@ -72,8 +103,23 @@ impl LineSolver {
     }
 
     fn solve_line(&mut self, line: &str) -> Result<Value, LineError> {
-        let v: Value = serde_json::from_str(line).map_err(|e| err("<line>", format!("not JSON: {e}")))?;
-        let obj = v.as_object().ok_or_else(|| err("<line>", "must be a JSON object"))?;
+        let Entries(entries) = serde_json::from_str(line).map_err(|e| {
+            if e.is_data() {
+                err("<line>", "must be a JSON object")
+            } else {
+                err("<line>", format!("not JSON: {e}"))
+            }
+        })?;
+        let mut obj = serde_json::Map::new();
+        for (key, value) in entries {
+            if !KEYS.contains(&key.as_str()) {
+                return Err(err(key, format!("unknown key (known: {})", KEYS.join(", "))));
+            }
+            if obj.contains_key(&key) {
+                return Err(err(key, "is given twice"));
+            }
+            obj.insert(key, value);
+        }
         let name = obj
             .get("scenario")
             .and_then(Value::as_str)
@@ -163,10 +209,21 @@ impl LineSolver {
         let mut line_no = 0;
         loop {
             buf.clear();
-            if input.read_until(b'\n', &mut buf)? == 0 {
+            if std::io::Read::take(&mut input, MAX_LINE_BYTES as u64 + 1).read_until(b'\n', &mut buf)? == 0 {
                 break;
             }
             line_no += 1;
+            if buf.len() > MAX_LINE_BYTES && buf.last() != Some(&b'\n') {
+                skip_line(&mut input)?;
+                let answer = json!({
+                    "line": line_no,
+                    "error": format!("invalid `<line>`: longer than {MAX_LINE_BYTES} bytes"),
+                    "field": "<line>",
+                });
+                writeln!(output, "{answer}")?;
+                count += 1;
+                continue;
+            }
             let answer = match std::str::from_utf8(&buf) {
                 Ok(line) if line.trim().is_empty() => continue,
                 Ok(line) => self.answer(line_no, line.trim_end_matches(['\n', '\r'])),
@@ -181,6 +238,26 @@ impl LineSolver {
         }
         output.flush()?;
         Ok(count)
+    }
+}
+
+/// Reads and drops the rest of a line (to its newline or the end), a buffer at a time.
+fn skip_line(input: &mut impl BufRead) -> std::io::Result<()> {
+    loop {
+        let chunk = input.fill_buf()?;
+        if chunk.is_empty() {
+            return Ok(());
+        }
+        match chunk.iter().position(|b| *b == b'\n') {
+            Some(i) => {
+                input.consume(i + 1);
+                return Ok(());
+            }
+            None => {
+                let n = chunk.len();
+                input.consume(n);
+            }
+        }
     }
 }
 
@@ -219,6 +296,25 @@ mod tests {
         assert!(out[5]["status"].is_string());
         // Thrust of the first input climbs towards the goal above.
         assert!(out[5]["u"][0][0].as_f64().is_some_and(|t| t > 9.81));
+    }
+
+    #[test]
+    fn unknown_and_repeated_keys_and_overlong_lines_are_refused_and_the_next_line_is_solved() {
+        let good = r#"{"scenario":"paper-2","x0":[3.2,0,0,0,0,0,0,0],"u_prev":[9.81,0,0],"weights":[0.05,0.15,0.45,0.3,0.05]}"#;
+        let typo = good.replace("\"u_prev\"", "\"u_prv\"");
+        let twice = good.replace("\"x0\":", "\"x0\":[0,0,0,0,0,0,0,0],\"x0\":");
+        let long = format!("{{\"scenario\":\"{}\"}}", "x".repeat(MAX_LINE_BYTES + 10));
+        let array = "[1, 2, 3]";
+        let out = solve(&[typo.as_str(), twice.as_str(), long.as_str(), array, good].join("\n"));
+        assert_eq!(out.len(), 5, "{out:?}");
+        assert_eq!(out[0]["field"], "u_prv");
+        assert_eq!(out[1]["field"], "x0");
+        assert!(out[1]["error"].as_str().is_some_and(|e| e.contains("twice")), "{}", out[1]);
+        assert_eq!((out[2]["field"].as_str(), out[2]["line"].as_u64()), (Some("<line>"), Some(3)));
+        assert!(out[2]["error"].as_str().is_some_and(|e| e.contains("longer than")), "{}", out[2]);
+        assert_eq!(out[3]["field"], "<line>");
+        assert_eq!(out[4]["line"], 5);
+        assert!(out[4]["status"].is_string(), "{}", out[4]);
     }
 
     fn without_timing(mut v: Value) -> Value {
