@@ -156,6 +156,7 @@ impl Outcome {
             "timing": timing,
             "error": self.error,
             "interrupted": self.interrupted,
+            "hilbench_version": env!("CARGO_PKG_VERSION"),
         })
     }
 }
@@ -324,6 +325,30 @@ pub fn write_summary(dir: &Path, summary: &serde_json::Value) -> anyhow::Result<
     std::fs::write(&path, serde_json::to_string_pretty(summary)?)
         .with_context(|| format!("cannot write {}", path.display()))?;
     Ok(path)
+}
+
+/// Writes each scenario of `jobs` as flown (seed, delay trace and every override applied, trace
+/// delays inline) to `dir/<name>.scenario.toml`: a scenario file `hilbench run` takes back.
+pub fn write_scenarios(dir: &Path, jobs: &[Job]) -> anyhow::Result<()> {
+    let mut written: Vec<&str> = Vec::new();
+    for (scenario, _) in jobs {
+        if written.contains(&scenario.name.as_str()) {
+            continue;
+        }
+        written.push(&scenario.name);
+        let modes: Vec<Mode> = jobs
+            .iter()
+            .filter(|(s, _)| s.name == scenario.name)
+            .map(|(_, m)| match m {
+                ControllerMode::Nmpc => Mode::Nmpc,
+                ControllerMode::Multistage => Mode::Multistage,
+            })
+            .collect();
+        let path = dir.join(format!("{}.scenario.toml", scenario.name));
+        let text = ScenarioFile::as_flown(scenario, modes).map_err(anyhow::Error::msg)?;
+        std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
 }
 
 /// One entry of `summary.json` (names are stable; see README).

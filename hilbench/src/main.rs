@@ -211,6 +211,7 @@ fn execute(
     let dir = out.unwrap_or_else(default_out_dir);
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let mut plotting_s = None;
+    hilbench::bench::write_scenarios(&dir, jobs)?;
     if outcome.interrupted {
         let summary = outcome.summary_json();
         write_summary(&dir, &summary)?;

@@ -109,3 +109,48 @@ fn a_run_that_fails_still_writes_summary_json_with_the_error_and_exits_1() {
     let error = summary["error"].as_str().expect("an error key");
     assert!(error.contains("short.csv") && error.contains("message 3"), "{error}");
 }
+
+/// The per-cycle CSV without its solve_ms column (a wall-clock time).
+fn csv_without_solve_times(path: &Path) -> String {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let column =
+        text.lines().next().and_then(|h| h.split(',').position(|c| c == "solve_ms")).expect("solve_ms");
+    text.lines()
+        .map(|l| {
+            l.split(',')
+                .enumerate()
+                .filter(|(i, _)| *i != column)
+                .map(|(_, c)| c)
+                .collect::<Vec<_>>()
+                .join(",")
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+#[test]
+fn the_scenario_written_beside_the_results_flies_the_same_run_again() {
+    let first = out_dir("as-flown-first");
+    let again = out_dir("as-flown-again");
+    let file = repo("scenarios/wifi-trace.toml");
+    let run = |file: &str, out: &Path, extra: &[&str]| {
+        let args =
+            ["run", file, "--in-process", "--no-plots", "--quiet", "--out", out.to_str().expect("utf-8")];
+        let done = hilbench(&[&args[..], extra].concat());
+        assert!(done.status.success(), "{done:?}");
+    };
+    run(&file, &first, &["--seed", "9", "--continue-after-collision"]);
+    let written = first.join("slalom-4-wifi-trace.scenario.toml");
+    let text = std::fs::read_to_string(&written).expect("the scenario as flown");
+    assert!(text.contains("seed = 9") && text.contains("continue_after_collision = true"), "{text}");
+    // Its trace is inline: the file flies from anywhere, without wifi-trace.csv beside it.
+    run(written.to_str().expect("utf-8"), &again, &[]);
+    for mode in ["nmpc", "multistage"] {
+        let csv = format!("slalom-4-wifi-trace-{mode}.csv");
+        assert_eq!(
+            csv_without_solve_times(&first.join(&csv)),
+            csv_without_solve_times(&again.join(&csv)),
+            "{mode}"
+        );
+    }
+}

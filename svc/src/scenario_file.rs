@@ -184,6 +184,30 @@ impl ScenarioFile {
         Self::parse(path, &text)
     }
 
+    /// The text of a file that holds `scenario` exactly as flown, its controller options in
+    /// `[run]` (where files keep them) and its traces inline: what `hilbench` writes beside a
+    /// run's results, and what [`ScenarioFile::parse`] reads back into the same scenario.
+    pub fn as_flown(scenario: &Scenario, modes: Vec<Mode>) -> Result<String, String> {
+        let run = RunSection {
+            modes,
+            time_mode: TimeMode::Lockstep,
+            floor: scenario.min_altitude_m.is_some(),
+            delay_compensation: scenario.delay_compensation,
+            obstacle_margin_m: scenario.obstacle_margin_m,
+            fail_safe: scenario.fail_safe,
+            continue_after_collision: scenario.continue_after_collision,
+        };
+        let mut scenario = scenario.clone();
+        // Written in [run]; the loader puts them back.
+        scenario.delay_compensation = false;
+        scenario.obstacle_margin_m = None;
+        scenario.fail_safe = false;
+        scenario.continue_after_collision = false;
+        let file = ScenarioFile { run, scenario };
+        let text = toml::to_string(&file).map_err(|e| format!("cannot write the scenario as TOML: {e}"))?;
+        Ok(format!("# The scenario as flown (overrides applied, traces inline).\n{text}"))
+    }
+
     /// Parses and validates `text`, read from `path` (named in errors).
     pub fn parse(path: &Path, text: &str) -> Result<Self, FileError> {
         let error = |span: Option<Range<usize>>, field: Option<String>, message: String| FileError {
