@@ -1,5 +1,5 @@
 //! What `hilbench reproduce` and `hilbench run` share: running (scenario, controller) pairs in
-//! lockstep over gRPC or in process, and the `summary.json` they write (schema in README).
+//! lockstep over gRPC or in process, and the `summary.json` they write (schema in docs/output.md).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -123,7 +123,7 @@ impl Outcome {
         self.runs.iter().map(|r| r.solve_ms_mean * r.cycles as f64 * 1e-3).sum()
     }
 
-    /// `summary.json` (names are stable; see README).
+    /// `summary.json` (names are stable; see docs/output.md).
     pub fn summary_json(&self) -> serde_json::Value {
         let timing = serde_json::json!({
             "wall_time_s": self.wall_time_s,
@@ -351,7 +351,7 @@ pub fn write_scenarios(dir: &Path, jobs: &[Job]) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// One entry of `summary.json` (names are stable; see README).
+/// One entry of `summary.json` (names are stable; see docs/output.md).
 pub fn run_json(r: &RunSummary) -> serde_json::Value {
     serde_json::json!({
         "scenario": r.scenario,

@@ -91,7 +91,7 @@ impl DelayProfileInForce {
 }
 
 /// Faults of a run's plant link, from the controller's status and telemetry (all zero when the
-/// link never failed; the `summary.json` keys of README's schema).
+/// link never failed; the `summary.json` keys of docs/output.md's schema).
 #[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
 pub struct LinkFaults {
     /// Times the controller lost a working link to the Plant API during the episode.
