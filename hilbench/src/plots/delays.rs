@@ -6,7 +6,8 @@ use plotters::prelude::*;
 use statrs::distribution::{Continuous, Gamma};
 
 use super::style::{
-    BOUND, FONT, LABEL_PX, TICK_PX, controller_color, controller_label, extent, panel_font, title_font,
+    BOUND, FONT, LABEL_PX, TICK_PX, controller_color, controller_label, draw_legend, extent, panel_font,
+    title_font,
 };
 use super::{DrawResult, RunData};
 use crate::cycle_log::CycleRow;
@@ -138,12 +139,6 @@ pub(super) fn draw_delays<DB: DrawingBackend>(
             .label(format!("scenario's delay model: k = {k}, θ = {:.1} ms", theta * 1e3))
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BOUND.stroke_width(2)));
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font((FONT, TICK_PX))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.4))
-        .draw()?;
+    draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
     Ok(())
 }

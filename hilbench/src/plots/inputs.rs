@@ -4,8 +4,8 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::style::{
-    BOUND, FONT, LABEL_PX, PALETTE, TICK_PX, controller_color, controller_label, extent, pad, panel_font,
-    samples, steps, title_font,
+    BOUND, FONT, LABEL_PX, PALETTE, TICK_PX, controller_color, controller_label, draw_legend, extent, pad,
+    panel_font, samples, steps, title_font,
 };
 use super::{DrawResult, RunData};
 
@@ -67,13 +67,7 @@ fn draw_panel<DB: DrawingBackend>(
             .label(label.as_str())
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font((FONT, TICK_PX))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.4))
-        .draw()?;
+    draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
     Ok(())
 }
 

@@ -22,6 +22,20 @@ pub(super) const PALETTE: [RGBColor; 6] = [
     RGBColor(102, 102, 102),
 ];
 
+/// The legend of every figure: its series' labels at `position`, on a light box.
+pub(super) fn draw_legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    position: SeriesLabelPosition,
+) -> super::DrawResult<DB> {
+    chart
+        .configure_series_labels()
+        .position(position)
+        .label_font((FONT, TICK_PX))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.4))
+        .draw()
+}
+
 pub(super) fn controller_color(controller: &str, i: usize) -> RGBColor {
     match controller {
         "multistage" => PALETTE[0],

@@ -5,7 +5,8 @@ use plotters::prelude::*;
 
 use super::paths::{circle, horizontal_extent, path};
 use super::style::{
-    CYLINDER, FONT, LABEL_PX, TICK_PX, controller_color, controller_label, extent, pad, title_font,
+    CYLINDER, FONT, LABEL_PX, TICK_PX, controller_color, controller_label, draw_legend, extent, pad,
+    title_font,
 };
 use super::{DrawResult, RunData};
 
@@ -101,12 +102,6 @@ pub(super) fn draw_3d<DB: DrawingBackend>(
         .draw_series([Cross::new((g[0], g[2], g[1]), 8, BLACK.stroke_width(3))])?
         .label("goal")
         .legend(|(x, y)| Cross::new((x + 10, y), 6, BLACK.stroke_width(3)));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .label_font((FONT, TICK_PX))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.4))
-        .draw()?;
+    draw_legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
     Ok(())
 }

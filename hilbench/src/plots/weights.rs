@@ -3,7 +3,9 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::style::{FONT, LABEL_PX, PALETTE, TICK_PX, controller_label, extent, steps, title_font};
+use super::style::{
+    FONT, LABEL_PX, PALETTE, TICK_PX, controller_label, draw_legend, extent, steps, title_font,
+};
 use super::{DrawResult, RunData};
 
 pub(super) fn draw_weights<DB: DrawingBackend>(
@@ -46,12 +48,6 @@ pub(super) fn draw_weights<DB: DrawingBackend>(
             .label(label)
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font((FONT, TICK_PX))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.4))
-        .draw()?;
+    draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
     Ok(())
 }
