@@ -2,6 +2,8 @@
 //! messages and in seconds, uniform choice of the next state, each state's own delay law, and
 //! reproducibility from the seed.
 
+mod common;
+use common::ks;
 use delay::{DelayLine, Direction, DirectionProfile, Distribution, Dwell, RegimeState};
 use statrs::distribution::{ContinuousCDF, Gamma};
 
@@ -104,19 +106,6 @@ fn mixed_dwells_and_the_next_state_is_uniform_among_the_others() {
     let (got, n) = mean_run(&r, 0.03);
     let se = (16.0f64 - 4.0).sqrt() / (n as f64).sqrt();
     assert!((got - 4.0).abs() < 5.0 * se, "{got}");
-}
-
-/// Kolmogorov–Smirnov statistic of `xs` against a CDF.
-fn ks(mut xs: Vec<f64>, cdf: impl Fn(f64) -> f64) -> f64 {
-    xs.sort_by(f64::total_cmp);
-    let n = xs.len() as f64;
-    xs.iter()
-        .enumerate()
-        .map(|(i, &x)| {
-            let f = cdf(x);
-            (f - i as f64 / n).abs().max(((i + 1) as f64 / n - f).abs())
-        })
-        .fold(0.0, f64::max)
 }
 
 #[test]

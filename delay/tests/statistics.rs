@@ -1,5 +1,7 @@
 //! The delay line against the laws it claims to draw from, and its reproducibility contract.
 
+mod common;
+use common::ks;
 use delay::{DelayLine, Direction, DirectionProfile, Distribution, Fate, Ordering, Trace, preset};
 use proptest::prelude::*;
 use statrs::distribution::{Continuous, ContinuousCDF, Gamma, Normal};
@@ -14,19 +16,6 @@ fn line(d: Distribution, seed: u64) -> DelayLine {
 fn samples(d: Distribution, seed: u64, n: usize) -> Vec<f64> {
     let mut l = line(d, seed);
     (0..n).map(|_| l.sample_delay_s()).collect()
-}
-
-/// Kolmogorov–Smirnov statistic of `xs` against a CDF.
-fn ks(mut xs: Vec<f64>, cdf: impl Fn(f64) -> f64) -> f64 {
-    xs.sort_by(f64::total_cmp);
-    let n = xs.len() as f64;
-    xs.iter()
-        .enumerate()
-        .map(|(i, &x)| {
-            let f = cdf(x);
-            (f - i as f64 / n).abs().max(((i + 1) as f64 / n - f).abs())
-        })
-        .fold(0.0, f64::max)
 }
 
 /// Critical value of the one-sample KS test at level 0.001 (asymptotic, n large).
