@@ -17,8 +17,6 @@ use crate::solver::{MpcSettings, SolveReport};
 pub enum DelaySource {
     /// `d_k = 0`.
     None,
-    /// `d_k ~ Gamma(shape, scale_s)`, drawn by `delay::DelayLine` seeded with `seed`.
-    Gamma { shape: f64, scale_s: f64, seed: u64 },
     /// A recorded trace, replayed in order and looped.
     Trace(Vec<f64>),
     /// Whatever the command direction of a scenario's network does (`delay::spec`'s kinds,
@@ -54,9 +52,6 @@ impl DelaySource {
     fn delay_line(&self) -> Result<Option<delay::DelayLine>, MpcError> {
         let (distribution, seed) = match self {
             DelaySource::None => return Ok(None),
-            DelaySource::Gamma { shape, scale_s, seed } => {
-                (delay::Distribution::Gamma { shape: *shape, scale_s: *scale_s }, *seed)
-            }
             DelaySource::Trace(trace) => {
                 (delay::Distribution::Trace(delay::Trace::looping(trace.clone())), 0)
             }
@@ -78,7 +73,7 @@ impl DelaySource {
         match self {
             DelaySource::None => false,
             DelaySource::Commands(profile) => !profile.delay.is_zero(),
-            DelaySource::Gamma { .. } | DelaySource::Trace(_) => true,
+            DelaySource::Trace(_) => true,
         }
     }
 }
