@@ -90,16 +90,6 @@ impl Inner {
         }
     }
 
-    /// Why a message of `dir` that the line decided to drop is dropped: a loss, or a trace
-    /// that stops at its end ran out (the line can no longer say what the trace was, so this
-    /// is asked before the decision).
-    fn drop_reason(&self, dir: Direction) -> String {
-        match self.lines[dir.index()].check_next() {
-            Ok(()) => "loss".into(),
-            Err(ended) => ended.to_string(),
-        }
-    }
-
     /// The end of a trace that stops there, when the next message of `dir` has no delay left:
     /// such a message is refused to its sender (the run must stop), not dropped.
     pub fn trace_ended(&self, dir: Direction) -> Option<delay::TraceEnded> {
@@ -108,11 +98,14 @@ impl Inner {
 
     /// Runs message `payload_seq`, sent at `send_ns`, through the line of `dir`.
     pub fn decide(&mut self, dir: Direction, send_ns: u64, payload_seq: u64) -> Decision {
-        let reason = self.drop_reason(dir);
+        // Asked before the decision, after which the line can no longer say what the trace
+        // was. Commands and lockstep samples never get here past a trace's end (they are
+        // refused to their sender): real-time samples do, and are dropped with this reason.
+        let ended = self.trace_ended(dir);
         let d = self.lines[dir.index()].send(send_ns);
         self.stats[dir.index()].record_decision(&d);
-        if d.trace_ended {
-            tracing::warn!(direction = ?dir, message = d.seq, "{reason}");
+        if let Some(ended) = ended.as_ref().filter(|_| d.trace_ended) {
+            tracing::warn!(direction = ?dir, message = d.seq, "{ended}");
         }
         match d.fate {
             Fate::Dropped => self.record(Record {
@@ -124,7 +117,7 @@ impl Inner {
                 injected_delay_s: d.sampled_delay_s,
                 dropped: true,
                 duplicate: false,
-                drop_reason: reason,
+                drop_reason: ended.map_or_else(|| "loss".into(), |e| e.to_string()),
                 release_error_ns: 0,
             }),
             Fate::Delivered { .. } => self.in_flight[dir.index()] += d.releases().count() as u64,
@@ -175,30 +168,22 @@ impl Inner {
         });
     }
 
-    /// Draws a lockstep sample arriving at `time_ns` from the plant-to-controller line, with
-    /// the reason it would be dropped.
-    pub fn draw_sample(&mut self, time_ns: u64) -> (delay::Draw, String) {
-        let reason = self.drop_reason(Direction::PlantToController);
-        (self.lines[Direction::PlantToController.index()].draw(time_ns), reason)
+    /// Draws a lockstep sample arriving at `time_ns` from the plant-to-controller line.
+    pub fn draw_sample(&mut self, time_ns: u64) -> delay::Draw {
+        self.lines[Direction::PlantToController.index()].draw(time_ns)
     }
 
     /// A lockstep sample: drawn from the plant-to-controller line without FIFO scheduling,
-    /// delivered (or lost, for `reason`) at once; see `proxy::Proxy::lockstep_advance`.
-    pub fn lockstep_sample(
-        &mut self,
-        t_s: u64,
-        target: u64,
-        draw: &delay::Draw,
-        reason: &str,
-        payload_seq: u64,
-    ) -> Msg {
+    /// delivered (or lost) at once; see `proxy::Proxy::lockstep_advance`, which refuses a
+    /// sample past the end of a trace before drawing it.
+    pub fn lockstep_sample(&mut self, t_s: u64, target: u64, draw: &delay::Draw, payload_seq: u64) -> Msg {
         let dir = Direction::PlantToController;
         let i = dir.index();
         self.stats[i].sent += 1;
         let m = Msg { dir, seq: draw.seq, payload_seq, send_ns: t_s, release_ns: target, duplicate: false };
         if draw.lost {
             self.in_flight[i] += 1;
-            self.dropped(&m, reason);
+            self.dropped(&m, "loss");
             return m;
         }
         let copies = 1 + u64::from(draw.duplicated);

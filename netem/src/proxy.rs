@@ -205,7 +205,7 @@ impl Proxy {
             return Err(trace_ended_status("sample", &ended));
         }
         // A regime's clock for a lockstep sample is the time it arrives.
-        let (draw, reason) = self.shared.lock().draw_sample(target);
+        let draw = self.shared.lock().draw_sample(target);
         let staleness = delay::secs_to_ns(draw.sampled_delay_s).min(duration_ns);
         let t_s = target - staleness;
         let mut now = t0;
@@ -235,7 +235,7 @@ impl Proxy {
         let mut inner = self.shared.lock();
         inner.plant_time_ns = Some(end.time_ns);
         let sample = stale_sample.unwrap_or(end);
-        let m = inner.lockstep_sample(t_s, target, &draw, &reason, sample.seq);
+        let m = inner.lockstep_sample(t_s, target, &draw, sample.seq);
         let delivered = if draw.lost {
             stamp(md, "sample", &m, OUTCOME_DROPPED);
             inner.last_sample.clone().unwrap_or(sample)
