@@ -47,6 +47,11 @@ pub struct ControllerConfig {
     /// closed one. Lockstep calls get at least 60 s: an `Advance` integrates a whole cycle
     /// before it answers, and a loaded machine must not make a deterministic run reconnect.
     pub rpc_timeout: Duration,
+    /// Real time: no completed cycle for this long is a link outage even when no call failed
+    /// (a link or a plant that hangs for less than `rpc_timeout`), counted with its whole
+    /// duration in the link faults. Default 500 ms, the plant watchdog's timeout: a gap that
+    /// long leaves the vehicle to its failsafe.
+    pub stall_timeout: Duration,
     /// Telemetry items buffered per subscriber (default 4096, more than the cycles of a
     /// 60 s paper run); a subscriber that falls further behind loses the oldest items, the
     /// loop never waits for it.
@@ -76,6 +81,7 @@ impl ControllerConfig {
             backoff_min: Duration::from_millis(50),
             backoff_max: Duration::from_secs(2),
             rpc_timeout: Duration::from_secs(5),
+            stall_timeout: Duration::from_millis(500),
             telemetry_buffer: 4096,
         }
     }
@@ -107,6 +113,9 @@ impl ControllerConfig {
         }
         if self.rpc_timeout.is_zero() {
             return Err("`rpc_timeout`: must be > 0".into());
+        }
+        if self.stall_timeout.is_zero() {
+            return Err("`stall_timeout`: must be > 0".into());
         }
         Ok(())
     }

@@ -33,10 +33,14 @@ pub enum ControllerError {
     Config(String),
     #[error(transparent)]
     Serve(#[from] ServeError),
+    /// The control loop's task ended by itself (it panicked): the service stopped with it.
+    #[error("the control loop {0}")]
+    Loop(String),
 }
 
 /// Serves the Controller API on `listener` and runs the control loop against
-/// `config.plant`, until `shutdown` resolves.
+/// `config.plant`, until `shutdown` resolves or the loop's task fails (a panic): the server
+/// then stops, and its telemetry streams end, so that its clients see it at once.
 pub async fn serve(
     listener: tokio::net::TcpListener,
     config: ControllerConfig,
@@ -45,20 +49,39 @@ pub async fn serve(
     config.validate().map_err(ControllerError::Config)?;
     let shared = runner::Shared::new(&config);
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
-    let loop_task = tokio::spawn(runner::run(config.clone(), shared.clone(), stop_rx));
+    let mut loop_task = tokio::spawn(runner::run(config.clone(), shared.clone(), stop_rx));
     let service = ControllerService::new(shared.clone());
 
     let server = GrpcServer::new(listener, false, &[ControllerServer::<ControllerService>::NAME]).await?;
     let addr = server.addr;
     tracing::info!(%addr, plant = %config.plant, scenario = %config.scenario.name, mode = config.mode.name(), "controller serving");
+    let mut loop_failure = None;
+    let mut loop_joined = false;
+    let closing = shared.clone();
     let result = server
-        .serve(|router| router.add_service(ControllerServer::new(service)), async move {
-            shutdown.await;
+        .serve(|router| router.add_service(ControllerServer::new(service)), async {
+            tokio::select! {
+                () = shutdown => {}
+                ended = &mut loop_task => {
+                    loop_joined = true;
+                    if let Err(e) = ended {
+                        let failure = hilbench_svc::task_failure(e);
+                        tracing::error!("the control loop {failure}; the controller stops");
+                        loop_failure = Some(failure);
+                    }
+                }
+            }
             let _ = stop_tx.send(true);
+            // Ends the telemetry streams, so that the server's graceful stop does not wait for
+            // subscribers that never leave.
+            closing.close();
         })
         .await;
     shared.close();
-    let _ = loop_task.await;
+    if !loop_joined {
+        let _ = loop_task.await;
+    }
     tracing::info!("controller stopped");
-    Ok(result?)
+    result?;
+    loop_failure.map_or(Ok(()), |f| Err(ControllerError::Loop(f)))
 }

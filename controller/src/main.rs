@@ -83,6 +83,10 @@ struct Cli {
     /// one.
     #[arg(long, default_value_t = 5.0)]
     rpc_timeout_s: f64,
+    /// Real time: no completed cycle for this long counts as a link outage (with its whole
+    /// duration) even when no call failed, ms.
+    #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..))]
+    stall_timeout_ms: u64,
 }
 
 impl Cli {
@@ -145,6 +149,7 @@ fn main() -> anyhow::Result<()> {
         return Ok(());
     }
     hilbench_svc::init_tracing();
+    hilbench_svc::exit_on_panic();
     let scenario = hilbench_svc::scenario_file::scenario_arg(&cli.scenario)
         .map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
     let mode = match cli.mode {
@@ -173,6 +178,7 @@ fn main() -> anyhow::Result<()> {
         .ok()
         .filter(|d| !d.is_zero())
         .context("--rpc-timeout-s: must be a positive number of seconds")?;
+    config.stall_timeout = std::time::Duration::from_millis(cli.stall_timeout_ms);
     config.reset_plant = !cli.no_reset;
     config.autostart = !cli.no_autostart;
     config.time_mode = match cli.time_mode {

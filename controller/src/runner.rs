@@ -50,12 +50,18 @@ pub struct Status {
     pub episodes_finished: u64,
     /// Why the last episode ended (`reached`, `time_limit`); empty while one runs.
     pub finish_reason: String,
-    /// Working plant links lost during the current episode (one per outage).
+    /// Outages of the plant link during the current episode: failed calls, or in real time no
+    /// completed cycle for longer than the stall timeout (one per outage).
     pub link_losses: u64,
-    /// Wall time without a plant link during the current episode (ended outages), s.
+    /// Wall time from the last completed cycle before each outage to the first one after it,
+    /// summed over the ended outages of the current episode, s.
     pub link_down_s: f64,
     /// The longest of those outages, s.
     pub longest_link_down_s: f64,
+    /// The plant was reset or restarted under the current episode (which then ended).
+    pub plant_resets: u64,
+    /// Plant time of the last sample of the episode's flight before the reset, s.
+    pub plant_reset_time_s: f64,
     /// The scenario of the current episode; before the first, the one the controller was
     /// started with (`--scenario`), as it will fly it.
     pub definition: Option<Scenario>,
@@ -83,11 +89,11 @@ pub struct Shared {
     requests: Mutex<RequestState>,
     wake: Notify,
     closed: AtomicBool,
+    /// Turns true at [`Shared::close`]: the telemetry streams end.
+    closing: watch::Sender<bool>,
     telemetry: broadcast::Sender<pb::CycleTelemetry>,
-    /// Since when the plant link is down (`None` while it works or before it first worked).
-    link_down_since: Mutex<Option<Instant>>,
-    /// The plant API has answered at least once since the last loss.
-    link_up: AtomicBool,
+    /// The link's wall-clock record of the current episode.
+    link: Mutex<LinkClock>,
     /// `ControllerConfig::min_altitude_m`, for the scenarios `SetScenario` asks for.
     floor_m: Option<f64>,
 }
@@ -116,9 +122,9 @@ impl Shared {
             }),
             wake: Notify::new(),
             closed: AtomicBool::new(false),
+            closing: watch::channel(false).0,
             telemetry,
-            link_down_since: Mutex::new(None),
-            link_up: AtomicBool::new(false),
+            link: Mutex::new(LinkClock::new(config.stall_timeout)),
             floor_m: config.min_altitude_m,
         })
     }
@@ -158,7 +164,13 @@ impl Shared {
 
     pub fn close(&self) {
         self.closed.store(true, Ordering::SeqCst);
+        self.closing.send_replace(true);
         self.wake.notify_one();
+    }
+
+    /// Turns true once the service is closing.
+    pub fn closing(&self) -> watch::Receiver<bool> {
+        self.closing.subscribe()
     }
 
     fn take_requests(&self) -> Requests {
@@ -172,11 +184,12 @@ impl Shared {
     /// A whole cycle went through the plant API (state read, command applied): ends an outage
     /// (adding it to the episode's link faults). Not on `Describe` alone: a gateway that
     /// answers it but fails every cycle is still down, and its retries one outage.
-    fn link_answered(&self) {
-        self.link_up.store(true, Ordering::SeqCst);
-        if let Some(since) = lock(&self.link_down_since).take() {
-            let down_s = since.elapsed().as_secs_f64();
+    fn link_answered(&self, real_time: bool) {
+        let outage = lock(&self.link).cycle_completed(Instant::now(), real_time);
+        if let Some(outage) = outage {
+            let down_s = outage.down.as_secs_f64();
             self.update(|st| {
+                st.link_losses += u64::from(outage.undetected);
                 st.link_down_s += down_s;
                 st.longest_link_down_s = st.longest_link_down_s.max(down_s);
             });
@@ -186,12 +199,64 @@ impl Shared {
     /// A working plant link failed: starts an outage (retries of the same outage count once).
     /// True when this starts a new outage (the link had answered since the last one).
     fn link_lost(&self) -> bool {
-        let was_up = self.link_up.swap(false, Ordering::SeqCst);
-        if was_up {
-            *lock(&self.link_down_since) = Some(Instant::now());
+        let new = lock(&self.link).call_failed(Instant::now());
+        if new {
             self.update(|st| st.link_losses += 1);
         }
-        was_up
+        new
+    }
+}
+
+/// The plant link's outages, measured on the wall clock from completed cycles: an outage runs
+/// from the last cycle completed before it to the first one after it, so that the time it took
+/// to notice (an RPC timeout) is part of it.
+#[derive(Debug)]
+struct LinkClock {
+    /// Real time: no completed cycle for longer than this is an outage even without a failed
+    /// call (a link that hangs, or a plant that stalls).
+    stall_timeout: Duration,
+    /// When the last cycle of the episode completed (`None` before the first).
+    last_cycle: Option<Instant>,
+    /// An outage is open: since when (the last completed cycle, or the failure when none).
+    down_since: Option<Instant>,
+}
+
+/// An outage that a completed cycle has ended.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Outage {
+    down: Duration,
+    /// No failed call announced it (a stall): it is counted now.
+    undetected: bool,
+}
+
+impl LinkClock {
+    fn new(stall_timeout: Duration) -> Self {
+        Self { stall_timeout, last_cycle: None, down_since: None }
+    }
+
+    /// A new episode: its outages are counted from its first cycle on.
+    fn restart(&mut self) {
+        self.last_cycle = None;
+        self.down_since = None;
+    }
+
+    /// A plant call failed at `now`; true when this opens an outage.
+    fn call_failed(&mut self, now: Instant) -> bool {
+        if self.down_since.is_some() {
+            return false;
+        }
+        self.down_since = Some(self.last_cycle.unwrap_or(now));
+        true
+    }
+
+    /// A cycle completed at `now`: the outage it ends, if any.
+    fn cycle_completed(&mut self, now: Instant, real_time: bool) -> Option<Outage> {
+        let last = self.last_cycle.replace(now);
+        if let Some(since) = self.down_since.take() {
+            return Some(Outage { down: now.saturating_duration_since(since), undetected: false });
+        }
+        let gap = now.saturating_duration_since(last?);
+        (real_time && gap > self.stall_timeout).then_some(Outage { down: gap, undetected: true })
     }
 }
 
@@ -239,6 +304,20 @@ enum LoopError {
     Connect(#[from] tonic::transport::Error),
     #[error("{0}")]
     Bad(String),
+    /// The plant was reset or restarted under the episode (`last_time_s`: plant time of the
+    /// episode's flight's last sample).
+    #[error("{message}")]
+    PlantReset { message: String, last_time_s: f64 },
+}
+
+/// An error of the episode: a plant reset, or a sample or goal the episode refuses.
+fn episode_error(e: mpc::MpcError) -> LoopError {
+    match e {
+        mpc::MpcError::PlantReset { last_time_s, .. } => {
+            LoopError::PlantReset { message: format!("{e}; the episode ends"), last_time_s }
+        }
+        e => LoopError::Bad(e.to_string()),
+    }
 }
 
 impl LoopError {
@@ -247,6 +326,9 @@ impl LoopError {
     /// link, or a bad sample, is retried.
     fn ends_episode(&self) -> bool {
         use tonic::Code;
+        if matches!(self, LoopError::PlantReset { .. }) {
+            return true;
+        }
         matches!(self, LoopError::Rpc(s) if matches!(
             s.code(),
             Code::InvalidArgument
@@ -318,8 +400,12 @@ pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch:
                 backoff = config.backoff_min;
             }
             Err(e) if e.ends_episode() => {
-                tracing::error!(error = %e, "the plant refused the episode's call; the episode ends");
+                tracing::error!(error = %e, "the episode ends with an error");
                 shared.update(|st| {
+                    if let LoopError::PlantReset { last_time_s, .. } = &e {
+                        st.plant_resets += 1;
+                        st.plant_reset_time_s = *last_time_s;
+                    }
                     st.last_error = e.to_string();
                     st.episode_finished = true;
                     st.episodes_finished += 1;
@@ -429,9 +515,11 @@ async fn fly(
             st.episode_finished = false;
             st.finish_reason.clear();
             (st.link_losses, st.link_down_s, st.longest_link_down_s) = (0, 0.0, 0.0);
+            (st.plant_resets, st.plant_reset_time_s) = (0, 0.0);
             st.sampling_times_s = episode.controller().definition().sampling_times_s.clone();
         });
         tracing::info!(scenario = %current.scenario.name, mode = current.mode.name(), lockstep, "episode started");
+        lock(&shared.link).restart();
         current.flight = Some(Flight { episode, number, pending_sample: sample });
     }
     let Some(flight) = current.flight.as_mut() else {
@@ -470,6 +558,8 @@ async fn fly(
             _ => within(call_timeout, "GetState", client.get_state(pb::GetStateRequest {})).await?,
         };
         let sample = decode(&wire_sample)?;
+        hilbench_svc::inject_panic("controller-cycle");
+        flight.episode.check_flight(&sample).map_err(episode_error)?;
         match flight.episode.finish(&sample) {
             Some(Finish::Reached) => {
                 shared.update(|st| st.reached = true);
@@ -499,8 +589,7 @@ async fn fly(
             }
             _ => {}
         }
-        let mut out =
-            flight.episode.on_sample(&sample, &timing).map_err(|e| LoopError::Bad(e.to_string()))?;
+        let mut out = flight.episode.on_sample(&sample, &timing).map_err(episode_error)?;
         let command = pb::Command::from(&Command { input: out.record.command.into(), meta: out.meta });
         let answer = match tokio::time::timeout(call_timeout, client.apply_command(command)).await {
             Ok(answer) => answer.map_err(LoopError::from),
@@ -517,7 +606,7 @@ async fn fly(
             }
         };
         out.record.injected_delay_s = injected_delay_s(answer.metadata());
-        shared.link_answered();
+        shared.link_answered(!lockstep);
         publish(shared, flight, &wire_sample, out);
         if lockstep {
             let advance = pb::AdvanceRequest {
@@ -603,6 +692,31 @@ mod tests {
         let r = shared.take_requests();
         assert!(r.goal.is_none());
         assert_eq!(r.scenario.map(|(s, _)| s.goal_m), Some(Scenario::paper_3().goal_m));
+    }
+
+    #[test]
+    fn an_outage_runs_from_the_last_completed_cycle_and_a_stall_counts_in_real_time_only() {
+        let t0 = Instant::now();
+        let at = |ms: u64| t0 + Duration::from_millis(ms);
+        let mut link = LinkClock::new(Duration::from_millis(500));
+        assert_eq!(link.cycle_completed(at(0), true), None, "the first cycle");
+        assert_eq!(link.cycle_completed(at(50), true), None);
+        // Frozen at 50 ms; the RPC timeout notices at 5050 ms, retries fail until 7000 ms.
+        assert!(link.call_failed(at(5050)));
+        assert!(!link.call_failed(at(5500)), "one outage, however many retries");
+        let outage = link.cycle_completed(at(7000), true).expect("an outage");
+        assert_eq!(outage, Outage { down: Duration::from_millis(6950), undetected: false });
+        // Frozen for 3 s, less than the RPC timeout: no call fails, the gap is the outage.
+        let stall = link.cycle_completed(at(10_000), true).expect("a stall");
+        assert_eq!(stall, Outage { down: Duration::from_millis(3000), undetected: true });
+        assert_eq!(link.cycle_completed(at(10_400), true), None, "shorter than the stall timeout");
+        // Lockstep cycles take what the machine gives them: a slow one is no outage.
+        assert_eq!(link.cycle_completed(at(20_000), false), None);
+        // A failure before the episode's first cycle counts from the failure.
+        link.restart();
+        assert!(link.call_failed(at(30_000)));
+        let first = link.cycle_completed(at(30_200), true).expect("an outage");
+        assert_eq!(first.down, Duration::from_millis(200));
     }
 
     #[test]

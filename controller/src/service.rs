@@ -9,7 +9,7 @@ use hilbench_proto::pb;
 use hilbench_proto::pb::controller_server::Controller;
 use tokio_stream::Stream;
 use tokio_stream::StreamExt;
-use tokio_stream::wrappers::BroadcastStream;
+use tokio_stream::wrappers::{BroadcastStream, WatchStream};
 use tonic::{Request, Response, Status};
 
 use crate::runner::Shared;
@@ -54,6 +54,8 @@ impl Controller for ControllerService {
             link_losses: s.link_losses,
             link_down_s: s.link_down_s,
             longest_link_down_s: s.longest_link_down_s,
+            plant_resets: s.plant_resets,
+            plant_reset_time_s: s.plant_reset_time_s,
             definition: s.definition.as_ref().map(Into::into),
         }))
     }
@@ -73,6 +75,9 @@ impl Controller for ControllerService {
                 None
             }
         });
+        // The stream ends when the service closes (its graceful stop waits for open calls).
+        let closing = WatchStream::new(self.shared.closing()).filter(|closing| *closing).map(|_| None);
+        let stream = stream.map(Some).merge(closing).take_while(Option::is_some).filter_map(|item| item);
         Ok(Response::new(Box::pin(stream)))
     }
 

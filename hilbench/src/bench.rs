@@ -9,7 +9,9 @@ use mav::Scenario;
 use mpc::RunSummary;
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
 
-use crate::grpc::{DelayProfileInForce, Endpoints, GrpcSettings, LinkFaults, RunTiming, run_against};
+use crate::grpc::{
+    DelayProfileInForce, Endpoints, GrpcSettings, LinkFaults, RunFailure, RunTiming, run_against,
+};
 use crate::report;
 use crate::scenario_file::{Mode, ScenarioFile};
 
@@ -105,6 +107,9 @@ pub struct Outcome {
     /// The error that ended the command early (a run that failed: a service died, a trace
     /// ran out, ...): `runs` holds the runs that finished before it, and no later run started.
     pub error: Option<String>,
+    /// The last of `runs` is the failed run, as far as it flew (its `summary.json` entry
+    /// carries the `error`, its `end_reason` is "error").
+    pub failed_run_kept: bool,
     /// Ctrl-C stopped the command: `runs` holds the runs that finished before it.
     pub interrupted: bool,
     pub transport: &'static str,
@@ -141,11 +146,15 @@ impl Outcome {
                 .zip(&self.goals)
                 .zip(&self.faults)
                 .zip(&self.delay_profiles)
-                .map(|((((r, rows), goal), faults), delay_profile)| {
+                .enumerate()
+                .map(|(i, ((((r, rows), goal), faults), delay_profile))| {
                     let mut v = run_json(r);
                     add_cycle_metrics(&mut v, rows, goal);
                     faults.add_to(&mut v);
                     v["delay_profile"] = serde_json::json!(delay_profile);
+                    if self.failed_run_kept && i + 1 == self.runs.len() {
+                        v["error"] = serde_json::json!(self.error);
+                    }
                     v
                 })
                 .collect::<Vec<_>>(),
@@ -157,29 +166,15 @@ impl Outcome {
             "error": self.error,
             "interrupted": self.interrupted,
             "hilbench_version": env!("CARGO_PKG_VERSION"),
+            "hilbench_commit": env!("HILBENCH_COMMIT"),
         })
     }
 }
 
 /// One run's result, from either transport.
 enum Ran {
-    Grpc(Box<anyhow::Result<crate::grpc::GrpcRun>>),
+    Grpc(Box<Result<crate::grpc::GrpcRun, RunFailure>>),
     Local(Box<Result<(mpc::RunSummary, Vec<mpc::CycleTrace>), String>>),
-}
-
-/// What a task that panicked said, as an error of its run.
-fn panic_message(e: tokio::task::JoinError) -> String {
-    match e.try_into_panic() {
-        Ok(payload) => {
-            let text = payload
-                .downcast_ref::<&str>()
-                .map(|s| s.to_string())
-                .or_else(|| payload.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "a panic without a message".into());
-            format!("the closed loop panicked: {text}")
-        }
-        Err(e) => format!("the closed loop did not finish: {e}"),
-    }
 }
 
 /// Runs every (scenario, controller) pair in order, in lockstep. `progress` shows a progress
@@ -189,6 +184,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
     // In process too: the runtime watches for Ctrl-C while a run goes on.
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
+        .thread_name(crate::panics::RUN_THREAD)
         .enable_all()
         .build()
         .context("cannot start the tokio runtime")?;
@@ -199,6 +195,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
     let mut faults = Vec::with_capacity(jobs.len());
     let mut delay_profiles = Vec::with_capacity(jobs.len());
     let mut error = None;
+    let mut failed_run_kept = false;
     let mut interrupted = false;
     let bar = crate::progress::bar(jobs.len() as u64, "runs", progress);
     for (scenario, mode) in jobs {
@@ -208,9 +205,16 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
         let ran = runtime.block_on(async {
             let job = async {
                 match transport {
-                    Transport::Grpc(endpoints) => Ran::Grpc(Box::new(
-                        run_against(scenario, *mode, &GrpcSettings::default(), endpoints).await,
-                    )),
+                    Transport::Grpc(endpoints) => {
+                        // On a task of its own: a panic of the driver is this run's error.
+                        let (scenario, mode, endpoints) = (scenario.clone(), *mode, endpoints.clone());
+                        let task = tokio::spawn(async move {
+                            run_against(&scenario, mode, &GrpcSettings::default(), &endpoints).await
+                        });
+                        Ran::Grpc(Box::new(task.await.unwrap_or_else(|e| {
+                            Err(anyhow::anyhow!("the run {}", hilbench_svc::task_failure(e)).into())
+                        })))
+                    }
                     Transport::InProcess => {
                         let (scenario, mode) = (scenario.clone(), *mode);
                         let task = tokio::task::spawn_blocking(move || {
@@ -218,7 +222,10 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                         });
                         match task.await {
                             Ok(run) => Ran::Local(Box::new(run.map_err(|e| e.to_string()))),
-                            Err(e) => Ran::Local(Box::new(Err(panic_message(e)))),
+                            Err(e) => Ran::Local(Box::new(Err(format!(
+                                "the closed loop {}",
+                                hilbench_svc::task_failure(e)
+                            )))),
                         }
                     }
                 }
@@ -234,11 +241,17 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
         };
         let summary = match ran {
             Ran::Grpc(run) => {
-                let run = match *run {
-                    Ok(run) => run,
-                    Err(e) => {
-                        error = Some(format!("{name} with {} over gRPC: {e:#}", mode.name()));
-                        break;
+                let (run, failed) = match *run {
+                    Ok(run) => (run, None),
+                    Err(RunFailure { error: e, partial }) => {
+                        let e = format!("{name} with {} over gRPC: {e:#}", mode.name());
+                        match partial {
+                            Some(run) => (*run, Some(e)),
+                            None => {
+                                error = Some(e);
+                                break;
+                            }
+                        }
                     }
                 };
                 timings.push(TimedRun {
@@ -250,6 +263,13 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                 cycles.push(crate::cycle_log::from_records(&run.records));
                 faults.push(run.faults);
                 delay_profiles.push(run.delay_profile);
+                if let Some(e) = failed {
+                    runs.push(run.summary);
+                    goals.push(scenario.goal_m);
+                    error = Some(e);
+                    failed_run_kept = true;
+                    break;
+                }
                 run.summary
             }
             Ran::Local(run) => {
@@ -269,8 +289,13 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                 summary
             }
         };
+        let collided = if summary.collided {
+            format!("; COLLIDED: {}", report::collisions_text(&summary))
+        } else {
+            String::new()
+        };
         let done = format!(
-            "  {name} {:<11} done ({} cycles, {:.2} s)",
+            "  {name} {:<11} done ({} cycles, {:.2} s){collided}",
             mode.name(),
             summary.cycles,
             run_started.elapsed().as_secs_f64()
@@ -291,6 +316,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
         faults,
         delay_profiles,
         error,
+        failed_run_kept,
         interrupted,
         transport: transport.name(),
         time_mode: match transport {
@@ -438,6 +464,9 @@ pub fn run_table(runs: &[RunSummary]) -> String {
             r.solve_ms_median,
             if r.collided { "YES" } else { "no" },
         );
+    }
+    for r in runs.iter().filter(|r| r.collided) {
+        let _ = writeln!(out, "  {} {} collided: {}", r.scenario, r.controller, report::collisions_text(r));
     }
     out
 }

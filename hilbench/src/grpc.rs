@@ -90,13 +90,16 @@ impl DelayProfileInForce {
     }
 }
 
-/// Faults of a run's plant link, from the controller's status and telemetry (all zero when the
-/// link never failed; the `summary.json` keys of docs/output.md's schema).
+/// Faults of a run's plant link, from the controller's status, the telemetry and the plant's
+/// last sample (all zero when the link never failed; the `summary.json` keys of
+/// docs/output.md's schema).
 #[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
 pub struct LinkFaults {
-    /// Times the controller lost a working link to the Plant API during the episode.
+    /// Outages of the controller's link to the Plant API during the episode: failed calls, or in
+    /// real time no completed cycle for longer than the controller's stall timeout.
     pub link_losses: u64,
-    /// Wall time without a link, summed over those outages, s.
+    /// Wall time from the last completed cycle before each outage to the first after it (the
+    /// time to notice included), summed over the outages, s.
     pub link_down_s: f64,
     /// The longest outage, s.
     pub longest_link_down_s: f64,
@@ -104,24 +107,58 @@ pub struct LinkFaults {
     /// for longer than its timeout: in real time, the cycles after an outage until their first
     /// command has crossed the delays).
     pub watchdog_cycles: u64,
+    /// Plant time the plant's watchdog held hover during the run, s (the plant's own count,
+    /// cycles or none).
+    pub watchdog_hover_s: f64,
+    /// The plant was reset or restarted under the run (which then failed).
+    pub plant_resets: u64,
+    /// Plant time of the run's last sample before the reset, s (0 without one).
+    pub plant_reset_time_s: f64,
 }
 
 impl LinkFaults {
-    fn of(status: &pb::ControllerStatus, records: &[CycleRecord]) -> Self {
+    fn of(status: &pb::ControllerStatus, records: &[CycleRecord], last: &PlantSample) -> Self {
         Self {
             link_losses: status.link_losses,
             link_down_s: status.link_down_s,
             longest_link_down_s: status.longest_link_down_s,
             watchdog_cycles: records.iter().filter(|r| r.watchdog_hover).count() as u64,
+            watchdog_hover_s: mav::ns_to_s(last.watchdog_hover_ns),
+            plant_resets: status.plant_resets,
+            plant_reset_time_s: status.plant_reset_time_s,
         }
     }
 
     /// Adds the keys to a run's `summary.json` entry.
     pub fn add_to(&self, entry: &mut serde_json::Value) {
-        entry["link_losses"] = serde_json::json!(self.link_losses);
-        entry["link_down_s"] = serde_json::json!(self.link_down_s);
-        entry["longest_link_down_s"] = serde_json::json!(self.longest_link_down_s);
-        entry["watchdog_cycles"] = serde_json::json!(self.watchdog_cycles);
+        if let (Some(entry), serde_json::Value::Object(keys)) =
+            (entry.as_object_mut(), serde_json::json!(self))
+        {
+            entry.extend(keys);
+        }
+    }
+}
+
+/// A run that failed part-way: the error, and what it flew before it (`None` when it failed
+/// before its first cycle). The partial run's summary ends with `end_reason` "error", from the
+/// last sample its telemetry carried.
+#[derive(Debug)]
+pub struct RunFailure {
+    pub error: anyhow::Error,
+    pub partial: Option<Box<GrpcRun>>,
+}
+
+impl std::fmt::Display for RunFailure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:#}", self.error)
+    }
+}
+
+impl std::error::Error for RunFailure {}
+
+impl From<anyhow::Error> for RunFailure {
+    fn from(error: anyhow::Error) -> Self {
+        Self { error, partial: None }
     }
 }
 
@@ -154,11 +191,15 @@ impl RunTiming {
 pub struct GrpcSettings {
     /// Bound on the whole episode (wall time); a run that takes longer is an error.
     pub timeout: Duration,
+    /// No control cycle for this long (wall time) fails the run, with what the controller says
+    /// of its plant link: a plant or netem that died does not leave the run waiting for
+    /// `timeout`. Outages shorter than this are survived and counted.
+    pub stall_timeout: Duration,
 }
 
 impl Default for GrpcSettings {
     fn default() -> Self {
-        Self { timeout: Duration::from_secs(600) }
+        Self { timeout: Duration::from_secs(600), stall_timeout: Duration::from_secs(30) }
     }
 }
 
@@ -442,26 +483,87 @@ pub async fn run_over_grpc(
     scenario: &Scenario,
     mode: ControllerMode,
     settings: &GrpcSettings,
-) -> anyhow::Result<GrpcRun> {
+) -> Result<GrpcRun, RunFailure> {
     run_against(scenario, mode, settings, &Endpoints::default()).await
 }
 
 /// Runs `scenario` with `mode` over gRPC against `endpoints`, starting what they do not name.
+/// A run that fails part-way returns what it flew with the error ([`RunFailure`]).
 pub async fn run_against(
     scenario: &Scenario,
     mode: ControllerMode,
     settings: &GrpcSettings,
     endpoints: &Endpoints,
-) -> anyhow::Result<GrpcRun> {
+) -> Result<GrpcRun, RunFailure> {
     let started = Instant::now();
     let services = Services::start_missing(scenario, mode, endpoints).await?;
-    let result = drive(&services, scenario, mode, settings, started).await;
+    let mut progress = Progress::default();
+    let result = drive(&services, scenario, mode, settings, started, &mut progress).await;
+    let result = match result {
+        Ok(run) => Ok(run),
+        Err(error) => {
+            let partial = partial_run(&services, scenario, mode, progress).await.map(Box::new);
+            Err(RunFailure { error, partial })
+        }
+    };
     let stopping = Instant::now();
     let stopped = services.stop().await;
     let mut run = result?;
     stopped?;
     run.timing.teardown_s = stopping.elapsed().as_secs_f64();
     Ok(run)
+}
+
+/// What a run has seen so far, kept outside [`drive`] so that a run that fails part-way can
+/// still be summarised.
+#[derive(Debug, Default)]
+struct Progress {
+    /// The controller's episode counter before the run's request.
+    before_episode: u64,
+    /// Telemetry records per episode started after the request.
+    episodes: BTreeMap<u64, Vec<CycleRecord>>,
+    /// The plant's sample of the newest telemetry record.
+    last_sample: Option<PlantSample>,
+    /// The controller's status at the last poll.
+    status: Option<pb::ControllerStatus>,
+    delay_profile: Option<DelayProfileInForce>,
+    setup_s: f64,
+    episode_started: Option<Instant>,
+}
+
+/// The run so far, from `progress` (the controller's status asked once more, briefly: it
+/// knows the link faults and a plant reset): `None` before the first cycle.
+async fn partial_run(
+    services: &Services,
+    scenario: &Scenario,
+    mode: ControllerMode,
+    mut progress: Progress,
+) -> Option<GrpcRun> {
+    let (episode, records) = progress.episodes.pop_last()?;
+    let last = progress.last_sample.take()?;
+    let ask = async {
+        let channel = connect(services.controller_addr(), Instant::now()).await.ok()?;
+        let status = ControllerClient::new(channel).get_status(pb::GetStatusRequest {}).await.ok()?;
+        Some(status.into_inner())
+    };
+    let status = match tokio::time::timeout(Duration::from_secs(2), ask).await {
+        Ok(Some(s)) if s.episode == episode => Some(s),
+        _ => progress.status.filter(|s| s.episode == episode),
+    }
+    .unwrap_or_default();
+    let mut summary = mpc::summarize(&scenario.name, mode, &records, &last, None);
+    summary.end_reason = "error".to_string();
+    let faults = LinkFaults::of(&status, &records, &last);
+    let solver_s = records.iter().map(|r| r.solve.solve_ms * 1e-3).sum();
+    let episode_s = progress.episode_started.map_or(0.0, |t| t.elapsed().as_secs_f64());
+    Some(GrpcRun {
+        summary,
+        records,
+        final_sample: last,
+        timing: RunTiming { setup_s: progress.setup_s, episode_s, solver_s, teardown_s: 0.0 },
+        faults,
+        delay_profile: progress.delay_profile.unwrap_or(DelayProfileInForce { source: "none", delays: None }),
+    })
 }
 
 /// Gives a netem running elsewhere the scenario's profiles.
@@ -511,8 +613,11 @@ async fn drive(
     mode: ControllerMode,
     settings: &GrpcSettings,
     started: Instant,
+    progress: &mut Progress,
 ) -> anyhow::Result<GrpcRun> {
     let deadline = Instant::now() + settings.timeout;
+    // A panic in a task of this run (an in-process service's, or this driver's own) ends it.
+    let mut panicked = crate::panics::watch();
     // A netem running elsewhere gets the scenario's network, unless told to keep its own or
     // the scenario describes none; one started here was started with the scenario's.
     let keep = services.keep_netem_profile || scenario.delays.is_none();
@@ -532,6 +637,7 @@ async fn drive(
         }
         None => DelayProfileInForce { source: "none", delays: None },
     };
+    progress.delay_profile = Some(delay_profile.clone());
     let mut controller = ControllerClient::new(connect(services.controller_addr(), deadline).await?);
     // The final state: from the plant, else through netem (an undelayed read).
     let state_addr = services
@@ -557,8 +663,11 @@ async fn drive(
         .into_inner();
     let before = controller.get_status(pb::GetStatusRequest {}).await?.into_inner();
     let setup_s = started.elapsed().as_secs_f64();
+    progress.setup_s = setup_s;
+    progress.before_episode = before.episode;
 
     let episode_started = Instant::now();
+    progress.episode_started = Some(episode_started);
     // The whole scenario travels with the request, so a controller started elsewhere flies a
     // scenario file exactly as a built-in one (and resets the plant with it).
     controller
@@ -572,7 +681,7 @@ async fn drive(
     // The episode that runs this request is the last one started after `before`: one that was
     // running (or about to start at autostart) is restarted by the request, and a pending
     // request is taken before an episode can finish.
-    let mut episodes: BTreeMap<u64, Vec<CycleRecord>> = BTreeMap::new();
+    let mut last_cycle_at = Instant::now();
     let mut poll = tokio::time::interval(STATUS_POLL);
     poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     // Real time: the episode whose telemetry ended the run, and the plant time of its goal.
@@ -585,10 +694,14 @@ async fn drive(
                 scenario.name,
                 mode.name(),
                 settings.timeout,
-                episodes.values().last().map_or(0, Vec::len)
+                progress.episodes.values().last().map_or(0, Vec::len)
             );
         }
         tokio::select! {
+            panic = panicked.changed() => {
+                let what = panic.ok().and_then(|()| panicked.borrow().clone());
+                bail!("a task of the run panicked: {}", what.unwrap_or_default());
+            }
             item = stream.message() => {
                 let item = item.context("telemetry stream")?
                     .ok_or_else(|| anyhow!("the controller ended the telemetry stream"))?;
@@ -597,10 +710,14 @@ async fn drive(
                 }
                 let record = CycleRecord::try_from(&item)
                     .map_err(|e| anyhow!("telemetry of cycle {} of episode {}: {e}", item.cycle, item.episode))?;
+                let sample = item.sample.as_ref().map(PlantSample::try_from).transpose()
+                    .map_err(|e| anyhow!("telemetry of cycle {} of episode {}: {e}", item.cycle, item.episode))?;
+                hilbench_svc::inject_panic("hilbench-run");
+                last_cycle_at = Instant::now();
                 if real_time && real_time_end.is_none() {
                     real_time_end = real_time_outcome(scenario, &record, max_ns).map(|t| (item.episode, t));
                 }
-                let cycles = episodes.entry(item.episode).or_default();
+                let cycles = progress.episodes.entry(item.episode).or_default();
                 if record.cycle != cycles.len() as u64 {
                     bail!(
                         "telemetry gap in episode {}: expected cycle {}, got {}",
@@ -610,14 +727,27 @@ async fn drive(
                     );
                 }
                 cycles.push(record);
+                progress.last_sample = sample;
             }
             _ = poll.tick() => {
-                let s = controller.get_status(pb::GetStatusRequest {}).await?.into_inner();
+                let s = controller.get_status(pb::GetStatusRequest {}).await
+                    .context("controller GetStatus")?.into_inner();
+                progress.status = Some(s.clone());
                 if let Some((episode, _)) = real_time_end
                     && s.episode == episode
                 {
-                    let telemetry = episodes.remove(&episode).unwrap_or_default();
+                    let telemetry = progress.episodes.remove(&episode).unwrap_or_default();
                     break (s, telemetry);
+                }
+                if last_cycle_at.elapsed() > settings.stall_timeout {
+                    bail!(
+                        "{} with {}: no control cycle for {:.0} s (the controller's plant link is {}; its last error: {})",
+                        scenario.name,
+                        mode.name(),
+                        settings.stall_timeout.as_secs_f64(),
+                        if s.plant_connected { "up" } else { "down" },
+                        if s.last_error.is_empty() { "none" } else { &s.last_error }
+                    );
                 }
                 if s.episode > before.episode && s.episode_finished && s.finish_reason == "error" {
                     bail!(
@@ -627,9 +757,9 @@ async fn drive(
                         s.last_error
                     );
                 }
-                let seen = episodes.get(&s.episode).map_or(0, Vec::len) as u64;
+                let seen = progress.episodes.get(&s.episode).map_or(0, Vec::len) as u64;
                 if !real_time && s.episode > before.episode && s.episode_finished && seen >= s.cycles {
-                    let telemetry = episodes.remove(&s.episode).unwrap_or_default();
+                    let telemetry = progress.episodes.remove(&s.episode).unwrap_or_default();
                     break (s, telemetry);
                 }
             }
@@ -660,7 +790,7 @@ async fn drive(
     if !real_time && status.finish_reason == "collided" {
         summary.end_reason = status.finish_reason.clone();
     }
-    let faults = LinkFaults::of(&status, &records);
+    let faults = LinkFaults::of(&status, &records, &final_sample);
     let solver_s = records.iter().map(|r| r.solve.solve_ms * 1e-3).sum();
     Ok(GrpcRun {
         summary,

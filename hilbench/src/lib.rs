@@ -6,6 +6,7 @@
 pub mod bench;
 pub mod cycle_log;
 pub mod grpc;
+pub mod panics;
 pub mod plots;
 pub mod progress;
 pub mod report;

@@ -232,9 +232,10 @@ fn execute(
         if json {
             println!("{}", serde_json::to_string_pretty(&summary)?);
         }
+        let failed = if outcome.failed_run_kept { ", and the failed run's cycles so far" } else { "" };
         anyhow::bail!(
-            "{error}\n({} run(s) finished before it; they and the error are in {})",
-            outcome.runs.len(),
+            "{error}\n({} run(s) finished before it; they{failed} and the error are in {})",
+            outcome.runs.len() - usize::from(outcome.failed_run_kept),
             dir.join("summary.json").display()
         );
     }

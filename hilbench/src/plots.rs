@@ -54,6 +54,8 @@ pub struct RunFacts {
     pub final_position_m: [f64; 3],
     /// Where each collision happened, m.
     pub collisions_m: Vec<[f64; 3]>,
+    /// Each collision in words: kind, depth, time, place.
+    pub collisions_described: Vec<String>,
 }
 
 impl From<&RunSummary> for RunFacts {
@@ -70,6 +72,7 @@ impl From<&RunSummary> for RunFacts {
             solve_ms_median: r.solve_ms_median,
             final_position_m: r.final_position_m,
             collisions_m: r.collisions.iter().map(|c| c.position_m).collect(),
+            collisions_described: r.collisions.iter().map(|c| c.describe()).collect(),
         }
     }
 }

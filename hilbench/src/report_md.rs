@@ -94,6 +94,13 @@ pub fn render(
         );
     }
     let _ = writeln!(out);
+    for r in runs.iter().filter(|r| r.collided) {
+        let _ = writeln!(out, "{} with {} collided:\n", r.scenario, r.controller);
+        for c in &r.collisions_described {
+            let _ = writeln!(out, "- {c}");
+        }
+        let _ = writeln!(out);
+    }
     if let Some(tables) = text.tables {
         let _ = writeln!(out, "```text\n{}```\n", tables);
     }
@@ -173,6 +180,16 @@ mod tests {
         r.min_clearance_m = -0.02;
         r.cycles = 70;
         r.solve_ms_median = 0.9;
+        if r.collided {
+            let ground = mpc::record::CollisionSummary {
+                kind: "ground".into(),
+                obstacle_index: None,
+                time_s: 4.25,
+                position_m: [1.0, 2.0, -0.02],
+                depth_m: 0.02,
+            };
+            r.collisions_described = vec![ground.describe()];
+        }
         r
     }
 
@@ -212,6 +229,12 @@ mod tests {
         assert!(!md.contains("(paper-2-multistage.csv)"), "links a missing log");
         assert!(md.contains("[summary.json](summary.json)"));
         assert!(md.contains("| paper-2 | nmpc | no | - | 6.18 | -0.020 | 70 | 0.90 | **YES** |"), "{md}");
+        assert!(
+            md.contains(
+                "paper-2 with nmpc collided:\n\n- ground, 0.020 m deep, at 4.25 s, at [1.00, 2.00, -0.02] m"
+            ),
+            "the report names the collision's kind, depth, time and place: {md}"
+        );
         assert!(md.contains("- paper-2 holds."));
         assert!(md.contains("| plotting | 0.25 s |"), "{md}");
         assert!(!md.contains("gRPC loop"), "in-process runs have no gRPC rows");

@@ -75,7 +75,10 @@ pub struct CollisionEvent {
     pub obstacle_index: u32,
     pub time_ns: u64,
     pub position_m: [f64; 3],
+    /// How far inside at the moment of entry, m (>= 0).
     pub penetration_m: f64,
+    /// The deepest it went during this contact (so far, while still inside), m (>= 0).
+    pub depth_m: f64,
 }
 
 /// One state sample with everything the plant API reports.
@@ -90,6 +93,12 @@ pub struct PlantSample {
     pub min_clearance_m: f64,
     pub path_length_m: f64,
     pub collisions: Vec<CollisionEvent>,
+    /// Plant time spent holding hover under the watchdog since reset, ns.
+    pub watchdog_hover_ns: u64,
+    /// Which flight of the plant the sample belongs to: a plant service gives every reset, and
+    /// every start of its process, a new id, so that a controller can tell that the plant it
+    /// flies was reset or restarted under it; 0 = not told (the simulation alone).
+    pub flight_id: u64,
 }
 
 /// The truth simulation.
@@ -115,6 +124,8 @@ pub struct PlantSim {
     min_clearance_m: f64,
     path_length_m: f64,
     sample_seq: u64,
+    watchdog_hover_ns: u64,
+    flight_id: u64,
 }
 
 impl PlantSim {
@@ -151,6 +162,8 @@ impl PlantSim {
             min_clearance_m: f64::INFINITY,
             path_length_m: 0.0,
             sample_seq: 0,
+            watchdog_hover_ns: 0,
+            flight_id: 0,
         };
         sim.reset(scenario.start_state())?;
         Ok(sim)
@@ -180,6 +193,7 @@ impl PlantSim {
         self.min_clearance_m = f64::INFINITY;
         self.path_length_m = 0.0;
         self.sample_seq = 0;
+        self.watchdog_hover_ns = 0;
         self.check_contacts();
         Ok(())
     }
@@ -213,6 +227,15 @@ impl PlantSim {
     }
     pub fn watchdog_hover(&self) -> bool {
         self.watchdog_hover
+    }
+    /// Plant time spent holding hover under the watchdog since reset, ns.
+    pub fn watchdog_hover_ns(&self) -> u64 {
+        self.watchdog_hover_ns
+    }
+    /// The id its samples carry (see [`PlantSample::flight_id`]); a reset keeps it, so the
+    /// service that resets sets a new one.
+    pub fn set_flight_id(&mut self, flight_id: u64) {
+        self.flight_id = flight_id;
     }
     pub fn collisions(&self) -> &[CollisionEvent] {
         &self.collisions
@@ -269,6 +292,9 @@ impl PlantSim {
 
     fn integrate_to(&mut self, end_ns: u64) {
         let dt_s = (end_ns - self.time_ns) as f64 / 1e9;
+        if self.watchdog_hover {
+            self.watchdog_hover_ns += end_ns - self.time_ns;
+        }
         let speed_before = self.speed();
         self.state = rk4_step(&self.model, &self.state, &self.effective_input, dt_s);
         self.time_ns = end_ns;
@@ -300,7 +326,10 @@ impl PlantSim {
                     time_ns: self.time_ns,
                     position_m: [px, py, pz],
                     penetration_m: -clearance,
+                    depth_m: -clearance,
                 });
+            } else if now_inside {
+                self.deepen(CollisionKind::Cylinder, i as u32, -clearance);
             }
             self.inside[i] = now_inside;
         }
@@ -316,9 +345,21 @@ impl PlantSim {
                 time_ns: self.time_ns,
                 position_m: [px, py, pz],
                 penetration_m: self.ground_z_m - pz,
+                depth_m: self.ground_z_m - pz,
             });
+        } else if below {
+            self.deepen(CollisionKind::Ground, GROUND_INDEX, self.ground_z_m - pz);
         }
         self.inside[g] = below;
+    }
+
+    /// The contact in progress with (`kind`, `index`) went `depth_m` deep.
+    fn deepen(&mut self, kind: CollisionKind, index: u32, depth_m: f64) {
+        if let Some(c) =
+            self.collisions.iter_mut().rev().find(|c| c.kind == kind && c.obstacle_index == index)
+        {
+            c.depth_m = c.depth_m.max(depth_m);
+        }
     }
 
     /// Takes a sample of the current state (numbered in order of sampling).
@@ -340,6 +381,8 @@ impl PlantSim {
             min_clearance_m: self.min_clearance_m,
             path_length_m: self.path_length_m,
             collisions: self.collisions.clone(),
+            watchdog_hover_ns: self.watchdog_hover_ns,
+            flight_id: self.flight_id,
         }
     }
 }
@@ -443,8 +486,32 @@ mod tests {
         a.advance(1_000_000, |_| {});
         assert!(a.watchdog_hover());
         assert_eq!(a.effective_input(), &Input::new(9.81, 0.0, 0.0));
+        // Hover since 100 ms: 50 ms of it after 50 ms more.
+        assert_eq!(a.watchdog_hover_ns(), 0);
+        a.advance(50_000_000, |_| {});
+        assert_eq!(a.sample().watchdog_hover_ns, 50_000_000);
         a.apply(Input::new(11.0, 0.0, 0.0), CommandMeta::default()).expect("finite");
         assert!(!a.watchdog_hover());
+        a.advance(20_000_000, |_| {});
+        assert_eq!(a.watchdog_hover_ns(), 50_000_000, "counted after the next command");
+        a.reset(s.start_state()).expect("finite");
+        assert_eq!(a.watchdog_hover_ns(), 0);
+    }
+
+    #[test]
+    fn a_collision_records_its_deepest_penetration_while_inside() {
+        let s = Scenario::paper_1();
+        let c = s.obstacles[0];
+        let mut a = sim(&s);
+        // Straight at the cylinder's axis at 1 m/s from 5 cm outside: in 55 ms it is 5 cm deep.
+        let start = State::from([c.x_m - c.radius_m - 0.05, c.y_m, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0]);
+        a.reset(start).expect("finite");
+        a.advance(100_000_000, |_| {});
+        let hit = a.sample().collisions[0];
+        assert_eq!(hit.kind, CollisionKind::Cylinder);
+        assert!(hit.penetration_m < 0.002, "entry {}", hit.penetration_m);
+        let depth = -a.sample().min_clearance_m;
+        assert!(hit.depth_m > 0.03 && (hit.depth_m - depth).abs() < 1e-12, "{} vs {depth}", hit.depth_m);
     }
 
     #[test]

@@ -140,6 +140,9 @@ pub struct Episode {
     hover: [f64; 3],
     min_cycle_ns: u64,
     max_ns: u64,
+    /// The plant's flight id of the episode's first sample, and the plant time of the last
+    /// sample of that flight (`None` before the first sample).
+    flight: Option<(u64, u64)>,
 }
 
 impl Episode {
@@ -170,6 +173,7 @@ impl Episode {
             in_flight: Vec::with_capacity(MAX_IN_FLIGHT),
             min_cycle_ns,
             max_ns,
+            flight: None,
         })
     }
 
@@ -252,10 +256,29 @@ impl Episode {
         self.sent.clear();
     }
 
+    /// Refuses a sample of another flight than the episode's first sample (a plant that does
+    /// not number its flights, id 0, is not checked); `Ok` records the sample's time.
+    pub fn check_flight(&mut self, sample: &PlantSample) -> Result<(), MpcError> {
+        match &mut self.flight {
+            None => self.flight = Some((sample.flight_id, sample.time_ns)),
+            Some((id, last_ns)) if *id == sample.flight_id || *id == 0 || sample.flight_id == 0 => {
+                *last_ns = (*last_ns).max(sample.time_ns);
+            }
+            Some((_, last_ns)) => {
+                return Err(MpcError::PlantReset {
+                    last_time_s: ns_to_s(*last_ns),
+                    time_s: ns_to_s(sample.time_ns),
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// Runs one cycle from `sample`: measures the delay of the last command from its stamps,
     /// updates the weights, solves, selects and sanitises the command, and numbers it. `Err`
     /// only for an instance the solver refuses (nothing flown changes).
     pub fn on_sample(&mut self, sample: &PlantSample, timing: &CycleTiming) -> Result<CycleOutput, MpcError> {
+        self.check_flight(sample)?;
         let last = &sample.last_command;
         if !last.initial
             && last.meta.command_seq > self.measured_seq

@@ -10,6 +10,12 @@ pub enum MpcError {
     InvalidProblem(String),
     #[error("invalid `{field}`: {reason}")]
     InvalidInput { field: String, reason: String },
+    /// The sample belongs to another flight of the plant than the episode's first one: the
+    /// plant was reset or restarted under the episode, whose state no longer describes it.
+    #[error(
+        "the plant was reset or restarted during the episode: its sample at {time_s} s of plant time belongs to another flight than the episode's (the last sample of the episode's flight was at {last_time_s} s)"
+    )]
+    PlantReset { last_time_s: f64, time_s: f64 },
 }
 
 pub(crate) fn invalid_input(field: impl Into<String>, reason: impl Into<String>) -> MpcError {

@@ -200,6 +200,24 @@ pub struct CollisionSummary {
     pub obstacle_index: Option<u32>,
     pub time_s: f64,
     pub position_m: [f64; 3],
+    /// The deepest it went during this contact, m.
+    pub depth_m: f64,
+}
+
+impl CollisionSummary {
+    /// One phrase: what was hit, how deep, when and where, e.g. "cylinder 1, 0.052 m deep, at
+    /// 3.61 s, at [1.02, 3.40, 0.98] m".
+    pub fn describe(&self) -> String {
+        let what = match self.obstacle_index {
+            Some(i) => format!("{} {i}", self.kind),
+            None => self.kind.clone(),
+        };
+        let p = self.position_m;
+        format!(
+            "{what}, {:.3} m deep, at {:.2} s, at [{:.2}, {:.2}, {:.2}] m",
+            self.depth_m, self.time_s, p[0], p[1], p[2]
+        )
+    }
 }
 
 /// Nearest-rank percentile of a slice (sorted in place); NaN when empty.
@@ -276,6 +294,7 @@ pub fn summarize(
                 obstacle_index: (c.kind == CollisionKind::Cylinder).then_some(c.obstacle_index),
                 time_s: ns_to_s(c.time_ns),
                 position_m: c.position_m,
+                depth_m: c.depth_m,
             })
             .collect(),
     }

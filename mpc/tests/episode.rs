@@ -111,3 +111,26 @@ fn in_real_time_commands_not_yet_applied_are_in_flight_and_forgotten_with_the_li
     episode.on_sample(&sim.sample(), &timing).expect("valid");
     assert_eq!(episode.in_flight().len(), 0, "forgotten commands are not flown again");
 }
+
+#[test]
+fn a_sample_of_another_plant_flight_ends_the_episode_with_a_plant_reset_and_changes_nothing() {
+    let scenario = Scenario::paper_2();
+    let mut episode = Episode::new(scenario.clone(), settings(ControllerMode::Nmpc, false)).expect("valid");
+    let mut sim = PlantSim::new(&scenario, SimSettings::default()).expect("valid");
+    sim.set_flight_id(41);
+    episode.on_sample(&sim.sample(), &CycleTiming::Lockstep).expect("the first flight");
+    sim.advance(300_000_000, |_| {});
+    episode.on_sample(&sim.sample(), &CycleTiming::Lockstep).expect("the same flight");
+    // The plant restarts: a new flight, from time zero.
+    let mut restarted = PlantSim::new(&scenario, SimSettings::default()).expect("valid");
+    restarted.set_flight_id(7);
+    restarted.advance(100_000_000, |_| {});
+    let err = episode.on_sample(&restarted.sample(), &CycleTiming::Lockstep).expect_err("another flight");
+    assert_eq!(err, mpc::MpcError::PlantReset { last_time_s: 0.3, time_s: 0.1 });
+    assert_eq!((episode.cycles(), episode.commands_sent()), (2, 2), "nothing flown changed");
+    // A plant that does not number its flights (0) is not checked.
+    let mut anonymous = Episode::new(scenario.clone(), settings(ControllerMode::Nmpc, false)).expect("valid");
+    anonymous.on_sample(&sim.sample(), &CycleTiming::Lockstep).expect("valid");
+    let mut unnumbered = PlantSim::new(&scenario, SimSettings::default()).expect("valid");
+    anonymous.on_sample(&unnumbered.sample(), &CycleTiming::Lockstep).expect("not checked");
+}

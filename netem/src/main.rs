@@ -49,6 +49,7 @@ struct Args {
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
     hilbench_svc::init_tracing();
+    hilbench_svc::exit_on_panic();
     let args = Args::parse();
     let mut config = match &args.profile_file {
         Some(path) => Config::new(&args.plant).with_network(load_profile_file(path, args.seed)?),

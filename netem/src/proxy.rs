@@ -504,6 +504,7 @@ impl pb::plant_server::Plant for Proxy {
         &self,
         request: Request<pb::Command>,
     ) -> Result<Response<pb::ApplyCommandResponse>, Status> {
+        hilbench_svc::inject_panic("netem-command");
         let command = request.into_inner();
         check_command("command", &command).map_err(Status::from)?;
         let mode = self.shared.mode().await?;

@@ -62,6 +62,7 @@ fn config(args: &Args) -> anyhow::Result<PlantConfig> {
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
     hilbench_svc::init_tracing();
+    hilbench_svc::exit_on_panic();
     let args = Args::parse();
     let config = config(&args)?;
     let listener = tokio::net::TcpListener::bind(&args.listen)

@@ -49,6 +49,8 @@ struct Inner {
     subscribers: Vec<Subscriber>,
     /// Set at shutdown: streams are closed and no new ones are accepted.
     closed: bool,
+    /// The id of the next flight (every reset starts one; see `mav::PlantSample::flight_id`).
+    next_flight_id: u64,
 }
 
 /// The sample of the current instant (produced and numbered on first use).
@@ -191,8 +193,16 @@ impl PlantService {
     /// call [`PlantService::tick`] regularly (`serve` spawns a task for it).
     pub fn new(config: PlantConfig, clock: Arc<dyn Clock>) -> Result<Self, ConfigError> {
         let settings = config.validate()?;
-        let sim = PlantSim::new(&config.scenario, settings)
+        let mut sim = PlantSim::new(&config.scenario, settings)
             .map_err(|e| ConfigError { field: "scenario".into(), reason: e.to_string() })?;
+        // Flight ids start at a random point per process, so that a restarted plant's first
+        // flight is not taken for the flight it replaces.
+        let first_flight_id = std::hash::BuildHasher::hash_one(
+            &std::collections::hash_map::RandomState::new(),
+            std::process::id(),
+        )
+        .max(1);
+        sim.set_flight_id(first_flight_id);
         let inner = Inner {
             scenario: config.scenario.clone(),
             sim,
@@ -201,6 +211,7 @@ impl PlantService {
             current: None,
             subscribers: Vec::new(),
             closed: false,
+            next_flight_id: first_flight_id.wrapping_add(1).max(1),
         };
         Ok(Self {
             shared: Arc::new(Shared {
@@ -299,6 +310,8 @@ impl pb::plant_server::Plant for PlantService {
         let mut sim = PlantSim::new(&scenario, shared.settings)
             .map_err(|e| Status::internal(format!("scenario: {e}")))?;
         sim.reset(start).map_err(|e| FieldError::new("initial_state", e.to_string()))?;
+        sim.set_flight_id(inner.next_flight_id);
+        inner.next_flight_id = inner.next_flight_id.wrapping_add(1).max(1);
         tracing::info!(scenario = %scenario.name, custom_start = req.initial_state.is_some(), "reset");
         inner.sim = sim;
         inner.scenario = scenario;
@@ -360,6 +373,7 @@ impl pb::plant_server::Plant for PlantService {
         &self,
         request: Request<pb::Command>,
     ) -> Result<Response<pb::ApplyCommandResponse>, Status> {
+        hilbench_svc::inject_panic("plant-command");
         let command = Command::try_from(request.get_ref())?;
         let mut inner = self.shared.lock();
         // Real time: the command takes effect at its arrival time, not at the next tick.
@@ -458,6 +472,32 @@ mod tests {
         svc.tick();
         let s = svc.get_state(Request::new(pb::GetStateRequest {})).await.expect("ok").into_inner();
         assert_eq!((s.time_ns, s.seq, s.watchdog_hover), (7_000_000, 1, false));
+    }
+
+    #[tokio::test]
+    async fn every_reset_and_every_plant_starts_a_new_flight_id_and_hover_time_is_counted() {
+        let clock = Arc::new(ManualClock::new(0));
+        let svc =
+            PlantService::new(PlantConfig::real_time(Scenario::paper_1()), clock.clone()).expect("valid");
+        let state = async |svc: &PlantService| {
+            svc.tick();
+            svc.get_state(Request::new(pb::GetStateRequest {})).await.expect("ok").into_inner()
+        };
+        let first = state(&svc).await;
+        assert_ne!(first.flight_id, 0);
+        // 500 ms to the watchdog, then 300 ms of hover.
+        clock.advance(800_000_000);
+        let s = state(&svc).await;
+        assert_eq!((s.flight_id, s.watchdog_hover_ns), (first.flight_id, 300_000_000));
+        svc.reset(Request::new(pb::ResetRequest::default())).await.expect("ok");
+        let after_reset = state(&svc).await;
+        assert_ne!(after_reset.flight_id, first.flight_id);
+        assert_eq!(after_reset.watchdog_hover_ns, 0);
+        // Another process (here: another service) never starts with the same id.
+        let other = PlantService::new(PlantConfig::real_time(Scenario::paper_1()), clock).expect("valid");
+        let other_first = state(&other).await;
+        assert_ne!(other_first.flight_id, first.flight_id);
+        assert_ne!(other_first.flight_id, after_reset.flight_id);
     }
 
     #[tokio::test]

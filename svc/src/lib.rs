@@ -104,6 +104,51 @@ impl GrpcServer {
     }
 }
 
+/// What a panic said (its `&str` or `String` payload).
+pub fn panic_text(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic without a message".into())
+}
+
+/// Why a task did not finish: `panicked: <its message>`, or cancelled.
+pub fn task_failure(e: tokio::task::JoinError) -> String {
+    match e.try_into_panic() {
+        Ok(payload) => format!("panicked: {}", panic_text(payload.as_ref())),
+        Err(e) => format!("did not finish: {e}"),
+    }
+}
+
+/// The environment variable that names the point where [`inject_panic`] panics.
+pub const INJECT_PANIC_VAR: &str = "HILBENCH_INJECT_PANIC";
+
+/// A test hook: panics when the environment variable [`INJECT_PANIC_VAR`] names `point`
+/// (`plant-command`, `netem-command`, `controller-cycle`, `hilbench-run`), so that tests can
+/// check that a panic anywhere ends a run with an error naming it. Read once per process; one
+/// comparison per call otherwise.
+pub fn inject_panic(point: &str) {
+    static WANTED: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
+    if WANTED.get_or_init(|| std::env::var(INJECT_PANIC_VAR).ok()).as_deref() == Some(point) {
+        panic!("injected panic at {point} ({INJECT_PANIC_VAR})");
+    }
+}
+
+/// For a service's `main`: a panic in any thread or task ends the process with exit code 1
+/// after it is logged (the default hook's message, then an error line), rather than leaving a
+/// service that serves on without the task that panicked. Its clients see the link drop and
+/// report it.
+pub fn exit_on_panic() {
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        default_hook(info);
+        let location = info.location().map(|l| format!(" at {}:{}", l.file(), l.line())).unwrap_or_default();
+        tracing::error!("panic{location}: {}; the service exits", panic_text(info.payload()));
+        std::process::exit(1);
+    }));
+}
+
 /// Logs to stderr, filtered by `RUST_LOG` (default `info`).
 pub fn init_tracing() {
     tracing_subscriber::fmt()

@@ -282,9 +282,16 @@ impl ScenarioFile {
                 other => ("scenario".into(), other.to_string()),
             });
         }
-        // The services name scenarios: a file that takes a built-in name must hold it exactly.
-        if let Ok(built_in) = Scenario::by_name(&s.name)
-            && built_in != *s
+        // The services name scenarios: a file that takes a built-in name must hold it exactly,
+        // but for what `hilbench reproduce` overrides in a built-in (its seed, which only the
+        // network's draws use, and whether a run goes on after a collision), so that the
+        // scenario it writes as flown loads back.
+        if let Ok(mut built_in) = Scenario::by_name(&s.name)
+            && {
+                built_in.seed = s.seed;
+                built_in.continue_after_collision = s.continue_after_collision;
+                built_in != *s
+            }
         {
             return Err((
                 "scenario.name".into(),
@@ -579,15 +586,30 @@ mod tests {
         let (text, line) = edited("modes = [\"nmpc\", \"multistage\"]", "modes = [\"nmpc\", \"mpc\"]");
         let e = error_of(&text);
         assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("run.modes[1]")), "{e}");
-        // A built-in name with other contents would be ambiguous for the services.
-        let (text, _) = edited("seed = 42", "seed = 43");
+        // A built-in name with other contents would be ambiguous for the services...
+        let (text, _) = edited("horizon = 40", "horizon = 41");
         let e = error_of(&text);
         assert_eq!(e.field.as_deref(), Some("scenario.name"), "{e}");
+        let ok = ScenarioFile::parse(Path::new("x.toml"), &text.replace("\"paper-3\"", "\"paper-3-long\""))
+            .expect("renamed");
+        assert_eq!(ok.scenario.horizon, 41);
+        // ...but for the seed, which only the network's draws use (`reproduce --seed`).
         let (text, _) = edited("seed = 42", "seed = 43");
-        let ok =
-            ScenarioFile::parse(Path::new("x.toml"), &text.replace("\"paper-3\"", "\"paper-3-seed-43\""))
-                .expect("renamed");
+        let ok = ScenarioFile::parse(Path::new("x.toml"), &text).expect("another seed");
         assert_eq!(ok.scenario.seed, 43);
+    }
+
+    #[test]
+    fn a_built_in_scenario_as_reproduce_flies_it_is_written_as_a_file_that_loads_back() {
+        for name in Scenario::BUILT_IN {
+            let mut flown = Scenario::by_name(name).expect("built in");
+            flown.seed = 7;
+            flown.continue_after_collision = true;
+            let text = ScenarioFile::as_flown(&flown, vec![Mode::Nmpc, Mode::Multistage]).expect("TOML");
+            let back =
+                ScenarioFile::parse(Path::new("as-flown.toml"), &text).unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(back.scenario, flown, "{name}");
+        }
     }
 
     #[test]

@@ -2,10 +2,12 @@
 
 pub mod controller;
 pub mod plant;
+pub mod process;
 pub mod relay;
 pub mod server;
 
 pub use controller::{RunningController, start_controller};
 pub use plant::{RunningPlant, start_plant, start_plant_with_clock, wait_for_state};
+pub use process::{Service, free_loopback_address, service_binary};
 pub use relay::Relay;
 pub use server::Running;

@@ -21,6 +21,7 @@ pub(crate) fn facts(scenario: &str, controller: &str) -> RunFacts {
         solve_ms_median: 1.0,
         final_position_m: [0.0, 9.0, 1.0],
         collisions_m: Vec::new(),
+        collisions_described: Vec::new(),
     }
 }
 

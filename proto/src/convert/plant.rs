@@ -250,6 +250,7 @@ impl From<&CollisionEvent> for pb::CollisionEvent {
             time_ns: e.time_ns,
             position_m: e.position_m.to_vec(),
             penetration_m: e.penetration_m,
+            depth_m: e.depth_m,
         }
     }
 }
@@ -266,6 +267,8 @@ impl From<&PlantSample> for pb::StateSample {
             min_clearance_m: s.min_clearance_m,
             path_length_m: s.path_length_m,
             collisions: s.collisions.iter().map(Into::into).collect(),
+            watchdog_hover_ns: s.watchdog_hover_ns,
+            flight_id: s.flight_id,
         }
     }
 }
@@ -352,12 +355,15 @@ impl TryFrom<&pb::CollisionEvent> for CollisionEvent {
             Ok(pb::CollisionKind::Ground) => CollisionKind::Ground,
             _ => return Err(FieldError::new("kind", format!("must be CYLINDER or GROUND, got {}", e.kind))),
         };
+        let penetration_m = finite("penetration_m", e.penetration_m)?;
         Ok(Self {
             kind,
             obstacle_index: e.obstacle_index,
             time_ns: e.time_ns,
             position_m: finite_array::<3>("position_m", &e.position_m)?,
-            penetration_m: finite("penetration_m", e.penetration_m)?,
+            penetration_m,
+            // A plant that does not follow the contact (0) reports its entry as its depth.
+            depth_m: finite("depth_m", e.depth_m)?.max(penetration_m),
         })
     }
 }
@@ -389,6 +395,8 @@ impl TryFrom<&pb::StateSample> for PlantSample {
             min_clearance_m: s.min_clearance_m,
             path_length_m: finite("path_length_m", s.path_length_m)?,
             collisions,
+            watchdog_hover_ns: s.watchdog_hover_ns,
+            flight_id: s.flight_id,
         })
     }
 }

@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use controller::ControllerConfig;
 use hilbench::grpc::{Endpoints, GrpcRun, GrpcSettings, run_against, run_over_grpc};
-use hilbench_tests::{start_controller, start_plant};
+use hilbench_tests::{Service, free_loopback_address, start_controller, start_plant};
 use mav::Scenario;
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
 use plant::PlantConfig;
@@ -20,9 +20,13 @@ fn bits_of(v: &[f64]) -> Vec<u64> {
 
 async fn assert_grpc_run_is_bit_identical_to_in_process(name: &str, mode: ControllerMode) {
     let scenario = Scenario::by_name(name).expect("built-in scenario");
-    let run = run_over_grpc(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(300) })
-        .await
-        .expect("gRPC run");
+    let run = run_over_grpc(
+        &scenario,
+        mode,
+        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
+    )
+    .await
+    .expect("gRPC run");
     assert_bit_identical(&scenario, mode, &run);
 }
 
@@ -130,14 +134,24 @@ async fn a_run_against_given_services_sets_the_netem_profile_and_is_bit_identica
         controller: Some(ctl.addr.to_string()),
         ..Endpoints::default()
     };
-    let run = run_against(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(300) }, &endpoints)
-        .await
-        .expect("run against given services");
+    let run = run_against(
+        &scenario,
+        mode,
+        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
+        &endpoints,
+    )
+    .await
+    .expect("run against given services");
     assert_bit_identical(&scenario, mode, &run);
     // A second run against the same services gives the same trajectory again.
-    let again = run_against(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(300) }, &endpoints)
-        .await
-        .expect("second run");
+    let again = run_against(
+        &scenario,
+        mode,
+        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
+        &endpoints,
+    )
+    .await
+    .expect("second run");
     assert_bit_identical(&scenario, mode, &again);
 
     ctl.stop().await.expect("controller stops cleanly");
@@ -148,44 +162,6 @@ async fn a_run_against_given_services_sets_the_netem_profile_and_is_bit_identica
         Err(_) => panic!("netem did not stop"),
     }
     plant.stop().await.expect("plant stops cleanly");
-}
-
-/// A service binary of this build (`target/<profile>/<name>`), as a user runs it.
-fn service_binary(name: &str) -> std::path::PathBuf {
-    // This test runs as target/<profile>/deps/it-<hash>.
-    let exe = std::env::current_exe().expect("the test binary's path");
-    let dir = exe.parent().and_then(std::path::Path::parent).expect("the target directory");
-    let path = dir.join(name);
-    assert!(path.exists(), "{} is not built: run the tests with `cargo test --workspace`", path.display());
-    path
-}
-
-/// A child process killed when dropped (a failing test leaves no service behind).
-struct Service(std::process::Child);
-
-impl Service {
-    fn start(name: &str, args: &[&str]) -> Self {
-        let child = std::process::Command::new(service_binary(name))
-            .args(args)
-            .stdin(std::process::Stdio::null())
-            .stdout(std::process::Stdio::null())
-            .stderr(std::process::Stdio::null())
-            .spawn()
-            .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
-        Self(child)
-    }
-}
-
-impl Drop for Service {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn free_loopback_address() -> String {
-    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind a loopback port");
-    listener.local_addr().expect("address").to_string()
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -213,9 +189,14 @@ async fn a_scenario_file_flies_over_separately_started_binaries_bit_identically_
         ..Endpoints::default()
     };
     let mode = ControllerMode::Multistage;
-    let run = run_against(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(300) }, &endpoints)
-        .await
-        .expect("a run against separately started services");
+    let run = run_against(
+        &scenario,
+        mode,
+        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
+        &endpoints,
+    )
+    .await
+    .expect("a run against separately started services");
     assert_bit_identical(&scenario, mode, &run);
 }
 
@@ -225,9 +206,13 @@ async fn the_per_cycle_csv_of_a_grpc_run_is_byte_identical_to_the_in_process_one
     // of zero does not cross protobuf, so the sanitiser makes every zero +0 on both paths.
     let scenario = Scenario::by_name("paper-1").expect("built-in scenario");
     let mode = ControllerMode::Multistage;
-    let run = run_over_grpc(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(300) })
-        .await
-        .expect("gRPC run");
+    let run = run_over_grpc(
+        &scenario,
+        mode,
+        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
+    )
+    .await
+    .expect("gRPC run");
     let (_, traces) = run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode)).expect("in-process run");
     let csv = |records: &[mpc::CycleRecord]| {
         let mut rows = hilbench::cycle_log::from_records(records);
@@ -254,9 +239,13 @@ async fn a_recorded_delay_trace_file_flies_over_grpc_bit_identically_to_in_proce
     // which then travels whole; netem replays it on commands, the in-process loop on its line.
     let scenario = scenario_file("wifi-trace.toml");
     let mode = ControllerMode::Nmpc;
-    let run = run_over_grpc(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(300) })
-        .await
-        .expect("gRPC run");
+    let run = run_over_grpc(
+        &scenario,
+        mode,
+        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
+    )
+    .await
+    .expect("gRPC run");
     assert_bit_identical(&scenario, mode, &run);
     // What netem stamped on cycle k's command is line k of the file, to the nanosecond.
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/wifi-trace.csv");
@@ -275,7 +264,12 @@ async fn a_run_that_outlasts_its_delay_trace_stops_with_an_error_naming_the_file
     let in_process = run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode)).map(|_| ());
     let message = format!("{:?}", in_process.expect_err("the in-process run must stop"));
     assert!(message.contains("short.csv") && message.contains("cycle 3"), "{message}");
-    let over_grpc = run_over_grpc(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(120) }).await;
+    let over_grpc = run_over_grpc(
+        &scenario,
+        mode,
+        &GrpcSettings { timeout: Duration::from_secs(120), ..GrpcSettings::default() },
+    )
+    .await;
     let message = format!("{:#}", over_grpc.map(|_| ()).expect_err("the gRPC run must stop"));
     // netem refuses the command that has no delay (message 3 of the line: cycle 3's command).
     assert!(message.contains("short.csv") && message.contains("message 3 has none"), "{message}");
@@ -289,9 +283,13 @@ async fn a_regime_process_with_delayed_samples_flies_over_grpc_with_both_directi
     let mode = ControllerMode::Multistage;
     let refused = run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode)).map(|_| ());
     assert!(format!("{refused:?}").contains("delays.to_controller"), "{refused:?}");
-    let run = run_over_grpc(&scenario, mode, &GrpcSettings { timeout: Duration::from_secs(300) })
-        .await
-        .expect("gRPC run");
+    let run = run_over_grpc(
+        &scenario,
+        mode,
+        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
+    )
+    .await
+    .expect("gRPC run");
     assert!(run.summary.cycles > 20, "{} cycles", run.summary.cycles);
     // The same network without the samples' delay: cycle 0's command draws the same delay
     // (same seed, same send time), so cycle 1's sample is read exactly 10 ms earlier with it.
@@ -299,9 +297,13 @@ async fn a_regime_process_with_delayed_samples_flies_over_grpc_with_both_directi
     if let Some(t) = undelayed.delays.as_mut() {
         t.to_controller = Some(Box::new(delay::DelaysTable::none()));
     }
-    let reference = run_over_grpc(&undelayed, mode, &GrpcSettings { timeout: Duration::from_secs(300) })
-        .await
-        .expect("gRPC run without the samples' delay");
+    let reference = run_over_grpc(
+        &undelayed,
+        mode,
+        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
+    )
+    .await
+    .expect("gRPC run without the samples' delay");
     assert_eq!(
         run.records[1].sample_time_ns + 10_000_000,
         reference.records[1].sample_time_ns,
@@ -339,7 +341,7 @@ async fn a_netem_profile_set_by_the_user_is_kept_when_asked_or_when_the_file_has
         std_s: Some(0.03),
         ..delay::DelaysTable::default()
     });
-    let settings = GrpcSettings { timeout: Duration::from_secs(300) };
+    let settings = GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() };
     let mode = ControllerMode::Nmpc;
     // slalom-4 says Gamma(8, 0.02); kept, netem's lognormal is in force, and said so.
     let slalom = scenario_file("slalom-4.toml");
@@ -393,7 +395,7 @@ async fn a_run_ends_at_its_first_collision_over_grpc_as_in_process() {
     scenario.start = [3.5, 0.0, 1.0, 0.0, 12.0, 0.0, 0.0, 0.0];
     scenario.max_duration_s = 2.0;
     let mode = ControllerMode::Nmpc;
-    let settings = GrpcSettings { timeout: Duration::from_secs(120) };
+    let settings = GrpcSettings { timeout: Duration::from_secs(120), ..GrpcSettings::default() };
     let run = run_over_grpc(&scenario, mode, &settings).await.expect("gRPC run");
     assert!(run.summary.collided, "the launched vehicle must collide");
     assert_eq!(run.summary.end_reason, "collided");

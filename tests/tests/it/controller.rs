@@ -168,7 +168,7 @@ async fn bad_goal_and_scenario_are_invalid_argument_naming_the_field_and_the_loo
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn controller_survives_the_plant_going_away_and_reconnects() {
+async fn a_plant_that_restarts_ends_the_episode_as_a_plant_reset_and_the_controller_flies_the_next() {
     let scenario = Scenario::by_name("paper-1").expect("built-in");
     let plant = start_plant(PlantConfig::real_time(scenario.clone())).await;
     let addr = plant.addr;
@@ -185,19 +185,27 @@ async fn controller_survives_the_plant_going_away_and_reconnects() {
     assert!(lost.reconnects > 0, "{lost:?}");
     assert!(!lost.last_error.is_empty(), "the error is reported: {lost:?}");
 
-    // A plant comes back on the same address; the controller finds it and flies on.
+    // A new plant comes back on the same address: another flight, back at the start. The
+    // controller finds it, sees the flight change, and ends the episode rather than flying the
+    // old episode's plan on a vehicle it no longer describes.
     let listener = rebind(addr).await;
     let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
     let task = tokio::spawn(plant::serve(listener, PlantConfig::real_time(scenario.clone()), async {
         let _ = stopped.await;
     }));
-    let back = wait_for(&mut client, "the link to come back", |s| s.plant_connected).await;
-    let resumed = wait_for(&mut client, "cycles after reconnection", |s| {
-        s.plant_connected && s.cycles > back.cycles + 2
+    let ended = wait_for(&mut client, "the episode to end at the plant reset", |s| s.episode_finished).await;
+    assert_eq!((ended.finish_reason.as_str(), ended.plant_resets), ("error", 1), "{ended:?}");
+    assert!(ended.last_error.contains("the plant was reset or restarted"), "{ended:?}");
+    assert!(ended.plant_reset_time_s > 0.0, "{ended:?}");
+    assert_eq!(ended.episode, 1);
+    // A goal starts the next episode, on the new plant.
+    client.set_goal(pb::SetGoalRequest { goal_m: scenario.goal_m.to_vec() }).await.expect("SetGoal");
+    let resumed = wait_for(&mut client, "the next episode to cycle", |s| {
+        s.episode == 2 && s.plant_connected && s.cycles > 2
     })
     .await;
     assert!(resumed.reconnects > 0);
-    assert_eq!(resumed.episode, 1, "the episode survives a reconnection");
+    assert_eq!(resumed.plant_resets, 0, "counted per episode: {resumed:?}");
 
     ctl.stop().await.expect("controller stops cleanly");
     let _ = stop.send(());

@@ -1,10 +1,16 @@
-//! Integration tests: faults.
-//! A real-time run on loopback ports (plant, netem and the controller in real time, as
-//! `hilbench run` with `time_mode = "real-time"` starts them) in which netem goes away mid-run
-//! and comes back on the same port: the plant's watchdog holds hover while no command arrives,
-//! the controller reports the lost link and flies on when netem is back, and the run's summary
-//! records the fault. Every wait is bounded; the only duration asserted is a lower bound the
-//! test itself waited out.
+//! Integration tests: faults during real-time runs on loopback ports (plant, netem and the
+//! controller in real time, as `hilbench run` with `time_mode = "real-time"` starts them), each
+//! checking what the run's summary says of it:
+//! - netem stopped and restarted on its port: held by the plant's watchdog, survived, recorded;
+//! - netem frozen (SIGSTOP) for less than the controller's RPC timeout: an outage all the same,
+//!   with its whole duration;
+//! - the plant killed and restarted: the run fails with a plant reset, and keeps its flight
+//!   before it;
+//! - the controller killed: `hilbench run` writes what flew and the error, and exits 1
+//!   (hilbench/tests/faults.rs).
+//!
+//! Every wait is bounded; the only durations asserted are lower bounds the test itself waited
+//! out.
 
 use std::net::SocketAddr;
 use std::time::Duration;
@@ -12,7 +18,7 @@ use std::time::Duration;
 use hilbench::grpc::{Endpoints, GrpcSettings, TimeMode, netem_config, run_against};
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
-use hilbench_tests::{start_plant, wait_for_state};
+use hilbench_tests::{Service, free_loopback_address, start_plant, wait_for_state};
 use mav::Scenario;
 use mpc::ControllerMode;
 use plant::PlantConfig;
@@ -101,8 +107,13 @@ async fn netem_going_away_mid_run_is_held_by_the_watchdog_survived_and_recorded(
     let run = tokio::spawn({
         let scenario = scenario.clone();
         async move {
-            run_against(&scenario, ControllerMode::Nmpc, &GrpcSettings { timeout: PATIENCE * 2 }, &endpoints)
-                .await
+            run_against(
+                &scenario,
+                ControllerMode::Nmpc,
+                &GrpcSettings { timeout: PATIENCE * 2, ..GrpcSettings::default() },
+                &endpoints,
+            )
+            .await
         }
     });
 
@@ -138,12 +149,261 @@ async fn netem_going_away_mid_run_is_held_by_the_watchdog_survived_and_recorded(
     assert_eq!(faults.link_losses, 1, "one outage: {faults:?}");
     assert!(faults.longest_link_down_s >= HOLD.as_secs_f64(), "{faults:?}");
     assert!(faults.link_down_s >= faults.longest_link_down_s, "{faults:?}");
-    // The first cycle after the outage starts from a sample in which the watchdog holds hover.
+    // The first cycle after the outage starts from a sample in which the watchdog holds hover,
+    // and the plant counted the time it held it (at least what the test waited).
     assert!(faults.watchdog_cycles >= 1, "{faults:?}");
+    assert!(faults.watchdog_hover_s >= HOLD.as_secs_f64(), "{faults:?}");
+    assert_eq!(faults.plant_resets, 0, "{faults:?}");
     let resumed = run.records.iter().position(|r| r.watchdog_hover).expect("a cycle after the outage");
     assert!(resumed > 0 && resumed + 1 < run.records.len(), "cycles before and after the outage");
     assert!(s.time_to_goal_s.is_some_and(|t| t > mav::ns_to_s(held.time_ns)), "{s:?}");
 
     netem.stop().await;
+    plant.stop().await.expect("plant stops cleanly");
+}
+
+/// Waits until `addr` serves the Plant API and the episode has applied `commands` commands.
+async fn wait_until_flying(addr: &str, commands: u64) -> pb::StateSample {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    let mut client = loop {
+        match PlantClient::connect(format!("http://{addr}")).await {
+            Ok(c) => break c,
+            Err(e) if tokio::time::Instant::now() >= deadline => panic!("cannot connect to {addr}: {e}"),
+            Err(_) => tokio::time::sleep(Duration::from_millis(50)).await,
+        }
+    };
+    wait_for_plant(&mut client, "the episode to fly", |s| {
+        s.last_command.as_ref().is_some_and(|c| !c.initial && c.command_seq >= commands)
+    })
+    .await
+}
+
+/// How long netem stays frozen: less than the controller's 5 s RPC timeout, so no call fails.
+const FREEZE: Duration = Duration::from_secs(3);
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn netem_frozen_for_3_s_is_an_outage_of_at_least_3_s_during_which_the_plant_held_hover() {
+    let scenario = open_field();
+    let plant = start_plant(PlantConfig::real_time(scenario.clone())).await;
+    let netem_addr = free_loopback_address();
+    let plant_addr = plant.addr.to_string();
+    let netem = Service::start(
+        "netem",
+        &["--listen", &netem_addr, "--plant", &plant_addr, "--time-mode", "real-time"],
+    );
+    let endpoints = Endpoints {
+        plant: Some(plant_addr.clone()),
+        netem: Some(netem_addr),
+        controller: None,
+        time_mode: TimeMode::RealTime,
+        keep_netem_profile: false,
+    };
+    let run = tokio::spawn({
+        let scenario = scenario.clone();
+        let settings = GrpcSettings { timeout: PATIENCE * 2, ..GrpcSettings::default() };
+        async move { run_against(&scenario, ControllerMode::Nmpc, &settings, &endpoints).await }
+    });
+    wait_until_flying(&plant_addr, 10).await;
+    netem.signal("STOP");
+    tokio::time::sleep(FREEZE).await;
+    netem.signal("CONT");
+
+    let run = match tokio::time::timeout(PATIENCE * 3, run).await {
+        Ok(Ok(r)) => r.expect("the run completes after the freeze"),
+        Ok(Err(e)) => panic!("run task failed: {e}"),
+        Err(_) => panic!("the run did not finish"),
+    };
+    let s = &run.summary;
+    assert!(s.reached && !s.collided, "{s:?}");
+    let faults = run.faults;
+    // No call failed (the freeze is shorter than the RPC timeout), yet it is an outage: no cycle
+    // completed from before the freeze to after it.
+    assert_eq!(faults.link_losses, 1, "{faults:?}");
+    assert!(faults.longest_link_down_s >= FREEZE.as_secs_f64(), "{faults:?}");
+    // The plant's watchdog took over 500 ms after the last command and held hover until the
+    // first command after the freeze.
+    assert!(faults.watchdog_hover_s >= FREEZE.as_secs_f64() - 1.0, "{faults:?}");
+    plant.stop().await.expect("plant stops cleanly");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_plant_killed_and_restarted_mid_run_fails_the_run_with_a_plant_reset_keeping_the_flight_before() {
+    let scenario = open_field();
+    let plant_addr = free_loopback_address();
+    let plant_args = ["--listen", plant_addr.as_str(), "--time-mode", "real-time"];
+    let plant = Service::start("plant", &plant_args);
+    // netem and the controller are started by the run.
+    let endpoints = Endpoints {
+        plant: Some(plant_addr.clone()),
+        netem: None,
+        controller: None,
+        time_mode: TimeMode::RealTime,
+        keep_netem_profile: false,
+    };
+    let run = tokio::spawn({
+        let scenario = scenario.clone();
+        let settings = GrpcSettings { timeout: PATIENCE * 2, ..GrpcSettings::default() };
+        async move { run_against(&scenario, ControllerMode::Nmpc, &settings, &endpoints).await }
+    });
+    let flying = wait_until_flying(&plant_addr, 10).await;
+    plant.signal("KILL");
+    drop(plant);
+    let _restarted = Service::start("plant", &plant_args);
+
+    let failure = match tokio::time::timeout(PATIENCE * 3, run).await {
+        Ok(Ok(r)) => r.expect_err("a run whose plant restarted must fail"),
+        Ok(Err(e)) => panic!("run task failed: {e}"),
+        Err(_) => panic!("the run did not finish"),
+    };
+    let error = format!("{failure}");
+    assert!(error.contains("the plant was reset or restarted"), "{error}");
+    let partial = failure.partial.expect("the flight before the restart is kept");
+    assert_eq!(partial.summary.end_reason, "error");
+    assert!(partial.records.len() >= 10, "{} cycles", partial.records.len());
+    assert_eq!(partial.faults.plant_resets, 1, "{:?}", partial.faults);
+    // The reset is placed at the last sample of the first flight: after the test saw it fly, and
+    // at or after its last cycle.
+    let last_cycle_s = partial.records.last().map_or(0.0, |r| mav::ns_to_s(r.sample_time_ns));
+    assert!(partial.faults.plant_reset_time_s >= last_cycle_s, "{:?}", partial.faults);
+    assert!(last_cycle_s > 0.0 && flying.time_ns > 0);
+    // Every record is of the first flight: its plant time never goes back.
+    assert!(partial.records.windows(2).all(|w| w[0].sample_time_ns <= w[1].sample_time_ns));
+}
+
+/// A `hilbench` child process with its output captured.
+fn hilbench(args: &[&str], env: &[(&str, &str)]) -> std::process::Child {
+    std::process::Command::new(hilbench_tests::service_binary("hilbench"))
+        .args(args)
+        .envs(env.iter().copied())
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("hilbench starts")
+}
+
+/// Waits for `child` to exit (panics past `PATIENCE`: a hang is the failure these tests catch);
+/// returns its exit code and stderr.
+async fn exited(mut child: std::process::Child) -> (Option<i32>, String) {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            let mut stderr = String::new();
+            if let Some(mut e) = child.stderr.take() {
+                let _ = std::io::Read::read_to_string(&mut e, &mut stderr);
+            }
+            return (status.code(), stderr);
+        }
+        if tokio::time::Instant::now() >= deadline {
+            let _ = child.kill();
+            let mut stderr = String::new();
+            if let Some(mut e) = child.stderr.take() {
+                let _ = std::io::Read::read_to_string(&mut e, &mut stderr);
+            }
+            panic!("the process did not exit within {PATIENCE:?}; its stderr:\n{stderr}");
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+fn scenario_file(name: &str) -> String {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios").join(name).display().to_string()
+}
+
+fn temp_dir(what: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("hilbench-{what}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("a temporary directory");
+    dir
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_controller_killed_mid_run_leaves_the_cycles_so_far_and_the_error_and_hilbench_exits_1() {
+    let (plant, netem, controller) =
+        (free_loopback_address(), free_loopback_address(), free_loopback_address());
+    let _plant = Service::start("plant", &["--listen", &plant, "--time-mode", "real-time"]);
+    let _netem =
+        Service::start("netem", &["--listen", &netem, "--plant", &plant, "--time-mode", "real-time"]);
+    let controller_process = Service::start(
+        "controller",
+        &["--listen", &controller, "--plant", &netem, "--time-mode", "real-time", "--no-autostart"],
+    );
+    let out = temp_dir("controller-killed");
+    let out_arg = out.display().to_string();
+    let file = scenario_file("paper-2.toml");
+    let run = hilbench(
+        &[
+            "run",
+            &file,
+            "--mode",
+            "nmpc",
+            "--time-mode",
+            "real-time",
+            "--plant",
+            &plant,
+            "--netem",
+            &netem,
+            "--controller",
+            &controller,
+            "--no-plots",
+            "--quiet",
+            "--out",
+            &out_arg,
+        ],
+        &[],
+    );
+    wait_until_flying(&plant, 20).await;
+    controller_process.signal("KILL");
+    let (code, stderr) = exited(run).await;
+    assert_eq!(code, Some(1), "{stderr}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary.json"))
+            .expect("JSON");
+    assert!(summary["error"].as_str().is_some_and(|e| e.contains("paper-2")), "{summary:#}");
+    let run = &summary["runs"][0];
+    assert_eq!(run["end_reason"], "error", "{summary:#}");
+    assert!(run["error"].is_string(), "{summary:#}");
+    let cycles = run["cycles"].as_u64().expect("cycles");
+    assert!(cycles >= 10, "{cycles} cycles");
+    let csv = std::fs::read_to_string(out.join("paper-2-nmpc.csv")).expect("the per-cycle log");
+    assert_eq!(csv.lines().count() as u64, cycles + 1, "a header and a row per cycle");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_panic_in_any_task_of_a_run_ends_it_with_exit_1_and_a_message_naming_it() {
+    let file = scenario_file("paper-2.toml");
+    for point in ["plant-command", "netem-command", "controller-cycle", "hilbench-run"] {
+        let out = temp_dir(&format!("panic-{point}"));
+        let out_arg = out.display().to_string();
+        let run = hilbench(
+            &["run", &file, "--mode", "nmpc", "--no-plots", "--quiet", "--out", &out_arg],
+            &[(hilbench_svc::INJECT_PANIC_VAR, point)],
+        );
+        let (code, stderr) = exited(run).await;
+        assert_eq!(code, Some(1), "{point}: {stderr}");
+        assert!(stderr.contains(&format!("injected panic at {point}")), "{point}: {stderr}");
+        assert!(out.join("summary.json").is_file(), "{point}: no summary.json");
+        let _ = std::fs::remove_dir_all(&out);
+    }
+    // A service binary whose task panics exits 1 (its clients see the link drop).
+    let plant = start_plant(PlantConfig::lockstep(Scenario::paper_2())).await;
+    let controller = std::process::Command::new(hilbench_tests::service_binary("controller"))
+        .args([
+            "--listen",
+            &free_loopback_address(),
+            "--plant",
+            &plant.addr.to_string(),
+            "--time-mode",
+            "lockstep",
+        ])
+        .env(hilbench_svc::INJECT_PANIC_VAR, "controller-cycle")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("the controller starts");
+    let (code, stderr) = exited(controller).await;
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(stderr.contains("injected panic at controller-cycle"), "{stderr}");
     plant.stop().await.expect("plant stops cleanly");
 }
