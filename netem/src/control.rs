@@ -136,6 +136,7 @@ impl pb::netem_control_server::NetemControl for Control {
         &self,
         _request: Request<pb::StreamDeliveriesRequest>,
     ) -> Result<Response<Self::StreamDeliveriesStream>, Status> {
+        let slot = self.shared.slots.acquire("StreamDeliveries")?;
         let rx = self.shared.lock().deliveries.subscribe();
         let s = BroadcastStream::new(rx).filter_map(|r| match r {
             Ok(rec) => Some(Ok(rec)),
@@ -144,6 +145,7 @@ impl pb::netem_control_server::NetemControl for Control {
                 None
             }
         });
-        Ok(Response::new(Box::pin(crate::core::until_closed(s, self.shared.closed()))))
+        let s = crate::core::until_closed(s, self.shared.closed());
+        Ok(Response::new(Box::pin(hilbench_svc::streams::Guarded::new(s, slot))))
     }
 }

@@ -7,6 +7,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use delay::{Decision, DelayLine, Direction, DirectionProfile, DirectionStats, Fate, Record, ReleaseQueue};
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
+use hilbench_svc::streams::StreamSlots;
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tonic::transport::Channel;
 use tonic::{Response, Status};
@@ -227,21 +228,23 @@ pub struct Shared {
     /// Set to true when netem shuts down: open streams end, so the graceful shutdown is not
     /// kept waiting by a controller that never hangs up.
     pub closing: tokio::sync::watch::Sender<bool>,
+    /// The cap on open server streams, of both services.
+    pub slots: StreamSlots,
 }
 
 impl Shared {
+    /// The state of a netem on `config` (validated) with `upstream` as its client.
     pub fn new(
         upstream: PlantClient<Channel>,
-        upstream_addr: String,
-        setting: TimeModeSetting,
-        profiles: [DirectionProfile; 2],
-        seed: u64,
+        config: &crate::Config,
     ) -> Result<(Arc<Self>, mpsc::UnboundedReceiver<Forward>), crate::NetemError> {
-        let [p2c, c2p] = profiles;
+        let line =
+            |dir, p: &DirectionProfile| DelayLine::new(dir, p.clone()).map_err(crate::NetemError::Profile);
         let lines = [
-            DelayLine::new(Direction::PlantToController, p2c).map_err(crate::NetemError::Profile)?,
-            DelayLine::new(Direction::ControllerToPlant, c2p).map_err(crate::NetemError::Profile)?,
+            line(Direction::PlantToController, &config.plant_to_controller)?,
+            line(Direction::ControllerToPlant, &config.controller_to_plant)?,
         ];
+        let setting = config.time_mode;
         let clock = Clock::new();
         let releaser = Releaser::start(clock).map_err(crate::NetemError::Io)?;
         let (forward_tx, forward_rx) = mpsc::unbounded_channel();
@@ -268,14 +271,15 @@ impl Shared {
         let shared = Arc::new(Self {
             inner: Mutex::new(inner),
             upstream,
-            upstream_addr,
+            upstream_addr: config.upstream.clone(),
             clock,
             releaser,
             lockstep: tokio::sync::Mutex::new(()),
             setting,
-            seed,
+            seed: config.seed,
             forward_tx,
             closing: tokio::sync::watch::channel(false).0,
+            slots: StreamSlots::new("netem", config.max_streams),
         });
         Ok((shared, forward_rx))
     }

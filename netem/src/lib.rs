@@ -68,6 +68,9 @@ pub struct Config {
     pub seed: u64,
     /// How often a gone upstream is polled, ms (default 200).
     pub probe_interval_ms: u64,
+    /// Server streams open at once (`StreamState` and `StreamDeliveries` together); one more
+    /// is refused with `RESOURCE_EXHAUSTED` (`--max-streams`, default 64).
+    pub max_streams: usize,
 }
 
 impl Config {
@@ -80,6 +83,7 @@ impl Config {
             controller_to_plant: DirectionProfile::default(),
             seed: 42,
             probe_interval_ms: 200,
+            max_streams: hilbench_svc::streams::DEFAULT_MAX_STREAMS,
         }
     }
 
@@ -102,6 +106,9 @@ impl Config {
         self.controller_to_plant.validate().map_err(NetemError::Profile)?;
         if self.probe_interval_ms == 0 {
             return Err(NetemError::Config("probe_interval_ms must be > 0".into()));
+        }
+        if self.max_streams == 0 {
+            return Err(NetemError::Config("max_streams must be at least 1".into()));
         }
         Ok(())
     }
@@ -143,13 +150,7 @@ pub async fn serve(
         .tcp_nodelay(true);
     let channel = endpoint.connect_lazy();
     let client = hilbench_proto::pb::plant_client::PlantClient::new(channel);
-    let (shared, forward_rx) = core::Shared::new(
-        client,
-        config.upstream.clone(),
-        config.time_mode,
-        [config.plant_to_controller.clone(), config.controller_to_plant.clone()],
-        config.seed,
-    )?;
+    let (shared, forward_rx) = core::Shared::new(client, &config)?;
     let forwarder = tokio::spawn(core::run_forwarder(shared.clone(), forward_rx));
     let probe =
         tokio::spawn(core::run_probe(shared.clone(), Duration::from_millis(config.probe_interval_ms)));

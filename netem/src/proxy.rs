@@ -36,6 +36,7 @@ use std::sync::atomic::{AtomicBool, Ordering as AtomicOrdering};
 use delay::{Direction, Fate};
 use hilbench_proto::convert::netem::check_command;
 use hilbench_proto::pb;
+use hilbench_svc::streams::Guarded;
 use tokio::sync::{mpsc, oneshot};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::metadata::{MetadataMap, MetadataValue};
@@ -388,13 +389,15 @@ impl pb::plant_server::Plant for Proxy {
         &self,
         request: Request<pb::StreamStateRequest>,
     ) -> Result<Response<Self::StreamStateStream>, Status> {
+        // Taken first, so that a refused stream costs no upstream call.
+        let slot = self.shared.slots.acquire("StreamState")?;
         let mode = self.shared.mode().await?;
         let mut upstream =
             self.shared.up(self.shared.client().stream_state(request.into_inner())).await?.into_inner();
         if mode == Mode::Lockstep {
             let shared = self.shared.clone();
             let s = async_stream_map(upstream, shared);
-            return Ok(Response::new(s));
+            return Ok(Response::new(Box::pin(Guarded::new(s, slot))));
         }
         let (tx, rx) = mpsc::channel(STREAM_BUFFER);
         let shared = self.shared.clone();
@@ -479,7 +482,7 @@ impl pb::plant_server::Plant for Proxy {
                 }
             }
         });
-        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+        Ok(Response::new(Box::pin(Guarded::new(ReceiverStream::new(rx), slot))))
     }
 
     async fn get_state(

@@ -1,5 +1,6 @@
 //! Settings of the plant service: validated data with documented defaults and units.
 
+use hilbench_svc::streams::DEFAULT_MAX_STREAMS;
 use mav::{Scenario, SimSettings};
 use std::fmt;
 use std::str::FromStr;
@@ -77,6 +78,9 @@ pub struct PlantConfig {
     /// Samples queued per `StreamState` subscriber; when the queue is full, newer samples are
     /// dropped for that subscriber only (it sees a gap in `seq`). Default 1024.
     pub stream_buffer: usize,
+    /// `StreamState` streams open at once; one more is refused with `RESOURCE_EXHAUSTED`
+    /// (`--max-streams`, default 64).
+    pub max_streams: usize,
 }
 
 impl Default for PlantConfig {
@@ -94,6 +98,7 @@ impl PlantConfig {
             rate_hz: 1000.0,
             watchdog_timeout_ns: None,
             stream_buffer: 1024,
+            max_streams: DEFAULT_MAX_STREAMS,
         }
     }
 
@@ -121,6 +126,9 @@ impl PlantConfig {
         if self.stream_buffer == 0 {
             return Err(ConfigError::new("stream_buffer", "must be at least 1"));
         }
+        if self.max_streams == 0 {
+            return Err(ConfigError::new("max_streams", "must be at least 1"));
+        }
         Ok(settings)
     }
 }
@@ -142,6 +150,8 @@ mod tests {
         assert_eq!(bad.validate().map_err(|e| e.field), Err("watchdog_timeout_ns".to_string()));
         let bad = PlantConfig { stream_buffer: 0, ..Default::default() };
         assert_eq!(bad.validate().map_err(|e| e.field), Err("stream_buffer".to_string()));
+        let bad = PlantConfig { max_streams: 0, ..Default::default() };
+        assert_eq!(bad.validate().map_err(|e| e.field), Err("max_streams".to_string()));
         assert_eq!("real-time".parse(), Ok(TimeMode::RealTime));
         assert!("fast".parse::<TimeMode>().is_err());
     }

@@ -7,6 +7,7 @@ use crate::config::{ConfigError, PlantConfig, TimeMode};
 use hilbench_proto::convert::FieldError;
 use hilbench_proto::convert::plant::{self as conv, Command, Reset, Step, StreamState};
 use hilbench_proto::pb;
+use hilbench_svc::streams::{Guarded, StreamSlots};
 use mav::{PlantSim, Scenario, SimSettings};
 use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
@@ -144,6 +145,8 @@ struct Shared {
     /// The configured scenario (what an empty `Reset.scenario` means at start).
     config_scenario: Scenario,
     stream_buffer: usize,
+    /// The cap on open `StreamState` streams.
+    slots: StreamSlots,
     clock: Arc<dyn Clock>,
 }
 
@@ -209,6 +212,7 @@ impl PlantService {
                 settings,
                 config_scenario: config.scenario,
                 stream_buffer: config.stream_buffer,
+                slots: StreamSlots::new("plant", config.max_streams),
                 clock,
             }),
         })
@@ -323,6 +327,7 @@ impl pb::plant_server::Plant for PlantService {
         request: Request<pb::StreamStateRequest>,
     ) -> Result<Response<Self::StreamStateStream>, Status> {
         let req = StreamState::try_from(request.get_ref())?;
+        let slot = self.shared.slots.acquire("StreamState")?;
         let (tx, rx) = mpsc::channel(self.shared.stream_buffer);
         let mut inner = self.shared.lock();
         if inner.closed {
@@ -344,7 +349,7 @@ impl pb::plant_server::Plant for PlantService {
             subscribers = inner.subscribers.len(),
             "state stream opened"
         );
-        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+        Ok(Response::new(Box::pin(Guarded::new(ReceiverStream::new(rx), slot))))
     }
 
     async fn get_state(

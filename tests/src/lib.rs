@@ -4,6 +4,7 @@ pub mod controller;
 pub mod plant;
 pub mod relay;
 pub mod server;
+pub mod streams;
 
 pub use controller::{RunningController, start_controller};
 pub use plant::{RunningPlant, start_plant, start_plant_with_clock, wait_for_state};

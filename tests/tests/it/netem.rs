@@ -12,6 +12,7 @@ use hilbench_proto::pb::netem_control_client::NetemControlClient;
 use hilbench_proto::pb::plant_client::PlantClient;
 use hilbench_tests::server::{self, Running};
 use hilbench_tests::start_plant;
+use hilbench_tests::streams::{assert_exhausted, open_when_a_slot_is_free};
 use mav::{CommandMeta, Input, PlantSim, Scenario, SimSettings};
 use plant::PlantConfig;
 use tokio::sync::oneshot;
@@ -535,4 +536,33 @@ async fn a_command_the_plant_would_refuse_is_refused_by_netem_and_time_does_not_
     let stats = netem.control().await.get_stats(pb::GetStatsRequest {}).await.expect("stats").into_inner();
     let commands = stats.controller_to_plant.expect("command stats");
     assert_eq!((commands.sent, commands.dropped, commands.in_flight), (0, 0, 0), "{commands:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn streams_beyond_max_streams_are_resource_exhausted_and_a_dropped_stream_frees_its_slot() {
+    let plant = start_plant(PlantConfig::real_time(Scenario::paper_1())).await;
+    let mut config = netem::Config::new(plant.addr.to_string());
+    config.max_streams = 2;
+    let netem = start_netem(config).await;
+    let mut client = netem.plant().await;
+    let mut control = netem.control().await;
+    let request = || pb::StreamStateRequest { period_ns: 0 };
+    // StreamState and StreamDeliveries share the cap.
+    let mut samples = client.stream_state(request()).await.expect("a state stream").into_inner();
+    let deliveries =
+        control.stream_deliveries(pb::StreamDeliveriesRequest {}).await.expect("a delivery stream");
+    assert_exhausted(client.stream_state(request()).await, 2);
+    assert_exhausted(control.stream_deliveries(pb::StreamDeliveriesRequest {}).await, 2);
+    tokio::time::timeout(PATIENCE, samples.next()).await.expect("a sample").expect("open").expect("ok");
+    drop(deliveries);
+    let mut again = open_when_a_slot_is_free("netem StreamState", PATIENCE, || {
+        let mut client = client.clone();
+        async move { client.stream_state(request()).await }
+    })
+    .await
+    .into_inner();
+    tokio::time::timeout(PATIENCE, again.next()).await.expect("a sample").expect("open").expect("ok");
+    drop((samples, again));
+    netem.stop().await.expect("netem served cleanly");
+    plant.stop().await.expect("plant stops");
 }

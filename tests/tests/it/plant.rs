@@ -4,6 +4,7 @@
 
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
+use hilbench_tests::streams::{assert_exhausted, open_when_a_slot_is_free};
 use hilbench_tests::{start_plant, wait_for_state};
 use mav::{CommandMeta, Input, PlantSim, Scenario, SimSettings, State};
 use plant::PlantConfig;
@@ -528,4 +529,26 @@ async fn reset_with_a_whole_scenario_flies_it_describe_returns_it_and_a_bad_one_
     let after = client.describe(pb::DescribeRequest {}).await.expect("describe").into_inner();
     assert_eq!(after, in_force, "a refused reset changes nothing");
     server.stop().await.expect("plant stops cleanly");
+}
+
+#[tokio::test]
+async fn a_stream_beyond_max_streams_is_resource_exhausted_and_a_dropped_stream_frees_its_slot() {
+    let server = start_plant(PlantConfig { max_streams: 2, ..PlantConfig::default() }).await;
+    let mut client = server.client().await;
+    let request = || pb::StreamStateRequest { period_ns: 0 };
+    let first = client.stream_state(request()).await.expect("first stream").into_inner();
+    let second = client.stream_state(request()).await.expect("second stream").into_inner();
+    assert_exhausted(client.stream_state(request()).await, 2);
+    // Unary calls are not streams: they are served as before.
+    get_state(&mut client).await;
+    drop(first);
+    let mut third = open_when_a_slot_is_free("plant StreamState", PATIENCE, || {
+        let mut client = client.clone();
+        async move { client.stream_state(request()).await }
+    })
+    .await
+    .into_inner();
+    assert_eq!(next_sample(&mut third).await.time_ns, 0, "the new stream starts with the current sample");
+    drop((second, third));
+    server.stop().await.expect("clean shutdown");
 }
