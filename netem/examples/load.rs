@@ -66,7 +66,8 @@ enum Bench {
     },
     /// Memory of a netem process (`VmRSS`) before and after `--streams` StateStream
     /// subscribers that read their first sample and then never read again, in front of a
-    /// real-time plant at 1 kHz (plant and netem are the release binaries).
+    /// real-time plant at 1 kHz (plant and netem are the release binaries); with `--direct`,
+    /// of the plant with the subscribers on it.
     IdleStreams {
         #[arg(long, default_value_t = 60)]
         streams: usize,
@@ -79,6 +80,9 @@ enum Bench {
         /// netem hand about 19,000 samples per stream to the client before it stops).
         #[arg(long)]
         client_window_kib: Option<u32>,
+        /// Subscribe to the plant itself and measure its RSS instead (no netem).
+        #[arg(long)]
+        direct: bool,
         #[command(flatten)]
         bins: Binaries,
     },
@@ -361,22 +365,31 @@ async fn idle_streams(
     seconds: f64,
     every_s: f64,
     client_window_kib: Option<u32>,
+    direct: bool,
     bins: &Binaries,
 ) -> anyhow::Result<()> {
     let plant = bins.start("plant", &["--time-mode".into(), "real-time".into()]).await?;
-    let netem = bins
-        .start("netem", &["--plant".into(), plant.addr.clone(), "--profile".into(), "none".into()])
-        .await?;
-    let mut probe = PlantClient::new(connect(&netem.addr).await?);
+    let netem = match direct {
+        true => None,
+        false => Some(
+            bins.start("netem", &["--plant".into(), plant.addr.clone(), "--profile".into(), "none".into()])
+                .await?,
+        ),
+    };
+    let measured = netem.as_ref().unwrap_or(&plant);
+    let mut probe = PlantClient::new(connect(&measured.addr).await?);
     probe.get_state(pb::GetStateRequest {}).await?;
     tokio::time::sleep(Duration::from_secs(1)).await;
-    let before = rss_kib(netem.pid())?;
-    println!("idle streams: netem RSS before: {before} KiB (plant at 1 kHz real time, profile none)");
+    let before = rss_kib(measured.pid())?;
+    println!(
+        "idle streams: {} RSS before: {before} KiB (plant at 1 kHz real time, profile none)",
+        measured.name
+    );
     // Each subscriber on its own connection, as separate controllers would be.
     let mut idle = Vec::with_capacity(streams);
     let mut refused = 0usize;
     for _ in 0..streams {
-        let endpoint = Channel::from_shared(format!("http://{}", netem.addr))?.tcp_nodelay(true);
+        let endpoint = Channel::from_shared(format!("http://{}", measured.addr))?.tcp_nodelay(true);
         let endpoint = match client_window_kib {
             Some(kib) => endpoint.initial_stream_window_size(kib * 1024),
             None => endpoint,
@@ -404,7 +417,15 @@ async fn idle_streams(
     let mut last = before;
     while t0.elapsed().as_secs_f64() < seconds {
         tokio::time::sleep(Duration::from_secs_f64(every_s.min(seconds))).await;
-        last = rss_kib(netem.pid())?;
+        last = rss_kib(measured.pid())?;
+        let Some(netem) = &netem else {
+            println!(
+                "  after {:>5.1} s idle: RSS {last} KiB (+{} KiB)",
+                t0.elapsed().as_secs_f64(),
+                last.saturating_sub(before)
+            );
+            continue;
+        };
         let st = stats(&connect(&netem.addr).await?).await?;
         let p = st.plant_to_controller.context("stats")?;
         println!(
@@ -420,7 +441,8 @@ async fn idle_streams(
     }
     let n = idle.len().max(1) as f64;
     println!(
-        "  netem RSS {before} -> {last} KiB: {:.0} KiB per idle stream ({} streams, {seconds} s)",
+        "  {} RSS {before} -> {last} KiB: {:.0} KiB per idle stream ({} streams, {seconds} s)",
+        measured.name,
         last.saturating_sub(before) as f64 / n,
         idle.len()
     );
@@ -604,8 +626,8 @@ async fn main() -> anyhow::Result<()> {
             }
             drop(rig.stops);
         }
-        Bench::IdleStreams { streams, seconds, every_s, client_window_kib, bins } => {
-            idle_streams(streams, seconds, every_s, client_window_kib, &bins).await?;
+        Bench::IdleStreams { streams, seconds, every_s, client_window_kib, direct, bins } => {
+            idle_streams(streams, seconds, every_s, client_window_kib, direct, &bins).await?;
         }
         Bench::StepRate { clients, seconds, profile, direct, bins } => {
             step_rate(&clients, seconds, &profile, direct, &bins).await?;

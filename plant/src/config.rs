@@ -59,6 +59,11 @@ impl ConfigError {
     }
 }
 
+/// Default of [`PlantConfig::stream_buffer`], samples: a quarter second of steps at 1 kHz,
+/// so that a lockstep `Advance` of up to 255 ms reaches a period-0 subscriber whole (the
+/// bench's cycles are 50 ms); at most about 64 KB for a subscriber that stopped reading.
+pub const DEFAULT_STREAM_BUFFER: usize = 256;
+
 /// Default watchdog timeout in real time, ns (500 ms).
 pub const DEFAULT_REAL_TIME_WATCHDOG_NS: u64 = 500_000_000;
 
@@ -75,8 +80,10 @@ pub struct PlantConfig {
     /// With no command for this long, ns, the plant holds hover and says so in its samples;
     /// `None` = off. Default: 500 ms in real time, off in lockstep.
     pub watchdog_timeout_ns: Option<u64>,
-    /// Samples queued per `StreamState` subscriber; when the queue is full, newer samples are
-    /// dropped for that subscriber only (it sees a gap in `seq`). Default 1024.
+    /// Samples queued per `StreamState` subscriber; when the queue is full, its oldest sample
+    /// is discarded for the newest (the subscriber sees a gap in `seq`, finds the freshest
+    /// state when it reads again, and the plant never waits for it), counted and logged.
+    /// Default [`DEFAULT_STREAM_BUFFER`].
     pub stream_buffer: usize,
     /// `StreamState` streams open at once; one more is refused with `RESOURCE_EXHAUSTED`
     /// (`--max-streams`, default 64).
@@ -97,7 +104,7 @@ impl PlantConfig {
             time_mode: TimeMode::Lockstep,
             rate_hz: 1000.0,
             watchdog_timeout_ns: None,
-            stream_buffer: 1024,
+            stream_buffer: DEFAULT_STREAM_BUFFER,
             max_streams: DEFAULT_MAX_STREAMS,
         }
     }
