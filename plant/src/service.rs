@@ -24,8 +24,9 @@ const INLINE_ADVANCE_MAX_NS: u64 = 100_000_000;
 
 /// One `StreamState` subscriber.
 struct Subscriber {
+    /// The period in force: the one asked for, and at least one step (0 asks for every step).
     period_ns: u64,
-    /// `floor(time / period)` of the last sample sent (unused when `period_ns == 0`).
+    /// `floor(time / period)` of the last sample sent.
     last_slot: u64,
     /// Its buffer of `PlantConfig::stream_buffer` samples, which drops its oldest when full.
     tx: Writer<pb::StateSample>,
@@ -76,6 +77,13 @@ fn current_sample(
 
 /// Called after every integration sub-step. It only reads the simulation, so observing never
 /// changes the physics (the step boundaries are the simulation's own).
+///
+/// Streams are fed at step boundaries only (plant time a multiple of the step): a subscriber
+/// gets the first boundary at or after each multiple of its period, so every step's time
+/// exactly once, in order, with period 0. The other sub-steps end wherever a caller stopped
+/// (a command's arrival, a lockstep read, a real-time tick catching up with the clock at
+/// whatever time it woke), and feeding streams there gave a period-0 subscriber of a
+/// real-time plant about two samples per step at irregular times (issue 19).
 fn on_step(
     sim: &PlantSim,
     next_seq: &mut u64,
@@ -83,20 +91,18 @@ fn on_step(
     subs: &mut Subscribers,
 ) {
     *current = None;
-    if subs.list.is_empty() {
+    let t = sim.time_ns();
+    if subs.list.is_empty() || !t.is_multiple_of(sim.settings().step_ns) {
         return;
     }
-    let t = sim.time_ns();
     let mut sample: Option<pb::StateSample> = None;
     let Subscribers { list, overflow_dropped } = subs;
     list.retain_mut(|s| {
-        // Period 0 (no division) means every step.
-        if let Some(slot) = t.checked_div(s.period_ns) {
-            if slot <= s.last_slot {
-                return true;
-            }
-            s.last_slot = slot;
+        let slot = t / s.period_ns;
+        if slot <= s.last_slot {
+            return true;
         }
+        s.last_slot = slot;
         let msg = sample.get_or_insert_with(|| current_sample(sim, next_seq, current)).clone();
         offer(s, msg, overflow_dropped)
     });
@@ -357,13 +363,8 @@ impl pb::plant_server::Plant for PlantService {
         }
         // The stream starts with the current sample.
         let first = inner.sample();
-        let time_ns = first.time_ns;
-        let sub = Subscriber {
-            period_ns: req.period_ns,
-            last_slot: time_ns.checked_div(req.period_ns).unwrap_or(0),
-            tx,
-            dropped: 0,
-        };
+        let period_ns = req.period_ns.max(self.shared.settings.step_ns);
+        let sub = Subscriber { period_ns, last_slot: first.time_ns / period_ns, tx, dropped: 0 };
         let _ = sub.tx.push(first); // a new buffer has room
         inner.subscribers.list.push(sub);
         tracing::debug!(
@@ -521,6 +522,41 @@ mod tests {
         // Closed: no new streams.
         let err = svc.stream_state(Request::new(pb::StreamStateRequest { period_ns: 0 })).await;
         assert_eq!(err.err().map(|e| e.code()), Some(tonic::Code::Unavailable));
+    }
+
+    #[tokio::test]
+    async fn in_real_time_period_0_gives_every_step_once_whenever_the_ticks_and_commands_come() {
+        let clock = Arc::new(ManualClock::new(0));
+        let svc =
+            PlantService::new(PlantConfig::real_time(Scenario::paper_1()), clock.clone()).expect("valid");
+        let open = |period_ns| svc.stream_state(Request::new(pb::StreamStateRequest { period_ns }));
+        let every = open(0).await.expect("ok").into_inner();
+        let coarse = open(2_500_000).await.expect("ok").into_inner();
+        // Ticks that wake late and early, and commands that arrive between them: each ends an
+        // integration sub-step off the 1 ms grid.
+        for (wait_ns, command) in [
+            (1_300_000, false),
+            (700_000, false),
+            (450_000, true),
+            (1_020_000, false),
+            (2_900_000, true),
+            (30_000, false),
+            (600_000, false),
+        ] {
+            clock.advance(wait_ns);
+            if command {
+                svc.apply_command(Request::new(cmd(10.0, 0.0, 1))).await.expect("applied");
+            } else {
+                svc.tick();
+            }
+        }
+        let last = svc.get_state(Request::new(pb::GetStateRequest {})).await.expect("ok").into_inner();
+        assert_eq!(last.time_ns, 7_000_000);
+        svc.close();
+        let every: Vec<u64> = every.map(|s| s.expect("ok").time_ns).collect().await;
+        let coarse: Vec<u64> = coarse.map(|s| s.expect("ok").time_ns).collect().await;
+        assert_eq!(every, (0..=7).map(|k| k * 1_000_000).collect::<Vec<_>>());
+        assert_eq!(coarse, vec![0, 3_000_000, 5_000_000]);
     }
 
     #[tokio::test]
