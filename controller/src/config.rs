@@ -56,6 +56,9 @@ pub struct ControllerConfig {
     /// 60 s paper run); a subscriber that falls further behind loses the oldest items, the
     /// loop never waits for it.
     pub telemetry_buffer: usize,
+    /// `StreamTelemetry` streams open at once; one more is refused with `RESOURCE_EXHAUSTED`
+    /// (`--max-streams`, default 64).
+    pub max_streams: usize,
 }
 
 impl ControllerConfig {
@@ -83,6 +86,7 @@ impl ControllerConfig {
             rpc_timeout: Duration::from_secs(5),
             stall_timeout: Duration::from_millis(500),
             telemetry_buffer: 4096,
+            max_streams: hilbench_svc::streams::DEFAULT_MAX_STREAMS,
         }
     }
 
@@ -107,6 +111,9 @@ impl ControllerConfig {
         }
         if self.telemetry_buffer == 0 {
             return Err("`telemetry_buffer`: must be > 0".into());
+        }
+        if self.max_streams == 0 {
+            return Err("`max_streams`: must be > 0".into());
         }
         if self.backoff_min.is_zero() || self.backoff_max < self.backoff_min {
             return Err("`backoff_min`/`backoff_max`: need 0 < min <= max".into());
@@ -176,7 +183,9 @@ mod tests {
         }
         let hostname = ControllerConfig { plant: "vehicle-gateway:50052".into(), ..ok.clone() };
         assert_eq!(hostname.validate(), Ok(()));
-        let zero = ControllerConfig { rpc_timeout: Duration::ZERO, ..ok };
+        let zero = ControllerConfig { rpc_timeout: Duration::ZERO, ..ok.clone() };
         assert!(zero.validate().is_err_and(|e| e.starts_with("`rpc_timeout`")));
+        let no_streams = ControllerConfig { max_streams: 0, ..ok };
+        assert!(no_streams.validate().is_err_and(|e| e.starts_with("`max_streams`")));
     }
 }

@@ -50,7 +50,7 @@ pub async fn serve(
     let shared = runner::Shared::new(&config);
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
     let mut loop_task = tokio::spawn(runner::run(config.clone(), shared.clone(), stop_rx));
-    let service = ControllerService::new(shared.clone());
+    let service = ControllerService::new(shared.clone(), config.max_streams);
 
     let server = GrpcServer::new(listener, false, &[ControllerServer::<ControllerService>::NAME]).await?;
     let addr = server.addr;

@@ -87,6 +87,9 @@ struct Cli {
     /// duration) even when no call failed, ms.
     #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..))]
     stall_timeout_ms: u64,
+    /// StreamTelemetry streams served at once; one more is refused with RESOURCE_EXHAUSTED.
+    #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
+    max_streams: usize,
 }
 
 impl Cli {
@@ -179,6 +182,7 @@ fn main() -> anyhow::Result<()> {
         .filter(|d| !d.is_zero())
         .context("--rpc-timeout-s: must be a positive number of seconds")?;
     config.stall_timeout = std::time::Duration::from_millis(cli.stall_timeout_ms);
+    config.max_streams = cli.max_streams;
     config.reset_plant = !cli.no_reset;
     config.autostart = !cli.no_autostart;
     config.time_mode = match cli.time_mode {
@@ -209,5 +213,15 @@ mod tests {
         assert_eq!(cli.mpc_settings().obstacle_margin_m, 0.3);
         let cli = Cli::try_parse_from(["controller", "--inactive-set"]).expect("valid flags");
         assert_eq!(cli.mpc_settings().inactive_set, Some(InactiveSetTolerances::MEASURED));
+    }
+
+    #[test]
+    fn max_streams_takes_a_positive_count_and_refuses_zero_naming_the_flag() {
+        let cli = Cli::try_parse_from(["controller", "--max-streams", "3"]).expect("valid flags");
+        assert_eq!(cli.max_streams, 3);
+        let default = Cli::try_parse_from(["controller"]).expect("valid flags");
+        assert_eq!(default.max_streams, hilbench_svc::streams::DEFAULT_MAX_STREAMS);
+        let e = Cli::try_parse_from(["controller", "--max-streams", "0"]).expect_err("refused");
+        assert!(e.to_string().contains("--max-streams"), "{e}");
     }
 }

@@ -7,6 +7,7 @@ use hilbench_proto::convert::FieldError;
 use hilbench_proto::convert::controller::{goal_from_pb, scenario_from_pb};
 use hilbench_proto::pb;
 use hilbench_proto::pb::controller_server::Controller;
+use hilbench_svc::streams::{Guarded, StreamSlots};
 use tokio_stream::Stream;
 use tokio_stream::StreamExt;
 use tokio_stream::wrappers::{BroadcastStream, WatchStream};
@@ -17,11 +18,14 @@ use crate::runner::Shared;
 #[derive(Debug, Clone)]
 pub struct ControllerService {
     shared: Arc<Shared>,
+    /// The cap on open `StreamTelemetry` streams.
+    slots: StreamSlots,
 }
 
 impl ControllerService {
-    pub fn new(shared: Arc<Shared>) -> Self {
-        Self { shared }
+    /// The API over `shared`, serving at most `max_streams` telemetry streams at once.
+    pub fn new(shared: Arc<Shared>, max_streams: usize) -> Self {
+        Self { shared, slots: StreamSlots::new("controller", max_streams) }
     }
 }
 
@@ -66,6 +70,7 @@ impl Controller for ControllerService {
         &self,
         _: Request<pb::StreamTelemetryRequest>,
     ) -> Result<Response<Self::StreamTelemetryStream>, Status> {
+        let slot = self.slots.acquire("StreamTelemetry")?;
         // A subscriber that falls behind loses the oldest items (and is told how many in the
         // log); the control loop never waits for it.
         let stream = BroadcastStream::new(self.shared.subscribe()).filter_map(|item| match item {
@@ -78,7 +83,7 @@ impl Controller for ControllerService {
         // The stream ends when the service closes (its graceful stop waits for open calls).
         let closing = WatchStream::new(self.shared.closing()).filter(|closing| *closing).map(|_| None);
         let stream = stream.map(Some).merge(closing).take_while(Option::is_some).filter_map(|item| item);
-        Ok(Response::new(Box::pin(stream)))
+        Ok(Response::new(Box::pin(Guarded::new(stream, slot))))
     }
 
     async fn set_goal(

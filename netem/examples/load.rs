@@ -4,12 +4,18 @@
 //! cargo run --release -p netem --example load -- throughput --messages 200000
 //! cargo run --release -p netem --example load -- commands --messages 20000
 //! cargo run --release -p netem --example load -- real-time --seconds 60 --rate-hz 1000 --delay-ms 20
+//! cargo build --release -p plant -p netem
+//! cargo run --release -p netem --example load -- idle-streams --streams 60
+//! cargo run --release -p netem --example load -- step-rate --clients 1,4,16
 //! ```
 //!
-//! The upstream is a minimal in-process Plant ("echo plant") that answers at once and streams
-//! samples as fast as asked, so the numbers measure netem and gRPC, not the MAV simulation.
-//! Nothing here asserts timings; the program prints what it measured and exits non-zero only
-//! if a message was lost.
+//! The first three put a minimal in-process Plant ("echo plant") behind an in-process netem:
+//! it answers at once and streams samples as fast as asked, so the numbers measure netem and
+//! gRPC, not the MAV simulation. `idle-streams` and `step-rate` start the release binaries
+//! `plant` and `netem` as processes (as a user runs them), so that netem's memory is its own
+//! and the round trips cross process boundaries as they do for a controller in another
+//! language. Nothing here asserts timings; the program prints what it measured and exits
+//! non-zero only if a message was lost or a call failed.
 
 use std::pin::Pin;
 use std::sync::Arc;
@@ -36,7 +42,8 @@ struct Args {
 
 #[derive(Debug, Subcommand)]
 enum Bench {
-    /// State samples streamed through netem as fast as they go (zero delay).
+    /// State samples streamed through netem as fast as they go (zero delay); what the reader
+    /// cannot take is discarded by the stream's buffer and counted.
     Throughput {
         #[arg(long, default_value_t = 200_000)]
         messages: u64,
@@ -57,6 +64,63 @@ enum Bench {
         #[arg(long, default_value_t = 20.0)]
         delay_ms: f64,
     },
+    /// Memory of a netem process (`VmRSS`) before and after `--streams` StateStream
+    /// subscribers that read their first sample and then never read again, in front of a
+    /// real-time plant at 1 kHz (plant and netem are the release binaries); with `--direct`,
+    /// of the plant with the subscribers on it.
+    IdleStreams {
+        #[arg(long, default_value_t = 60)]
+        streams: usize,
+        /// How long the subscribers stay idle, s; the RSS is printed every `--every-s`.
+        #[arg(long, default_value_t = 30.0)]
+        seconds: f64,
+        #[arg(long, default_value_t = 5.0)]
+        every_s: f64,
+        /// The subscribers' HTTP/2 stream window, KiB (default: tonic's, 2 MiB, which lets
+        /// netem hand about 19,000 samples per stream to the client before it stops).
+        #[arg(long)]
+        client_window_kib: Option<u32>,
+        /// Subscribe to the plant itself and measure its RSS instead (no netem).
+        #[arg(long)]
+        direct: bool,
+        #[command(flatten)]
+        bins: Binaries,
+    },
+    /// Lockstep `Step` round trips per second (a command, 1 ms of plant time, the sample)
+    /// through a netem process in front of a lockstep plant process, from concurrent
+    /// clients, each on its own connection.
+    StepRate {
+        /// Numbers of concurrent clients, one measurement each.
+        #[arg(long, value_delimiter = ',', default_value = "1,4,16")]
+        clients: Vec<usize>,
+        /// Length of each measurement, s (after a warm-up of a tenth of it).
+        #[arg(long, default_value_t = 5.0)]
+        seconds: f64,
+        /// netem's `--profile` (its delays hold commands in lockstep, which does not change the
+        /// number of round trips).
+        #[arg(long, default_value = "none")]
+        profile: String,
+        /// Also measure the same clients against the plant directly.
+        #[arg(long)]
+        direct: bool,
+        #[command(flatten)]
+        bins: Binaries,
+    },
+}
+
+/// Where the `plant` and `netem` release binaries are.
+#[derive(Debug, clap::Args)]
+struct Binaries {
+    /// Directory of the `plant` and `netem` binaries (default: the directory above this
+    /// example's, i.e. `target/release`).
+    #[arg(long)]
+    bin_dir: Option<std::path::PathBuf>,
+    /// Extra flags for netem, e.g. `--netem-arg=--max-streams=128`.
+    #[arg(long, allow_hyphen_values = true)]
+    netem_arg: Vec<String>,
+    /// Extra flags for the plant.
+    #[arg(long, allow_hyphen_values = true)]
+    plant_arg: Vec<String>,
 }
 
 /// The echo plant: real-time, answers at once, streams `period_ns`-spaced samples (or as
@@ -209,6 +273,247 @@ fn command(seq: u64) -> pb::Command {
     }
 }
 
+/// A child process this program started; killed when dropped.
+struct Proc {
+    name: &'static str,
+    child: std::process::Child,
+    addr: String,
+}
+
+impl Proc {
+    fn pid(&self) -> u32 {
+        self.child.id()
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// A loopback address nothing listens on right now (bound, then released).
+fn free_addr() -> anyhow::Result<String> {
+    let l = std::net::TcpListener::bind("127.0.0.1:0")?;
+    Ok(l.local_addr()?.to_string())
+}
+
+impl Binaries {
+    fn dir(&self) -> anyhow::Result<std::path::PathBuf> {
+        if let Some(d) = &self.bin_dir {
+            return Ok(d.clone());
+        }
+        let exe = std::env::current_exe()?;
+        exe.parent()
+            .and_then(|examples| examples.parent())
+            .map(std::path::Path::to_path_buf)
+            .context("no directory above this example's")
+    }
+
+    /// Starts `name` (a binary in [`Binaries::dir`]) on a free loopback port with `args`,
+    /// its logs at `warn` to stderr, and waits until it answers `Describe`.
+    async fn start(&self, name: &'static str, args: &[String]) -> anyhow::Result<Proc> {
+        let bin = self.dir()?.join(name);
+        if !bin.exists() {
+            bail!("{} is missing: build it first (cargo build --release -p plant -p netem)", bin.display());
+        }
+        let addr = free_addr()?;
+        let extra = if name == "netem" { &self.netem_arg } else { &self.plant_arg };
+        let child = std::process::Command::new(&bin)
+            .arg("--listen")
+            .arg(&addr)
+            .args(args)
+            .args(extra)
+            .env("RUST_LOG", "warn")
+            .stdout(std::process::Stdio::null())
+            .spawn()
+            .with_context(|| format!("cannot start {}", bin.display()))?;
+        let proc = Proc { name, child, addr };
+        let deadline = Instant::now() + Duration::from_secs(30);
+        loop {
+            if let Ok(ch) = connect(&proc.addr).await
+                && PlantClient::new(ch).describe(pb::DescribeRequest {}).await.is_ok()
+            {
+                return Ok(proc);
+            }
+            if Instant::now() > deadline {
+                bail!("{} did not answer on {} within 30 s", proc.name, proc.addr);
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+}
+
+async fn connect(addr: &str) -> anyhow::Result<Channel> {
+    Ok(Channel::from_shared(format!("http://{addr}"))?.tcp_nodelay(true).connect().await?)
+}
+
+/// Resident set size of process `pid`, KiB (`VmRSS` in /proc; Linux only).
+fn rss_kib(pid: u32) -> anyhow::Result<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .with_context(|| format!("/proc/{pid}/status (the RSS is read on Linux only)"))?;
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+        .context("no VmRSS line")
+}
+
+async fn idle_streams(
+    streams: usize,
+    seconds: f64,
+    every_s: f64,
+    client_window_kib: Option<u32>,
+    direct: bool,
+    bins: &Binaries,
+) -> anyhow::Result<()> {
+    let plant = bins.start("plant", &["--time-mode".into(), "real-time".into()]).await?;
+    let netem = match direct {
+        true => None,
+        false => Some(
+            bins.start("netem", &["--plant".into(), plant.addr.clone(), "--profile".into(), "none".into()])
+                .await?,
+        ),
+    };
+    let measured = netem.as_ref().unwrap_or(&plant);
+    let mut probe = PlantClient::new(connect(&measured.addr).await?);
+    probe.get_state(pb::GetStateRequest {}).await?;
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let before = rss_kib(measured.pid())?;
+    println!(
+        "idle streams: {} RSS before: {before} KiB (plant at 1 kHz real time, profile none)",
+        measured.name
+    );
+    // Each subscriber on its own connection, as separate controllers would be.
+    let mut idle = Vec::with_capacity(streams);
+    let mut refused = 0usize;
+    for _ in 0..streams {
+        let endpoint = Channel::from_shared(format!("http://{}", measured.addr))?.tcp_nodelay(true);
+        let endpoint = match client_window_kib {
+            Some(kib) => endpoint.initial_stream_window_size(kib * 1024),
+            None => endpoint,
+        };
+        let mut client = PlantClient::new(endpoint.connect().await?);
+        match client.stream_state(pb::StreamStateRequest { period_ns: 0 }).await {
+            Ok(r) => {
+                let mut s = r.into_inner();
+                match tokio::time::timeout(Duration::from_secs(10), s.next()).await {
+                    Ok(Some(Ok(_))) => idle.push(s),
+                    other => bail!("a stream gave no first sample: {other:?}"),
+                }
+            }
+            Err(status) if status.code() == tonic::Code::ResourceExhausted => {
+                refused += 1;
+                if refused == 1 {
+                    println!("  refused: {}", status.message());
+                }
+            }
+            Err(status) => bail!("StreamState: {status}"),
+        }
+    }
+    println!("  {} streams open, {refused} refused (RESOURCE_EXHAUSTED)", idle.len());
+    let t0 = Instant::now();
+    let mut last = before;
+    while t0.elapsed().as_secs_f64() < seconds {
+        tokio::time::sleep(Duration::from_secs_f64(every_s.min(seconds))).await;
+        last = rss_kib(measured.pid())?;
+        let Some(netem) = &netem else {
+            println!(
+                "  after {:>5.1} s idle: RSS {last} KiB (+{} KiB)",
+                t0.elapsed().as_secs_f64(),
+                last.saturating_sub(before)
+            );
+            continue;
+        };
+        let st = stats(&connect(&netem.addr).await?).await?;
+        let p = st.plant_to_controller.context("stats")?;
+        println!(
+            "  after {:>5.1} s idle: RSS {last} KiB (+{} KiB) | plant->controller sent {} delivered {} dropped {} stream overflow {} in flight {}",
+            t0.elapsed().as_secs_f64(),
+            last.saturating_sub(before),
+            p.sent,
+            p.delivered,
+            p.dropped,
+            p.stream_overflow_dropped,
+            p.in_flight,
+        );
+    }
+    let n = idle.len().max(1) as f64;
+    println!(
+        "  {} RSS {before} -> {last} KiB: {:.0} KiB per idle stream ({} streams, {seconds} s)",
+        measured.name,
+        last.saturating_sub(before) as f64 / n,
+        idle.len()
+    );
+    drop(idle);
+    drop(netem);
+    drop(plant);
+    Ok(())
+}
+
+/// Lockstep `Step`s of 1 ms with a command from `clients` concurrent clients on `addr` for
+/// `seconds`; returns the round trips completed.
+async fn step_clients(addr: &str, clients: usize, seconds: f64) -> anyhow::Result<(u64, f64)> {
+    let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let mut tasks = Vec::new();
+    for c in 0..clients {
+        let mut client = PlantClient::new(connect(addr).await?);
+        let stop = stop.clone();
+        tasks.push(tokio::spawn(async move {
+            let mut n = 0u64;
+            while !stop.load(AtomicOrdering::Relaxed) {
+                let seq = (c as u64) << 32 | n;
+                client
+                    .step(pb::StepRequest {
+                        command: Some(command(seq)),
+                        duration_ns: 1_000_000,
+                        ..Default::default()
+                    })
+                    .await?;
+                n += 1;
+            }
+            anyhow::Ok(n)
+        }));
+    }
+    let t0 = Instant::now();
+    tokio::time::sleep(Duration::from_secs_f64(seconds)).await;
+    stop.store(true, AtomicOrdering::Relaxed);
+    let mut total = 0;
+    for t in tasks {
+        total += t.await??;
+    }
+    Ok((total, t0.elapsed().as_secs_f64()))
+}
+
+async fn step_rate(
+    clients: &[usize],
+    seconds: f64,
+    profile: &str,
+    direct: bool,
+    bins: &Binaries,
+) -> anyhow::Result<()> {
+    let plant = bins.start("plant", &["--time-mode".into(), "lockstep".into()]).await?;
+    let netem = bins
+        .start("netem", &["--plant".into(), plant.addr.clone(), "--profile".into(), profile.into()])
+        .await?;
+    let mut targets = vec![("netem", netem.addr.clone())];
+    if direct {
+        targets.push(("plant", plant.addr.clone()));
+    }
+    println!("step rate: lockstep Step (command + 1 ms + sample), netem --profile {profile}");
+    for (name, addr) in &targets {
+        for &c in clients {
+            step_clients(addr, c, seconds / 10.0).await?;
+            let (n, dt) = step_clients(addr, c, seconds).await?;
+            println!("  {name:>5}, {c:>2} clients: {n} round trips in {dt:.2} s = {:.0}/s", n as f64 / dt);
+        }
+    }
+    drop(netem);
+    drop(plant);
+    Ok(())
+}
+
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
     let args = Args::parse();
@@ -218,19 +523,29 @@ async fn main() -> anyhow::Result<()> {
             let mut client = PlantClient::new(rig.netem.clone());
             let t0 = Instant::now();
             let mut s = client.stream_state(pb::StreamStateRequest { period_ns: 0 }).await?.into_inner();
+            // The echo plant sends as fast as netem reads, faster than gRPC carries samples to
+            // this reader: netem's bounded stream buffer then discards the oldest, and the
+            // stream ends after the newest (the echo plant's stream ends).
             let mut got = 0u64;
-            while got < messages {
+            loop {
                 match tokio::time::timeout(Duration::from_secs(10), s.next()).await {
                     Ok(Some(Ok(_))) => got += 1,
+                    Ok(Some(Err(e))) if e.code() == tonic::Code::Unavailable => break,
+                    Ok(None) => break,
                     other => bail!("stream stopped after {got} samples: {other:?}"),
                 }
             }
             let dt = t0.elapsed().as_secs_f64();
             let st = stats(&rig.netem).await?;
-            println!("throughput: {got} samples through netem in {dt:.3} s = {:.0} msg/s", got as f64 / dt);
             let p = st.plant_to_controller.context("stats")?;
+            println!(
+                "throughput: {got} of {messages} samples through netem to the reader in {dt:.3} s = {:.0} msg/s; \
+                 {} discarded by the stream's buffer (a reader slower than the source)",
+                got as f64 / dt,
+                p.stream_overflow_dropped
+            );
             print_dir("plant->controller", &p);
-            if p.dropped != 0 || p.delivered != messages {
+            if p.dropped != p.stream_overflow_dropped || got + p.stream_overflow_dropped != messages {
                 bail!("lost messages");
             }
             drop(rig.stops);
@@ -310,6 +625,12 @@ async fn main() -> anyhow::Result<()> {
                 bail!("lost messages");
             }
             drop(rig.stops);
+        }
+        Bench::IdleStreams { streams, seconds, every_s, client_window_kib, direct, bins } => {
+            idle_streams(streams, seconds, every_s, client_window_kib, direct, &bins).await?;
+        }
+        Bench::StepRate { clients, seconds, profile, direct, bins } => {
+            step_rate(&clients, seconds, &profile, direct, &bins).await?;
         }
     }
     Ok(())

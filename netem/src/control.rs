@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use delay::Direction;
 use hilbench_proto::convert::FieldError;
-use hilbench_proto::convert::netem::{direction_from_pb, profile_from_pb, stats_to_pb};
+use hilbench_proto::convert::netem::{HeldCounts, direction_from_pb, profile_from_pb, stats_to_pb};
 use hilbench_proto::pb;
 use tokio_stream::StreamExt;
 use tokio_stream::wrappers::BroadcastStream;
@@ -81,12 +81,19 @@ impl pb::netem_control_server::NetemControl for Control {
         _request: Request<pb::GetStatsRequest>,
     ) -> Result<Response<pb::NetemStats>, Status> {
         let inner = self.shared.lock();
-        let dir = |d: Direction| stats_to_pb(&inner.stats[d.index()], inner.in_flight[d.index()]);
+        let dir = |d: Direction| {
+            let held = HeldCounts {
+                in_flight: inner.in_flight[d.index()],
+                stream_overflow_dropped: inner.stream_overflow_dropped[d.index()],
+            };
+            stats_to_pb(&inner.stats[d.index()], held)
+        };
         Ok(Response::new(pb::NetemStats {
             plant_to_controller: Some(dir(Direction::PlantToController)),
             controller_to_plant: Some(dir(Direction::ControllerToPlant)),
             upstream_connected: inner.upstream_connected,
             upstream_failures: inner.upstream_failures,
+            deliveries_lagged: inner.deliveries_lagged,
             time_mode: match inner.mode {
                 None => pb::TimeMode::Unspecified,
                 Some(Mode::RealTime) => pb::TimeMode::RealTime,
@@ -103,6 +110,8 @@ impl pb::netem_control_server::NetemControl for Control {
         for s in &mut inner.stats {
             s.reset();
         }
+        inner.stream_overflow_dropped = [0; 2];
+        inner.deliveries_lagged = 0;
         // Copies still in flight will be counted when they arrive; keep the books balanced
         // by starting the new period with them as sent.
         let in_flight = inner.in_flight;
@@ -136,14 +145,17 @@ impl pb::netem_control_server::NetemControl for Control {
         &self,
         _request: Request<pb::StreamDeliveriesRequest>,
     ) -> Result<Response<Self::StreamDeliveriesStream>, Status> {
+        let slot = self.shared.slots.acquire("StreamDeliveries")?;
         let rx = self.shared.lock().deliveries.subscribe();
-        let s = BroadcastStream::new(rx).filter_map(|r| match r {
+        let shared = self.shared.clone();
+        let s = BroadcastStream::new(rx).filter_map(move |r| match r {
             Ok(rec) => Some(Ok(rec)),
             Err(tokio_stream::wrappers::errors::BroadcastStreamRecvError::Lagged(n)) => {
-                tracing::warn!(missed = n, "a delivery stream reader is too slow");
+                shared.lock().deliveries_lagged(n);
                 None
             }
         });
-        Ok(Response::new(Box::pin(crate::core::until_closed(s, self.shared.closed()))))
+        let s = crate::core::until_closed(s, self.shared.closed());
+        Ok(Response::new(Box::pin(hilbench_svc::streams::Guarded::new(s, slot))))
     }
 }

@@ -7,6 +7,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use delay::{Decision, DelayLine, Direction, DirectionProfile, DirectionStats, Fate, Record, ReleaseQueue};
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
+use hilbench_svc::streams::StreamSlots;
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tonic::transport::Channel;
 use tonic::{Response, Status};
@@ -17,6 +18,14 @@ use crate::{Mode, TimeModeSetting};
 
 /// Largest number of records a trace recording keeps; later ones are counted but not kept.
 pub const MAX_TRACE_RECORDS: usize = 5_000_000;
+
+/// The drop reason of a sample evicted from a state stream's full buffer.
+pub const STREAM_OVERFLOW_REASON: &str = "subscriber too slow";
+
+/// Items a relayed stream (lockstep `StreamState`, `StreamDeliveries`) holds between its
+/// source and gRPC. Small: it only decouples the two; a reader that stops reading leaves the
+/// rest where it is bounded already (the plant's own buffer, the deliveries channel).
+pub const RELAY_BUFFER: usize = 16;
 
 /// One copy of one message on its way.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -76,6 +85,11 @@ pub struct Inner {
     /// epoch are dropped with `epoch_reason` instead of being delivered.
     pub epoch: u64,
     pub epoch_reason: String,
+    /// Per direction: copies evicted from a state stream's full buffer (also in `stats`'s
+    /// `dropped`).
+    pub stream_overflow_dropped: [u64; 2],
+    /// Records `StreamDeliveries` readers missed because they fell behind, summed over readers.
+    pub deliveries_lagged: u64,
 }
 
 impl Inner {
@@ -168,6 +182,28 @@ impl Inner {
         });
     }
 
+    /// A released copy was evicted from a state stream's full buffer for a newer one: a drop
+    /// like the others (reason [`STREAM_OVERFLOW_REASON`]), counted apart as well, and logged
+    /// at every power of two so that a reader that never reads does not flood the log.
+    pub fn overflowed(&mut self, m: &Msg) {
+        self.dropped(m, STREAM_OVERFLOW_REASON);
+        let n = &mut self.stream_overflow_dropped[m.dir.index()];
+        *n += 1;
+        if n.is_power_of_two() {
+            tracing::warn!(
+                dropped = *n,
+                direction = ?m.dir,
+                "a StreamState reader is too slow: netem discards the oldest samples of its buffer"
+            );
+        }
+    }
+
+    /// A `StreamDeliveries` reader fell behind and missed `n` records.
+    pub fn deliveries_lagged(&mut self, n: u64) {
+        self.deliveries_lagged += n;
+        tracing::warn!(missed = n, total = self.deliveries_lagged, "a StreamDeliveries reader is too slow");
+    }
+
     /// Draws a lockstep sample arriving at `time_ns` from the plant-to-controller line.
     pub fn draw_sample(&mut self, time_ns: u64) -> delay::Draw {
         self.lines[Direction::PlantToController.index()].draw(time_ns)
@@ -227,21 +263,25 @@ pub struct Shared {
     /// Set to true when netem shuts down: open streams end, so the graceful shutdown is not
     /// kept waiting by a controller that never hangs up.
     pub closing: tokio::sync::watch::Sender<bool>,
+    /// The cap on open server streams, of both services.
+    pub slots: StreamSlots,
+    /// Samples a real-time state stream's buffer holds (`Config::stream_buffer`).
+    pub stream_buffer: usize,
 }
 
 impl Shared {
+    /// The state of a netem on `config` (validated) with `upstream` as its client.
     pub fn new(
         upstream: PlantClient<Channel>,
-        upstream_addr: String,
-        setting: TimeModeSetting,
-        profiles: [DirectionProfile; 2],
-        seed: u64,
+        config: &crate::Config,
     ) -> Result<(Arc<Self>, mpsc::UnboundedReceiver<Forward>), crate::NetemError> {
-        let [p2c, c2p] = profiles;
+        let line =
+            |dir, p: &DirectionProfile| DelayLine::new(dir, p.clone()).map_err(crate::NetemError::Profile);
         let lines = [
-            DelayLine::new(Direction::PlantToController, p2c).map_err(crate::NetemError::Profile)?,
-            DelayLine::new(Direction::ControllerToPlant, c2p).map_err(crate::NetemError::Profile)?,
+            line(Direction::PlantToController, &config.plant_to_controller)?,
+            line(Direction::ControllerToPlant, &config.controller_to_plant)?,
         ];
+        let setting = config.time_mode;
         let clock = Clock::new();
         let releaser = Releaser::start(clock).map_err(crate::NetemError::Io)?;
         let (forward_tx, forward_rx) = mpsc::unbounded_channel();
@@ -255,7 +295,7 @@ impl Shared {
             stats: Default::default(),
             in_flight: [0; 2],
             recording: None,
-            deliveries: broadcast::channel(16_384).0,
+            deliveries: broadcast::channel(config.deliveries_buffer).0,
             mode,
             plant_time_ns: None,
             pending: ReleaseQueue::new(),
@@ -264,18 +304,22 @@ impl Shared {
             upstream_failures: 0,
             epoch: 0,
             epoch_reason: String::new(),
+            stream_overflow_dropped: [0; 2],
+            deliveries_lagged: 0,
         };
         let shared = Arc::new(Self {
             inner: Mutex::new(inner),
             upstream,
-            upstream_addr,
+            upstream_addr: config.upstream.clone(),
             clock,
             releaser,
             lockstep: tokio::sync::Mutex::new(()),
             setting,
-            seed,
+            seed: config.seed,
             forward_tx,
             closing: tokio::sync::watch::channel(false).0,
+            slots: StreamSlots::new("netem", config.max_streams),
+            stream_buffer: config.stream_buffer,
         });
         Ok((shared, forward_rx))
     }
@@ -421,7 +465,7 @@ pub fn until_closed<T: Send + 'static>(
     closing: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> tokio_stream::wrappers::ReceiverStream<T> {
     use tokio_stream::StreamExt;
-    let (tx, rx) = mpsc::channel(1024);
+    let (tx, rx) = mpsc::channel(RELAY_BUFFER);
     tokio::spawn(async move {
         tokio::pin!(stream);
         tokio::pin!(closing);

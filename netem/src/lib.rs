@@ -53,6 +53,15 @@ pub enum Mode {
     Lockstep,
 }
 
+/// Default of [`Config::stream_buffer`], samples: 64 ms at 1 kHz, enough to ride out a
+/// reader's scheduling hiccup (the transport's windows hold more), and about 30 KB per stream
+/// whose reader stopped (BENCHMARKS.md, "netem's memory per idle stream").
+pub const DEFAULT_STREAM_BUFFER: usize = 64;
+
+/// Default of [`Config::deliveries_buffer`], records: 2 s of a 1 kHz run's two directions,
+/// allocated once (about 0.5 MB) and shared by every reader.
+pub const DEFAULT_DELIVERIES_BUFFER: usize = 4096;
+
 /// Settings of a netem instance.
 #[derive(Debug, Clone)]
 pub struct Config {
@@ -68,6 +77,17 @@ pub struct Config {
     pub seed: u64,
     /// How often a gone upstream is polled, ms (default 200).
     pub probe_interval_ms: u64,
+    /// Samples a real-time `StreamState` holds for its reader (default
+    /// [`DEFAULT_STREAM_BUFFER`]): when the reader falls that far behind, the oldest is
+    /// dropped for the newest ("subscriber too slow", `stream_overflow_dropped`).
+    pub stream_buffer: usize,
+    /// Records of the `StreamDeliveries` channel, one ring shared by every reader (default
+    /// [`DEFAULT_DELIVERIES_BUFFER`]); a reader that falls further behind misses the oldest,
+    /// counted in `NetemStats.deliveries_lagged`.
+    pub deliveries_buffer: usize,
+    /// Server streams open at once (`StreamState` and `StreamDeliveries` together); one more
+    /// is refused with `RESOURCE_EXHAUSTED` (`--max-streams`, default 64).
+    pub max_streams: usize,
 }
 
 impl Config {
@@ -80,6 +100,9 @@ impl Config {
             controller_to_plant: DirectionProfile::default(),
             seed: 42,
             probe_interval_ms: 200,
+            max_streams: hilbench_svc::streams::DEFAULT_MAX_STREAMS,
+            stream_buffer: DEFAULT_STREAM_BUFFER,
+            deliveries_buffer: DEFAULT_DELIVERIES_BUFFER,
         }
     }
 
@@ -102,6 +125,15 @@ impl Config {
         self.controller_to_plant.validate().map_err(NetemError::Profile)?;
         if self.probe_interval_ms == 0 {
             return Err(NetemError::Config("probe_interval_ms must be > 0".into()));
+        }
+        if self.max_streams == 0 {
+            return Err(NetemError::Config("max_streams must be at least 1".into()));
+        }
+        if self.stream_buffer == 0 {
+            return Err(NetemError::Config("stream_buffer must be at least 1".into()));
+        }
+        if self.deliveries_buffer == 0 {
+            return Err(NetemError::Config("deliveries_buffer must be at least 1".into()));
         }
         Ok(())
     }
@@ -143,13 +175,7 @@ pub async fn serve(
         .tcp_nodelay(true);
     let channel = endpoint.connect_lazy();
     let client = hilbench_proto::pb::plant_client::PlantClient::new(channel);
-    let (shared, forward_rx) = core::Shared::new(
-        client,
-        config.upstream.clone(),
-        config.time_mode,
-        [config.plant_to_controller.clone(), config.controller_to_plant.clone()],
-        config.seed,
-    )?;
+    let (shared, forward_rx) = core::Shared::new(client, &config)?;
     let forwarder = tokio::spawn(core::run_forwarder(shared.clone(), forward_rx));
     let probe =
         tokio::spawn(core::run_probe(shared.clone(), Duration::from_millis(config.probe_interval_ms)));

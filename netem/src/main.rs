@@ -44,6 +44,10 @@ struct Args {
     /// it, so that only the plant's `--time-mode` has to be chosen.
     #[arg(long, value_enum, default_value_t = TimeModeArg::Auto)]
     time_mode: TimeModeArg,
+    /// Server streams served at once (StreamState and StreamDeliveries together); one more is
+    /// refused with RESOURCE_EXHAUSTED.
+    #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = at_least_one())]
+    max_streams: usize,
 }
 
 #[tokio::main]
@@ -62,6 +66,7 @@ async fn main() -> anyhow::Result<()> {
         TimeModeArg::RealTime => TimeModeSetting::RealTime,
         TimeModeArg::Lockstep => TimeModeSetting::Lockstep,
     };
+    config.max_streams = args.max_streams;
     let listener = tokio::net::TcpListener::bind(&args.listen)
         .await
         .with_context(|| format!("cannot listen on {}", args.listen))?;
@@ -82,4 +87,9 @@ fn load_profile_file(path: &std::path::Path, seed: u64) -> anyhow::Result<delay:
     table
         .to_network(seed, &mut read_trace)
         .map_err(|e| anyhow::anyhow!("--profile-file {shown}: field `{}`: {}", e.field, e.reason))
+}
+
+/// A count of at least 1 (clap names the flag when it is not).
+fn at_least_one() -> clap::builder::RangedU64ValueParser<usize> {
+    clap::builder::RangedU64ValueParser::new().range(1..)
 }

@@ -21,7 +21,10 @@
 //!
 //! ## Real time
 //! Every command and every state sample (`StreamState` items and `GetState` answers) is
-//! released on netem's clock at `send + d` by the release thread. `ApplyCommand` answers at
+//! released on netem's clock at `send + d` by the release thread. A `StreamState` item is
+//! released into that stream's buffer of `Config::stream_buffer` samples, which drops its
+//! oldest sample for a newer one when the controller does not read (counted as a drop,
+//! "subscriber too slow", and in `DirectionStats.stream_overflow_dropped`). `ApplyCommand` answers at
 //! once with `applied` unset (the command is in flight), unless its delay is zero, in which
 //! case it answers with the upstream's answer.
 //!
@@ -36,8 +39,8 @@ use std::sync::atomic::{AtomicBool, Ordering as AtomicOrdering};
 use delay::{Direction, Fate};
 use hilbench_proto::convert::netem::check_command;
 use hilbench_proto::pb;
-use tokio::sync::{mpsc, oneshot};
-use tokio_stream::wrappers::ReceiverStream;
+use hilbench_svc::streams::{Guarded, Pushed, Reader, Writer, drop_oldest};
+use tokio::sync::oneshot;
 use tonic::metadata::{MetadataMap, MetadataValue};
 use tonic::{Request, Response, Status};
 
@@ -355,11 +358,6 @@ impl Proxy {
 type SampleStream =
     Pin<Box<dyn tokio_stream::Stream<Item = Result<pb::StateSample, Status>> + Send + 'static>>;
 
-/// Size of the buffer of a controller's state stream, in samples (held in flight or waiting
-/// to be read). When it is full, netem stops reading the upstream stream until the controller
-/// catches up: backpressure, not loss.
-const STREAM_BUFFER: usize = 16_384;
-
 #[tonic::async_trait]
 impl pb::plant_server::Plant for Proxy {
     async fn reset(&self, request: Request<pb::ResetRequest>) -> Result<Response<pb::ResetResponse>, Status> {
@@ -388,98 +386,20 @@ impl pb::plant_server::Plant for Proxy {
         &self,
         request: Request<pb::StreamStateRequest>,
     ) -> Result<Response<Self::StreamStateStream>, Status> {
+        // Taken first, so that a refused stream costs no upstream call.
+        let slot = self.shared.slots.acquire("StreamState")?;
         let mode = self.shared.mode().await?;
-        let mut upstream =
+        let upstream =
             self.shared.up(self.shared.client().stream_state(request.into_inner())).await?.into_inner();
         if mode == Mode::Lockstep {
             let shared = self.shared.clone();
             let s = async_stream_map(upstream, shared);
-            return Ok(Response::new(s));
+            return Ok(Response::new(Box::pin(Guarded::new(s, slot))));
         }
-        let (tx, rx) = mpsc::channel(STREAM_BUFFER);
-        let shared = self.shared.clone();
-        let netem_closing = self.shared.closed();
-        tokio::spawn(async move {
-            let closed = Arc::new(AtomicBool::new(false));
-            tokio::pin!(netem_closing);
-            loop {
-                let item = tokio::select! {
-                    item = upstream.message() => item,
-                    () = tx.closed() => break,
-                    () = &mut netem_closing => {
-                        closed.store(true, AtomicOrdering::Release);
-                        break;
-                    }
-                };
-                match item {
-                    Ok(Some(sample)) => {
-                        shared.upstream_ok();
-                        // Backpressure: every copy gets a slot in the controller's buffer
-                        // before it is sent, so a slow reader slows the upstream down (as TCP
-                        // flow control would) instead of losing samples.
-                        let first = tokio::select! {
-                            p = tx.clone().reserve_owned() => p,
-                            () = &mut netem_closing => break,
-                        };
-                        let Ok(first) = first else { break };
-                        let now = shared.clock.now_ns();
-                        let d = shared.lock().decide(Direction::PlantToController, now, sample.seq);
-                        let mut first = Some(first);
-                        for m in Msg::copies(&d, Direction::PlantToController, sample.seq) {
-                            let permit = match first.take() {
-                                Some(p) => p,
-                                None => match tx.clone().reserve_owned().await {
-                                    Ok(p) => p,
-                                    Err(_) => {
-                                        shared.lock().dropped(&m, "controller gone");
-                                        continue;
-                                    }
-                                },
-                            };
-                            let (closed, sh) = (closed.clone(), shared.clone());
-                            let sample = sample.clone();
-                            let action = Box::new(move |e: i64| {
-                                let mut inner = sh.lock();
-                                if closed.load(AtomicOrdering::Acquire) {
-                                    let reason = inner.epoch_reason.clone();
-                                    inner.dropped(&m, &reason);
-                                } else {
-                                    let tx = permit.send(Ok(sample));
-                                    if tx.is_closed() {
-                                        inner.dropped(&m, "controller gone");
-                                    } else {
-                                        inner.delivered(&m, e);
-                                    }
-                                }
-                            });
-                            if shared.releaser.schedule(m.release_ns, action).is_err() {
-                                shared.lock().dropped(&m, "netem is shutting down");
-                            }
-                        }
-                    }
-                    Ok(None) => {
-                        // A clean end: the samples already sent are still on their way; the
-                        // controller learns of the end after the last of them.
-                        let last =
-                            shared.lock().lines[Direction::PlantToController.index()].last_release_ns();
-                        let Ok(permit) = tx.clone().reserve_owned().await else { break };
-                        let end = Box::new(move |_e: i64| {
-                            permit
-                                .send(Err(Status::unavailable("the upstream plant closed the state stream")));
-                        });
-                        let _ = shared.releaser.schedule(last.unwrap_or(0), end);
-                        break;
-                    }
-                    Err(s) => {
-                        closed.store(true, AtomicOrdering::Release);
-                        let status = if crate::core::is_gone(&s) { shared.upstream_lost(&s) } else { s };
-                        let _ = tx.send(Err(status)).await;
-                        break;
-                    }
-                }
-            }
-        });
-        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+        let (writer, reader) = drop_oldest(self.shared.stream_buffer);
+        tokio::spawn(pump_samples(self.shared.clone(), upstream, writer));
+        let stream = RealTimeSamples { reader, shared: self.shared.clone() };
+        Ok(Response::new(Box::pin(Guarded::new(stream, slot))))
     }
 
     async fn get_state(
@@ -577,6 +497,150 @@ impl pb::plant_server::Plant for Proxy {
         let r = self.shared.up(self.shared.client().describe(request.into_inner())).await?;
         self.shared.learn_mode(r.get_ref().time_mode);
         Ok(r)
+    }
+}
+
+/// What a real-time state stream's buffer holds: a released copy of a sample (boxed: a slot
+/// of the ring is then a few words whatever the sample holds), or the end.
+enum Released {
+    Sample { msg: Msg, release_error_ns: i64, sample: Box<pb::StateSample> },
+    End(Status),
+}
+
+/// Real time: reads the upstream's samples for one controller's stream until the controller
+/// leaves, netem shuts down or the upstream stream ends. Each sample goes through the
+/// plant-to-controller line and is released into the stream's buffer at `send + d` by the
+/// release thread; the buffer is bounded and drops its oldest sample for a newer one, so a
+/// controller that stops reading costs netem `stream_buffer` samples, never more, and finds
+/// the newest ones when it reads again. The upstream is always read at the plant's pace (no
+/// backpressure: holding it back would only age every sample the controller gets).
+async fn pump_samples(
+    shared: Arc<Shared>,
+    mut upstream: tonic::Streaming<pb::StateSample>,
+    writer: Writer<Released>,
+) {
+    // Set when netem stops forwarding this stream: copies still in the release thread are
+    // then dropped at their release instead of delivered.
+    let closed = Arc::new(AtomicBool::new(false));
+    let netem_closing = shared.closed();
+    tokio::pin!(netem_closing);
+    loop {
+        let item = tokio::select! {
+            item = upstream.message() => item,
+            () = writer.closed() => break,
+            () = &mut netem_closing => {
+                closed.store(true, AtomicOrdering::Release);
+                break;
+            }
+        };
+        match item {
+            Ok(Some(sample)) => {
+                shared.upstream_ok();
+                let now = shared.clock.now_ns();
+                let d = shared.lock().decide(Direction::PlantToController, now, sample.seq);
+                for m in Msg::copies(&d, Direction::PlantToController, sample.seq) {
+                    let (closed, sh, w, sample) =
+                        (closed.clone(), shared.clone(), writer.clone(), sample.clone());
+                    let action = Box::new(move |e: i64| release_sample(&sh, &w, &closed, m, e, sample));
+                    if shared.releaser.schedule(m.release_ns, action).is_err() {
+                        shared.lock().dropped(&m, "netem is shutting down");
+                    }
+                }
+            }
+            Ok(None) => {
+                // A clean end: the samples already sent are still on their way; the
+                // controller learns of the end after the last of them.
+                let last = shared.lock().lines[Direction::PlantToController.index()].last_release_ns();
+                let (sh, w) = (shared.clone(), writer.clone());
+                let end = Box::new(move |_e: i64| {
+                    end_stream(&sh, &w, Status::unavailable("the upstream plant closed the state stream"));
+                });
+                let _ = shared.releaser.schedule(last.unwrap_or(0), end);
+                break;
+            }
+            Err(s) => {
+                closed.store(true, AtomicOrdering::Release);
+                let status = if crate::core::is_gone(&s) { shared.upstream_lost(&s) } else { s };
+                end_stream(&shared, &writer, status);
+                break;
+            }
+        }
+    }
+}
+
+/// The release of one copy into a real-time stream's buffer (on the release thread).
+fn release_sample(
+    shared: &Shared,
+    writer: &Writer<Released>,
+    closed: &AtomicBool,
+    msg: Msg,
+    release_error_ns: i64,
+    sample: pb::StateSample,
+) {
+    if closed.load(AtomicOrdering::Acquire) {
+        let mut inner = shared.lock();
+        let reason = inner.epoch_reason.clone();
+        inner.dropped(&msg, &reason);
+        return;
+    }
+    // Counted as delivered when the controller's side takes it from the buffer.
+    match writer.push(Released::Sample { msg, release_error_ns, sample: Box::new(sample) }) {
+        Pushed::Queued => {}
+        Pushed::Evicted(Released::Sample { msg: oldest, .. }) => shared.lock().overflowed(&oldest),
+        // An end is pushed last and never evicted.
+        Pushed::Evicted(Released::End(_)) => {}
+        Pushed::Closed(_) => shared.lock().dropped(&msg, "controller gone"),
+    }
+}
+
+/// Ends a real-time state stream with `status` after what its buffer holds (whose oldest
+/// sample makes room when it is full).
+fn end_stream(shared: &Shared, writer: &Writer<Released>, status: Status) {
+    if let Pushed::Evicted(Released::Sample { msg: oldest, .. }) = writer.push_last(Released::End(status)) {
+        shared.lock().overflowed(&oldest);
+    }
+}
+
+/// The controller's side of a real-time state stream: a copy counts as delivered when gRPC
+/// takes it from the buffer; copies left in the buffer when the controller leaves are
+/// dropped ("controller gone").
+struct RealTimeSamples {
+    reader: Reader<Released>,
+    shared: Arc<Shared>,
+}
+
+impl tokio_stream::Stream for RealTimeSamples {
+    type Item = Result<pb::StateSample, Status>;
+
+    fn poll_next(
+        self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Option<Self::Item>> {
+        let this = self.get_mut();
+        this.reader.poll_recv(cx).map(|item| {
+            item.map(|released| match released {
+                Released::Sample { msg, release_error_ns, sample } => {
+                    this.shared.lock().delivered(&msg, release_error_ns);
+                    Ok(*sample)
+                }
+                Released::End(status) => Err(status),
+            })
+        })
+    }
+}
+
+impl Drop for RealTimeSamples {
+    fn drop(&mut self) {
+        let left = self.reader.close();
+        if left.is_empty() {
+            return;
+        }
+        let mut inner = self.shared.lock();
+        for released in left {
+            if let Released::Sample { msg, .. } = released {
+                inner.dropped(&msg, "controller gone");
+            }
+        }
     }
 }
 

@@ -7,7 +7,7 @@ fn help_lists_the_flags_a_user_starts_netem_with() {
     let out = Command::new(env!("CARGO_BIN_EXE_netem")).arg("--help").output().expect("netem runs");
     assert!(out.status.success(), "{out:?}");
     let help = String::from_utf8_lossy(&out.stdout);
-    for flag in ["--listen", "--profile", "--seed", "--time-mode"] {
+    for flag in ["--listen", "--profile", "--seed", "--time-mode", "--max-streams"] {
         assert!(help.contains(flag), "{flag} missing from:\n{help}");
     }
 }
@@ -63,4 +63,14 @@ fn a_valid_profile_file_gets_as_far_as_listening() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!stderr.contains("--profile-file"), "{stderr}");
     assert!(stderr.contains("cannot listen on"), "{stderr}");
+}
+
+#[test]
+fn max_streams_zero_is_refused_at_start_naming_the_flag() {
+    let out = Command::new(env!("CARGO_BIN_EXE_netem"))
+        .args(["--listen", "127.0.0.1:0", "--max-streams", "0"])
+        .output()
+        .expect("netem runs");
+    assert!(!out.status.success(), "{out:?}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--max-streams"), "{out:?}");
 }

@@ -1,5 +1,6 @@
 //! Settings of the plant service: validated data with documented defaults and units.
 
+use hilbench_svc::streams::DEFAULT_MAX_STREAMS;
 use mav::{Scenario, SimSettings};
 use std::fmt;
 use std::str::FromStr;
@@ -58,6 +59,11 @@ impl ConfigError {
     }
 }
 
+/// Default of [`PlantConfig::stream_buffer`], samples: a quarter second of steps at 1 kHz,
+/// so that a lockstep `Advance` of up to 255 ms reaches a period-0 subscriber whole (the
+/// bench's cycles are 50 ms); at most about 64 KB for a subscriber that stopped reading.
+pub const DEFAULT_STREAM_BUFFER: usize = 256;
+
 /// Default watchdog timeout in real time, ns (500 ms).
 pub const DEFAULT_REAL_TIME_WATCHDOG_NS: u64 = 500_000_000;
 
@@ -74,9 +80,14 @@ pub struct PlantConfig {
     /// With no command for this long, ns, the plant holds hover and says so in its samples;
     /// `None` = off. Default: 500 ms in real time, off in lockstep.
     pub watchdog_timeout_ns: Option<u64>,
-    /// Samples queued per `StreamState` subscriber; when the queue is full, newer samples are
-    /// dropped for that subscriber only (it sees a gap in `seq`). Default 1024.
+    /// Samples queued per `StreamState` subscriber; when the queue is full, its oldest sample
+    /// is discarded for the newest (the subscriber sees a gap in `seq`, finds the freshest
+    /// state when it reads again, and the plant never waits for it), counted and logged.
+    /// Default [`DEFAULT_STREAM_BUFFER`].
     pub stream_buffer: usize,
+    /// `StreamState` streams open at once; one more is refused with `RESOURCE_EXHAUSTED`
+    /// (`--max-streams`, default 64).
+    pub max_streams: usize,
 }
 
 impl Default for PlantConfig {
@@ -93,7 +104,8 @@ impl PlantConfig {
             time_mode: TimeMode::Lockstep,
             rate_hz: 1000.0,
             watchdog_timeout_ns: None,
-            stream_buffer: 1024,
+            stream_buffer: DEFAULT_STREAM_BUFFER,
+            max_streams: DEFAULT_MAX_STREAMS,
         }
     }
 
@@ -121,6 +133,9 @@ impl PlantConfig {
         if self.stream_buffer == 0 {
             return Err(ConfigError::new("stream_buffer", "must be at least 1"));
         }
+        if self.max_streams == 0 {
+            return Err(ConfigError::new("max_streams", "must be at least 1"));
+        }
         Ok(settings)
     }
 }
@@ -142,6 +157,8 @@ mod tests {
         assert_eq!(bad.validate().map_err(|e| e.field), Err("watchdog_timeout_ns".to_string()));
         let bad = PlantConfig { stream_buffer: 0, ..Default::default() };
         assert_eq!(bad.validate().map_err(|e| e.field), Err("stream_buffer".to_string()));
+        let bad = PlantConfig { max_streams: 0, ..Default::default() };
+        assert_eq!(bad.validate().map_err(|e| e.field), Err("max_streams".to_string()));
         assert_eq!("real-time".parse(), Ok(TimeMode::RealTime));
         assert!("fast".parse::<TimeMode>().is_err());
     }

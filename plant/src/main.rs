@@ -38,6 +38,9 @@ struct Args {
     /// Default: 500 in real time, off in lockstep.
     #[arg(long)]
     watchdog_ms: Option<u64>,
+    /// StreamState streams served at once; one more is refused with RESOURCE_EXHAUSTED.
+    #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = at_least_one())]
+    max_streams: usize,
 }
 
 fn config(args: &Args) -> anyhow::Result<PlantConfig> {
@@ -48,6 +51,7 @@ fn config(args: &Args) -> anyhow::Result<PlantConfig> {
         Mode::Lockstep => PlantConfig::lockstep(scenario),
     };
     config.rate_hz = args.rate_hz;
+    config.max_streams = args.max_streams;
     if let Some(ms) = args.watchdog_ms {
         config.watchdog_timeout_ns = match ms {
             0 => None,
@@ -70,4 +74,9 @@ async fn main() -> anyhow::Result<()> {
         .with_context(|| format!("cannot listen on {}", args.listen))?;
     plant::serve(listener, config, hilbench_svc::shutdown_signal()).await?;
     Ok(())
+}
+
+/// A count of at least 1 (clap names the flag when it is not).
+fn at_least_one() -> clap::builder::RangedU64ValueParser<usize> {
+    clap::builder::RangedU64ValueParser::new().range(1..)
 }

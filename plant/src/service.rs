@@ -7,11 +7,11 @@ use crate::config::{ConfigError, PlantConfig, TimeMode};
 use hilbench_proto::convert::FieldError;
 use hilbench_proto::convert::plant::{self as conv, Command, Reset, Step, StreamState};
 use hilbench_proto::pb;
+use hilbench_svc::streams::{Guarded, Pushed, StreamSlots, Writer, drop_oldest};
 use mav::{PlantSim, Scenario, SimSettings};
 use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use tokio::sync::mpsc;
-use tokio_stream::wrappers::ReceiverStream;
+use tokio_stream::StreamExt;
 use tonic::{Request, Response, Status};
 
 /// What the plant calls itself in `PlantDescription.implementation`.
@@ -22,16 +22,24 @@ pub const IMPLEMENTATION: &str = concat!("hilbench-plant ", env!("CARGO_PKG_VERS
 /// inline, which keeps the round trip short.
 const INLINE_ADVANCE_MAX_NS: u64 = 100_000_000;
 
-type SampleTx = mpsc::Sender<Result<pb::StateSample, Status>>;
-
 /// One `StreamState` subscriber.
 struct Subscriber {
+    /// The period in force: the one asked for, and at least one step (0 asks for every step).
     period_ns: u64,
-    /// `floor(time / period)` of the last sample sent (unused when `period_ns == 0`).
+    /// `floor(time / period)` of the last sample sent.
     last_slot: u64,
-    tx: SampleTx,
-    /// Samples dropped because the subscriber's queue was full.
+    /// Its buffer of `PlantConfig::stream_buffer` samples, which drops its oldest when full.
+    tx: Writer<pb::StateSample>,
+    /// Samples evicted from its full buffer.
     dropped: u64,
+}
+
+/// The `StreamState` subscribers, and what their buffers discarded.
+#[derive(Default)]
+struct Subscribers {
+    list: Vec<Subscriber>,
+    /// Samples evicted from a subscriber's full buffer, over every subscriber since start.
+    overflow_dropped: u64,
 }
 
 /// Everything behind the lock.
@@ -46,7 +54,7 @@ struct Inner {
     /// The sample of the current instant, once produced; cleared whenever the state, the time
     /// or the last command changes.
     current: Option<pb::StateSample>,
-    subscribers: Vec<Subscriber>,
+    subscribers: Subscribers,
     /// Set at shutdown: streams are closed and no new ones are accepted.
     closed: bool,
     /// The id of the next flight (every reset starts one; see `mav::PlantSample::flight_id`).
@@ -71,46 +79,60 @@ fn current_sample(
 
 /// Called after every integration sub-step. It only reads the simulation, so observing never
 /// changes the physics (the step boundaries are the simulation's own).
+///
+/// Streams are fed at step boundaries only (plant time a multiple of the step): a subscriber
+/// gets the first boundary at or after each multiple of its period, so every step's time
+/// exactly once, in order, with period 0. The other sub-steps end wherever a caller stopped
+/// (a command's arrival, a lockstep read, a real-time tick catching up with the clock at
+/// whatever time it woke), and feeding streams there gave a period-0 subscriber of a
+/// real-time plant about two samples per step at irregular times (issue 19).
 fn on_step(
     sim: &PlantSim,
     next_seq: &mut u64,
     current: &mut Option<pb::StateSample>,
-    subs: &mut Vec<Subscriber>,
+    subs: &mut Subscribers,
 ) {
     *current = None;
-    if subs.is_empty() {
+    let t = sim.time_ns();
+    if subs.list.is_empty() || !t.is_multiple_of(sim.settings().step_ns) {
         return;
     }
-    let t = sim.time_ns();
     let mut sample: Option<pb::StateSample> = None;
-    subs.retain_mut(|s| {
-        // Period 0 (no division) means every step.
-        if let Some(slot) = t.checked_div(s.period_ns) {
-            if slot <= s.last_slot {
-                return true;
-            }
-            s.last_slot = slot;
+    let Subscribers { list, overflow_dropped } = subs;
+    list.retain_mut(|s| {
+        let slot = t / s.period_ns;
+        if slot <= s.last_slot {
+            return true;
         }
+        s.last_slot = slot;
         let msg = sample.get_or_insert_with(|| current_sample(sim, next_seq, current)).clone();
-        offer(s, msg)
+        offer(s, msg, overflow_dropped)
     });
 }
 
 /// Hands a sample to a subscriber without ever waiting: a slow subscriber must not hold up the
-/// simulation (nor the other subscribers), so when its bounded queue is full the sample is
-/// dropped for it alone and it sees a gap in `seq`. Returns false when the subscriber is gone.
-fn offer(s: &mut Subscriber, msg: pb::StateSample) -> bool {
-    match s.tx.try_send(Ok(msg)) {
-        Ok(()) => true,
-        Err(mpsc::error::TrySendError::Full(_)) => {
+/// simulation (nor the other subscribers). When its buffer is full its oldest sample is
+/// discarded for this one, so that it finds the freshest state when it reads again (what a
+/// controller needs: a stale sample is worth less than a new one) and sees a gap in `seq`.
+/// Counted per subscriber and in `overflow_dropped`, logged at every power of two. Returns
+/// false when the subscriber is gone.
+fn offer(s: &mut Subscriber, msg: pb::StateSample, overflow_dropped: &mut u64) -> bool {
+    match s.tx.push(msg) {
+        Pushed::Queued => true,
+        Pushed::Evicted(_) => {
             s.dropped += 1;
+            *overflow_dropped += 1;
             if s.dropped.is_power_of_two() {
-                tracing::warn!(dropped = s.dropped, "state stream subscriber is too slow; dropping samples");
+                tracing::warn!(
+                    dropped = s.dropped,
+                    all_streams = *overflow_dropped,
+                    "a state stream subscriber is too slow: the oldest samples of its buffer are discarded"
+                );
             }
             true
         }
-        Err(mpsc::error::TrySendError::Closed(_)) => {
-            tracing::debug!("state stream subscriber left");
+        Pushed::Closed(_) => {
+            tracing::debug!(dropped = s.dropped, "state stream subscriber left");
             false
         }
     }
@@ -146,6 +168,8 @@ struct Shared {
     /// The configured scenario (what an empty `Reset.scenario` means at start).
     config_scenario: Scenario,
     stream_buffer: usize,
+    /// The cap on open `StreamState` streams.
+    slots: StreamSlots,
     clock: Arc<dyn Clock>,
 }
 
@@ -209,7 +233,7 @@ impl PlantService {
             epoch_ns: clock.now_ns(),
             next_seq: 0,
             current: None,
-            subscribers: Vec::new(),
+            subscribers: Subscribers::default(),
             closed: false,
             next_flight_id: first_flight_id.wrapping_add(1).max(1),
         };
@@ -220,6 +244,7 @@ impl PlantService {
                 settings,
                 config_scenario: config.scenario,
                 stream_buffer: config.stream_buffer,
+                slots: StreamSlots::new("plant", config.max_streams),
                 clock,
             }),
         })
@@ -240,12 +265,18 @@ impl PlantService {
         self.shared.catch_up(&mut inner);
     }
 
+    /// Samples discarded from full `StreamState` buffers since start, over every subscriber
+    /// (each subscriber's count is in the log, at every power of two).
+    pub fn stream_overflow_dropped(&self) -> u64 {
+        self.shared.lock().subscribers.overflow_dropped
+    }
+
     /// Ends every state stream and refuses new ones (at shutdown, so that the server can
     /// finish its open calls).
     pub fn close(&self) {
         let mut inner = self.shared.lock();
         inner.closed = true;
-        inner.subscribers.clear();
+        inner.subscribers.list.clear();
     }
 
     /// Lockstep advance, off the runtime workers when it is long.
@@ -320,11 +351,12 @@ impl pb::plant_server::Plant for PlantService {
         inner.current = None;
         let sample = inner.sample();
         let description = shared.describe(&inner);
-        // Every subscriber learns about the reset: it gets the new first sample.
-        let msg = sample.clone();
-        inner.subscribers.retain_mut(|s| {
+        // Every subscriber learns about the reset: it gets the new first sample (a full buffer
+        // makes room for it).
+        let Subscribers { list, overflow_dropped } = &mut inner.subscribers;
+        list.retain_mut(|s| {
             s.last_slot = 0;
-            offer(s, msg.clone())
+            offer(s, sample.clone(), overflow_dropped)
         });
         Ok(Response::new(pb::ResetResponse { description: Some(description), sample: Some(sample) }))
     }
@@ -336,28 +368,24 @@ impl pb::plant_server::Plant for PlantService {
         request: Request<pb::StreamStateRequest>,
     ) -> Result<Response<Self::StreamStateStream>, Status> {
         let req = StreamState::try_from(request.get_ref())?;
-        let (tx, rx) = mpsc::channel(self.shared.stream_buffer);
+        let slot = self.shared.slots.acquire("StreamState")?;
+        let (tx, rx) = drop_oldest(self.shared.stream_buffer);
         let mut inner = self.shared.lock();
         if inner.closed {
             return Err(Status::unavailable("the plant is shutting down"));
         }
         // The stream starts with the current sample.
         let first = inner.sample();
-        let time_ns = first.time_ns;
-        let mut sub = Subscriber {
-            period_ns: req.period_ns,
-            last_slot: time_ns.checked_div(req.period_ns).unwrap_or(0),
-            tx,
-            dropped: 0,
-        };
-        offer(&mut sub, first);
-        inner.subscribers.push(sub);
+        let period_ns = req.period_ns.max(self.shared.settings.step_ns);
+        let sub = Subscriber { period_ns, last_slot: first.time_ns / period_ns, tx, dropped: 0 };
+        let _ = sub.tx.push(first); // a new buffer has room
+        inner.subscribers.list.push(sub);
         tracing::debug!(
             period_ns = req.period_ns,
-            subscribers = inner.subscribers.len(),
+            subscribers = inner.subscribers.list.len(),
             "state stream opened"
         );
-        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+        Ok(Response::new(Box::pin(Guarded::new(rx.map(Ok), slot))))
     }
 
     async fn get_state(
@@ -537,7 +565,42 @@ mod tests {
     }
 
     #[tokio::test]
-    async fn a_full_subscriber_loses_samples_but_never_blocks_the_plant() {
+    async fn in_real_time_period_0_gives_every_step_once_whenever_the_ticks_and_commands_come() {
+        let clock = Arc::new(ManualClock::new(0));
+        let svc =
+            PlantService::new(PlantConfig::real_time(Scenario::paper_1()), clock.clone()).expect("valid");
+        let open = |period_ns| svc.stream_state(Request::new(pb::StreamStateRequest { period_ns }));
+        let every = open(0).await.expect("ok").into_inner();
+        let coarse = open(2_500_000).await.expect("ok").into_inner();
+        // Ticks that wake late and early, and commands that arrive between them: each ends an
+        // integration sub-step off the 1 ms grid.
+        for (wait_ns, command) in [
+            (1_300_000, false),
+            (700_000, false),
+            (450_000, true),
+            (1_020_000, false),
+            (2_900_000, true),
+            (30_000, false),
+            (600_000, false),
+        ] {
+            clock.advance(wait_ns);
+            if command {
+                svc.apply_command(Request::new(cmd(10.0, 0.0, 1))).await.expect("applied");
+            } else {
+                svc.tick();
+            }
+        }
+        let last = svc.get_state(Request::new(pb::GetStateRequest {})).await.expect("ok").into_inner();
+        assert_eq!(last.time_ns, 7_000_000);
+        svc.close();
+        let every: Vec<u64> = every.map(|s| s.expect("ok").time_ns).collect().await;
+        let coarse: Vec<u64> = coarse.map(|s| s.expect("ok").time_ns).collect().await;
+        assert_eq!(every, (0..=7).map(|k| k * 1_000_000).collect::<Vec<_>>());
+        assert_eq!(coarse, vec![0, 3_000_000, 5_000_000]);
+    }
+
+    #[tokio::test]
+    async fn a_subscriber_that_does_not_read_finds_the_newest_samples_and_never_blocks_the_plant() {
         let config = PlantConfig { stream_buffer: 2, ..Default::default() };
         let svc = PlantService::new(config, Arc::new(ManualClock::new(0))).expect("valid");
         let mut stream = svc
@@ -550,16 +613,39 @@ mod tests {
             .await
             .expect("ok");
         assert_eq!(r.into_inner().sample.map(|s| s.time_ns), Some(50_000_000));
-        use tokio_stream::StreamExt;
+        // 51 samples (0 to 50 ms) for a buffer of 2: the 49 oldest were discarded.
+        assert_eq!(svc.stream_overflow_dropped(), 49);
         let first = stream.next().await.and_then(Result::ok).map(|s| s.time_ns);
         let second = stream.next().await.and_then(Result::ok).map(|s| s.time_ns);
-        assert_eq!((first, second), (Some(0), Some(1_000_000)));
-        // The queue has room again: the next step is delivered, with a gap in seq.
+        assert_eq!((first, second), (Some(49_000_000), Some(50_000_000)));
+        // Read up: the next step is delivered, and nothing more is discarded.
         svc.advance(Request::new(pb::AdvanceRequest { duration_ns: 1_000_000, ..Default::default() }))
             .await
             .expect("ok");
         let third = stream.next().await.and_then(Result::ok).expect("sample");
         assert_eq!(third.time_ns, 51_000_000);
-        assert!(third.seq > 2);
+        assert_eq!(svc.stream_overflow_dropped(), 49);
+    }
+
+    #[tokio::test]
+    async fn a_subscriber_with_a_full_buffer_still_gets_the_reset_sample() {
+        let config = PlantConfig { stream_buffer: 2, ..Default::default() };
+        let svc = PlantService::new(config, Arc::new(ManualClock::new(0))).expect("valid");
+        let mut stream = svc
+            .stream_state(Request::new(pb::StreamStateRequest { period_ns: 0 }))
+            .await
+            .expect("ok")
+            .into_inner();
+        svc.advance(Request::new(pb::AdvanceRequest { duration_ns: 10_000_000, ..Default::default() }))
+            .await
+            .expect("ok");
+        let reset = svc.reset(Request::new(pb::ResetRequest::default())).await.expect("ok").into_inner();
+        let reset = reset.sample.expect("sample");
+        let mut got = Vec::new();
+        for _ in 0..2 {
+            let s = stream.next().await.and_then(Result::ok).expect("sample");
+            got.push((s.time_ns, s.seq));
+        }
+        assert_eq!(got, vec![(10_000_000, 10), (reset.time_ns, reset.seq)]);
     }
 }

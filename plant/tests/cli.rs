@@ -7,7 +7,7 @@ fn help_lists_the_flags_a_user_starts_the_plant_with() {
     let out = Command::new(env!("CARGO_BIN_EXE_plant")).arg("--help").output().expect("plant runs");
     assert!(out.status.success(), "{out:?}");
     let help = String::from_utf8_lossy(&out.stdout);
-    for flag in ["--listen", "--scenario", "--time-mode"] {
+    for flag in ["--listen", "--scenario", "--time-mode", "--max-streams"] {
         assert!(help.contains(flag), "{flag} missing from:\n{help}");
     }
 }
@@ -58,4 +58,14 @@ fn logs_written_to_a_pipe_carry_no_colour_codes() {
     let _ = plant.wait();
     assert!(matches!(read, Some(Ok(n)) if n > 0), "no log line: {read:?}");
     assert!(!first.contains('\u{1b}'), "colour codes in {first:?}");
+}
+
+#[test]
+fn max_streams_zero_is_refused_at_start_naming_the_flag() {
+    let out = Command::new(env!("CARGO_BIN_EXE_plant"))
+        .args(["--listen", "127.0.0.1:0", "--max-streams", "0"])
+        .output()
+        .expect("plant runs");
+    assert!(!out.status.success(), "{out:?}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--max-streams"), "{out:?}");
 }

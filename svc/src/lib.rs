@@ -1,9 +1,12 @@
 //! `hilbench-svc` owns what the services (`plant`, `netem`, `controller`) do the same way: in
 //! their libraries' `serve`, the gRPC server with health and reflection ([`GrpcServer`]); in
 //! their `main`s, structured logs with `tracing` and the shutdown signal passed to `serve`;
-//! and the scenario file loader ([`scenario_file`]) behind `--scenario FILE`.
+//! server streams that cannot exhaust a service ([`streams`]: a cap on open streams, and a
+//! bounded drop-oldest buffer per subscriber); and the scenario file loader
+//! ([`scenario_file`]) behind `--scenario FILE`.
 
 pub mod scenario_file;
+pub mod streams;
 
 use std::future::Future;
 use std::net::SocketAddr;

@@ -5,6 +5,7 @@ pub mod plant;
 pub mod process;
 pub mod relay;
 pub mod server;
+pub mod streams;
 
 pub use controller::{RunningController, start_controller};
 pub use plant::{RunningPlant, start_plant, start_plant_with_clock, wait_for_state};

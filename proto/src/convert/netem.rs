@@ -168,8 +168,17 @@ impl From<&DirectionProfile> for pb::DirectionProfile {
     }
 }
 
-/// The statistics of one direction, with the number of copies netem holds right now.
-pub fn stats_to_pb(s: &DirectionStats, in_flight: u64) -> pb::DirectionStats {
+/// What netem's shell counts of one direction beside the delay line's statistics.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct HeldCounts {
+    /// Copies netem holds right now (in the release queue or a stream's buffer).
+    pub in_flight: u64,
+    /// Copies evicted from a state stream's full buffer (also counted in `dropped`).
+    pub stream_overflow_dropped: u64,
+}
+
+/// The statistics of one direction, with what netem's shell counts of it.
+pub fn stats_to_pb(s: &DirectionStats, held: HeldCounts) -> pb::DirectionStats {
     let secs = |ns: u64| ns as f64 / 1e9;
     let d = s.delay_percentiles().unwrap_or_default();
     let e = s.release_error_percentiles().unwrap_or_default();
@@ -185,8 +194,9 @@ pub fn stats_to_pb(s: &DirectionStats, in_flight: u64) -> pb::DirectionStats {
         delay_max_s: secs(d.max_ns),
         histogram: Some(pb::DelayHistogram { bin_width_s: secs(bin_ns), counts: counts.to_vec() }),
         release_error_p99_s: secs(e.p99_ns),
-        in_flight,
+        in_flight: held.in_flight,
         release_error_max_s: secs(e.max_ns),
+        stream_overflow_dropped: held.stream_overflow_dropped,
     }
 }
 

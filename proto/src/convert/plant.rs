@@ -61,7 +61,8 @@ pub struct Step {
 /// A validated `StreamStateRequest`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct StreamState {
-    /// Emit a sample whenever plant time crosses a multiple of this, ns; 0 = every step.
+    /// Emit the first step at or after each multiple of this, ns; 0 (or up to a step) = every
+    /// step (`plant.proto`, `StreamStateRequest`).
     pub period_ns: u64,
 }
 
@@ -186,8 +187,8 @@ impl TryFrom<&pb::StepRequest> for Step {
 impl TryFrom<&pb::StreamStateRequest> for StreamState {
     type Error = FieldError;
 
-    /// Every period is valid: 0 means every integration step, anything else is a multiple
-    /// of plant time (a period shorter than the step also gives every step).
+    /// Every period is valid: 0 means every integration step, anything else samples the first
+    /// step at or after each of its multiples (a period shorter than the step gives every step).
     fn try_from(r: &pb::StreamStateRequest) -> Result<Self, FieldError> {
         Ok(Self { period_ns: r.period_ns })
     }

@@ -9,6 +9,7 @@ use std::time::Duration;
 use controller::{ControllerConfig, TimeModeSetting};
 use hilbench_proto::pb;
 use hilbench_proto::pb::controller_client::ControllerClient;
+use hilbench_tests::streams::{assert_exhausted, open_when_a_slot_is_free};
 use hilbench_tests::{Relay, RunningController, RunningPlant, start_controller, start_plant};
 use mav::Scenario;
 use mpc::ControllerMode;
@@ -278,6 +279,29 @@ async fn controller_stops_while_a_call_hangs_on_a_silent_link() {
     assert!(hung.plant_connected, "no failure is visible before the timeout: {hung:?}");
     ctl.stop().await.expect("controller stops cleanly, without waiting for the call");
     drop(relay); // its frozen connection to the plant would hold the plant's graceful shutdown
+    plant.stop().await.expect("plant stops cleanly");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn telemetry_streams_beyond_max_streams_are_resource_exhausted_and_a_dropped_one_frees_its_slot() {
+    let scenario = Scenario::by_name("paper-1").expect("built-in");
+    let plant = start_plant(PlantConfig::lockstep(scenario.clone())).await;
+    let mut config = ControllerConfig::new(plant.addr.to_string(), scenario, ControllerMode::Nmpc);
+    config.autostart = false;
+    config.max_streams = 1;
+    let ctl = start_controller(config).await;
+    let mut client = ctl.client().await;
+    let first = client.stream_telemetry(pb::StreamTelemetryRequest {}).await.expect("a telemetry stream");
+    assert_exhausted(client.stream_telemetry(pb::StreamTelemetryRequest {}).await, 1);
+    status(&mut client).await; // unary calls are served as before
+    drop(first);
+    let again = open_when_a_slot_is_free("controller StreamTelemetry", PATIENCE, || {
+        let mut client = client.clone();
+        async move { client.stream_telemetry(pb::StreamTelemetryRequest {}).await }
+    })
+    .await;
+    drop(again);
+    ctl.stop().await.expect("controller stops cleanly");
     plant.stop().await.expect("plant stops cleanly");
 }
 

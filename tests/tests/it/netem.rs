@@ -12,6 +12,7 @@ use hilbench_proto::pb::netem_control_client::NetemControlClient;
 use hilbench_proto::pb::plant_client::PlantClient;
 use hilbench_tests::server::{self, Running};
 use hilbench_tests::start_plant;
+use hilbench_tests::streams::{assert_exhausted, open_when_a_slot_is_free};
 use mav::{CommandMeta, Input, PlantSim, Scenario, SimSettings};
 use plant::PlantConfig;
 use tokio::sync::oneshot;
@@ -535,4 +536,202 @@ async fn a_command_the_plant_would_refuse_is_refused_by_netem_and_time_does_not_
     let stats = netem.control().await.get_stats(pb::GetStatsRequest {}).await.expect("stats").into_inner();
     let commands = stats.controller_to_plant.expect("command stats");
     assert_eq!((commands.sent, commands.dropped, commands.in_flight), (0, 0, 0), "{commands:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn streams_beyond_max_streams_are_resource_exhausted_and_a_dropped_stream_frees_its_slot() {
+    let plant = start_plant(PlantConfig::real_time(Scenario::paper_1())).await;
+    let mut config = netem::Config::new(plant.addr.to_string());
+    config.max_streams = 2;
+    let netem = start_netem(config).await;
+    let mut client = netem.plant().await;
+    let mut control = netem.control().await;
+    let request = || pb::StreamStateRequest { period_ns: 0 };
+    // StreamState and StreamDeliveries share the cap.
+    let mut samples = client.stream_state(request()).await.expect("a state stream").into_inner();
+    let deliveries =
+        control.stream_deliveries(pb::StreamDeliveriesRequest {}).await.expect("a delivery stream");
+    assert_exhausted(client.stream_state(request()).await, 2);
+    assert_exhausted(control.stream_deliveries(pb::StreamDeliveriesRequest {}).await, 2);
+    tokio::time::timeout(PATIENCE, samples.next()).await.expect("a sample").expect("open").expect("ok");
+    drop(deliveries);
+    let mut again = open_when_a_slot_is_free("netem StreamState", PATIENCE, || {
+        let mut client = client.clone();
+        async move { client.stream_state(request()).await }
+    })
+    .await
+    .into_inner();
+    tokio::time::timeout(PATIENCE, again.next()).await.expect("a sample").expect("open").expect("ok");
+    drop((samples, again));
+    netem.stop().await.expect("netem served cleanly");
+    plant.stop().await.expect("plant stops");
+}
+
+/// A netem in real time in front of a lockstep plant: samples are made only when the test
+/// advances the plant (with its own client), and netem releases each into its streams as it
+/// comes, so the test knows every sample that was sent without reading a clock.
+async fn real_time_netem_on_a_lockstep_plant(
+    tweak: impl FnOnce(&mut netem::Config),
+) -> (hilbench_tests::RunningPlant, RunningNetem) {
+    let plant = start_plant(PlantConfig::lockstep(Scenario::paper_1())).await;
+    let mut config = netem::Config::new(plant.addr.to_string());
+    config.time_mode = netem::TimeModeSetting::RealTime;
+    tweak(&mut config);
+    let netem = start_netem(config).await;
+    (plant, netem)
+}
+
+/// A client of netem whose HTTP/2 stream window is small, so that the transport holds a few
+/// hundred samples of a stream that is not read, not tonic's default 2 MiB (19,000 samples).
+async fn small_window_channel(netem: &RunningNetem) -> Channel {
+    let endpoint = Channel::from_shared(netem.uri()).expect("uri").initial_stream_window_size(16 * 1024);
+    endpoint.connect().await.expect("connect to netem")
+}
+
+/// Polls netem's statistics until `pred` holds; panics with `what` after `PATIENCE`.
+async fn wait_for_stats(
+    control: &mut NetemControlClient<Channel>,
+    what: &str,
+    pred: impl Fn(&pb::NetemStats) -> bool,
+) -> pb::NetemStats {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    loop {
+        let s = control.get_stats(pb::GetStatsRequest {}).await.expect("stats").into_inner();
+        if pred(&s) {
+            return s;
+        }
+        assert!(tokio::time::Instant::now() < deadline, "timed out waiting for {what}: {s:?}");
+        sleep_ms(5).await;
+    }
+}
+
+fn p2c(s: &pb::NetemStats) -> pb::DirectionStats {
+    s.plant_to_controller.clone().expect("plant-to-controller stats")
+}
+
+/// Advances the plant `steps` ms, 50 ms at a time, each time until netem has received the
+/// samples (so that the plant's own buffer for netem never fills).
+async fn advance_plant_step_by_step(
+    plant: &mut PlantClient<Channel>,
+    control: &mut NetemControlClient<Channel>,
+    sent_before: u64,
+    steps: u64,
+) {
+    for chunk in 1..=steps / 50 {
+        plant
+            .advance(pb::AdvanceRequest { duration_ns: 50_000_000, ..Default::default() })
+            .await
+            .expect("advance the plant");
+        let want = sent_before + 50 * chunk;
+        wait_for_stats(control, "netem to receive the samples", |s| p2c(s).sent == want).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_state_stream_not_read_holds_at_most_its_buffer_counts_the_discarded_and_resumes_at_the_newest() {
+    const BUFFER: usize = 8;
+    const STEPS: u64 = 2000;
+    let (plant, netem) = real_time_netem_on_a_lockstep_plant(|c| c.stream_buffer = BUFFER).await;
+    let mut control = netem.control().await;
+    let mut driver = plant.client().await;
+    let mut client = PlantClient::new(small_window_channel(&netem).await);
+    let mut stream =
+        client.stream_state(pb::StreamStateRequest { period_ns: 0 }).await.expect("stream").into_inner();
+    let first =
+        tokio::time::timeout(PATIENCE, stream.next()).await.expect("sample").expect("open").expect("ok");
+    assert_eq!(first.time_ns, 0);
+    control.start_trace(pb::StartTraceRequest {}).await.expect("start trace");
+
+    // The reader stops reading while the plant makes STEPS samples.
+    advance_plant_step_by_step(&mut driver, &mut control, 1, STEPS).await;
+    // Once everything is released, netem holds one buffer's worth and no more: the rest went
+    // into the transport (before it filled) or was discarded, oldest first, and counted.
+    let held = wait_for_stats(&mut control, "the releases", |s| p2c(s).in_flight <= BUFFER as u64).await;
+    let held = p2c(&held);
+    assert_eq!(held.in_flight, BUFFER as u64, "{held:?}");
+    assert!(held.stream_overflow_dropped > 0, "nothing was discarded: {held:?}");
+    assert_eq!(held.dropped, held.stream_overflow_dropped, "every drop is an overflow: {held:?}");
+    assert_eq!(held.sent, 1 + STEPS);
+    assert_eq!(held.sent, held.delivered + held.dropped + held.in_flight, "the books balance: {held:?}");
+
+    // Reading again: what the transport held, then the buffer, which ends at the newest.
+    let mut times = vec![first.time_ns];
+    while times.last() != Some(&(STEPS * 1_000_000)) {
+        let s =
+            tokio::time::timeout(PATIENCE, stream.next()).await.expect("sample").expect("open").expect("ok");
+        times.push(s.time_ns);
+    }
+    // In order, each sample once; the gaps are where the buffer discarded samples (also
+    // while the transport still took some: the plant's 50-sample bursts overflow 8 places).
+    assert!(times.windows(2).all(|w| w[1] > w[0]), "out of order or repeated: {times:?}");
+    let missing: u64 = times.windows(2).map(|w| (w[1] - w[0]) / 1_000_000 - 1).sum();
+    assert_eq!(missing, held.stream_overflow_dropped, "the discarded are the ones the reader missed");
+    let newest: Vec<u64> = (STEPS + 1 - BUFFER as u64..=STEPS).map(|k| k * 1_000_000).collect();
+    assert_eq!(times[times.len() - BUFFER..], newest[..], "after the gap: the newest {BUFFER} samples");
+
+    let after = p2c(&control.get_stats(pb::GetStatsRequest {}).await.expect("stats").into_inner());
+    assert_eq!((after.delivered, after.in_flight), (times.len() as u64, 0), "{after:?}");
+    let trace = control.stop_trace(pb::StopTraceRequest {}).await.expect("stop trace").into_inner();
+    let discarded = trace.records.iter().filter(|r| r.dropped && r.drop_reason == "subscriber too slow");
+    assert_eq!(discarded.count() as u64, held.stream_overflow_dropped, "each discarded sample is traced");
+    drop(stream);
+    netem.stop().await.expect("netem served cleanly");
+    plant.stop().await.expect("plant stops");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_delivery_stream_reader_that_falls_behind_misses_the_oldest_records_and_netem_counts_them() {
+    const STEPS: u64 = 3000;
+    let (plant, netem) = real_time_netem_on_a_lockstep_plant(|c| c.deliveries_buffer = 16).await;
+    let mut control = netem.control().await;
+    let mut driver = plant.client().await;
+    let mut records = NetemControlClient::new(small_window_channel(&netem).await)
+        .stream_deliveries(pb::StreamDeliveriesRequest {})
+        .await
+        .expect("deliveries")
+        .into_inner();
+    // A state stream read as it comes, so that each sample is one record.
+    let mut states = netem
+        .plant()
+        .await
+        .stream_state(pb::StreamStateRequest { period_ns: 0 })
+        .await
+        .expect("s")
+        .into_inner();
+    let reader = tokio::spawn(async move {
+        let mut newest = pb::StateSample::default();
+        while newest.time_ns < STEPS * 1_000_000 {
+            newest = tokio::time::timeout(PATIENCE, states.next())
+                .await
+                .expect("sample")
+                .expect("open")
+                .expect("ok");
+        }
+        (newest, states)
+    });
+    wait_for_stats(&mut control, "the first sample", |s| p2c(s).sent == 1).await;
+    advance_plant_step_by_step(&mut driver, &mut control, 1, STEPS).await;
+    let (newest, states) = reader.await.expect("state reader");
+
+    // The delivery reader reads again, up to the record of the newest sample.
+    let mut read = 0u64;
+    loop {
+        let r =
+            tokio::time::timeout(PATIENCE, records.next()).await.expect("record").expect("open").expect("ok");
+        read += 1;
+        if r.payload_seq == newest.seq && !r.dropped {
+            break;
+        }
+    }
+    let stats = control.get_stats(pb::GetStatsRequest {}).await.expect("stats").into_inner();
+    let p = p2c(&stats);
+    assert!(stats.deliveries_lagged > 0, "the reader missed nothing: {stats:?}");
+    assert_eq!(
+        read + stats.deliveries_lagged,
+        p.delivered + p.dropped,
+        "every record published is read or counted missed: {stats:?}"
+    );
+    drop((records, states));
+    netem.stop().await.expect("netem served cleanly");
+    plant.stop().await.expect("plant stops");
 }

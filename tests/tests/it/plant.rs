@@ -4,6 +4,7 @@
 
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
+use hilbench_tests::streams::{assert_exhausted, open_when_a_slot_is_free};
 use hilbench_tests::{start_plant, wait_for_state};
 use mav::{CommandMeta, Input, PlantSim, Scenario, SimSettings, State};
 use plant::PlantConfig;
@@ -528,4 +529,59 @@ async fn reset_with_a_whole_scenario_flies_it_describe_returns_it_and_a_bad_one_
     let after = client.describe(pb::DescribeRequest {}).await.expect("describe").into_inner();
     assert_eq!(after, in_force, "a refused reset changes nothing");
     server.stop().await.expect("plant stops cleanly");
+}
+
+#[tokio::test]
+async fn a_stream_beyond_max_streams_is_resource_exhausted_and_a_dropped_stream_frees_its_slot() {
+    let server = start_plant(PlantConfig { max_streams: 2, ..PlantConfig::default() }).await;
+    let mut client = server.client().await;
+    let request = || pb::StreamStateRequest { period_ns: 0 };
+    let first = client.stream_state(request()).await.expect("first stream").into_inner();
+    let second = client.stream_state(request()).await.expect("second stream").into_inner();
+    assert_exhausted(client.stream_state(request()).await, 2);
+    // Unary calls are not streams: they are served as before.
+    get_state(&mut client).await;
+    drop(first);
+    let mut third = open_when_a_slot_is_free("plant StreamState", PATIENCE, || {
+        let mut client = client.clone();
+        async move { client.stream_state(request()).await }
+    })
+    .await
+    .into_inner();
+    assert_eq!(next_sample(&mut third).await.time_ns, 0, "the new stream starts with the current sample");
+    drop((second, third));
+    server.stop().await.expect("clean shutdown");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_real_time_stream_with_period_0_gives_each_step_once_in_order() {
+    // A buffer that cannot fill here, so that a gap or a repeat would be the sampling rule's.
+    let config = PlantConfig { stream_buffer: 1 << 20, ..PlantConfig::real_time(Scenario::paper_1()) };
+    let server = start_plant(config).await;
+    let mut client = server.client().await;
+    let step_ns = client.describe(pb::DescribeRequest {}).await.expect("describe").into_inner().step_ns;
+    let mut stream =
+        client.stream_state(pb::StreamStateRequest { period_ns: 0 }).await.expect("stream").into_inner();
+    let first = next_sample(&mut stream).await;
+    let mut samples = Vec::new();
+    for k in 0..600 {
+        samples.push(next_sample(&mut stream).await);
+        // Commands arrive between steps and end integration sub-steps there.
+        if k % 50 == 0 {
+            client.apply_command(command([9.81, 0.0, 0.0], k + 1, &first)).await.expect("apply");
+        }
+    }
+    let times: Vec<u64> = samples.iter().map(|s| s.time_ns).collect();
+    assert!(
+        times[0] > first.time_ns && times[0] - first.time_ns <= step_ns,
+        "{} then {times:?}",
+        first.time_ns
+    );
+    let off_grid: Vec<&u64> = times.iter().filter(|t| !t.is_multiple_of(step_ns)).collect();
+    assert!(off_grid.is_empty(), "samples between steps: {off_grid:?}");
+    let spacing: Vec<u64> = times.windows(2).map(|w| w[1] - w[0]).filter(|d| *d != step_ns).collect();
+    assert!(spacing.is_empty(), "consecutive samples not one step apart: {spacing:?}");
+    assert!(samples.windows(2).all(|w| w[1].seq > w[0].seq), "numbered in order");
+    drop(stream);
+    server.stop().await.expect("clean shutdown");
 }
