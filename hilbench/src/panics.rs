@@ -19,12 +19,16 @@ fn channel() -> &'static watch::Sender<Option<String>> {
     PANICS.get_or_init(|| {
         let default_hook = std::panic::take_hook();
         std::panic::set_hook(Box::new(move |info| {
-            default_hook(info);
             if std::thread::current().name() != Some(RUN_THREAD) {
+                default_hook(info);
                 return;
             }
+            // One line, no backtrace: a task that panics on every call (a service handler the
+            // controller retries) would otherwise print a symbolised backtrace per retry, each
+            // holding stderr for seconds, and keep the run's own error from being printed.
             let place = info.location().map(|l| format!(" at {}:{}", l.file(), l.line())).unwrap_or_default();
             let text = format!("{}{place}", hilbench_svc::panic_text(info.payload()));
+            eprintln!("a task of the run panicked: {text}");
             channel().send_replace(Some(text));
         }));
         watch::channel(None).0
