@@ -1,7 +1,7 @@
 //! Load benchmarks of netem on loopback (recorded in BENCHMARKS.md). Run in release:
 //!
 //! ```text
-//! cargo run --release -p netem --example load -- throughput --messages 200000
+//! cargo run --release -p netem --example load -- throughput --messages 200000 [--rate-hz 20000]
 //! cargo run --release -p netem --example load -- commands --messages 20000
 //! cargo run --release -p netem --example load -- real-time --seconds 60 --rate-hz 1000 --delay-ms 20
 //! cargo build --release -p plant -p netem
@@ -47,6 +47,13 @@ enum Bench {
     Throughput {
         #[arg(long, default_value_t = 200_000)]
         messages: u64,
+        /// Send at this rate instead (a burst of rate/1000 every millisecond); 0: as fast as
+        /// netem reads them.
+        #[arg(long, default_value_t = 0)]
+        rate_hz: u64,
+        /// netem's `Config::stream_buffer`, samples.
+        #[arg(long, default_value_t = netem::DEFAULT_STREAM_BUFFER)]
+        stream_buffer: usize,
     },
     /// Commands (unary ApplyCommand, zero delay, FIFO) from concurrent controllers.
     Commands {
@@ -128,6 +135,8 @@ struct Binaries {
 #[derive(Clone)]
 struct EchoPlant {
     limit: Arc<AtomicU64>,
+    /// Samples sent at each period's tick.
+    burst: u64,
     applied: Arc<AtomicU64>,
 }
 
@@ -151,12 +160,14 @@ impl pb::plant_server::Plant for EchoPlant {
     type StreamStateStream = Samples;
     async fn stream_state(&self, r: Request<pb::StreamStateRequest>) -> Result<Response<Samples>, Status> {
         let period = r.into_inner().period_ns;
-        let limit = self.limit.load(AtomicOrdering::Relaxed);
+        let (limit, burst) = (self.limit.load(AtomicOrdering::Relaxed), self.burst.max(1));
         let (tx, rx) = mpsc::channel(1024);
         tokio::spawn(async move {
             let mut tick = (period > 0).then(|| tokio::time::interval(Duration::from_nanos(period)));
             for seq in 0..limit {
-                if let Some(t) = &mut tick {
+                if let Some(t) = &mut tick
+                    && seq % burst == 0
+                {
                     t.tick().await;
                 }
                 if tx.send(Ok(sample(seq))).await.is_err() {
@@ -210,8 +221,11 @@ struct Rig {
     stops: Vec<oneshot::Sender<()>>,
 }
 
-async fn rig(delay_s: f64, limit: u64) -> anyhow::Result<Rig> {
-    let plant = EchoPlant { limit: Arc::new(AtomicU64::new(limit)), applied: Arc::new(AtomicU64::new(0)) };
+/// netem with a constant `delay_s` both ways in front of an echo plant whose streams send
+/// `limit` samples, `burst` at each tick of the period asked for.
+async fn rig(delay_s: f64, limit: u64, burst: u64, stream_buffer: usize) -> anyhow::Result<Rig> {
+    let plant =
+        EchoPlant { limit: Arc::new(AtomicU64::new(limit)), burst, applied: Arc::new(AtomicU64::new(0)) };
     let pl = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
     let plant_addr = pl.local_addr()?;
     let (stop_p, stopped_p) = oneshot::channel::<()>();
@@ -227,6 +241,7 @@ async fn rig(delay_s: f64, limit: u64) -> anyhow::Result<Rig> {
     });
     let mut config = netem::Config::new(plant_addr.to_string());
     config.time_mode = netem::TimeModeSetting::RealTime;
+    config.stream_buffer = stream_buffer;
     let profile = DirectionProfile::with_delay(Distribution::Constant { delay_s }, 42);
     config.plant_to_controller = profile.clone();
     config.controller_to_plant = profile;
@@ -439,6 +454,18 @@ async fn idle_streams(
             p.in_flight,
         );
     }
+    if let Some(netem) = &netem {
+        // netem's statistics keep the last 2^20 delays and release errors per direction (up
+        // to 16 MiB, whatever the streams): free them to see what the streams hold.
+        NetemControlClient::new(connect(&netem.addr).await?).reset_stats(pb::ResetStatsRequest {}).await?;
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        let reset = rss_kib(netem.pid())?;
+        println!(
+            "  after ResetStats: RSS {reset} KiB (+{} KiB): {:.0} KiB per idle stream",
+            reset.saturating_sub(before),
+            reset.saturating_sub(before) as f64 / idle.len().max(1) as f64
+        );
+    }
     let n = idle.len().max(1) as f64;
     println!(
         "  {} RSS {before} -> {last} KiB: {:.0} KiB per idle stream ({} streams, {seconds} s)",
@@ -518,11 +545,12 @@ async fn step_rate(
 async fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     match args.bench {
-        Bench::Throughput { messages } => {
-            let rig = rig(0.0, messages).await?;
+        Bench::Throughput { messages, rate_hz, stream_buffer } => {
+            let rig = rig(0.0, messages, rate_hz / 1000, stream_buffer).await?;
             let mut client = PlantClient::new(rig.netem.clone());
             let t0 = Instant::now();
-            let mut s = client.stream_state(pb::StreamStateRequest { period_ns: 0 }).await?.into_inner();
+            let period_ns = if rate_hz > 0 { 1_000_000 } else { 0 };
+            let mut s = client.stream_state(pb::StreamStateRequest { period_ns }).await?.into_inner();
             // The echo plant sends as fast as netem reads, faster than gRPC carries samples to
             // this reader: netem's bounded stream buffer then discards the oldest, and the
             // stream ends after the newest (the echo plant's stream ends).
@@ -551,7 +579,7 @@ async fn main() -> anyhow::Result<()> {
             drop(rig.stops);
         }
         Bench::Commands { messages, clients } => {
-            let rig = rig(0.0, 0).await?;
+            let rig = rig(0.0, 0, 1, netem::DEFAULT_STREAM_BUFFER).await?;
             let per = messages / clients;
             let t0 = Instant::now();
             let mut tasks = Vec::new();
@@ -587,7 +615,7 @@ async fn main() -> anyhow::Result<()> {
         Bench::RealTime { seconds, rate_hz, delay_ms } => {
             let n = (seconds * rate_hz).round() as u64;
             let period = Duration::from_secs_f64(1.0 / rate_hz);
-            let rig = rig(delay_ms / 1e3, n).await?;
+            let rig = rig(delay_ms / 1e3, n, 1, netem::DEFAULT_STREAM_BUFFER).await?;
             let mut client = PlantClient::new(rig.netem.clone());
             let mut s = client
                 .stream_state(pb::StreamStateRequest { period_ns: period.as_nanos() as u64 })

@@ -53,10 +53,11 @@ pub enum Mode {
     Lockstep,
 }
 
-/// Default of [`Config::stream_buffer`], samples: 64 ms at 1 kHz, enough to ride out a
-/// reader's scheduling hiccup (the transport's windows hold more), and about 30 KB per stream
-/// whose reader stopped (BENCHMARKS.md, "netem's memory per idle stream").
-pub const DEFAULT_STREAM_BUFFER: usize = 64;
+/// Default of [`Config::stream_buffer`], samples: a quarter second at 1 kHz, and 12.8 ms at
+/// the 20,000 samples/s netem must carry without loss (with 64, a reader on this 2-core VM
+/// under load lost 0.2-1 % of them to scheduling stalls); about 90 KB for a stream whose
+/// reader stopped (BENCHMARKS.md, "netem's memory per idle stream"). The same as the plant's.
+pub const DEFAULT_STREAM_BUFFER: usize = 256;
 
 /// Default of [`Config::deliveries_buffer`], records: 2 s of a 1 kHz run's two directions,
 /// allocated once (about 0.5 MB) and shared by every reader.

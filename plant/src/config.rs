@@ -61,7 +61,7 @@ impl ConfigError {
 
 /// Default of [`PlantConfig::stream_buffer`], samples: a quarter second of steps at 1 kHz,
 /// so that a lockstep `Advance` of up to 255 ms reaches a period-0 subscriber whole (the
-/// bench's cycles are 50 ms); at most about 64 KB for a subscriber that stopped reading.
+/// bench's cycles are 50 ms); at most about 80 KB for a subscriber that stopped reading.
 pub const DEFAULT_STREAM_BUFFER: usize = 256;
 
 /// Default watchdog timeout in real time, ns (500 ms).

@@ -17,8 +17,10 @@ use tokio::sync::Notify;
 use tokio_stream::Stream;
 
 /// Default of every service's `--max-streams`: server streams open at once. Each stream
-/// costs a task, a buffer of at most its subscriber's bound, and the transport's windows
-/// (about 100 KiB at most; BENCHMARKS.md, "netem's memory per idle stream").
+/// costs a task, a buffer of at most its subscriber's bound, and the transport's buffers:
+/// measured, 159-707 KiB of netem's memory per stream whose reader stopped, depending on the
+/// reader's HTTP/2 window (BENCHMARKS.md, "netem's memory per idle stream"), so 64 of them
+/// stay under 50 MB.
 pub const DEFAULT_MAX_STREAMS: usize = 64;
 
 /// The flag a `RESOURCE_EXHAUSTED` answer names.
