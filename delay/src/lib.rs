@@ -42,8 +42,29 @@ pub use spec::{DelaysTable, SpecError};
 pub use stats::{DirectionStats, Percentiles};
 pub use trace::{Trace, TraceEnd, TraceEnded, TraceError, parse_trace};
 
-/// Seconds to integer nanoseconds, rounded to the nearest, clamped to `[0, MAX_DELAY_S]`.
-pub fn secs_to_ns(s: f64) -> u64 {
-    let s = if s.is_nan() { 0.0 } else { s.clamp(0.0, MAX_DELAY_S) };
-    (s * 1e9).round() as u64
+/// Nanoseconds per second.
+pub const NS_PER_S: f64 = 1e9;
+
+/// Converts a duration in nanoseconds to seconds: the bench's one such conversion (`mav`
+/// re-exports it).
+#[inline]
+pub fn ns_to_s(ns: u64) -> f64 {
+    ns as f64 / NS_PER_S
+}
+
+/// Converts a non-negative duration in seconds to nanoseconds, rounded to the nearest: the
+/// bench's one such conversion (`mav` re-exports it). Negative, non-finite or too large input
+/// gives `None`.
+pub fn s_to_ns(s: f64) -> Option<u64> {
+    if !s.is_finite() || s < 0.0 || s * NS_PER_S > u64::MAX as f64 {
+        return None;
+    }
+    Some((s * NS_PER_S).round() as u64)
+}
+
+/// A drawn delay in seconds as nanoseconds: clamped to `[0, MAX_DELAY_S]` first (NaN: 0), so
+/// that it always converts.
+pub fn delay_ns(delay_s: f64) -> u64 {
+    let s = if delay_s.is_nan() { 0.0 } else { delay_s.clamp(0.0, MAX_DELAY_S) };
+    s_to_ns(s).unwrap_or(0)
 }

@@ -4,8 +4,8 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution as _, Gamma, LogNormal, Normal, Pareto, Uniform};
 
+use crate::delay_ns;
 use crate::profile::{Direction, DirectionProfile, Distribution, Dwell, Ordering, ProfileError};
-use crate::secs_to_ns;
 use crate::trace::{Trace, TraceEnd, TraceEnded};
 
 /// A ready-to-draw form of a [`Distribution`], built once when the profile is set.
@@ -54,7 +54,7 @@ impl RegimeSampler {
             Dwell::Seconds(mean_s) => {
                 // Inverse transform of Exp(1) on (0, 1]: never infinite.
                 let u: f64 = 1.0 - rng.random::<f64>();
-                Some(time_ns.saturating_add(secs_to_ns(-u.ln() * mean_s).max(1)))
+                Some(time_ns.saturating_add(delay_ns(-u.ln() * mean_s).max(1)))
             }
         }
     }
@@ -357,7 +357,7 @@ impl DelayLine {
     }
 
     fn release(&mut self, send_time_ns: u64, sampled_delay_s: f64, duplicate: bool) -> Release {
-        let own = send_time_ns.saturating_add(secs_to_ns(sampled_delay_s));
+        let own = send_time_ns.saturating_add(delay_ns(sampled_delay_s));
         let release_time_ns = match (self.profile.ordering, self.last_release_ns) {
             (Ordering::Fifo, Some(prev)) => own.max(prev),
             _ => own,

@@ -182,7 +182,7 @@ proptest! {
             let dec = l.send(t);
             for r in dec.releases() {
                 prop_assert!(r.release_time_ns >= last, "released {} before an earlier {}", r.release_time_ns, last);
-                prop_assert!(r.release_time_ns >= t + delay::secs_to_ns(r.sampled_delay_s));
+                prop_assert!(r.release_time_ns >= t + delay::delay_ns(r.sampled_delay_s));
                 prop_assert_eq!(r.delay_ns, r.release_time_ns - t);
                 last = r.release_time_ns;
             }

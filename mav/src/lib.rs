@@ -21,20 +21,5 @@ pub use sim::{
     AppliedCommand, CollisionEvent, CollisionKind, CommandMeta, PlantSample, PlantSim, SimError, SimSettings,
 };
 
-/// Nanoseconds per second, for converting wire timestamps.
-pub const NS_PER_S: f64 = 1e9;
-
-/// Converts a duration in nanoseconds to seconds.
-#[inline]
-pub fn ns_to_s(ns: u64) -> f64 {
-    ns as f64 / NS_PER_S
-}
-
-/// Converts a non-negative duration in seconds to nanoseconds, rounded to the nearest.
-/// Negative or non-finite input gives `None`.
-pub fn s_to_ns(s: f64) -> Option<u64> {
-    if !s.is_finite() || s < 0.0 || s * NS_PER_S > u64::MAX as f64 {
-        return None;
-    }
-    Some((s * NS_PER_S).round() as u64)
-}
+/// The bench's one pair of time conversions (defined in `delay`, the crate below this one).
+pub use delay::{NS_PER_S, ns_to_s, s_to_ns};

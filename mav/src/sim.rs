@@ -8,6 +8,7 @@
 
 use crate::geometry::{Cylinder, GROUND_INDEX};
 use crate::model::{Input, InputBounds, MavModel, State, rk4_step};
+use crate::ns_to_s;
 use crate::scenario::Scenario;
 
 /// Settings of the truth simulation.
@@ -291,7 +292,7 @@ impl PlantSim {
     }
 
     fn integrate_to(&mut self, end_ns: u64) {
-        let dt_s = (end_ns - self.time_ns) as f64 / 1e9;
+        let dt_s = ns_to_s(end_ns - self.time_ns);
         if self.watchdog_hover {
             self.watchdog_hover_ns += end_ns - self.time_ns;
         }

@@ -127,7 +127,7 @@ impl Inner {
                 message_seq: d.seq,
                 payload_seq,
                 send_time_ns: send_ns,
-                release_time_ns: send_ns.saturating_add(delay::secs_to_ns(d.sampled_delay_s)),
+                release_time_ns: send_ns.saturating_add(delay::delay_ns(d.sampled_delay_s)),
                 injected_delay_s: d.sampled_delay_s,
                 dropped: true,
                 duplicate: false,
@@ -155,7 +155,7 @@ impl Inner {
             payload_seq: m.payload_seq,
             send_time_ns: m.send_ns,
             release_time_ns: m.release_ns,
-            injected_delay_s: delay_ns as f64 / 1e9,
+            injected_delay_s: delay::ns_to_s(delay_ns),
             dropped: false,
             duplicate: m.duplicate,
             drop_reason: String::new(),
@@ -174,7 +174,7 @@ impl Inner {
             payload_seq: m.payload_seq,
             send_time_ns: m.send_ns,
             release_time_ns: m.release_ns,
-            injected_delay_s: (m.release_ns - m.send_ns) as f64 / 1e9,
+            injected_delay_s: delay::ns_to_s(m.release_ns - m.send_ns),
             dropped: true,
             duplicate: m.duplicate,
             drop_reason: reason.to_string(),
@@ -212,11 +212,17 @@ impl Inner {
     /// A lockstep sample: drawn from the plant-to-controller line without FIFO scheduling,
     /// delivered (or lost) at once; see `proxy::Proxy::lockstep_advance`, which refuses a
     /// sample past the end of a trace before drawing it.
-    pub fn lockstep_sample(&mut self, t_s: u64, target: u64, draw: &delay::Draw, payload_seq: u64) -> Msg {
+    pub fn lockstep_sample(
+        &mut self,
+        send_ns: u64,
+        release_ns: u64,
+        draw: &delay::Draw,
+        payload_seq: u64,
+    ) -> Msg {
         let dir = Direction::PlantToController;
         let i = dir.index();
         self.stats[i].sent += 1;
-        let m = Msg { dir, seq: draw.seq, payload_seq, send_ns: t_s, release_ns: target, duplicate: false };
+        let m = Msg { dir, seq: draw.seq, payload_seq, send_ns, release_ns, duplicate: false };
         if draw.lost {
             self.in_flight[i] += 1;
             self.dropped(&m, "loss");

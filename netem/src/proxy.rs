@@ -136,7 +136,7 @@ impl Proxy {
                         seq: d.seq,
                         payload_seq: command.command_seq,
                         send_ns: t,
-                        release_ns: t + delay::secs_to_ns(d.sampled_delay_s),
+                        release_ns: t + delay::delay_ns(d.sampled_delay_s),
                         duplicate: false,
                     };
                     stamp(md, "command", &m, OUTCOME_DROPPED);
@@ -209,7 +209,7 @@ impl Proxy {
         }
         // A regime's clock for a lockstep sample is the time it arrives.
         let draw = self.shared.lock().draw_sample(target);
-        let staleness = delay::secs_to_ns(draw.sampled_delay_s).min(duration_ns);
+        let staleness = delay::delay_ns(draw.sampled_delay_s).min(duration_ns);
         let t_s = target - staleness;
         let mut now = t0;
         let mut stale_sample: Option<pb::StateSample> = None;
@@ -277,7 +277,7 @@ impl Proxy {
                 seq: d.seq,
                 payload_seq: command.command_seq,
                 send_ns: now,
-                release_ns: now + delay::secs_to_ns(d.sampled_delay_s),
+                release_ns: now + delay::delay_ns(d.sampled_delay_s),
                 duplicate: false,
             };
             stamp(md, "command", &m, OUTCOME_DROPPED);
@@ -345,7 +345,7 @@ impl Proxy {
                     seq: d.seq,
                     payload_seq: sample.seq,
                     send_ns: now,
-                    release_ns: now + delay::secs_to_ns(d.sampled_delay_s),
+                    release_ns: now + delay::delay_ns(d.sampled_delay_s),
                     duplicate: false,
                 };
                 stamp(md, "sample", &m, OUTCOME_DROPPED);

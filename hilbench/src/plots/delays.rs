@@ -21,15 +21,15 @@ pub fn delays(rows: &[CycleRow]) -> Vec<(f64, f64)> {
         .collect()
 }
 
-/// Shape and scale (s) of the Gamma fitted to `delays_s` by moments.
+/// Shape and scale (s) of the Gamma fitted to `delays_s` as the controller fits its window
+/// (`mpc::DelayWindow::fit`: moments with the population variance), so that the figure shows
+/// the controller's fit over the run's delays, not another estimator's.
 pub fn gamma_fit(delays_s: &[f64]) -> Option<(f64, f64)> {
-    let n = delays_s.len();
-    if n < 2 {
-        return None;
+    let mut window = mpc::DelayWindow::new(delays_s.len());
+    for &d in delays_s {
+        window.push(d);
     }
-    let mean = delays_s.iter().sum::<f64>() / n as f64;
-    let var = delays_s.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
-    mpc::delays::GammaParams::from_moments(mean, var).map(|g| (g.shape, g.scale_s))
+    window.fit(2).map(|g| (g.shape, g.scale_s))
 }
 
 /// Density of Gamma(shape, scale) at `x` (same unit as the scale).

@@ -120,6 +120,13 @@ fn the_moment_fit_recovers_a_gamma() {
     let (k, theta) = gamma_fit(&delays).expect("a fit");
     assert!((k - 12.0).abs() < 0.05 && (theta - 0.015).abs() < 1e-4, "{k} {theta}");
     assert!(gamma_fit(&[0.1]).is_none());
+    // The controller's own fit of the same delays, to the bit.
+    let mut window = mpc::DelayWindow::new(delays.len());
+    delays.iter().for_each(|&d| {
+        window.push(d);
+    });
+    let controller = window.fit(2).expect("the controller's fit");
+    assert_eq!((k.to_bits(), theta.to_bits()), (controller.shape.to_bits(), controller.scale_s.to_bits()));
     let rows = rows(&Scenario::by_name("paper-1").expect("paper-1"), 1);
     let d = delays_of(&rows);
     assert_eq!(d.len(), rows.len() - 1);

@@ -179,7 +179,7 @@ pub struct HeldCounts {
 
 /// The statistics of one direction, with what netem's shell counts of it.
 pub fn stats_to_pb(s: &DirectionStats, held: HeldCounts) -> pb::DirectionStats {
-    let secs = |ns: u64| ns as f64 / 1e9;
+    let secs = delay::ns_to_s;
     let d = s.delay_percentiles().unwrap_or_default();
     let e = s.release_error_percentiles().unwrap_or_default();
     let (bin_ns, counts) = s.histogram();

@@ -151,7 +151,7 @@ async fn lockstep_command_takes_effect_exactly_at_send_time_plus_delay() {
             panic!("no loss or duplicates configured")
         };
         assert_eq!(stamps[k as usize - 1], (t, original.release_time_ns), "netem's stamps of command {k}");
-        assert!(original.release_time_ns >= t + delay::secs_to_ns(d.sampled_delay_s));
+        assert!(original.release_time_ns >= t + delay::delay_ns(d.sampled_delay_s));
         let meta = CommandMeta {
             command_seq: k,
             based_on_sample_seq: last.seq,
