@@ -14,19 +14,18 @@ use mav::Scenario;
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
 use plant::PlantConfig;
 
+/// Run settings that wait up to `secs` for an episode (a loaded machine's runs are slow).
+fn patient(secs: u64) -> GrpcSettings {
+    GrpcSettings { timeout: Duration::from_secs(secs), ..GrpcSettings::default() }
+}
+
 fn bits_of(v: &[f64]) -> Vec<u64> {
     v.iter().map(|x| x.to_bits()).collect()
 }
 
 async fn assert_grpc_run_is_bit_identical_to_in_process(name: &str, mode: ControllerMode) {
     let scenario = Scenario::by_name(name).expect("built-in scenario");
-    let run = run_over_grpc(
-        &scenario,
-        mode,
-        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
-    )
-    .await
-    .expect("gRPC run");
+    let run = run_over_grpc(&scenario, mode, &patient(300)).await.expect("gRPC run");
     assert_bit_identical(&scenario, mode, &run);
 }
 
@@ -134,24 +133,11 @@ async fn a_run_against_given_services_sets_the_netem_profile_and_is_bit_identica
         controller: Some(ctl.addr.to_string()),
         ..Endpoints::default()
     };
-    let run = run_against(
-        &scenario,
-        mode,
-        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
-        &endpoints,
-    )
-    .await
-    .expect("run against given services");
+    let run =
+        run_against(&scenario, mode, &patient(300), &endpoints).await.expect("run against given services");
     assert_bit_identical(&scenario, mode, &run);
     // A second run against the same services gives the same trajectory again.
-    let again = run_against(
-        &scenario,
-        mode,
-        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
-        &endpoints,
-    )
-    .await
-    .expect("second run");
+    let again = run_against(&scenario, mode, &patient(300), &endpoints).await.expect("second run");
     assert_bit_identical(&scenario, mode, &again);
 
     ctl.stop().await.expect("controller stops cleanly");
@@ -189,14 +175,9 @@ async fn a_scenario_file_flies_over_separately_started_binaries_bit_identically_
         ..Endpoints::default()
     };
     let mode = ControllerMode::Multistage;
-    let run = run_against(
-        &scenario,
-        mode,
-        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
-        &endpoints,
-    )
-    .await
-    .expect("a run against separately started services");
+    let run = run_against(&scenario, mode, &patient(300), &endpoints)
+        .await
+        .expect("a run against separately started services");
     assert_bit_identical(&scenario, mode, &run);
 }
 
@@ -206,13 +187,7 @@ async fn the_per_cycle_csv_of_a_grpc_run_is_byte_identical_to_the_in_process_one
     // of zero does not cross protobuf, so the sanitiser makes every zero +0 on both paths.
     let scenario = Scenario::by_name("paper-1").expect("built-in scenario");
     let mode = ControllerMode::Multistage;
-    let run = run_over_grpc(
-        &scenario,
-        mode,
-        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
-    )
-    .await
-    .expect("gRPC run");
+    let run = run_over_grpc(&scenario, mode, &patient(300)).await.expect("gRPC run");
     let (_, traces) = run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode)).expect("in-process run");
     let csv = |records: &[mpc::CycleRecord]| {
         let mut rows = hilbench::cycle_log::from_records(records);
@@ -239,13 +214,7 @@ async fn a_recorded_delay_trace_file_flies_over_grpc_bit_identically_to_in_proce
     // which then travels whole; netem replays it on commands, the in-process loop on its line.
     let scenario = scenario_file("wifi-trace.toml");
     let mode = ControllerMode::Nmpc;
-    let run = run_over_grpc(
-        &scenario,
-        mode,
-        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
-    )
-    .await
-    .expect("gRPC run");
+    let run = run_over_grpc(&scenario, mode, &patient(300)).await.expect("gRPC run");
     assert_bit_identical(&scenario, mode, &run);
     // What netem stamped on cycle k's command is line k of the file, to the nanosecond.
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/wifi-trace.csv");
@@ -264,12 +233,7 @@ async fn a_run_that_outlasts_its_delay_trace_stops_with_an_error_naming_the_file
     let in_process = run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode)).map(|_| ());
     let message = format!("{:?}", in_process.expect_err("the in-process run must stop"));
     assert!(message.contains("short.csv") && message.contains("cycle 3"), "{message}");
-    let over_grpc = run_over_grpc(
-        &scenario,
-        mode,
-        &GrpcSettings { timeout: Duration::from_secs(120), ..GrpcSettings::default() },
-    )
-    .await;
+    let over_grpc = run_over_grpc(&scenario, mode, &patient(120)).await;
     let message = format!("{:#}", over_grpc.map(|_| ()).expect_err("the gRPC run must stop"));
     // netem refuses the command that has no delay (message 3 of the line: cycle 3's command).
     assert!(message.contains("short.csv") && message.contains("message 3 has none"), "{message}");
@@ -283,13 +247,7 @@ async fn a_regime_process_with_delayed_samples_flies_over_grpc_with_both_directi
     let mode = ControllerMode::Multistage;
     let refused = run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode)).map(|_| ());
     assert!(format!("{refused:?}").contains("delays.to_controller"), "{refused:?}");
-    let run = run_over_grpc(
-        &scenario,
-        mode,
-        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
-    )
-    .await
-    .expect("gRPC run");
+    let run = run_over_grpc(&scenario, mode, &patient(300)).await.expect("gRPC run");
     assert!(run.summary.cycles > 20, "{} cycles", run.summary.cycles);
     // The same network without the samples' delay: cycle 0's command draws the same delay
     // (same seed, same send time), so cycle 1's sample is read exactly 10 ms earlier with it.
@@ -297,13 +255,8 @@ async fn a_regime_process_with_delayed_samples_flies_over_grpc_with_both_directi
     if let Some(t) = undelayed.delays.as_mut() {
         t.to_controller = Some(Box::new(delay::DelaysTable::none()));
     }
-    let reference = run_over_grpc(
-        &undelayed,
-        mode,
-        &GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() },
-    )
-    .await
-    .expect("gRPC run without the samples' delay");
+    let reference =
+        run_over_grpc(&undelayed, mode, &patient(300)).await.expect("gRPC run without the samples' delay");
     assert_eq!(
         run.records[1].sample_time_ns + 10_000_000,
         reference.records[1].sample_time_ns,
@@ -341,7 +294,7 @@ async fn a_netem_profile_set_by_the_user_is_kept_when_asked_or_when_the_file_has
         std_s: Some(0.03),
         ..delay::DelaysTable::default()
     });
-    let settings = GrpcSettings { timeout: Duration::from_secs(300), ..GrpcSettings::default() };
+    let settings = patient(300);
     let mode = ControllerMode::Nmpc;
     // slalom-4 says Gamma(8, 0.02); kept, netem's lognormal is in force, and said so.
     let slalom = scenario_file("slalom-4.toml");
@@ -395,7 +348,7 @@ async fn a_run_ends_at_its_first_collision_over_grpc_as_in_process() {
     scenario.start = [3.5, 0.0, 1.0, 0.0, 12.0, 0.0, 0.0, 0.0];
     scenario.max_duration_s = 2.0;
     let mode = ControllerMode::Nmpc;
-    let settings = GrpcSettings { timeout: Duration::from_secs(120), ..GrpcSettings::default() };
+    let settings = patient(120);
     let run = run_over_grpc(&scenario, mode, &settings).await.expect("gRPC run");
     assert!(run.summary.collided, "the launched vehicle must collide");
     assert_eq!(run.summary.end_reason, "collided");

@@ -15,7 +15,7 @@
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use hilbench::grpc::{Endpoints, GrpcSettings, TimeMode, netem_config, run_against};
+use hilbench::grpc::{Endpoints, GrpcRun, GrpcSettings, RunFailure, TimeMode, netem_config, run_against};
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
 use hilbench_tests::{Service, free_loopback_address, start_plant, wait_for_state};
@@ -79,6 +79,22 @@ async fn bind(addr: SocketAddr) -> tokio::net::TcpListener {
     }
 }
 
+/// Starts a real-time NMPC run of `scenario` against `endpoints` on a task of its own.
+fn start_run(scenario: &Scenario, endpoints: Endpoints) -> JoinHandle<Result<GrpcRun, RunFailure>> {
+    let scenario = scenario.clone();
+    let settings = GrpcSettings { timeout: PATIENCE * 2, ..GrpcSettings::default() };
+    tokio::spawn(async move { run_against(&scenario, ControllerMode::Nmpc, &settings, &endpoints).await })
+}
+
+/// What the run started by [`start_run`] returned (panics if it does not finish in time).
+async fn finished(run: JoinHandle<Result<GrpcRun, RunFailure>>) -> Result<GrpcRun, RunFailure> {
+    match tokio::time::timeout(PATIENCE * 3, run).await {
+        Ok(Ok(r)) => r,
+        Ok(Err(e)) => panic!("run task failed: {e}"),
+        Err(_) => panic!("the run did not finish"),
+    }
+}
+
 /// Polls the plant's state every 20 ms until `pred` holds.
 async fn wait_for_plant(
     client: &mut PlantClient<Channel>,
@@ -104,18 +120,7 @@ async fn netem_going_away_mid_run_is_held_by_the_watchdog_survived_and_recorded(
         time_mode: TimeMode::RealTime,
         keep_netem_profile: false,
     };
-    let run = tokio::spawn({
-        let scenario = scenario.clone();
-        async move {
-            run_against(
-                &scenario,
-                ControllerMode::Nmpc,
-                &GrpcSettings { timeout: PATIENCE * 2, ..GrpcSettings::default() },
-                &endpoints,
-            )
-            .await
-        }
-    });
+    let run = start_run(&scenario, endpoints);
 
     // Mid-run: the episode has applied commands (the first sample of a plant reports its
     // initial input), and the vehicle has not reached the goal 5 m away.
@@ -138,11 +143,7 @@ async fn netem_going_away_mid_run_is_held_by_the_watchdog_survived_and_recorded(
 
     // netem comes back on the same port; the controller finds it and finishes the episode.
     let netem = Netem::serve(bind(netem_addr).await, plant.addr, &scenario);
-    let run = match tokio::time::timeout(PATIENCE * 3, run).await {
-        Ok(Ok(r)) => r.expect("the run completes after the outage"),
-        Ok(Err(e)) => panic!("run task failed: {e}"),
-        Err(_) => panic!("the run did not finish"),
-    };
+    let run = finished(run).await.expect("the run completes after the outage");
     let s = &run.summary;
     assert!(s.reached && !s.collided, "{s:?}");
     let faults = run.faults;
@@ -198,21 +199,13 @@ async fn netem_frozen_for_3_s_is_an_outage_of_at_least_3_s_during_which_the_plan
         time_mode: TimeMode::RealTime,
         keep_netem_profile: false,
     };
-    let run = tokio::spawn({
-        let scenario = scenario.clone();
-        let settings = GrpcSettings { timeout: PATIENCE * 2, ..GrpcSettings::default() };
-        async move { run_against(&scenario, ControllerMode::Nmpc, &settings, &endpoints).await }
-    });
+    let run = start_run(&scenario, endpoints);
     wait_until_flying(&plant_addr, 10).await;
     netem.signal("STOP");
     tokio::time::sleep(FREEZE).await;
     netem.signal("CONT");
 
-    let run = match tokio::time::timeout(PATIENCE * 3, run).await {
-        Ok(Ok(r)) => r.expect("the run completes after the freeze"),
-        Ok(Err(e)) => panic!("run task failed: {e}"),
-        Err(_) => panic!("the run did not finish"),
-    };
+    let run = finished(run).await.expect("the run completes after the freeze");
     let s = &run.summary;
     assert!(s.reached && !s.collided, "{s:?}");
     let faults = run.faults;
@@ -240,21 +233,13 @@ async fn a_plant_killed_and_restarted_mid_run_fails_the_run_with_a_plant_reset_k
         time_mode: TimeMode::RealTime,
         keep_netem_profile: false,
     };
-    let run = tokio::spawn({
-        let scenario = scenario.clone();
-        let settings = GrpcSettings { timeout: PATIENCE * 2, ..GrpcSettings::default() };
-        async move { run_against(&scenario, ControllerMode::Nmpc, &settings, &endpoints).await }
-    });
+    let run = start_run(&scenario, endpoints);
     let flying = wait_until_flying(&plant_addr, 10).await;
     plant.signal("KILL");
     drop(plant);
     let _restarted = Service::start("plant", &plant_args);
 
-    let failure = match tokio::time::timeout(PATIENCE * 3, run).await {
-        Ok(Ok(r)) => r.expect_err("a run whose plant restarted must fail"),
-        Ok(Err(e)) => panic!("run task failed: {e}"),
-        Err(_) => panic!("the run did not finish"),
-    };
+    let failure = finished(run).await.expect_err("a run whose plant restarted must fail");
     let error = format!("{failure}");
     assert!(error.contains("the plant was reset or restarted"), "{error}");
     let partial = failure.partial.expect("the flight before the restart is kept");
