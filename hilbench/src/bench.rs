@@ -177,8 +177,12 @@ enum Ran {
     Local(Box<Result<(mpc::RunSummary, Vec<mpc::CycleTrace>), String>>),
 }
 
-/// Runs every (scenario, controller) pair in order, in lockstep. `progress` shows a progress
-/// bar and a line per finished run on stderr when it is a terminal.
+/// How often a real-time run without a terminal says it is still flying.
+const HEARTBEAT: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// Runs every (scenario, controller) pair in order (in lockstep, or in real time when the
+/// transport says so). `progress` shows a progress bar on stderr when it is a terminal, and a
+/// line per finished run (and every few seconds of a real-time run) either way.
 pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::Result<Outcome> {
     let started = Instant::now();
     // In process too: the runtime watches for Ctrl-C while a run goes on.
@@ -198,6 +202,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
     let mut failed_run_kept = false;
     let mut interrupted = false;
     let bar = crate::progress::bar(jobs.len() as u64, "runs", progress);
+    let real_time = matches!(transport, Transport::Grpc(e) if e.time_mode == crate::grpc::TimeMode::RealTime);
     for (scenario, mode) in jobs {
         let name = &scenario.name;
         bar.set_message(format!("{name} with {}", mode.name()));
@@ -230,9 +235,25 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                     }
                 }
             };
+            // Without a terminal a real-time run would say nothing for its whole flight (tens
+            // of seconds): a line every few seconds says it is alive.
+            let heartbeat = async {
+                let mut tick = tokio::time::interval(HEARTBEAT);
+                tick.tick().await;
+                loop {
+                    tick.tick().await;
+                    let text = format!(
+                        "  {name} {:<11} flying ({:.0} s)",
+                        mode.name(),
+                        run_started.elapsed().as_secs_f64()
+                    );
+                    crate::progress::line(&bar, progress, &text);
+                }
+            };
             tokio::select! {
                 ran = job => Some(ran),
                 _ = tokio::signal::ctrl_c() => None,
+                () = heartbeat, if real_time && bar.is_hidden() => None,
             }
         });
         let Some(ran) = ran else {

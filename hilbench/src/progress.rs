@@ -6,8 +6,6 @@ use std::time::Duration;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-/// A progress bar of `len` steps of `unit` on stderr, or a hidden one (which prints nothing,
-/// `println` included) unless `show` is set and stderr is a terminal.
 /// A line about progress on stderr: above the bar on a terminal, or on its own when stderr is
 /// not a terminal (a log file, CI), so that a long run is never silent until it ends; nothing
 /// when progress is not shown (`--quiet`, `--json`).
@@ -22,6 +20,8 @@ pub fn line(bar: &ProgressBar, show: bool, text: &str) {
     }
 }
 
+/// A progress bar of `len` steps of `unit` on stderr, or a hidden one (which prints nothing,
+/// `println` included) unless `show` is set and stderr is a terminal.
 pub fn bar(len: u64, unit: &str, show: bool) -> ProgressBar {
     if !show || !std::io::stderr().is_terminal() {
         return ProgressBar::hidden();

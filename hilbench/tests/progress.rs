@@ -59,3 +59,22 @@ fn ctrl_c_writes_what_finished_marks_the_summary_interrupted_and_exits_130() {
     assert!((1..6).contains(&runs), "{runs} runs written");
     assert!(rest.iter().any(|l| l.contains("interrupted")), "{rest:?}");
 }
+
+#[test]
+fn without_a_terminal_a_real_time_run_says_every_few_seconds_that_it_is_flying() {
+    let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/paper-2.toml");
+    let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("progress-heartbeat");
+    let run = Command::new(env!("CARGO_BIN_EXE_hilbench"))
+        .args(["run", file.to_str().expect("utf-8"), "--mode", "nmpc", "--time-mode", "real-time"])
+        .args(["--no-plots", "--out"])
+        .arg(&out)
+        .output()
+        .expect("hilbench runs");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    // paper-2 flies for more than 5 s of wall time in real time (its goal is 6 m away).
+    assert!(
+        stderr.lines().any(|l| l.contains("paper-2") && l.contains("nmpc") && l.contains("flying (")),
+        "no heartbeat line in:\n{stderr}"
+    );
+    assert!(stderr.lines().any(|l| l.contains("done (")), "no line for the finished run in:\n{stderr}");
+}
