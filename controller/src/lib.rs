@@ -57,7 +57,6 @@ pub async fn serve(
     tracing::info!(%addr, plant = %config.plant, scenario = %config.scenario.name, mode = config.mode.name(), "controller serving");
     let mut loop_failure = None;
     let mut loop_joined = false;
-    let closing = shared.clone();
     let result = server
         .serve(|router| router.add_service(ControllerServer::new(service)), async {
             tokio::select! {
@@ -74,7 +73,7 @@ pub async fn serve(
             let _ = stop_tx.send(true);
             // Ends the telemetry streams, so that the server's graceful stop does not wait for
             // subscribers that never leave.
-            closing.close();
+            shared.close();
         })
         .await;
     shared.close();

@@ -518,12 +518,11 @@ pub async fn run_against(
 /// still be summarised.
 #[derive(Debug, Default)]
 struct Progress {
-    /// The controller's episode counter before the run's request.
-    before_episode: u64,
     /// Telemetry records per episode started after the request.
     episodes: BTreeMap<u64, Vec<CycleRecord>>,
-    /// The plant's sample of the newest telemetry record.
-    last_sample: Option<PlantSample>,
+    /// The plant's sample of the newest telemetry record, as it came (already validated with
+    /// its record; decoded only if the run fails).
+    last_sample: Option<pb::StateSample>,
     /// The controller's status at the last poll.
     status: Option<pb::ControllerStatus>,
     delay_profile: Option<DelayProfileInForce>,
@@ -540,7 +539,7 @@ async fn partial_run(
     mut progress: Progress,
 ) -> Option<GrpcRun> {
     let (episode, records) = progress.episodes.pop_last()?;
-    let last = progress.last_sample.take()?;
+    let last = PlantSample::try_from(&progress.last_sample.take()?).ok()?;
     let ask = async {
         let channel = connect(services.controller_addr(), Instant::now()).await.ok()?;
         let status = ControllerClient::new(channel).get_status(pb::GetStatusRequest {}).await.ok()?;
@@ -664,7 +663,6 @@ async fn drive(
     let before = controller.get_status(pb::GetStatusRequest {}).await?.into_inner();
     let setup_s = started.elapsed().as_secs_f64();
     progress.setup_s = setup_s;
-    progress.before_episode = before.episode;
 
     let episode_started = Instant::now();
     progress.episode_started = Some(episode_started);
@@ -703,14 +701,12 @@ async fn drive(
                 bail!("a task of the run panicked: {}", what.unwrap_or_default());
             }
             item = stream.message() => {
-                let item = item.context("telemetry stream")?
+                let mut item = item.context("telemetry stream")?
                     .ok_or_else(|| anyhow!("the controller ended the telemetry stream"))?;
                 if item.episode <= before.episode {
                     continue;
                 }
                 let record = CycleRecord::try_from(&item)
-                    .map_err(|e| anyhow!("telemetry of cycle {} of episode {}: {e}", item.cycle, item.episode))?;
-                let sample = item.sample.as_ref().map(PlantSample::try_from).transpose()
                     .map_err(|e| anyhow!("telemetry of cycle {} of episode {}: {e}", item.cycle, item.episode))?;
                 hilbench_svc::inject_panic("hilbench-run");
                 last_cycle_at = Instant::now();
@@ -727,7 +723,7 @@ async fn drive(
                     );
                 }
                 cycles.push(record);
-                progress.last_sample = sample;
+                progress.last_sample = item.sample.take();
             }
             _ = poll.tick() => {
                 let s = controller.get_status(pb::GetStatusRequest {}).await
