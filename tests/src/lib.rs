@@ -3,6 +3,7 @@
 pub mod controller;
 pub mod plant;
 pub mod process;
+pub mod python;
 pub mod relay;
 pub mod server;
 pub mod streams;

@@ -6,3 +6,4 @@ mod controller;
 mod fault;
 mod netem;
 mod plant;
+mod python;
