@@ -310,11 +310,17 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                 summary
             }
         };
-        let collided = if summary.collided {
+        let mut collided = if summary.collided {
             format!("; COLLIDED: {}", report::collisions_text(&summary))
         } else {
             String::new()
         };
+        if !summary.reached || summary.collided {
+            for line in &summary.explanation {
+                collided.push_str("; ");
+                collided.push_str(line);
+            }
+        }
         let done = format!(
             "  {name} {:<11} done ({} cycles, {:.2} s){collided}",
             mode.name(),
@@ -414,6 +420,8 @@ pub fn run_json(r: &RunSummary) -> serde_json::Value {
         "iterations_median": r.iterations_median,
         "fallbacks": r.fallbacks,
         "decisions": r.decisions,
+        "best_effort_cycles": r.best_effort_cycles,
+        "explanation": r.explanation,
         "cost_gap": r.cost_gap,
         "collisions": r.collisions,
         "final_position_m": r.final_position_m,
@@ -488,6 +496,11 @@ pub fn run_table(runs: &[RunSummary]) -> String {
     }
     for r in runs.iter().filter(|r| r.collided) {
         let _ = writeln!(out, "  {} {} collided: {}", r.scenario, r.controller, report::collisions_text(r));
+    }
+    for r in runs {
+        for line in &r.explanation {
+            let _ = writeln!(out, "  {} {}: {line}", r.scenario, r.controller);
+        }
     }
     out
 }
@@ -607,6 +620,7 @@ mod tests {
             constraint_violation: 0.0,
             predicted_clearance_m: 1.0,
             decision: "panoc".to_string(),
+            reason: "panoc".to_string(),
             cost_gap: None,
         };
         // Positions 3 and 4 m from a goal at the origin (z on target): RMS = sqrt((9 + 16) / 2).

@@ -29,9 +29,12 @@ pub struct CycleRow {
     pub cost: f64,
     pub constraint_violation: f64,
     pub predicted_clearance_m: f64,
-    /// What the safety layer sent: `panoc`, `qp`, `shifted_plan`, `brake` (empty when the
-    /// layer is off).
+    /// What the safety layer sent: `panoc`, `qp`, `shifted_plan`, `brake`, or `best_effort`
+    /// when no candidate passed its checks (empty when the layer is off).
     pub decision: String,
+    /// Why, in one line: the rejected candidates before the one sent (empty when the layer is
+    /// off).
+    pub reason: String,
     /// QP cost minus PANOC cost on the nonlinear model, when the cross-check ran.
     pub cost_gap: Option<f64>,
 }
@@ -54,7 +57,8 @@ pub fn from_records(records: &[CycleRecord]) -> Vec<CycleRow> {
             cost: r.solve.cost,
             constraint_violation: r.solve.constraint_violation,
             predicted_clearance_m: r.solve.min_clearance_m,
-            decision: r.decision.map_or(String::new(), |d| d.name().to_string()),
+            decision: r.decision_label().to_string(),
+            reason: r.reason.clone(),
             cost_gap: r.cost_gap,
         })
         .collect()
@@ -70,7 +74,7 @@ pub fn to_csv(rows: &[CycleRow]) -> String {
         let _ = write!(out, ",w{i}");
     }
     out.push_str(
-        ",status,iterations,solve_ms,cost,constraint_violation,predicted_clearance_m,decision,cost_gap\n",
+        ",status,iterations,solve_ms,cost,constraint_violation,predicted_clearance_m,decision,cost_gap,reason\n",
     );
     for r in rows {
         let _ = write!(out, "{},{}", r.cycle, r.t_s);
@@ -84,7 +88,7 @@ pub fn to_csv(rows: &[CycleRow]) -> String {
         }
         let _ = writeln!(
             out,
-            ",{},{},{},{},{},{},{},{}",
+            ",{},{},{},{},{},{},{},{},{}",
             r.status,
             r.iterations,
             r.solve_ms,
@@ -92,10 +96,21 @@ pub fn to_csv(rows: &[CycleRow]) -> String {
             r.constraint_violation,
             r.predicted_clearance_m,
             r.decision,
-            r.cost_gap.map_or(String::new(), |g| g.to_string())
+            r.cost_gap.map_or(String::new(), |g| g.to_string()),
+            csv_field(&r.reason)
         );
     }
     out
+}
+
+/// `text` as one CSV field: quoted (quotes doubled) when it holds a comma, a quote or a line
+/// break (RFC 4180).
+fn csv_field(text: &str) -> std::borrow::Cow<'_, str> {
+    if text.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", text.replace('"', "\"\"")).into()
+    } else {
+        text.into()
+    }
 }
 
 /// Writes `dir/<scenario>-<controller>.csv`; returns its path.
@@ -104,4 +119,37 @@ pub fn write(dir: &Path, scenario: &str, controller: &str, rows: &[CycleRow]) ->
     let path = dir.join(format!("{scenario}-{controller}.csv"));
     std::fs::write(&path, to_csv(rows)).with_context(|| format!("cannot write {}", path.display()))?;
     Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_reason_is_the_last_column_and_quoted_when_it_holds_a_comma_or_a_quote() {
+        let row = |reason: &str| CycleRow {
+            cycle: 7,
+            t_s: 0.35,
+            state: [0.0; 8],
+            command: [9.81, 0.0, 0.0],
+            known_delay_s: 0.0,
+            injected_delay_s: None,
+            weights: vec![1.0],
+            status: "iteration_limit".to_string(),
+            iterations: 200,
+            solve_ms: 1.0,
+            cost: 2.0,
+            constraint_violation: 0.0,
+            predicted_clearance_m: -0.1,
+            decision: "best_effort".to_string(),
+            reason: reason.to_string(),
+            cost_gap: None,
+        };
+        let plain = "panoc best effort (panoc: clearance -0.100 m; qp: status infeasible)";
+        let csv = to_csv(&[row(plain), row("odd, \"quoted\"")]);
+        let lines: Vec<&str> = csv.lines().collect();
+        assert!(lines[0].ends_with(",decision,cost_gap,reason"), "{}", lines[0]);
+        assert!(lines[1].ends_with(&format!(",best_effort,,{plain}")), "{}", lines[1]);
+        assert!(lines[2].ends_with(",best_effort,,\"odd, \"\"quoted\"\"\""), "{}", lines[2]);
+    }
 }

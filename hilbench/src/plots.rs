@@ -56,6 +56,10 @@ pub struct RunFacts {
     pub collisions_m: Vec<[f64; 3]>,
     /// Each collision in words: kind, depth, time, place.
     pub collisions_described: Vec<String>,
+    /// `reached`, `time_limit`, `collided` or `error`.
+    pub end_reason: String,
+    /// Why the run went as it did (`RunSummary::explanation`).
+    pub explanation: Vec<String>,
 }
 
 impl From<&RunSummary> for RunFacts {
@@ -73,6 +77,8 @@ impl From<&RunSummary> for RunFacts {
             final_position_m: r.final_position_m,
             collisions_m: r.collisions.iter().map(|c| c.position_m).collect(),
             collisions_described: r.collisions.iter().map(|c| c.describe()).collect(),
+            end_reason: r.end_reason.clone(),
+            explanation: r.explanation.clone(),
         }
     }
 }

@@ -114,6 +114,9 @@ pub fn tables(runs: &[RunSummary]) -> String {
             r.cycles,
             r.iterations_median
         );
+        for line in &r.explanation {
+            let _ = writeln!(out, "    {line}");
+        }
     }
     out
 }

@@ -94,10 +94,18 @@ pub fn render(
         );
     }
     let _ = writeln!(out);
-    for r in runs.iter().filter(|r| r.collided) {
-        let _ = writeln!(out, "{} with {} collided:\n", r.scenario, r.controller);
-        for c in &r.collisions_described {
-            let _ = writeln!(out, "- {c}");
+    // Every run that did not simply reach its goal with verified commands, explained.
+    for r in runs.iter().filter(|r| r.collided || !r.reached || !r.explanation.is_empty()) {
+        let what = if r.collided {
+            "collided"
+        } else if !r.reached {
+            &format!("did not reach its goal ({})", r.end_reason.replace('_', " "))
+        } else {
+            "reached its goal, but"
+        };
+        let _ = writeln!(out, "{} with {} {what}:\n", r.scenario, r.controller);
+        for line in r.collisions_described.iter().chain(&r.explanation) {
+            let _ = writeln!(out, "- {line}");
         }
         let _ = writeln!(out);
     }
@@ -189,6 +197,8 @@ mod tests {
                 depth_m: 0.02,
             };
             r.collisions_described = vec![ground.describe()];
+            r.end_reason = "collided".to_string();
+            r.explanation = vec!["3 of 70 cycles sent a command that failed the safety check".to_string()];
         }
         r
     }
@@ -234,6 +244,12 @@ mod tests {
                 "paper-2 with nmpc collided:\n\n- ground, 0.020 m deep, at 4.25 s, at [1.00, 2.00, -0.02] m"
             ),
             "the report names the collision's kind, depth, time and place: {md}"
+        );
+        assert!(
+            md.contains(
+                "at [1.00, 2.00, -0.02] m\n- 3 of 70 cycles sent a command that failed the safety check\n"
+            ),
+            "the report explains the run: {md}"
         );
         assert!(md.contains("- paper-2 holds."));
         assert!(md.contains("| plotting | 0.25 s |"), "{md}");

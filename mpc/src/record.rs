@@ -79,6 +79,9 @@ pub struct CycleRecord {
     pub solve: SolveStats,
     /// What the safety layer sent (`None` when the layer is off).
     pub decision: Option<Decision>,
+    /// No candidate passed the safety layer's checks and it sent the one that came closest
+    /// (`decision` names which): the command was not verified safe.
+    pub best_effort: bool,
     /// Why (empty when the layer is off).
     pub reason: String,
     /// QP cost minus PANOC cost on the nonlinear model, when the cross-check ran.
@@ -111,6 +114,7 @@ impl CycleRecord {
             weights,
             solve: SolveStats::from(&outcome.report),
             decision: outcome.selection.as_ref().map(|s| s.decision),
+            best_effort: outcome.selection.as_ref().is_some_and(|s| !s.verified_safe),
             reason: outcome.selection.as_ref().map(|s| s.reason()).unwrap_or_default(),
             cost_gap: outcome.selection.as_ref().and_then(|s| s.cost_gap),
             predictions: Vec::new(),
@@ -122,12 +126,24 @@ impl CycleRecord {
         ns_to_s(self.sample_time_ns)
     }
 
-    /// True when the cycle did not send PANOC's plan: the safety layer chose a fallback (or,
-    /// without the layer, PANOC failed numerically and the previous plan was flown).
+    /// True when the cycle did not send a verified PANOC plan: the safety layer chose a
+    /// fallback or sent a best-effort candidate (or, without the layer, PANOC failed
+    /// numerically and the previous plan was flown).
     pub fn is_fallback(&self) -> bool {
         match self.decision {
-            Some(d) => d.is_fallback(),
+            Some(d) => self.best_effort || d.is_fallback(),
             None => self.solve.status == SolveStatus::NumericalFailure,
+        }
+    }
+
+    /// What the cycle sent as `decisions` and the per-cycle CSV name it: `panoc`, `qp`,
+    /// `shifted_plan`, `brake`, or `best_effort` when no candidate passed the checks (empty
+    /// when the safety layer is off).
+    pub fn decision_label(&self) -> &'static str {
+        match self.decision {
+            None => "",
+            Some(_) if self.best_effort => BEST_EFFORT,
+            Some(d) => d.name(),
         }
     }
 }
@@ -153,11 +169,18 @@ pub struct RunSummary {
     pub solve_ms_p95: f64,
     pub solve_ms_max: f64,
     pub iterations_median: f64,
-    /// Cycles that did not send PANOC's plan (see [`CycleRecord::is_fallback`]).
+    /// Cycles that did not send a verified PANOC plan (see [`CycleRecord::is_fallback`]).
     pub fallbacks: u64,
-    /// Cycles per decision of the safety layer (`panoc`, `qp`, `shifted_plan`, `brake`; every
-    /// one listed, zeros included, when the layer was on; empty when it was off).
+    /// Cycles per decision of the safety layer (`panoc`, `qp`, `shifted_plan`, `brake`,
+    /// `best_effort`; every one listed, zeros included, when the layer was on; empty when it
+    /// was off). They sum to `cycles`.
     pub decisions: BTreeMap<String, u64>,
+    /// Cycles that sent a command no check verified (`decisions["best_effort"]`).
+    pub best_effort_cycles: u64,
+    /// Why the run went as it did, when it did not simply reach its goal with verified
+    /// commands: one sentence per finding (best-effort streaks with their reason, solves at
+    /// the iteration limit, a vehicle that never moved). Empty for a clean run.
+    pub explanation: Vec<String>,
     /// QP cost minus PANOC cost on the nonlinear model, over the cycles where both were
     /// evaluated (positive: PANOC's plan is cheaper).
     pub cost_gap: GapSummary,
@@ -230,18 +253,75 @@ pub fn percentile(values: &mut [f64], p: f64) -> f64 {
     values[rank.clamp(1, values.len()) - 1]
 }
 
-/// Cycles per decision (every decision listed, zeros included, when the layer was on).
+/// The decision label of a cycle that sent a candidate no check verified.
+pub const BEST_EFFORT: &str = "best_effort";
+
+/// Cycles per decision label (every label listed, zeros included, when the layer was on).
 pub fn decision_counts(records: &[CycleRecord]) -> BTreeMap<String, u64> {
     let mut counts = BTreeMap::new();
-    for d in records.iter().filter_map(|r| r.decision) {
+    for r in records.iter().filter(|r| r.decision.is_some()) {
         if counts.is_empty() {
             for d in [Decision::Panoc, Decision::Qp, Decision::ShiftedPlan, Decision::Brake] {
                 counts.insert(d.name().to_string(), 0);
             }
+            counts.insert(BEST_EFFORT.to_string(), 0);
         }
-        *counts.entry(d.name().to_string()).or_insert(0) += 1;
+        *counts.entry(r.decision_label().to_string()).or_insert(0) += 1;
     }
     counts
+}
+
+/// A path shorter than this means the vehicle never left its start, m.
+const NEVER_MOVED_M: f64 = 0.05;
+
+/// The findings of [`RunSummary::explanation`], from the records and the plant's last sample.
+pub fn explain(records: &[CycleRecord], last: &PlantSample, reached: bool) -> Vec<String> {
+    let mut out = Vec::new();
+    let cycles = records.len();
+    let best_effort = records.iter().filter(|r| r.best_effort).count();
+    if best_effort > 0 {
+        // The longest streak of unverified cycles, and the reason of its last cycle: the
+        // stretch in which the vehicle flew on commands nothing had checked.
+        let (mut longest, mut current, mut end) = (0usize, 0usize, 0usize);
+        for (i, r) in records.iter().enumerate() {
+            current = if r.best_effort { current + 1 } else { 0 };
+            if current > longest {
+                (longest, end) = (current, i);
+            }
+        }
+        let r = &records[end];
+        out.push(format!(
+            "{best_effort} of {cycles} cycles sent a command that failed the safety check (best effort); \
+             the longest streak, {longest} cycles, ended at {:.2} s with {}",
+            r.t_s(),
+            r.reason
+        ));
+    }
+    let limits = records.iter().filter(|r| r.solve.status == SolveStatus::IterationLimit).count();
+    if limits > 0 && (2 * limits >= cycles || !reached || last.collided) {
+        out.push(format!("{limits} of {cycles} solves stopped at the iteration limit"));
+    }
+    let numerical = records.iter().filter(|r| r.solve.status == SolveStatus::NumericalFailure).count();
+    if numerical > 0 {
+        out.push(format!("{numerical} of {cycles} solves failed numerically"));
+    }
+    if last.collided && best_effort == 0 && records.iter().any(|r| r.decision.is_some()) {
+        out.push(
+            "every command sent had passed the safety check against the controller's predictions".to_string(),
+        );
+    }
+    if !reached && last.path_length_m < NEVER_MOVED_M {
+        out.push(format!("the vehicle never left its start (path {:.2} m)", last.path_length_m));
+    }
+    if let Some(r) = records.iter().find(|r| r.watchdog_hover) {
+        let n = records.iter().filter(|r| r.watchdog_hover).count();
+        out.push(format!(
+            "the plant's watchdog held hover at {n} sampled cycles (the first at {:.2} s): commands \
+             arrived late or not at all",
+            r.t_s()
+        ));
+    }
+    out
 }
 
 /// The run's numbers: the trajectory's from the plant's last sample (`last`), the solver's from
@@ -279,6 +359,8 @@ pub fn summarize(
         iterations_median: percentile(&mut iterations, 50.0),
         fallbacks: records.iter().filter(|r| r.is_fallback()).count() as u64,
         decisions: decision_counts(records),
+        best_effort_cycles: records.iter().filter(|r| r.best_effort).count() as u64,
+        explanation: explain(records, last, time_to_goal_ns.is_some()),
         cost_gap: GapSummary::of(&records.iter().filter_map(|r| r.cost_gap).collect::<Vec<_>>()),
         iteration_limits: records.iter().filter(|r| r.solve.status == SolveStatus::IterationLimit).count()
             as u64,

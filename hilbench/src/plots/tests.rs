@@ -22,6 +22,8 @@ pub(crate) fn facts(scenario: &str, controller: &str) -> RunFacts {
         final_position_m: [0.0, 9.0, 1.0],
         collisions_m: Vec::new(),
         collisions_described: Vec::new(),
+        end_reason: "reached".to_string(),
+        explanation: Vec::new(),
     }
 }
 
@@ -54,6 +56,7 @@ fn rows(scenario: &Scenario, m: usize) -> Vec<CycleRow> {
                     min_clearance_m: 0.3,
                 },
                 decision: None,
+                best_effort: false,
                 reason: String::new(),
                 cost_gap: None,
                 predictions: Vec::new(),
