@@ -112,7 +112,10 @@ enum Schedule {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Solve problems given as JSON lines (from FILE, or stdin) and print one JSON line each.
+    /// Solve problems given as JSON lines (from FILE, or stdin) and print one JSON line each:
+    /// the scenario (name, inline object or scenario_file), x0, u_prev, weights, and optionally
+    /// mode, warm_start, multipliers, obstacle_margin_m, floor_m, delay_compensation,
+    /// max_iterations (docs/api.md).
     Solve {
         /// Input file; stdin when absent or `-`.
         file: Option<PathBuf>,

@@ -2,21 +2,30 @@
 //! problem per input line, one JSON answer per output line; a bad line gets an error line
 //! naming the field, and the other lines are still solved.
 //!
-//! Input keys: `scenario` (e.g. `paper-1`), `x0` (8 numbers), `u_prev` (3), `weights` (M
-//! numbers; M = 1 for `"mode": "nmpc"`, else the scenario's sampling times), optional
-//! `warm_start` (N x 3), optional `mode` (`multistage` by default). `x0` must lie in the
-//! plant's reset envelope and `u_prev` within the scenario's input bounds. Every line is solved
-//! on its own: from its `warm_start` (or hover) with fresh multipliers and penalty, so that an
-//! answer does not depend on the lines before it.
+//! Input keys: the problem, as `scenario` (a built-in name such as `paper-1`, or a whole
+//! scenario inline: the keys of a scenario file's `[scenario]` table as a JSON object) or
+//! `scenario_file` (the path of a scenario file, its `[run]` options applied); `x0` (8
+//! numbers), `u_prev` (3), `weights` (M numbers; M = 1 for `"mode": "nmpc"`, else the
+//! scenario's sampling times). Optional: `mode` (`multistage` by default), `warm_start` (N x 3
+//! inputs), `multipliers` (the ALM multipliers to start from, as an answer's `multipliers`
+//! gives them), `obstacle_margin_m` (0 allowed: the paper's exact problem), `floor_m` (a
+//! number, or `null` for none), `delay_compensation` (bool), `max_iterations` (PANOC's
+//! budget); what is not given comes from the scenario, then from the command's flags. `x0` must lie in the plant's reset envelope and
+//! `u_prev` within the scenario's input bounds. Every line is solved on its own: from its
+//! `warm_start` (or hover) and `multipliers` (or zeros) with a fresh penalty, so that an answer
+//! does not depend on the lines before it.
 //! Output keys: `line`, `scenario`, `mode`, `status`, `iterations`, `solve_ms`, `cost` (the
-//! spec's objective, unscaled), `u` (N x 3), `min_clearance_m`, `constraint_violation`; or
-//! `line`, `error` and `field`. Unknown and repeated keys are errors naming the key, and a
-//! line longer than [`MAX_LINE_BYTES`] is refused without being held in memory.
+//! spec's objective, unscaled), `u` (N x 3), `multipliers`, `min_clearance_m`,
+//! `constraint_violation`, and the problem solved: `obstacle_margin_m`, `floor_m`,
+//! `delay_compensation`; or `line`, `error` and `field`. Unknown and repeated
+//! keys are errors naming the key, and a line longer than [`MAX_LINE_BYTES`] is refused
+//! without being held in memory.
 
-use std::collections::HashMap;
 use std::io::{BufRead, Write};
 
 use hilbench_proto::convert::plant::check_state_envelope;
+use hilbench_svc::scenario_file::ScenarioFile;
+use mav::Scenario;
 use mpc::{ControllerMode, Mpc, MpcSettings, OcpDefinition, SolveBudget};
 use serde_json::{Value, json};
 
@@ -24,7 +33,26 @@ use serde_json::{Value, json};
 pub const MAX_LINE_BYTES: usize = 1 << 20;
 
 /// The keys a problem line may hold.
-const KEYS: [&str; 6] = ["scenario", "mode", "x0", "u_prev", "weights", "warm_start"];
+const KEYS: [&str; 12] = [
+    "scenario",
+    "scenario_file",
+    "mode",
+    "x0",
+    "u_prev",
+    "weights",
+    "warm_start",
+    "multipliers",
+    "obstacle_margin_m",
+    "floor_m",
+    "delay_compensation",
+    "max_iterations",
+];
+
+/// Solver workspaces kept for the problems seen last (a line with another problem builds one).
+const MAX_WORKSPACES: usize = 8;
+
+/// Most PANOC iterations a line may ask for.
+const MAX_ITERATIONS: u64 = 1_000_000;
 
 /// A JSON object's entries in order, repeated keys kept (a `serde_json::Map` keeps only the
 /// last of them, which would hide a mistake).
@@ -78,15 +106,74 @@ fn numbers(v: &Value, field: &str, len: Option<usize>) -> Result<Vec<f64>, LineE
         .collect()
 }
 
-/// Solves JSON-lines problems, reusing one solver workspace per (scenario, mode).
+/// Solves JSON-lines problems, reusing a solver workspace per problem definition.
 pub struct LineSolver {
     settings: MpcSettings,
-    workspaces: HashMap<(String, ControllerMode), Mpc>,
+    /// The workspaces of the last problems, the most recent last.
+    workspaces: Vec<Mpc>,
+}
+
+/// A line's scenario: a built-in name, a whole scenario inline, or a scenario file.
+fn scenario_of(obj: &serde_json::Map<String, Value>) -> Result<Scenario, LineError> {
+    match (obj.get("scenario"), obj.get("scenario_file")) {
+        (Some(_), Some(_)) => Err(err("scenario_file", "give either scenario or scenario_file, not both")),
+        (None, None) => {
+            Err(err("scenario", "is required (a name such as paper-1, a scenario object, or scenario_file)"))
+        }
+        (Some(Value::String(name)), None) => {
+            Scenario::by_name(name).map_err(|e| err("scenario", e.to_string()))
+        }
+        (Some(v @ Value::Object(_)), None) => {
+            let scenario: Scenario = serde_path_to_error::deserialize(v).map_err(|e| {
+                let path = e.path().to_string();
+                let field = if path == "." { "scenario".to_string() } else { format!("scenario.{path}") };
+                err(field, e.into_inner().to_string())
+            })?;
+            scenario.validate().map_err(|e| match e {
+                mav::ScenarioError::Invalid { field, reason } => err(format!("scenario.{field}"), reason),
+                other => err("scenario", other.to_string()),
+            })?;
+            Ok(scenario)
+        }
+        (Some(_), None) => Err(err("scenario", "must be a scenario name or a scenario object")),
+        (None, Some(path)) => {
+            let path = path.as_str().ok_or_else(|| err("scenario_file", "must be a path"))?;
+            ScenarioFile::load(std::path::Path::new(path))
+                .map(|f| f.scenario)
+                .map_err(|e| err("scenario_file", e.to_string()))
+        }
+    }
+}
+
+/// The line's options over the scenario's: margin, floor, dead-time compensation.
+fn apply_options(obj: &serde_json::Map<String, Value>, scenario: &mut Scenario) -> Result<(), LineError> {
+    if let Some(v) = obj.get("obstacle_margin_m") {
+        let m = v
+            .as_f64()
+            .filter(|m| m.is_finite() && (0.0..=10.0).contains(m))
+            .ok_or_else(|| err("obstacle_margin_m", "must be a number in [0, 10] m"))?;
+        scenario.obstacle_margin_m = Some(m);
+    }
+    if let Some(v) = obj.get("floor_m") {
+        scenario.min_altitude_m = match v {
+            Value::Null => None,
+            v => Some(
+                v.as_f64()
+                    .filter(|z| z.is_finite() && z.abs() <= 1e4)
+                    .ok_or_else(|| err("floor_m", "must be a number of m (|z| <= 1e4) or null"))?,
+            ),
+        };
+    }
+    if let Some(v) = obj.get("delay_compensation") {
+        scenario.delay_compensation =
+            v.as_bool().ok_or_else(|| err("delay_compensation", "must be true or false"))?;
+    }
+    Ok(())
 }
 
 impl LineSolver {
     pub fn new(settings: MpcSettings) -> Self {
-        Self { settings, workspaces: HashMap::new() }
+        Self { settings, workspaces: Vec::new() }
     }
 
     /// Answers one line (never fails: errors become error objects).
@@ -100,6 +187,24 @@ impl LineSolver {
                 json!({ "line": line_no, "error": format!("invalid `{}`: {}", e.field, e.reason), "field": e.field })
             }
         }
+    }
+
+    /// The workspace of `def`, built when none of the kept ones solves it.
+    fn workspace(&mut self, def: OcpDefinition) -> Result<&mut Mpc, LineError> {
+        match self.workspaces.iter().position(|m| *m.definition() == def) {
+            Some(i) => {
+                let mpc = self.workspaces.remove(i);
+                self.workspaces.push(mpc);
+            }
+            None => {
+                let mpc = Mpc::new(def, self.settings).map_err(|e| err("<settings>", e.to_string()))?;
+                if self.workspaces.len() == MAX_WORKSPACES {
+                    self.workspaces.remove(0);
+                }
+                self.workspaces.push(mpc);
+            }
+        }
+        self.workspaces.last_mut().ok_or_else(|| err("<internal>", "workspace missing"))
     }
 
     fn solve_line(&mut self, line: &str) -> Result<Value, LineError> {
@@ -120,11 +225,8 @@ impl LineSolver {
             }
             obj.insert(key, value);
         }
-        let name = obj
-            .get("scenario")
-            .and_then(Value::as_str)
-            .ok_or_else(|| err("scenario", "is required (a name such as paper-1)"))?;
-        let scenario = mav::Scenario::by_name(name).map_err(|e| err("scenario", e.to_string()))?;
+        let mut scenario = scenario_of(&obj)?;
+        apply_options(&obj, &mut scenario)?;
         let mode = match obj.get("mode") {
             None => ControllerMode::Multistage,
             Some(m) => m
@@ -138,20 +240,22 @@ impl LineSolver {
         check_state_envelope(|i| format!("x0[{i}]"), &x).map_err(|e| err(e.field, e.reason))?;
         let u_prev =
             numbers(obj.get("u_prev").ok_or_else(|| err("u_prev", "is required"))?, "u_prev", Some(3))?;
-        let key = (name.to_string(), mode);
-        if !self.workspaces.contains_key(&key) {
-            let def = OcpDefinition::from_scenario(
-                &scenario,
-                mode,
-                self.settings.obstacle_margin_m,
-                self.settings.formulation,
-            );
-            let mpc = Mpc::new(def, self.settings).map_err(|e| err("<settings>", e.to_string()))?;
-            self.workspaces.insert(key.clone(), mpc);
-        }
-        let Some(mpc) = self.workspaces.get_mut(&key) else {
-            return Err(err("<internal>", "workspace missing"));
+        let budget = match obj.get("max_iterations") {
+            None => SolveBudget::default(),
+            Some(v) => {
+                let n = v.as_u64().filter(|n| (1..=MAX_ITERATIONS).contains(n)).ok_or_else(|| {
+                    err("max_iterations", format!("must be an integer in [1, {MAX_ITERATIONS}]"))
+                })?;
+                SolveBudget { max_inner_iterations: Some(n as usize), ..SolveBudget::default() }
+            }
         };
+        let def = OcpDefinition::from_scenario(
+            &scenario,
+            mode,
+            self.settings.obstacle_margin_m,
+            self.settings.formulation,
+        );
+        let mpc = self.workspace(def)?;
         let bounds = mpc.definition().bounds;
         if let Some(i) = (0..3).find(|&i| !(bounds.min[i]..=bounds.max[i]).contains(&u_prev[i])) {
             return Err(err(
@@ -181,23 +285,29 @@ impl LineSolver {
             }
             mpc.set_warm_start(&flat).map_err(|e| err("warm_start", e.to_string()))?;
         }
+        if let Some(y) = obj.get("multipliers") {
+            let y = numbers(y, "multipliers", None)?;
+            mpc.set_warm_multipliers(&y).map_err(mpc_error)?;
+        }
         let mut up = [0.0; 3];
         up.copy_from_slice(&u_prev);
-        let report = mpc.solve(&x, &up, &weights, &SolveBudget::default()).map_err(|e| match e {
-            mpc::MpcError::InvalidInput { field, reason } => err(field, reason),
-            other => err("<problem>", other.to_string()),
-        })?;
+        let report = mpc.solve(&x, &up, &weights, &budget).map_err(mpc_error)?;
         let u: Vec<[f64; 3]> = mpc.solution().chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let def = mpc.definition();
         Ok(json!({
-            "scenario": name,
+            "scenario": scenario.name,
             "mode": mode.name(),
             "status": report.status.name(),
             "iterations": report.iterations,
             "solve_ms": report.solve_time.as_secs_f64() * 1e3,
             "cost": report.cost,
             "u": u,
+            "multipliers": mpc.multipliers(),
             "min_clearance_m": report.min_clearance_m,
             "constraint_violation": report.constraint_violation,
+            "obstacle_margin_m": def.obstacle_margin_m,
+            "floor_m": def.min_altitude_m,
+            "delay_compensation": def.delay_compensation,
         }))
     }
 
@@ -238,6 +348,14 @@ impl LineSolver {
         }
         output.flush()?;
         Ok(count)
+    }
+}
+
+/// A solver's refusal as a line error naming the field.
+fn mpc_error(e: mpc::MpcError) -> LineError {
+    match e {
+        mpc::MpcError::InvalidInput { field, reason } => err(field, reason),
+        other => err("<problem>", other.to_string()),
     }
 }
 
@@ -374,5 +492,117 @@ mod tests {
         assert_eq!(out[4]["line"], 5);
         assert!(out[5]["status"].is_string(), "{}", out[5]);
         assert_eq!(out[5]["line"], 6);
+    }
+}
+
+#[cfg(test)]
+mod whole_problem_tests {
+    use super::*;
+
+    const PAPER_2: &str =
+        r#""x0":[3.2,0.5,1.0,0,0.5,0,0,0],"u_prev":[9.81,0,0],"weights":[0.05,0.15,0.45,0.3,0.05]"#;
+
+    fn solve(lines: &[String]) -> Vec<Value> {
+        let mut out = Vec::new();
+        LineSolver::new(MpcSettings::default())
+            .run(lines.join("\n").as_bytes(), &mut out)
+            .expect("in-memory io");
+        String::from_utf8(out)
+            .expect("utf8")
+            .lines()
+            .map(|l| serde_json::from_str(l).expect("json"))
+            .collect()
+    }
+
+    /// The answer without what may differ between equal problems: the line, the wall time and
+    /// the scenario's name.
+    fn problem_answer(mut v: Value) -> Value {
+        if let Some(o) = v.as_object_mut() {
+            for key in ["line", "solve_ms", "scenario"] {
+                o.remove(key);
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn a_scenario_inline_or_from_its_file_is_solved_as_the_same_built_in() {
+        let mut inline = serde_json::to_value(Scenario::paper_2()).expect("a scenario serialises");
+        inline["name"] = json!("my-copy");
+        let file = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenarios/paper-2.toml");
+        let out = solve(&[
+            format!(r#"{{"scenario":"paper-2",{PAPER_2}}}"#),
+            format!(r#"{{"scenario":{inline},{PAPER_2}}}"#),
+            format!(r#"{{"scenario_file":{file:?},{PAPER_2}}}"#),
+        ]);
+        assert!(out[0]["status"].is_string(), "{}", out[0]);
+        assert_eq!(out[1]["scenario"], "my-copy");
+        assert_eq!(problem_answer(out[1].clone()), problem_answer(out[0].clone()));
+        assert_eq!(problem_answer(out[2].clone()), problem_answer(out[0].clone()));
+    }
+
+    #[test]
+    fn margin_floor_compensation_and_budget_change_the_problem_solved() {
+        let out = solve(&[
+            format!(r#"{{"scenario":"paper-2",{PAPER_2}}}"#),
+            format!(
+                r#"{{"scenario":"paper-2","obstacle_margin_m":0,"floor_m":0.5,"delay_compensation":true,"max_iterations":3,{PAPER_2}}}"#
+            ),
+            format!(r#"{{"scenario":"paper-2","floor_m":null,{PAPER_2}}}"#),
+        ]);
+        assert_eq!(out[0]["obstacle_margin_m"], 0.1, "paper mode's margin: {}", out[0]);
+        assert_eq!(out[0]["floor_m"], Value::Null);
+        assert_eq!(out[0]["delay_compensation"], false);
+        assert_eq!(out[1]["obstacle_margin_m"], 0.0);
+        assert_eq!(out[1]["floor_m"], 0.5);
+        assert_eq!(out[1]["delay_compensation"], true);
+        assert!(out[1]["iterations"].as_u64().is_some_and(|i| i <= 3), "{}", out[1]);
+        assert_eq!(problem_answer(out[2].clone()), problem_answer(out[0].clone()));
+        // The floor adds a constraint per predicted point: more multipliers.
+        let count = |v: &Value| v["multipliers"].as_array().map_or(0, Vec::len);
+        assert!(count(&out[1]) > count(&out[0]), "{} vs {}", count(&out[1]), count(&out[0]));
+    }
+
+    #[test]
+    fn given_multipliers_start_the_solve_and_the_answer_depends_on_nothing_else() {
+        let first = solve(&[format!(r#"{{"scenario":"paper-2",{PAPER_2}}}"#)]);
+        let y = &first[0]["multipliers"];
+        assert!(y.as_array().is_some_and(|y| !y.is_empty()), "{}", first[0]);
+        let warm = format!(r#"{{"scenario":"paper-2","multipliers":{y},{PAPER_2}}}"#);
+        let alone = solve(std::slice::from_ref(&warm));
+        let after = solve(&[format!(r#"{{"scenario":"paper-2",{PAPER_2}}}"#), warm.clone()]);
+        assert!(alone[0]["status"].is_string(), "{}", alone[0]);
+        assert_eq!(problem_answer(alone[0].clone()), problem_answer(after[1].clone()));
+    }
+
+    #[test]
+    fn bad_problem_keys_are_refused_naming_the_field() {
+        let mut typo = serde_json::to_value(Scenario::paper_2()).expect("a scenario serialises");
+        typo["name"] = json!("typo");
+        typo["obstacles"][1]["radus_m"] = json!(0.3);
+        let mut negative = serde_json::to_value(Scenario::paper_2()).expect("a scenario serialises");
+        negative["name"] = json!("negative");
+        negative["horizon"] = json!(0);
+        let cases = [
+            (format!(r#"{{"scenario":{typo},{PAPER_2}}}"#), "scenario.obstacles[1].radus_m"),
+            (format!(r#"{{"scenario":{negative},{PAPER_2}}}"#), "scenario.horizon"),
+            (format!(r#"{{"scenario":"paper-2","scenario_file":"x.toml",{PAPER_2}}}"#), "scenario_file"),
+            (format!(r#"{{"scenario_file":"/no/such/file.toml",{PAPER_2}}}"#), "scenario_file"),
+            (format!(r#"{{"scenario":"paper-2","obstacle_margin_m":-0.1,{PAPER_2}}}"#), "obstacle_margin_m"),
+            (format!(r#"{{"scenario":"paper-2","floor_m":"low",{PAPER_2}}}"#), "floor_m"),
+            (format!(r#"{{"scenario":"paper-2","delay_compensation":1,{PAPER_2}}}"#), "delay_compensation"),
+            (format!(r#"{{"scenario":"paper-2","max_iterations":0,{PAPER_2}}}"#), "max_iterations"),
+            (format!(r#"{{"scenario":"paper-2","multipliers":[1,2],{PAPER_2}}}"#), "multipliers"),
+        ];
+        let lines: Vec<String> = cases.iter().map(|(l, _)| l.clone()).collect();
+        let out = solve(&lines);
+        for ((_, field), answer) in cases.iter().zip(&out) {
+            assert_eq!(answer["field"], *field, "{answer}");
+        }
+        let first = solve(&[format!(r#"{{"scenario":"paper-2",{PAPER_2}}}"#)]);
+        let mut y: Vec<f64> = serde_json::from_value(first[0]["multipliers"].clone()).expect("numbers");
+        y[3] = -1.0;
+        let out = solve(&[format!(r#"{{"scenario":"paper-2","multipliers":{y:?},{PAPER_2}}}"#)]);
+        assert_eq!(out[0]["field"], "multipliers[3]", "{}", out[0]);
     }
 }

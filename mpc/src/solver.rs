@@ -122,6 +122,12 @@ impl Mpc {
         &self.solution
     }
 
+    /// The ALM multipliers of the last solve (empty in the penalty formulation): what
+    /// [`Mpc::set_warm_multipliers`] takes to start another solve where this one ended.
+    pub fn multipliers(&self) -> &[f64] {
+        &self.multipliers
+    }
+
     /// The first input of the last solution, within the input bounds.
     pub fn first_input(&self) -> [f64; 3] {
         [self.solution[0], self.solution[1], self.solution[2]]

@@ -22,6 +22,28 @@ impl Mpc {
         Ok(())
     }
 
+    /// Replaces the ALM multipliers the next solve starts from (one per constraint value of
+    /// the distance formulation: scenario-major, then step, then constraint; see
+    /// [`Mpc::multipliers`]). Each must be finite and within `[0, max_multiplier]`.
+    pub fn set_warm_multipliers(&mut self, y: &[f64]) -> Result<(), MpcError> {
+        if y.len() != self.warm_multipliers.len() {
+            return Err(invalid_input(
+                "multipliers",
+                format!(
+                    "must hold {} values (scenarios x steps x constraints per point), got {}",
+                    self.warm_multipliers.len(),
+                    y.len()
+                ),
+            ));
+        }
+        let max = self.settings.max_multiplier;
+        if let Some(k) = y.iter().position(|v| !(v.is_finite() && (0.0..=max).contains(v))) {
+            return Err(invalid_input(format!("multipliers[{k}]"), format!("must be in [0, {max}]")));
+        }
+        self.warm_multipliers.copy_from_slice(y);
+        Ok(())
+    }
+
     /// Shifts the warm start (inputs and multipliers) by `steps` more steps, the last one
     /// repeated: for a controller whose cycle lasted that many more of its sampling times.
     pub fn advance_warm_start(&mut self, steps: usize) {
