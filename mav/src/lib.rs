@@ -18,7 +18,8 @@ pub use scenario::{
     PAPER_DELAY_GAMMA, Scenario, ScenarioError,
 };
 pub use sim::{
-    AppliedCommand, CollisionEvent, CollisionKind, CommandMeta, PlantSample, PlantSim, SimError, SimSettings,
+    AppliedCommand, CollisionEvent, CollisionKind, CommandMeta, Contacts, PlantSample, PlantSim, SimError,
+    SimSettings,
 };
 
 /// The bench's one pair of time conversions (defined in `delay`, the crate below this one).

@@ -102,13 +102,114 @@ pub struct PlantSample {
     pub flight_id: u64,
 }
 
+/// Contacts with the obstacles and the ground along a trajectory: collision events (entry
+/// into a cylinder, or the ground after lift-off or sinking into it from the start), the
+/// deepest penetration of each, and the smallest clearance. The one implementation of what a
+/// collision is: the truth simulation observes its own states with it, and a vehicle gateway
+/// observes the states a real vehicle reports.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Contacts {
+    obstacles: Vec<Cylinder>,
+    ground_z_m: f64,
+    /// Per obstacle, then the ground: currently inside?
+    inside: Vec<bool>,
+    lifted_off: bool,
+    collisions: Vec<CollisionEvent>,
+    min_clearance_m: f64,
+}
+
+impl Contacts {
+    /// No contact yet with `obstacles` and the ground at `ground_z_m`.
+    pub fn new(obstacles: Vec<Cylinder>, ground_z_m: f64) -> Self {
+        let inside = vec![false; obstacles.len() + 1];
+        Self {
+            obstacles,
+            ground_z_m,
+            inside,
+            lifted_off: false,
+            collisions: Vec::new(),
+            min_clearance_m: f64::INFINITY,
+        }
+    }
+
+    /// Forgets every contact (same obstacles).
+    pub fn reset(&mut self) {
+        self.inside.iter_mut().for_each(|b| *b = false);
+        self.lifted_off = false;
+        self.collisions.clear();
+        self.min_clearance_m = f64::INFINITY;
+    }
+
+    pub fn obstacles(&self) -> &[Cylinder] {
+        &self.obstacles
+    }
+    pub fn collisions(&self) -> &[CollisionEvent] {
+        &self.collisions
+    }
+    pub fn collided(&self) -> bool {
+        !self.collisions.is_empty()
+    }
+    /// The smallest clearance to any obstacle observed (infinite before the first).
+    pub fn min_clearance_m(&self) -> f64 {
+        self.min_clearance_m
+    }
+
+    /// Records the contacts of `state` at plant time `time_ns`.
+    pub fn observe(&mut self, time_ns: u64, state: &State) {
+        let (px, py, pz, vz) = (state[0], state[1], state[2], state[5]);
+        for i in 0..self.obstacles.len() {
+            let clearance = self.obstacles[i].clearance_m(px, py, pz);
+            self.min_clearance_m = self.min_clearance_m.min(clearance);
+            let now_inside = clearance < 0.0;
+            if now_inside && !self.inside[i] {
+                self.collisions.push(CollisionEvent {
+                    kind: CollisionKind::Cylinder,
+                    obstacle_index: i as u32,
+                    time_ns,
+                    position_m: [px, py, pz],
+                    penetration_m: -clearance,
+                    depth_m: -clearance,
+                });
+            } else if now_inside {
+                self.deepen(CollisionKind::Cylinder, i as u32, -clearance);
+            }
+            self.inside[i] = now_inside;
+        }
+        // The paper's model has no floor. Below the ground after lift-off, or sinking into it
+        // from the start, is ground contact: a crash, not a landing.
+        self.lifted_off |= pz > self.ground_z_m;
+        let g = self.obstacles.len();
+        let below = pz < self.ground_z_m && (self.lifted_off || vz < 0.0);
+        if below && !self.inside[g] {
+            self.collisions.push(CollisionEvent {
+                kind: CollisionKind::Ground,
+                obstacle_index: GROUND_INDEX,
+                time_ns,
+                position_m: [px, py, pz],
+                penetration_m: self.ground_z_m - pz,
+                depth_m: self.ground_z_m - pz,
+            });
+        } else if below {
+            self.deepen(CollisionKind::Ground, GROUND_INDEX, self.ground_z_m - pz);
+        }
+        self.inside[g] = below;
+    }
+
+    /// The contact in progress with (`kind`, `index`) went `depth_m` deep.
+    fn deepen(&mut self, kind: CollisionKind, index: u32, depth_m: f64) {
+        if let Some(c) =
+            self.collisions.iter_mut().rev().find(|c| c.kind == kind && c.obstacle_index == index)
+        {
+            c.depth_m = c.depth_m.max(depth_m);
+        }
+    }
+}
+
 /// The truth simulation.
 #[derive(Debug, Clone)]
 pub struct PlantSim {
     model: MavModel,
     bounds: InputBounds,
-    obstacles: Vec<Cylinder>,
-    ground_z_m: f64,
     settings: SimSettings,
     state: State,
     time_ns: u64,
@@ -118,11 +219,7 @@ pub struct PlantSim {
     watchdog_hover: bool,
     /// Plant time of the last command (or of the reset).
     last_command_time_ns: u64,
-    /// Per obstacle, then the ground: currently inside?
-    inside: Vec<bool>,
-    lifted_off: bool,
-    collisions: Vec<CollisionEvent>,
-    min_clearance_m: f64,
+    contacts: Contacts,
     path_length_m: f64,
     sample_seq: u64,
     watchdog_hover_ns: u64,
@@ -142,8 +239,6 @@ impl PlantSim {
         let mut sim = Self {
             model: MavModel::new(scenario.model),
             bounds: scenario.bounds,
-            obstacles: scenario.obstacles.clone(),
-            ground_z_m: scenario.ground_z_m,
             settings,
             state: scenario.start_state(),
             time_ns: 0,
@@ -157,10 +252,7 @@ impl PlantSim {
             },
             watchdog_hover: false,
             last_command_time_ns: 0,
-            inside: vec![false; scenario.obstacles.len() + 1],
-            lifted_off: false,
-            collisions: Vec::new(),
-            min_clearance_m: f64::INFINITY,
+            contacts: Contacts::new(scenario.obstacles.clone(), scenario.ground_z_m),
             path_length_m: 0.0,
             sample_seq: 0,
             watchdog_hover_ns: 0,
@@ -188,14 +280,11 @@ impl PlantSim {
         };
         self.watchdog_hover = false;
         self.last_command_time_ns = 0;
-        self.inside.iter_mut().for_each(|b| *b = false);
-        self.lifted_off = false;
-        self.collisions.clear();
-        self.min_clearance_m = f64::INFINITY;
+        self.contacts.reset();
         self.path_length_m = 0.0;
         self.sample_seq = 0;
         self.watchdog_hover_ns = 0;
-        self.check_contacts();
+        self.contacts.observe(self.time_ns, &self.state);
         Ok(())
     }
 
@@ -212,13 +301,13 @@ impl PlantSim {
         &self.bounds
     }
     pub fn obstacles(&self) -> &[Cylinder] {
-        &self.obstacles
+        &self.contacts.obstacles
     }
     pub fn model(&self) -> &MavModel {
         &self.model
     }
     pub fn ground_z_m(&self) -> f64 {
-        self.ground_z_m
+        self.contacts.ground_z_m
     }
     pub fn last_command(&self) -> &AppliedCommand {
         &self.last_command
@@ -239,13 +328,13 @@ impl PlantSim {
         self.flight_id = flight_id;
     }
     pub fn collisions(&self) -> &[CollisionEvent] {
-        &self.collisions
+        self.contacts.collisions()
     }
     pub fn collided(&self) -> bool {
-        !self.collisions.is_empty()
+        self.contacts.collided()
     }
     pub fn min_clearance_m(&self) -> f64 {
-        self.min_clearance_m
+        self.contacts.min_clearance_m()
     }
     pub fn path_length_m(&self) -> f64 {
         self.path_length_m
@@ -300,7 +389,7 @@ impl PlantSim {
         self.state = rk4_step(&self.model, &self.state, &self.effective_input, dt_s);
         self.time_ns = end_ns;
         self.path_length_m += 0.5 * (speed_before + self.speed()) * dt_s;
-        self.check_contacts();
+        self.contacts.observe(self.time_ns, &self.state);
         if let Some(timeout) = self.settings.watchdog_timeout_ns
             && !self.watchdog_hover
             && self.time_ns.saturating_sub(self.last_command_time_ns) >= timeout
@@ -312,55 +401,6 @@ impl PlantSim {
 
     fn speed(&self) -> f64 {
         (self.state[3] * self.state[3] + self.state[4] * self.state[4] + self.state[5] * self.state[5]).sqrt()
-    }
-
-    fn check_contacts(&mut self) {
-        let (px, py, pz, vz) = (self.state[0], self.state[1], self.state[2], self.state[5]);
-        for i in 0..self.obstacles.len() {
-            let clearance = self.obstacles[i].clearance_m(px, py, pz);
-            self.min_clearance_m = self.min_clearance_m.min(clearance);
-            let now_inside = clearance < 0.0;
-            if now_inside && !self.inside[i] {
-                self.collisions.push(CollisionEvent {
-                    kind: CollisionKind::Cylinder,
-                    obstacle_index: i as u32,
-                    time_ns: self.time_ns,
-                    position_m: [px, py, pz],
-                    penetration_m: -clearance,
-                    depth_m: -clearance,
-                });
-            } else if now_inside {
-                self.deepen(CollisionKind::Cylinder, i as u32, -clearance);
-            }
-            self.inside[i] = now_inside;
-        }
-        // The paper's model has no floor. Below the ground after lift-off, or sinking into it
-        // from the start, is ground contact: a crash, not a landing.
-        self.lifted_off |= pz > self.ground_z_m;
-        let g = self.obstacles.len();
-        let below = pz < self.ground_z_m && (self.lifted_off || vz < 0.0);
-        if below && !self.inside[g] {
-            self.collisions.push(CollisionEvent {
-                kind: CollisionKind::Ground,
-                obstacle_index: GROUND_INDEX,
-                time_ns: self.time_ns,
-                position_m: [px, py, pz],
-                penetration_m: self.ground_z_m - pz,
-                depth_m: self.ground_z_m - pz,
-            });
-        } else if below {
-            self.deepen(CollisionKind::Ground, GROUND_INDEX, self.ground_z_m - pz);
-        }
-        self.inside[g] = below;
-    }
-
-    /// The contact in progress with (`kind`, `index`) went `depth_m` deep.
-    fn deepen(&mut self, kind: CollisionKind, index: u32, depth_m: f64) {
-        if let Some(c) =
-            self.collisions.iter_mut().rev().find(|c| c.kind == kind && c.obstacle_index == index)
-        {
-            c.depth_m = c.depth_m.max(depth_m);
-        }
     }
 
     /// Takes a sample of the current state (numbered in order of sampling).
@@ -379,9 +419,9 @@ impl PlantSim {
             last_command: self.last_command,
             watchdog_hover: self.watchdog_hover,
             collided: self.collided(),
-            min_clearance_m: self.min_clearance_m,
+            min_clearance_m: self.contacts.min_clearance_m,
             path_length_m: self.path_length_m,
-            collisions: self.collisions.clone(),
+            collisions: self.contacts.collisions.clone(),
             watchdog_hover_ns: self.watchdog_hover_ns,
             flight_id: self.flight_id,
         }
