@@ -1,0 +1,538 @@
+//! The gateway's core: what the vehicle said (heartbeat, mode, battery, state, clock), the
+//! Plant API's samples made of it, the setpoint stream made of the controller's commands, and
+//! the failsafe decisions. Time is passed in (the gateway's monotonic clock, ns); nothing here
+//! reads a clock or does I/O: the service shell feeds it messages and sends what it returns.
+
+use crate::frame;
+use crate::messages::{self, Attitude};
+use crate::modes::{self, ModeRequest};
+use crate::thrust::{ThrustError, ThrustMap};
+use crate::timesync::TimeSync;
+use mav::{AppliedCommand, CommandMeta, Contacts, Input, PlantSample, Scenario, State};
+use mavlink::MavHeader;
+use mavlink::dialects::common::{
+    COMMAND_LONG_DATA, HEARTBEAT_DATA, LOCAL_POSITION_NED_DATA, MavAutopilot, MavCmd, MavMessage, MavModeFlag,
+    MavResult, MavState, MavType, TIMESYNC_DATA,
+};
+
+/// Settings of the bridge, with units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BridgeSettings {
+    /// Normalised thrust that hovers (`--hover-thrust`): `T = g` maps to it.
+    pub hover_thrust: f64,
+    /// The last setpoint is resent at least this often, ns (PX4 leaves offboard below 2 Hz).
+    pub setpoint_period_ns: u64,
+    /// No command for this long, ns: hold level attitude at hover thrust (`--command-timeout-ms`).
+    pub command_timeout_ns: u64,
+    /// No vehicle heartbeat for this long, ns: the link is lost.
+    pub heartbeat_timeout_ns: u64,
+    /// The gateway's own heartbeat period, ns.
+    pub heartbeat_period_ns: u64,
+    /// `TIMESYNC` request period, ns.
+    pub timesync_period_ns: u64,
+    /// A `Reset` whose start is farther than this from the vehicle is refused, m.
+    pub start_tolerance_m: f64,
+}
+
+impl Default for BridgeSettings {
+    fn default() -> Self {
+        Self {
+            hover_thrust: 0.5,
+            setpoint_period_ns: 20_000_000,
+            command_timeout_ns: 500_000_000,
+            heartbeat_timeout_ns: 2_000_000_000,
+            heartbeat_period_ns: 1_000_000_000,
+            timesync_period_ns: 500_000_000,
+            start_tolerance_m: 0.5,
+        }
+    }
+}
+
+/// An invalid setting or scenario.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BridgeError {
+    #[error("invalid gateway setting `{0}`: {1}")]
+    Setting(&'static str, String),
+    #[error(transparent)]
+    Thrust(#[from] ThrustError),
+}
+
+impl BridgeSettings {
+    pub fn validate(&self) -> Result<(), BridgeError> {
+        ThrustMap::new(self.hover_thrust, 9.81)?;
+        let positive = [
+            ("setpoint_period_ns", self.setpoint_period_ns),
+            ("command_timeout_ns", self.command_timeout_ns),
+            ("heartbeat_timeout_ns", self.heartbeat_timeout_ns),
+            ("heartbeat_period_ns", self.heartbeat_period_ns),
+            ("timesync_period_ns", self.timesync_period_ns),
+        ];
+        for (name, v) in positive {
+            if v == 0 {
+                return Err(BridgeError::Setting(name, "must be > 0".into()));
+            }
+        }
+        // PX4 leaves offboard when setpoints come slower than 2 Hz; the floor is 20 Hz.
+        if self.setpoint_period_ns > 50_000_000 {
+            return Err(BridgeError::Setting(
+                "setpoint_period_ns",
+                format!("must be at most 50 ms (20 Hz), got {} ns", self.setpoint_period_ns),
+            ));
+        }
+        if !(self.start_tolerance_m.is_finite() && self.start_tolerance_m >= 0.0) {
+            return Err(BridgeError::Setting("start_tolerance_m", format!("must be >= 0 m, got {}", self.start_tolerance_m)));
+        }
+        Ok(())
+    }
+}
+
+/// Why a `Reset` is refused (`FAILED_PRECONDITION`).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ResetRefusal {
+    #[error("the vehicle has reported no state yet (LOCAL_POSITION_NED and ATTITUDE)")]
+    NoState,
+    #[error(
+        "the requested start {requested_m:?} is {distance_m:.3} m from the vehicle at {vehicle_m:?} (tolerance {tolerance_m} m): a gateway never teleports a vehicle; fly it there first, or reset with the vehicle's position as initial_state"
+    )]
+    FarFromVehicle { requested_m: [f64; 3], vehicle_m: [f64; 3], distance_m: f64, tolerance_m: f64 },
+    #[error("{0}")]
+    Scenario(String),
+}
+
+/// What the gateway knows of the vehicle (`VehicleControl.GetStatus`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct VehicleStatus {
+    /// Since the last vehicle heartbeat, ns (`None`: never heard).
+    pub heartbeat_age_ns: Option<u64>,
+    pub link_alive: bool,
+    pub autopilot: MavAutopilot,
+    pub armed: bool,
+    pub custom_mode: u32,
+    pub mode: String,
+    /// `SYS_STATUS.voltage_battery`, V (`None`: unknown).
+    pub battery_voltage_v: Option<f64>,
+    /// `SYS_STATUS.battery_remaining`, percent (`None`: unknown).
+    pub battery_remaining_pct: Option<f64>,
+    /// `vehicle - gateway` clock offset, ns, and whether `TIMESYNC` measured it.
+    pub clock_offset_ns: Option<(i64, bool)>,
+    pub counters: Counters,
+}
+
+/// What the bridge counted since start: every fault and best-effort decision.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Counters {
+    pub setpoints_sent: u64,
+    /// Commands whose thrust fell outside `[0, 1]` after calibration and was clamped.
+    pub thrust_clamped: u64,
+    /// Times the command timeout made the gateway hold level hover.
+    pub watchdog_holds: u64,
+    /// State messages older than the newest sample (out of order), not used.
+    pub stale_messages: u64,
+    /// State messages with non-finite values, not used.
+    pub bad_messages: u64,
+}
+
+/// What one incoming message produced.
+#[derive(Debug, Default)]
+pub struct Event {
+    /// A new state sample.
+    pub sample: Option<PlantSample>,
+    /// A `COMMAND_ACK`: the command and its result.
+    pub ack: Option<(MavCmd, MavResult)>,
+    /// A message to send back (an answer to the vehicle's `TIMESYNC` request).
+    pub reply: Option<MavMessage>,
+}
+
+#[derive(Debug, Clone)]
+struct Heard {
+    local_ns: u64,
+    autopilot: MavAutopilot,
+    armed: bool,
+    custom_mode: u32,
+}
+
+/// The gateway's core.
+#[derive(Debug, Clone)]
+pub struct Bridge {
+    settings: BridgeSettings,
+    scenario: Scenario,
+    thrust: ThrustMap,
+    /// The vehicle's (system, component), from its heartbeat.
+    target: (u8, u8),
+    heard: Option<Heard>,
+    battery_voltage_v: Option<f64>,
+    battery_remaining_pct: Option<f64>,
+    timesync: TimeSync,
+    position: Option<LOCAL_POSITION_NED_DATA>,
+    attitude: Option<Attitude>,
+    /// The yaw the setpoints hold: the vehicle's at arming (its current one while disarmed).
+    yaw_hold_rad: f64,
+    /// Vehicle time of plant time 0 (the last reset, or the first state heard), ns.
+    epoch_vehicle_ns: Option<u64>,
+    next_seq: u64,
+    current: Option<PlantSample>,
+    last_command: AppliedCommand,
+    /// Gateway time of the last command (or of the start or the last reset).
+    command_local_ns: u64,
+    watchdog_hover: bool,
+    watchdog_hover_ns: u64,
+    contacts: Contacts,
+    path_length_m: f64,
+    flight_id: u64,
+    /// The input streamed as setpoints.
+    setpoint: Input,
+    next_setpoint_ns: u64,
+    next_heartbeat_ns: u64,
+    next_timesync_ns: u64,
+    counters: Counters,
+}
+
+fn hover(scenario: &Scenario) -> Input {
+    scenario.model.hover_input()
+}
+
+fn initial_command(scenario: &Scenario) -> AppliedCommand {
+    AppliedCommand { input: hover(scenario), meta: CommandMeta::default(), applied_time_ns: 0, saturated: false, initial: true }
+}
+
+impl Bridge {
+    /// A bridge for `scenario` that has heard nothing yet, started at gateway time `now_ns`.
+    pub fn new(scenario: Scenario, settings: BridgeSettings, now_ns: u64, flight_id: u64) -> Result<Self, BridgeError> {
+        settings.validate()?;
+        scenario.validate().map_err(|e| BridgeError::Setting("scenario", e.to_string()))?;
+        let thrust = ThrustMap::new(settings.hover_thrust, scenario.model.gravity_mps2)?;
+        Ok(Self {
+            settings,
+            thrust,
+            target: (1, 1),
+            heard: None,
+            battery_voltage_v: None,
+            battery_remaining_pct: None,
+            timesync: TimeSync::default(),
+            position: None,
+            attitude: None,
+            yaw_hold_rad: 0.0,
+            epoch_vehicle_ns: None,
+            next_seq: 0,
+            current: None,
+            last_command: initial_command(&scenario),
+            command_local_ns: now_ns,
+            watchdog_hover: false,
+            watchdog_hover_ns: 0,
+            contacts: Contacts::new(scenario.obstacles.clone(), scenario.ground_z_m),
+            path_length_m: 0.0,
+            flight_id,
+            setpoint: hover(&scenario),
+            next_setpoint_ns: now_ns,
+            next_heartbeat_ns: now_ns,
+            next_timesync_ns: now_ns,
+            counters: Counters::default(),
+            scenario,
+        })
+    }
+
+    pub fn scenario(&self) -> &Scenario {
+        &self.scenario
+    }
+    pub fn settings(&self) -> &BridgeSettings {
+        &self.settings
+    }
+    pub fn counters(&self) -> Counters {
+        self.counters
+    }
+    /// The newest sample (`None` before the vehicle's first state).
+    pub fn sample(&self) -> Option<&PlantSample> {
+        self.current.as_ref()
+    }
+    /// The input the setpoints carry now.
+    pub fn setpoint_input(&self) -> Input {
+        self.setpoint
+    }
+    pub fn yaw_hold_rad(&self) -> f64 {
+        self.yaw_hold_rad
+    }
+
+    /// The vehicle's heartbeat is fresh.
+    pub fn link_alive(&self, now_ns: u64) -> bool {
+        self.heard.as_ref().is_some_and(|h| now_ns.saturating_sub(h.local_ns) < self.settings.heartbeat_timeout_ns)
+    }
+
+    /// Plant time (ns since the epoch) of a vehicle time.
+    fn plant_ns(&self, vehicle_ns: u64) -> u64 {
+        vehicle_ns.saturating_sub(self.epoch_vehicle_ns.unwrap_or(vehicle_ns))
+    }
+
+    /// An incoming message from the vehicle, at gateway time `now_ns`.
+    pub fn on_message(&mut self, header: &MavHeader, msg: &MavMessage, now_ns: u64) -> Event {
+        let mut event = Event::default();
+        match msg {
+            MavMessage::HEARTBEAT(h) if h.autopilot != MavAutopilot::MAV_AUTOPILOT_INVALID => {
+                let armed = h.base_mode.contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED);
+                let was_armed = self.heard.as_ref().is_some_and(|p| p.armed);
+                if armed && !was_armed {
+                    // The yaw the setpoints hold from now on.
+                    if let Some(a) = &self.attitude {
+                        self.yaw_hold_rad = a.yaw_rad;
+                    }
+                }
+                self.target = (header.system_id as u8, header.component_id);
+                self.heard = Some(Heard { local_ns: now_ns, autopilot: h.autopilot, armed, custom_mode: h.custom_mode });
+            }
+            MavMessage::SYS_STATUS(s) => {
+                self.battery_voltage_v = (s.voltage_battery != u16::MAX).then(|| f64::from(s.voltage_battery) / 1000.0);
+                self.battery_remaining_pct = (s.battery_remaining >= 0).then(|| f64::from(s.battery_remaining));
+            }
+            MavMessage::TIMESYNC(t) => {
+                if t.tc1 == 0 {
+                    // The vehicle asks: answer with our clock.
+                    event.reply = Some(MavMessage::TIMESYNC(TIMESYNC_DATA { tc1: now_ns as i64, ts1: t.ts1 }));
+                } else {
+                    self.timesync.on_answer(t.tc1, t.ts1, now_ns);
+                }
+            }
+            MavMessage::COMMAND_ACK(a) => event.ack = Some((a.command, a.result)),
+            MavMessage::ATTITUDE(a) => match Attitude::from_euler(a) {
+                Some(att) => event.sample = self.on_attitude(att, now_ns),
+                None => self.counters.bad_messages += 1,
+            },
+            MavMessage::ATTITUDE_QUATERNION(a) => match Attitude::from_quaternion(a) {
+                Some(att) => event.sample = self.on_attitude(att, now_ns),
+                None => self.counters.bad_messages += 1,
+            },
+            MavMessage::LOCAL_POSITION_NED(p) => {
+                let t = p.time_boot_ms;
+                if [p.x, p.y, p.z, p.vx, p.vy, p.vz].iter().any(|v| !v.is_finite()) {
+                    self.counters.bad_messages += 1;
+                } else if self.position.as_ref().is_some_and(|old| old.time_boot_ms > t) {
+                    self.counters.stale_messages += 1;
+                } else {
+                    self.position = Some(p.clone());
+                    event.sample = self.produce(u64::from(t) * 1_000_000, now_ns);
+                }
+            }
+            _ => {}
+        }
+        event
+    }
+
+    fn on_attitude(&mut self, att: Attitude, now_ns: u64) -> Option<PlantSample> {
+        if self.attitude.as_ref().is_some_and(|old| old.time_boot_ms > att.time_boot_ms) {
+            self.counters.stale_messages += 1;
+            return None;
+        }
+        if !self.heard.as_ref().is_some_and(|h| h.armed) {
+            self.yaw_hold_rad = att.yaw_rad;
+        }
+        self.attitude = Some(att);
+        self.produce(u64::from(att.time_boot_ms) * 1_000_000, now_ns)
+    }
+
+    /// A new sample at vehicle time `vehicle_ns`, once both a position and an attitude exist.
+    fn produce(&mut self, vehicle_ns: u64, now_ns: u64) -> Option<PlantSample> {
+        self.timesync.on_arrival(vehicle_ns, now_ns);
+        let (p, a) = (self.position.as_ref()?, self.attitude.as_ref()?);
+        let ned = messages::ned_of(p, a)?;
+        let state = frame::model_state(&ned);
+        let epoch = *self.epoch_vehicle_ns.get_or_insert(vehicle_ns);
+        let time_ns = vehicle_ns.saturating_sub(epoch);
+        if let Some(prev) = &self.current {
+            if time_ns < prev.time_ns {
+                self.counters.stale_messages += 1;
+                return None;
+            }
+            let dt_s = mav::ns_to_s(time_ns - prev.time_ns);
+            self.path_length_m += 0.5 * (speed(&prev.state) + speed(&state)) * dt_s;
+            if self.watchdog_hover && prev.watchdog_hover {
+                self.watchdog_hover_ns += time_ns - prev.time_ns;
+            }
+        }
+        self.contacts.observe(time_ns, &state);
+        Some(self.emit(time_ns, state))
+    }
+
+    fn emit(&mut self, time_ns: u64, state: State) -> PlantSample {
+        let sample = PlantSample {
+            seq: self.next_seq,
+            time_ns,
+            state,
+            last_command: self.last_command,
+            watchdog_hover: self.watchdog_hover,
+            collided: self.contacts.collided(),
+            min_clearance_m: self.contacts.min_clearance_m(),
+            path_length_m: self.path_length_m,
+            collisions: self.contacts.collisions().to_vec(),
+            watchdog_hover_ns: self.watchdog_hover_ns,
+            flight_id: self.flight_id,
+        };
+        self.next_seq += 1;
+        self.current = Some(sample.clone());
+        sample
+    }
+
+    /// A command from the controller at gateway time `now_ns`: saturated at the scenario's
+    /// limits, stamped with the vehicle's clock, and sent at once. Returns what was applied and
+    /// the setpoint to send.
+    pub fn apply(&mut self, input: Input, meta: CommandMeta, now_ns: u64) -> (AppliedCommand, MavMessage) {
+        let (saturated_input, saturated) = self.scenario.bounds.saturate(&input);
+        let vehicle_ns = self.timesync.vehicle_ns(now_ns).unwrap_or(0);
+        self.setpoint = saturated_input;
+        self.watchdog_hover = false;
+        self.command_local_ns = now_ns;
+        let msg = self.setpoint_message(now_ns);
+        let (_, clamped) = self.thrust.normalise(saturated_input[0]);
+        self.last_command = AppliedCommand {
+            input: saturated_input,
+            meta,
+            applied_time_ns: self.plant_ns(vehicle_ns),
+            saturated: saturated || clamped,
+            initial: false,
+        };
+        (self.last_command, msg)
+    }
+
+    fn setpoint_message(&mut self, now_ns: u64) -> MavMessage {
+        let vehicle_ns = self.timesync.vehicle_ns(now_ns).unwrap_or(0);
+        let (data, clamped) = messages::setpoint(&self.setpoint, self.yaw_hold_rad, &self.thrust, vehicle_ns, self.target);
+        self.counters.setpoints_sent += 1;
+        self.counters.thrust_clamped += u64::from(clamped);
+        self.next_setpoint_ns = now_ns + self.settings.setpoint_period_ns;
+        MavMessage::SET_ATTITUDE_TARGET(data)
+    }
+
+    /// What is due at gateway time `now_ns` (the command timeout's hover, the setpoint resent,
+    /// the gateway's heartbeat, a `TIMESYNC` request), appended to `out`.
+    pub fn poll(&mut self, now_ns: u64, out: &mut Vec<MavMessage>) {
+        if !self.watchdog_hover && now_ns.saturating_sub(self.command_local_ns) >= self.settings.command_timeout_ns {
+            // Mirrors PX4's offboard-loss failsafe: level attitude at hover thrust, at once.
+            self.watchdog_hover = true;
+            self.counters.watchdog_holds += 1;
+            self.setpoint = hover(&self.scenario);
+            out.push(self.setpoint_message(now_ns));
+        } else if now_ns >= self.next_setpoint_ns {
+            out.push(self.setpoint_message(now_ns));
+        }
+        if now_ns >= self.next_heartbeat_ns {
+            self.next_heartbeat_ns = now_ns + self.settings.heartbeat_period_ns;
+            out.push(MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+                custom_mode: 0,
+                mavtype: MavType::MAV_TYPE_ONBOARD_CONTROLLER,
+                autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
+                base_mode: MavModeFlag::empty(),
+                system_status: MavState::MAV_STATE_ACTIVE,
+                mavlink_version: 3,
+            }));
+        }
+        if now_ns >= self.next_timesync_ns {
+            self.next_timesync_ns = now_ns + self.settings.timesync_period_ns;
+            let (tc1, ts1) = TimeSync::request(now_ns);
+            out.push(MavMessage::TIMESYNC(TIMESYNC_DATA { tc1, ts1 }));
+        }
+    }
+
+    /// The earliest gateway time at which [`Bridge::poll`] has something to do.
+    pub fn next_due_ns(&self) -> u64 {
+        let watchdog = if self.watchdog_hover { u64::MAX } else { self.command_local_ns + self.settings.command_timeout_ns };
+        self.next_setpoint_ns.min(self.next_heartbeat_ns).min(self.next_timesync_ns).min(watchdog)
+    }
+
+    /// A `Reset`: the scenario (obstacles, goal) changes, plant time restarts at the vehicle's
+    /// newest state, a new flight begins, and the setpoint goes back to level hover; the
+    /// vehicle is not moved. Refused when the requested start (or the scenario's) is farther
+    /// from the vehicle than the tolerance.
+    pub fn reset(
+        &mut self,
+        scenario: Scenario,
+        start: Option<State>,
+        now_ns: u64,
+        flight_id: u64,
+    ) -> Result<PlantSample, ResetRefusal> {
+        scenario.validate().map_err(|e| ResetRefusal::Scenario(e.to_string()))?;
+        let thrust = ThrustMap::new(self.settings.hover_thrust, scenario.model.gravity_mps2)
+            .map_err(|e| ResetRefusal::Scenario(e.to_string()))?;
+        let (p, a) = match (&self.position, &self.attitude) {
+            (Some(p), Some(a)) => (p, a),
+            _ => return Err(ResetRefusal::NoState),
+        };
+        let state = frame::model_state(&messages::ned_of(p, a).ok_or(ResetRefusal::NoState)?);
+        let requested = start.unwrap_or_else(|| scenario.start_state());
+        let requested_m = [requested[0], requested[1], requested[2]];
+        let vehicle_m = [state[0], state[1], state[2]];
+        let distance_m = requested_m.iter().zip(&vehicle_m).map(|(r, v)| (r - v) * (r - v)).sum::<f64>().sqrt();
+        if distance_m > self.settings.start_tolerance_m {
+            return Err(ResetRefusal::FarFromVehicle {
+                requested_m,
+                vehicle_m,
+                distance_m,
+                tolerance_m: self.settings.start_tolerance_m,
+            });
+        }
+        let vehicle_ns = u64::from(p.time_boot_ms.max(a.time_boot_ms)) * 1_000_000;
+        self.thrust = thrust;
+        self.contacts = Contacts::new(scenario.obstacles.clone(), scenario.ground_z_m);
+        self.last_command = initial_command(&scenario);
+        self.setpoint = hover(&scenario);
+        self.scenario = scenario;
+        self.epoch_vehicle_ns = Some(vehicle_ns);
+        self.next_seq = 0;
+        self.command_local_ns = now_ns;
+        self.watchdog_hover = false;
+        self.watchdog_hover_ns = 0;
+        self.path_length_m = 0.0;
+        self.flight_id = flight_id;
+        self.contacts.observe(0, &state);
+        Ok(self.emit(0, state))
+    }
+
+    /// `COMMAND_LONG` for a command to the vehicle.
+    pub fn command_long(&self, command: MavCmd, params: [f32; 7]) -> MavMessage {
+        let [param1, param2, param3, param4, param5, param6, param7] = params;
+        MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+            param1,
+            param2,
+            param3,
+            param4,
+            param5,
+            param6,
+            param7,
+            command,
+            target_system: self.target.0,
+            target_component: self.target.1,
+            confirmation: 0,
+        })
+    }
+
+    /// `COMMAND_LONG` arming (`true`) or disarming the vehicle.
+    pub fn arm_message(&self, arm: bool) -> MavMessage {
+        self.command_long(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, [f32::from(u8::from(arm)), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    }
+
+    /// `COMMAND_LONG` asking for `mode`.
+    pub fn mode_message(&self, mode: ModeRequest) -> MavMessage {
+        let (p1, p2, p3) = mode.params();
+        self.command_long(MavCmd::MAV_CMD_DO_SET_MODE, [p1, p2, p3, 0.0, 0.0, 0.0, 0.0])
+    }
+
+    pub fn status(&self, now_ns: u64) -> VehicleStatus {
+        let (autopilot, armed, custom_mode) = self
+            .heard
+            .as_ref()
+            .map(|h| (h.autopilot, h.armed, h.custom_mode))
+            .unwrap_or((MavAutopilot::MAV_AUTOPILOT_INVALID, false, 0));
+        VehicleStatus {
+            heartbeat_age_ns: self.heard.as_ref().map(|h| now_ns.saturating_sub(h.local_ns)),
+            link_alive: self.link_alive(now_ns),
+            autopilot,
+            armed,
+            custom_mode,
+            mode: if self.heard.is_some() { modes::mode_name(autopilot, custom_mode) } else { "unknown".into() },
+            battery_voltage_v: self.battery_voltage_v,
+            battery_remaining_pct: self.battery_remaining_pct,
+            clock_offset_ns: self.timesync.offset_ns(),
+            counters: self.counters,
+        }
+    }
+}
+
+fn speed(x: &State) -> f64 {
+    (x[3] * x[3] + x[4] * x[4] + x[5] * x[5]).sqrt()
+}

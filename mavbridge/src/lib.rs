@@ -1,0 +1,24 @@
+//! `mavbridge`: the pure core of the vehicle gateway and of its MAVLink vehicle simulator
+//! (ARCHITECTURE.md). No tokio, no tonic, no sockets, no clock: time is passed in.
+//!
+//! - [`frame`]: the model's frame (z up, no yaw) and MAVLink's (NED, FRD), both ways.
+//! - [`thrust`]: the model's `T` and the autopilot's normalised thrust.
+//! - [`timesync`]: the vehicle's clock from `TIMESYNC`.
+//! - [`messages`]: MAVLink messages to and from model values (both sides use it).
+//! - [`modes`]: PX4 and ArduPilot modes.
+//! - [`bridge`]: the gateway's core (samples, setpoints, the command timeout, resets).
+//! - [`autopilot`]: the simulator's autopilot around `mav::PlantSim`.
+
+pub mod autopilot;
+pub mod bridge;
+pub mod frame;
+pub mod messages;
+pub mod modes;
+pub mod thrust;
+pub mod timesync;
+
+pub use autopilot::{AutopilotSettings, SimAutopilot, SimMode};
+pub use bridge::{Bridge, BridgeError, BridgeSettings, Counters, Event, ResetRefusal, VehicleStatus};
+pub use mavlink;
+pub use modes::ModeRequest;
+pub use thrust::ThrustMap;

@@ -1,0 +1,206 @@
+//! The gateway's core and the simulator's autopilot talking MAVLink 2 frames to each other on
+//! a clock the test moves (no sockets, no threads): the contracts of both, decision by
+//! decision.
+
+use mav::{CommandMeta, Input, Scenario};
+use mavbridge::mavlink::dialects::common::{MavCmd, MavMessage, MavResult};
+use mavbridge::mavlink::{self, MavHeader, MavlinkVersion};
+use mavbridge::{AutopilotSettings, Bridge, BridgeSettings, ModeRequest, ResetRefusal, SimAutopilot, SimMode};
+
+const MS: u64 = 1_000_000;
+
+/// Through the bytes of a MAVLink 2 frame, as on the wire.
+fn wire(msg: &MavMessage, system_id: u8) -> (MavHeader, MavMessage) {
+    let mut bytes = Vec::new();
+    let header = MavHeader { system_id: u32::from(system_id), component_id: 1, sequence: 0 };
+    mavlink::write_v2_msg(&mut bytes, header, msg).expect("encodes");
+    mavlink::MavlinkReader::new(&bytes[..]).read_message::<MavMessage>(MavlinkVersion::V2).expect("decodes")
+}
+
+/// A gateway core and a simulated vehicle on one clock (the vehicle booted 3 s before the
+/// gateway started: its clock is the gateway's + 3 s).
+struct Pair {
+    bridge: Bridge,
+    vehicle: SimAutopilot,
+    now_ns: u64,
+    acks: Vec<(MavCmd, MavResult)>,
+    samples: Vec<mav::PlantSample>,
+    /// The vehicle does not hear the gateway, nor the gateway the vehicle.
+    silent_vehicle: bool,
+}
+
+const VEHICLE_AHEAD_NS: u64 = 3_000 * MS;
+
+impl Pair {
+    fn new(scenario: &Scenario) -> Self {
+        Self {
+            bridge: Bridge::new(scenario.clone(), BridgeSettings::default(), 0, 1).expect("valid"),
+            vehicle: SimAutopilot::new(scenario, AutopilotSettings { yaw_rad: 0.7, ..Default::default() })
+                .expect("valid"),
+            now_ns: 0,
+            acks: Vec::new(),
+            samples: Vec::new(),
+            silent_vehicle: false,
+        }
+    }
+
+    fn to_vehicle(&mut self, msgs: Vec<MavMessage>) {
+        for m in msgs {
+            let (_, m) = wire(&m, 255);
+            let mut answers = Vec::new();
+            self.vehicle.on_message(&m, self.now_ns + VEHICLE_AHEAD_NS, &mut answers);
+            self.to_gateway(answers);
+        }
+    }
+
+    fn to_gateway(&mut self, msgs: Vec<MavMessage>) {
+        if self.silent_vehicle {
+            return;
+        }
+        for m in msgs {
+            let (h, m) = wire(&m, 1);
+            let event = self.bridge.on_message(&h, &m, self.now_ns);
+            self.samples.extend(event.sample);
+            self.acks.extend(event.ack);
+            if let Some(reply) = event.reply {
+                self.to_vehicle(vec![reply]);
+            }
+        }
+    }
+
+    /// Runs both sides for `ms`, one millisecond at a time.
+    fn run(&mut self, ms: u64) {
+        for _ in 0..ms {
+            self.now_ns += MS;
+            let mut out = Vec::new();
+            self.bridge.poll(self.now_ns, &mut out);
+            if !self.silent_vehicle {
+                self.to_vehicle(out);
+            }
+            let mut out = Vec::new();
+            self.vehicle.poll(self.now_ns + VEHICLE_AHEAD_NS, &mut out);
+            self.to_gateway(out);
+        }
+    }
+
+    fn command(&mut self, msg: MavMessage) -> (MavCmd, MavResult) {
+        let before = self.acks.len();
+        self.to_vehicle(vec![msg]);
+        *self.acks.get(before).expect("acknowledged")
+    }
+}
+
+#[test]
+fn offboard_needs_the_setpoint_stream_and_the_gateway_never_arms_or_switches_on_its_own() {
+    let scenario = Scenario::paper_2();
+    let mut p = Pair::new(&scenario);
+    // The vehicle refuses OFFBOARD before any setpoint arrives.
+    p.silent_vehicle = false;
+    let ask = p.bridge.mode_message(ModeRequest::Px4Offboard);
+    assert_eq!(p.command(ask.clone()), (MavCmd::MAV_CMD_DO_SET_MODE, MavResult::MAV_RESULT_DENIED));
+    // Two seconds of streaming: still disarmed in POSCTL (nothing asked), and at rest.
+    p.run(2_000);
+    assert!(!p.vehicle.armed());
+    assert_eq!(p.vehicle.mode(), SimMode::Posctl);
+    assert!(p.bridge.link_alive(p.now_ns));
+    assert_eq!(p.bridge.status(p.now_ns).mode, "POSCTL");
+    assert!(p.bridge.counters().setpoints_sent >= 100, "50 Hz: {:?}", p.bridge.counters());
+    assert_eq!(p.command(p.bridge.arm_message(true)), (MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, MavResult::MAV_RESULT_ACCEPTED));
+    assert_eq!(p.command(ask), (MavCmd::MAV_CMD_DO_SET_MODE, MavResult::MAV_RESULT_ACCEPTED));
+    p.run(1_100);
+    let status = p.bridge.status(p.now_ns);
+    assert!(status.armed && status.mode == "OFFBOARD", "{status:?}");
+    assert_eq!(status.battery_voltage_v, Some(16.0));
+    // The yaw held is the vehicle's at arming.
+    assert!((p.bridge.yaw_hold_rad() - 0.7).abs() < 1e-6);
+}
+
+#[test]
+fn commands_fly_the_vehicle_and_the_samples_carry_the_plants_stamps() {
+    let scenario = Scenario::paper_2();
+    let mut p = Pair::new(&scenario);
+    p.run(1_000);
+    p.command(p.bridge.arm_message(true));
+    p.command(p.bridge.mode_message(ModeRequest::Px4Offboard));
+    p.run(100);
+    let reset = p.bridge.reset(scenario.clone(), None, p.now_ns, 2).expect("at the start");
+    assert_eq!((reset.seq, reset.time_ns, reset.flight_id), (0, 0, 2));
+    assert!(reset.last_command.initial);
+    p.samples.clear();
+    // Climb: 12 m/s^2 for 300 ms.
+    let meta = CommandMeta { command_seq: 1, based_on_sample_seq: 0, based_on_sample_time_ns: 0 };
+    let (applied, msg) = p.bridge.apply(Input::new(12.0, 0.0, 0.05), meta, p.now_ns);
+    // TIMESYNC measured the clocks on loopback: the command is stamped with the vehicle's time
+    // since the reset (the reset was at the vehicle's latest state, at most 10 ms before).
+    assert!(applied.applied_time_ns <= 11 * MS, "{applied:?}");
+    assert!(p.bridge.status(p.now_ns).clock_offset_ns.is_some_and(|(o, measured)| measured && o == VEHICLE_AHEAD_NS as i64));
+    p.to_vehicle(vec![msg]);
+    p.run(300);
+    let last = p.samples.last().expect("samples").clone();
+    assert!(last.state[2] > 0.05, "climbed: {:?}", last.state);
+    assert!(last.state[7] > 0.0, "pitched towards +x: {:?}", last.state);
+    assert_eq!(last.last_command.meta.command_seq, 1);
+    assert!(!last.watchdog_hover);
+    // Samples: numbered in order, plant time from the reset, 10 ms apart (two messages each).
+    let seqs: Vec<u64> = p.samples.iter().map(|s| s.seq).collect();
+    assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1));
+    assert!(p.samples.iter().all(|s| s.time_ns <= 320 * MS));
+    // The vehicle's own truth agrees with what the gateway reports (frames both ways).
+    let truth = p.vehicle.sim().state();
+    for i in 0..8 {
+        assert!((truth[i] - last.state[i]).abs() < 0.02, "x[{i}]: {} vs {}", truth[i], last.state[i]);
+    }
+}
+
+#[test]
+fn controller_silence_holds_level_hover_and_a_stopped_stream_fails_the_vehicle_safe() {
+    let scenario = Scenario::paper_2();
+    let mut p = Pair::new(&scenario);
+    p.run(1_000);
+    p.command(p.bridge.arm_message(true));
+    p.command(p.bridge.mode_message(ModeRequest::Px4Offboard));
+    p.bridge.reset(scenario.clone(), None, p.now_ns, 2).expect("at the start");
+    // Nobody commanded since the start: the gateway has held hover once already.
+    let holds = p.bridge.counters().watchdog_holds;
+    assert_eq!(holds, 1);
+    let (_, msg) = p.bridge.apply(Input::new(11.0, 0.1, 0.0), CommandMeta::default(), p.now_ns);
+    p.to_vehicle(vec![msg]);
+    p.run(400);
+    assert!(!p.samples.last().expect("samples").watchdog_hover);
+    p.run(150);
+    let s = p.samples.last().expect("samples");
+    assert!(s.watchdog_hover, "500 ms without a command");
+    assert_eq!(p.bridge.setpoint_input(), scenario.model.hover_input());
+    assert_eq!(p.bridge.counters().watchdog_holds, holds + 1);
+    assert_eq!(p.vehicle.mode(), SimMode::Offboard, "the setpoints go on: the vehicle stays in OFFBOARD");
+    // The gateway goes silent: the vehicle leaves OFFBOARD for a hold within 0.5 s.
+    p.silent_vehicle = true;
+    let mut vehicle_out = Vec::new();
+    let t0 = p.now_ns + VEHICLE_AHEAD_NS;
+    for k in 1..=600 {
+        p.vehicle.poll(t0 + k * MS, &mut vehicle_out);
+    }
+    assert_eq!(p.vehicle.mode(), SimMode::Hold);
+    assert_eq!(p.vehicle.counters().offboard_failsafes, 1);
+    // And the gateway, hearing no heartbeat for 2 s, calls the link lost.
+    assert!(!p.bridge.link_alive(p.now_ns + 2_100 * MS));
+}
+
+#[test]
+fn a_reset_never_teleports_the_vehicle() {
+    let scenario = Scenario::paper_2();
+    let mut p = Pair::new(&scenario);
+    assert_eq!(p.bridge.reset(scenario.clone(), None, 0, 2), Err(ResetRefusal::NoState));
+    p.run(50);
+    let mut far = scenario.start_state();
+    far[0] += 2.0;
+    match p.bridge.reset(scenario.clone(), Some(far), p.now_ns, 2) {
+        Err(ResetRefusal::FarFromVehicle { distance_m, .. }) => assert!((distance_m - 2.0).abs() < 1e-3),
+        other => panic!("not refused: {other:?}"),
+    }
+    // Within the tolerance: accepted, and the sample is the vehicle's state, not the request.
+    let mut near = scenario.start_state();
+    near[1] += 0.2;
+    let s = p.bridge.reset(scenario, Some(near), p.now_ns, 3).expect("within 0.5 m");
+    assert!((s.state[1] - 0.0).abs() < 1e-6 && s.flight_id == 3);
+}
