@@ -10,6 +10,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "proto/hilbench/v1/plant.proto",
         "proto/hilbench/v1/netem.proto",
         "proto/hilbench/v1/controller.proto",
+        "proto/hilbench/v1/vehicle.proto",
     ];
     for f in files {
         println!("cargo:rerun-if-changed={f}");

@@ -11,6 +11,8 @@ pub mod netem;
 pub mod plant;
 #[cfg(feature = "plant")]
 pub mod scenario;
+#[cfg(feature = "vehicle")]
+pub mod vehicle;
 
 use crate::pb;
 

@@ -1,0 +1,59 @@
+//! `mavsim`: the hilbench MAV model in real time playing a PX4 autopilot's side of MAVLink, so
+//! that the whole chain controller -> netem -> gateway -> MAVLink -> vehicle runs on one
+//! machine. Glue only: flags, logging, signals; the simulator is `gateway::mavsim`.
+
+use clap::Parser;
+use gateway::mavsim::{Mavsim, MavsimConfig};
+use mavbridge::AutopilotSettings;
+
+/// A simulated PX4 vehicle over MAVLink 2: HEARTBEAT (armed, custom mode), ATTITUDE,
+/// LOCAL_POSITION_NED, SYS_STATUS, TIMESYNC answers, COMMAND_LONG arming and modes with
+/// COMMAND_ACK, and SET_ATTITUDE_TARGET. OFFBOARD is refused without a setpoint stream; when the
+/// stream stops the vehicle fails safe to a hold (level, hover thrust).
+#[derive(Debug, Parser)]
+#[command(name = "mavsim", version)]
+struct Args {
+    /// Where the gateway listens: udpout:HOST:PORT (or udpin:HOST:PORT, serial:DEVICE:BAUD).
+    #[arg(long, default_value = "udpout:127.0.0.1:14540")]
+    mavlink: String,
+    /// The model's parameters, limits and start: a built-in name or a scenario file.
+    #[arg(long, default_value = "paper-1", value_name = "NAME|FILE.toml")]
+    scenario: String,
+    /// Normalised thrust that hovers this vehicle (the gateway's --hover-thrust must match).
+    #[arg(long, default_value_t = 0.5)]
+    hover_thrust: f64,
+    /// ATTITUDE and LOCAL_POSITION_NED rate, Hz.
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    state_rate_hz: u64,
+    /// The vehicle's heading, degrees (the model has no yaw; the MAVLink frames carry it).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    yaw_deg: f64,
+    /// Setpoints older than this end OFFBOARD (failsafe to a hold), ms.
+    #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..=60_000))]
+    offboard_loss_ms: u64,
+}
+
+fn main() -> anyhow::Result<()> {
+    hilbench_svc::init_tracing();
+    hilbench_svc::exit_on_panic();
+    let args = Args::parse();
+    let scenario = hilbench_svc::scenario_file::scenario_arg(&args.scenario)
+        .map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
+    if !args.yaw_deg.is_finite() || args.yaw_deg.abs() > 360.0 {
+        anyhow::bail!("--yaw-deg: must be in [-360, 360], got {}", args.yaw_deg);
+    }
+    let autopilot = AutopilotSettings {
+        hover_thrust: args.hover_thrust,
+        offboard_loss_ns: args.offboard_loss_ms * 1_000_000,
+        state_period_ns: 1_000_000_000 / args.state_rate_hz,
+        yaw_rad: args.yaw_deg.to_radians(),
+        ..AutopilotSettings::default()
+    };
+    mavbridge::ThrustMap::new(args.hover_thrust, scenario.model.gravity_mps2)
+        .map_err(|e| anyhow::anyhow!("--hover-thrust: {e}"))?;
+    let sim = Mavsim::start(&MavsimConfig { mavlink: args.mavlink, scenario, autopilot })?;
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    runtime.block_on(hilbench_svc::shutdown_signal());
+    sim.stop();
+    Ok(())
+}

@@ -1,0 +1,179 @@
+//! The vehicle gateway (see ARCHITECTURE.md): the `hilbench.v1.Plant` API served in real time
+//! for a MAVLink autopilot, and `hilbench.v1.VehicleControl` to arm it and set its mode; and
+//! [`mavsim`], the MAV model playing the autopilot's side of the same MAVLink subset.
+//!
+//! The decisions are [`mavbridge`]'s (frames, thrust, setpoints, the command timeout, resets);
+//! this crate is the shell: a thread reads the MAVLink link and feeds the core, a thread sends
+//! what the core schedules (setpoints at 50 Hz, heartbeats, `TIMESYNC`), the gRPC services
+//! decode, call the core, send and encode, and health follows the vehicle's heartbeat.
+
+pub mod link;
+pub mod mavsim;
+pub mod service;
+
+pub use link::{Link, LinkError};
+pub use service::GatewayService;
+
+use hilbench_proto::pb::plant_server::PlantServer;
+use hilbench_proto::pb::vehicle_control_server::VehicleControlServer;
+use hilbench_svc::{GrpcServer, ServeError};
+use mav::Scenario;
+use mavbridge::{Bridge, BridgeError, BridgeSettings};
+use std::future::Future;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+use tonic::server::NamedService;
+use tonic_health_status::set_health;
+
+/// Settings of one gateway.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GatewayConfig {
+    /// `udpin:HOST:PORT`, `udpout:HOST:PORT` or `serial:DEVICE:BAUD`.
+    pub mavlink: String,
+    /// The scenario in force until a `Reset` brings another (obstacles, goal, limits).
+    pub scenario: Scenario,
+    pub bridge: BridgeSettings,
+    /// The gateway's MAVLink system and component ids.
+    pub system_id: u8,
+    pub component_id: u8,
+    pub max_streams: usize,
+    pub stream_buffer: usize,
+}
+
+impl GatewayConfig {
+    /// Listening on `mavlink`, paper-1, the defaults of [`BridgeSettings`].
+    pub fn new(mavlink: impl Into<String>, scenario: Scenario) -> Self {
+        Self {
+            mavlink: mavlink.into(),
+            scenario,
+            bridge: BridgeSettings::default(),
+            system_id: 255,
+            component_id: 191,
+            max_streams: hilbench_svc::streams::DEFAULT_MAX_STREAMS,
+            stream_buffer: 256,
+        }
+    }
+}
+
+/// Why the gateway could not serve.
+#[derive(Debug, thiserror::Error)]
+pub enum GatewayError {
+    #[error(transparent)]
+    Config(#[from] BridgeError),
+    #[error(transparent)]
+    Link(#[from] LinkError),
+    #[error(transparent)]
+    Serve(#[from] ServeError),
+    #[error("invalid gateway setting `{0}`: must be at least 1")]
+    Count(&'static str),
+}
+
+mod tonic_health_status {
+    use tonic_health::ServingStatus;
+    use tonic_health::server::HealthReporter;
+
+    pub async fn set_health(health: &HealthReporter, names: &[&str], serving: bool) {
+        let status = if serving { ServingStatus::Serving } else { ServingStatus::NotServing };
+        for name in names {
+            health.set_service_status(*name, status).await;
+        }
+    }
+}
+
+/// Serves the gateway on `listener` until `shutdown` resolves.
+pub async fn serve(
+    listener: tokio::net::TcpListener,
+    config: GatewayConfig,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<(), GatewayError> {
+    if config.max_streams == 0 {
+        return Err(GatewayError::Count("max_streams"));
+    }
+    if config.stream_buffer == 0 {
+        return Err(GatewayError::Count("stream_buffer"));
+    }
+    let bridge = Bridge::new(config.scenario.clone(), config.bridge, 0, 1)?;
+    let link = Link::open(&config.mavlink, config.system_id, config.component_id)?;
+    let service = GatewayService::new(bridge, link.clone(), config.max_streams, config.stream_buffer);
+    const NAMES: [&str; 2] =
+        [PlantServer::<GatewayService>::NAME, VehicleControlServer::<GatewayService>::NAME];
+    let server = GrpcServer::new(listener, true, &NAMES).await?;
+    let (addr, health) = (server.addr, server.health.clone());
+    // Not serving until the vehicle's heartbeat arrives.
+    set_health(&health, &NAMES, false).await;
+
+    let stop = Arc::new(AtomicBool::new(false));
+    let reader = {
+        let (service, stop, link) = (service.clone(), stop.clone(), link.clone());
+        std::thread::Builder::new().name("mavlink-recv".into()).spawn(move || {
+            while !stop.load(Ordering::Relaxed) {
+                if let Some((header, msg)) = link.recv() {
+                    service.on_message(&header, &msg);
+                }
+            }
+        })
+    };
+    let scheduler = {
+        let (service, stop) = (service.clone(), stop.clone());
+        std::thread::Builder::new().name("mavlink-send".into()).spawn(move || {
+            while !stop.load(Ordering::Relaxed) {
+                let next = service.poll();
+                let wait = next.saturating_sub(service.shared.now_ns()).min(10_000_000);
+                std::thread::sleep(Duration::from_nanos(wait));
+            }
+        })
+    };
+    let (reader, scheduler) = match (reader, scheduler) {
+        (Ok(r), Ok(s)) => (r, s),
+        (Err(e), _) | (_, Err(e)) => return Err(GatewayError::Serve(ServeError::Io(e))),
+    };
+    let health_task = {
+        let (service, health) = (service.clone(), health.clone());
+        tokio::spawn(async move {
+            let mut serving = false;
+            loop {
+                let alive = service.link_alive();
+                if alive != serving {
+                    set_health(&health, &NAMES, alive).await;
+                    if alive {
+                        tracing::info!("vehicle heartbeat: serving");
+                    } else {
+                        tracing::warn!(
+                            "vehicle heartbeat lost for 2 s: NOT_SERVING, calls answer UNAVAILABLE"
+                        );
+                    }
+                    serving = alive;
+                }
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+        })
+    };
+
+    let signal = {
+        let service = service.clone();
+        async move {
+            shutdown.await;
+            tracing::info!("gateway shutting down");
+            service.close();
+        }
+    };
+    tracing::info!(%addr, mavlink = %config.mavlink, scenario = %config.scenario.name, "gateway serving");
+    let result = server
+        .serve(
+            |router| {
+                router
+                    .add_service(PlantServer::new(service.clone()))
+                    .add_service(VehicleControlServer::new(service))
+            },
+            signal,
+        )
+        .await;
+    health_task.abort();
+    stop.store(true, Ordering::Relaxed);
+    let _ = reader.join();
+    let _ = scheduler.join();
+    result?;
+    tracing::info!("gateway stopped");
+    Ok(())
+}

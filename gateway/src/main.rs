@@ -1,0 +1,83 @@
+//! `gateway`: the Plant API for a MAVLink vehicle. Glue only: flags, logging, signals; the
+//! service is the `gateway` library.
+
+use anyhow::Context;
+use clap::Parser;
+use gateway::GatewayConfig;
+
+/// The hilbench vehicle gateway: serves hilbench.v1.Plant (real time) and
+/// hilbench.v1.VehicleControl for a PX4 or ArduPilot vehicle over MAVLink 2. It never arms or
+/// changes the vehicle's mode on its own: VehicleControl's Arm, Disarm and SetMode do.
+#[derive(Debug, Parser)]
+#[command(name = "gateway", version)]
+struct Args {
+    /// Address of the Plant and VehicleControl APIs, HOST:PORT.
+    #[arg(long, default_value = "127.0.0.1:50054")]
+    listen: String,
+    /// The vehicle's link: udpin:HOST:PORT (listen; PX4 SITL's offboard link is
+    /// udpin:0.0.0.0:14540), udpout:HOST:PORT, or serial:DEVICE:BAUD.
+    #[arg(long, default_value = "udpin:0.0.0.0:14540")]
+    mavlink: String,
+    /// Scenario in force until a Reset brings one (obstacles, goal, limits): a built-in name or
+    /// a scenario file.
+    #[arg(long, default_value = "paper-1", value_name = "NAME|FILE.toml")]
+    scenario: String,
+    /// Normalised thrust (0..1) that makes the vehicle hover: T = g maps to it (clamped to
+    /// [0, 1]). Measure it first (PX4: MPC_THR_HOVER).
+    #[arg(long, default_value_t = 0.5)]
+    hover_thrust: f64,
+    /// No command from the controller for this long, ms: hold level attitude at hover thrust
+    /// and say so in the samples (watchdog_hover).
+    #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..=60_000))]
+    command_timeout_ms: u64,
+    /// Rate at which the last setpoint is resent, Hz (PX4 leaves OFFBOARD below 2 Hz).
+    #[arg(long, default_value_t = 50, value_parser = clap::value_parser!(u64).range(20..=1000))]
+    setpoint_rate_hz: u64,
+    /// A Reset whose start is farther than this from the vehicle is refused, m.
+    #[arg(long, default_value_t = 0.5)]
+    start_tolerance_m: f64,
+    /// The gateway's MAVLink system id.
+    #[arg(long, default_value_t = 255)]
+    system_id: u8,
+    /// The gateway's MAVLink component id (191: onboard computer).
+    #[arg(long, default_value_t = 191)]
+    component_id: u8,
+    /// StreamState streams served at once; one more is refused with RESOURCE_EXHAUSTED.
+    #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
+    max_streams: usize,
+}
+
+fn config(args: &Args) -> anyhow::Result<GatewayConfig> {
+    let scenario = hilbench_svc::scenario_file::scenario_arg(&args.scenario)
+        .map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
+    gateway::link::check_address(&args.mavlink)?;
+    let mut config = GatewayConfig::new(args.mavlink.clone(), scenario);
+    config.bridge.hover_thrust = args.hover_thrust;
+    config.bridge.command_timeout_ns = args.command_timeout_ms * 1_000_000;
+    config.bridge.setpoint_period_ns = 1_000_000_000 / args.setpoint_rate_hz;
+    config.bridge.start_tolerance_m = args.start_tolerance_m;
+    config.system_id = args.system_id;
+    config.component_id = args.component_id;
+    config.max_streams = args.max_streams;
+    config.bridge.validate().map_err(|e| match e {
+        mavbridge::BridgeError::Thrust(t) => anyhow::anyhow!("--hover-thrust: {t}"),
+        mavbridge::BridgeError::Setting("start_tolerance_m", r) => {
+            anyhow::anyhow!("--start-tolerance-m: {r}")
+        }
+        other => anyhow::anyhow!("{other}"),
+    })?;
+    Ok(config)
+}
+
+#[tokio::main]
+async fn main() -> anyhow::Result<()> {
+    hilbench_svc::init_tracing();
+    hilbench_svc::exit_on_panic();
+    let args = Args::parse();
+    let config = config(&args)?;
+    let listener = tokio::net::TcpListener::bind(&args.listen)
+        .await
+        .with_context(|| format!("cannot listen on {}", args.listen))?;
+    gateway::serve(listener, config, hilbench_svc::shutdown_signal()).await?;
+    Ok(())
+}

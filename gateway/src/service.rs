@@ -1,0 +1,409 @@
+//! The gateway's services: `hilbench.v1.Plant` in real time and `hilbench.v1.VehicleControl`,
+//! thin shells that decode (in `hilbench_proto::convert`), call the core
+//! ([`mavbridge::Bridge`]) under one lock, send what it returns over the MAVLink link, and
+//! encode. The service owns the clock and passes times into the core.
+
+use crate::link::Link;
+use hilbench_proto::convert::plant::{self as conv, Command, Reset, Step, StreamState};
+use hilbench_proto::convert::vehicle as vconv;
+use hilbench_proto::pb;
+use hilbench_svc::streams::{Guarded, Pushed, StreamSlots, Writer, drop_oldest};
+use mav::{PlantSample, Scenario, SimSettings};
+use mavbridge::mavlink::dialects::common::{MavCmd, MavMessage, MavResult};
+use mavbridge::{Bridge, ModeRequest};
+use std::pin::Pin;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
+use tokio::sync::oneshot;
+use tokio_stream::StreamExt;
+use tonic::{Request, Response, Status};
+
+/// What the gateway calls itself in `PlantDescription.implementation`.
+pub const IMPLEMENTATION: &str = concat!("hilbench-gateway ", env!("CARGO_PKG_VERSION"), " (MAVLink)");
+
+/// How long a `COMMAND_LONG` waits for its `COMMAND_ACK` before it is sent again, and how many
+/// times it is sent.
+const ACK_WAIT: Duration = Duration::from_millis(1_000);
+const ACK_ATTEMPTS: u32 = 3;
+
+struct Subscriber {
+    period_ns: u64,
+    last_slot: Option<u64>,
+    tx: Writer<pb::StateSample>,
+}
+
+struct Inner {
+    bridge: Bridge,
+    subscribers: Vec<Subscriber>,
+    /// Commands waiting for their `COMMAND_ACK`.
+    pending: Vec<(MavCmd, oneshot::Sender<MavResult>)>,
+    closed: bool,
+    next_flight_id: u64,
+    /// Samples evicted from full subscriber buffers.
+    overflow_dropped: u64,
+    /// MAVLink messages that could not be sent.
+    send_errors: u64,
+}
+
+pub(crate) struct Shared {
+    inner: Mutex<Inner>,
+    origin: Instant,
+    link: Link,
+    slots: StreamSlots,
+    stream_buffer: usize,
+    /// The scenario given at start (what an empty `Reset.scenario` names at first).
+    config_scenario: Scenario,
+}
+
+impl Shared {
+    fn lock(&self) -> MutexGuard<'_, Inner> {
+        self.inner.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The gateway's clock, ns since start.
+    pub(crate) fn now_ns(&self) -> u64 {
+        u64::try_from(self.origin.elapsed().as_nanos()).unwrap_or(u64::MAX)
+    }
+
+    fn send(&self, msg: &MavMessage) {
+        if let Err(e) = self.link.send(msg) {
+            let mut inner = self.lock();
+            inner.send_errors += 1;
+            if inner.send_errors.is_power_of_two() {
+                tracing::warn!(errors = inner.send_errors, "cannot send a MAVLink message: {e}");
+            }
+        }
+    }
+}
+
+fn publish(inner: &mut Inner, sample: &PlantSample) {
+    let msg = pb::StateSample::from(sample);
+    let Inner { subscribers, overflow_dropped, .. } = inner;
+    subscribers.retain_mut(|s| {
+        let slot = msg.time_ns / s.period_ns;
+        if s.last_slot.is_some_and(|l| slot <= l) {
+            return true;
+        }
+        s.last_slot = Some(slot);
+        match s.tx.push(msg.clone()) {
+            Pushed::Queued => true,
+            Pushed::Evicted(_) => {
+                *overflow_dropped += 1;
+                true
+            }
+            Pushed::Closed(_) => false,
+        }
+    });
+}
+
+/// The gateway: a small handle around the shared core and link (cheap to clone).
+#[derive(Clone)]
+pub struct GatewayService {
+    pub(crate) shared: Arc<Shared>,
+}
+
+impl GatewayService {
+    pub(crate) fn new(bridge: Bridge, link: Link, max_streams: usize, stream_buffer: usize) -> Self {
+        let first_flight_id = std::hash::BuildHasher::hash_one(
+            &std::collections::hash_map::RandomState::new(),
+            std::process::id(),
+        )
+        .max(1);
+        let config_scenario = bridge.scenario().clone();
+        Self {
+            shared: Arc::new(Shared {
+                inner: Mutex::new(Inner {
+                    bridge,
+                    subscribers: Vec::new(),
+                    pending: Vec::new(),
+                    closed: false,
+                    next_flight_id: first_flight_id,
+                    overflow_dropped: 0,
+                    send_errors: 0,
+                }),
+                origin: Instant::now(),
+                link,
+                slots: StreamSlots::new("gateway", max_streams),
+                stream_buffer,
+                config_scenario,
+            }),
+        }
+    }
+
+    /// Whether the vehicle's heartbeat is fresh (health follows it).
+    pub fn link_alive(&self) -> bool {
+        let now = self.shared.now_ns();
+        self.shared.lock().bridge.link_alive(now)
+    }
+
+    /// Ends every state stream and refuses new ones (at shutdown).
+    pub fn close(&self) {
+        let mut inner = self.shared.lock();
+        inner.closed = true;
+        inner.subscribers.clear();
+    }
+
+    /// The reading side: one message from the vehicle.
+    pub(crate) fn on_message(&self, header: &mavbridge::mavlink::MavHeader, msg: &MavMessage) {
+        let now = self.shared.now_ns();
+        let reply = {
+            let mut inner = self.shared.lock();
+            let event = inner.bridge.on_message(header, msg, now);
+            if let Some(sample) = &event.sample {
+                publish(&mut inner, sample);
+            }
+            if let Some((command, result)) = event.ack
+                && let Some(i) = inner.pending.iter().position(|(c, _)| *c == command)
+            {
+                let (_, tx) = inner.pending.remove(i);
+                let _ = tx.send(result);
+            }
+            event.reply
+        };
+        if let Some(reply) = reply {
+            self.shared.send(&reply);
+        }
+    }
+
+    /// The scheduling side: what is due now; returns when to call again.
+    pub(crate) fn poll(&self) -> u64 {
+        let now = self.shared.now_ns();
+        let mut out = Vec::new();
+        let next = {
+            let mut inner = self.shared.lock();
+            inner.bridge.poll(now, &mut out);
+            inner.bridge.next_due_ns()
+        };
+        for m in &out {
+            self.shared.send(m);
+        }
+        next
+    }
+
+    fn alive(&self, inner: &Inner, now: u64) -> Result<(), Status> {
+        if inner.bridge.link_alive(now) {
+            Ok(())
+        } else {
+            Err(Status::unavailable(format!(
+                "no heartbeat from the vehicle for {} s on {}: the vehicle link is lost",
+                mav::ns_to_s(inner.bridge.settings().heartbeat_timeout_ns),
+                self.shared.link.address
+            )))
+        }
+    }
+
+    fn describe(&self, inner: &Inner) -> pb::PlantDescription {
+        let settings = SimSettings {
+            // time_boot_ms: the vehicle's clock counts milliseconds.
+            step_ns: 1_000_000,
+            watchdog_timeout_ns: Some(inner.bridge.settings().command_timeout_ns),
+        };
+        let implementation = format!("{IMPLEMENTATION} {}", self.shared.link.address);
+        conv::plant_description(inner.bridge.scenario(), &settings, pb::TimeMode::RealTime, &implementation)
+    }
+
+    /// Sends `msg` (a `COMMAND_LONG` for `command`) until its `COMMAND_ACK` arrives.
+    async fn command(
+        &self,
+        command: MavCmd,
+        msg: MavMessage,
+    ) -> Result<Response<pb::VehicleCommandResponse>, Status> {
+        for _ in 0..ACK_ATTEMPTS {
+            let (tx, rx) = oneshot::channel();
+            {
+                let mut inner = self.shared.lock();
+                self.alive(&inner, self.shared.now_ns())?;
+                inner.pending.push((command, tx));
+            }
+            self.shared.send(&msg);
+            match tokio::time::timeout(ACK_WAIT, rx).await {
+                Ok(Ok(MavResult::MAV_RESULT_ACCEPTED)) => {
+                    return Ok(Response::new(pb::VehicleCommandResponse {
+                        result: format!("{:?}", MavResult::MAV_RESULT_ACCEPTED),
+                    }));
+                }
+                Ok(Ok(result)) => {
+                    return Err(Status::failed_precondition(format!(
+                        "the vehicle refused {command:?}: {result:?}"
+                    )));
+                }
+                _ => {
+                    let mut inner = self.shared.lock();
+                    inner.pending.retain(|(_, tx)| !tx.is_closed());
+                }
+            }
+        }
+        Err(Status::deadline_exceeded(format!(
+            "no COMMAND_ACK for {command:?} after {ACK_ATTEMPTS} attempts {} ms apart",
+            ACK_WAIT.as_millis()
+        )))
+    }
+}
+
+type SampleStream =
+    Pin<Box<dyn tokio_stream::Stream<Item = Result<pb::StateSample, Status>> + Send + 'static>>;
+
+fn refuse_real_time(what: &str) -> Status {
+    Status::failed_precondition(format!(
+        "the gateway flies a vehicle in real time: {what} with a duration > 0 is only served by a lockstep plant"
+    ))
+}
+
+#[tonic::async_trait]
+impl pb::plant_server::Plant for GatewayService {
+    async fn reset(&self, request: Request<pb::ResetRequest>) -> Result<Response<pb::ResetResponse>, Status> {
+        let req = Reset::try_from(request.get_ref())?;
+        let now = self.shared.now_ns();
+        let mut inner = self.shared.lock();
+        self.alive(&inner, now)?;
+        let current = inner.bridge.scenario().clone();
+        let scenario = match (req.definition, req.scenario.as_deref()) {
+            (Some(definition), _) => definition,
+            (None, None) => current,
+            (None, Some(n)) if n == current.name => current,
+            (None, Some(n)) if n == self.shared.config_scenario.name => self.shared.config_scenario.clone(),
+            (None, Some(n)) => conv::scenario_by_name("scenario", n)?,
+        };
+        let flight_id = inner.next_flight_id;
+        let sample = inner
+            .bridge
+            .reset(scenario, req.initial_state, now, flight_id)
+            .map_err(|e| Status::failed_precondition(e.to_string()))?;
+        inner.next_flight_id = flight_id.wrapping_add(1).max(1);
+        tracing::info!(scenario = %inner.bridge.scenario().name, flight_id, "reset (the vehicle stays where it is)");
+        for s in &mut inner.subscribers {
+            s.last_slot = None;
+        }
+        publish(&mut inner, &sample);
+        let description = self.describe(&inner);
+        Ok(Response::new(pb::ResetResponse {
+            description: Some(description),
+            sample: Some((&sample).into()),
+        }))
+    }
+
+    type StreamStateStream = SampleStream;
+
+    async fn stream_state(
+        &self,
+        request: Request<pb::StreamStateRequest>,
+    ) -> Result<Response<Self::StreamStateStream>, Status> {
+        let req = StreamState::try_from(request.get_ref())?;
+        let slot = self.shared.slots.acquire("StreamState")?;
+        let (tx, rx) = drop_oldest(self.shared.stream_buffer);
+        let now = self.shared.now_ns();
+        let mut inner = self.shared.lock();
+        if inner.closed {
+            return Err(Status::unavailable("the gateway is shutting down"));
+        }
+        self.alive(&inner, now)?;
+        let period_ns = req.period_ns.max(1);
+        let mut sub = Subscriber { period_ns, last_slot: None, tx };
+        if let Some(first) = inner.bridge.sample() {
+            let first = pb::StateSample::from(first);
+            sub.last_slot = Some(first.time_ns / period_ns);
+            let _ = sub.tx.push(first);
+        }
+        inner.subscribers.push(sub);
+        Ok(Response::new(Box::pin(Guarded::new(rx.map(Ok), slot))))
+    }
+
+    async fn get_state(
+        &self,
+        _request: Request<pb::GetStateRequest>,
+    ) -> Result<Response<pb::StateSample>, Status> {
+        let now = self.shared.now_ns();
+        let inner = self.shared.lock();
+        self.alive(&inner, now)?;
+        match inner.bridge.sample() {
+            Some(s) => Ok(Response::new(s.into())),
+            None => Err(Status::unavailable(
+                "the vehicle has reported no state yet (LOCAL_POSITION_NED and ATTITUDE)",
+            )),
+        }
+    }
+
+    async fn apply_command(
+        &self,
+        request: Request<pb::Command>,
+    ) -> Result<Response<pb::ApplyCommandResponse>, Status> {
+        let command = Command::try_from(request.get_ref())?;
+        let now = self.shared.now_ns();
+        let (applied, msg) = {
+            let mut inner = self.shared.lock();
+            self.alive(&inner, now)?;
+            inner.bridge.apply(command.input, command.meta, now)
+        };
+        self.shared.send(&msg);
+        Ok(Response::new(pb::ApplyCommandResponse { applied: Some((&applied).into()) }))
+    }
+
+    async fn advance(
+        &self,
+        request: Request<pb::AdvanceRequest>,
+    ) -> Result<Response<pb::AdvanceResponse>, Status> {
+        conv::advance_duration_ns(request.get_ref())?;
+        Err(refuse_real_time("Advance"))
+    }
+
+    async fn step(&self, request: Request<pb::StepRequest>) -> Result<Response<pb::AdvanceResponse>, Status> {
+        let step = Step::try_from(request.get_ref())?;
+        if step.duration_ns > 0 {
+            return Err(refuse_real_time("Step"));
+        }
+        if let Some(c) = step.command {
+            self.apply_command(Request::new(pb::Command::from(&c))).await?;
+        }
+        let sample = self.get_state(Request::new(pb::GetStateRequest {})).await?.into_inner();
+        Ok(Response::new(pb::AdvanceResponse { sample: Some(sample) }))
+    }
+
+    async fn describe(
+        &self,
+        _request: Request<pb::DescribeRequest>,
+    ) -> Result<Response<pb::PlantDescription>, Status> {
+        let inner = self.shared.lock();
+        Ok(Response::new(self.describe(&inner)))
+    }
+}
+
+#[tonic::async_trait]
+impl pb::vehicle_control_server::VehicleControl for GatewayService {
+    async fn arm(
+        &self,
+        _request: Request<pb::ArmRequest>,
+    ) -> Result<Response<pb::VehicleCommandResponse>, Status> {
+        let msg = self.shared.lock().bridge.arm_message(true);
+        tracing::info!("arming the vehicle (asked)");
+        self.command(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, msg).await
+    }
+
+    async fn disarm(
+        &self,
+        _request: Request<pb::DisarmRequest>,
+    ) -> Result<Response<pb::VehicleCommandResponse>, Status> {
+        let msg = self.shared.lock().bridge.arm_message(false);
+        tracing::info!("disarming the vehicle (asked)");
+        self.command(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, msg).await
+    }
+
+    async fn set_mode(
+        &self,
+        request: Request<pb::SetModeRequest>,
+    ) -> Result<Response<pb::VehicleCommandResponse>, Status> {
+        let mode: ModeRequest = vconv::mode_request(request.get_ref()).map_err(Status::from)?;
+        let msg = self.shared.lock().bridge.mode_message(mode);
+        tracing::info!(?mode, "setting the vehicle's mode (asked)");
+        self.command(MavCmd::MAV_CMD_DO_SET_MODE, msg).await
+    }
+
+    async fn get_status(
+        &self,
+        _request: Request<pb::GetVehicleStatusRequest>,
+    ) -> Result<Response<pb::VehicleStatus>, Status> {
+        let now = self.shared.now_ns();
+        let inner = self.shared.lock();
+        let status = inner.bridge.status(now);
+        Ok(Response::new(vconv::vehicle_status(&status, inner.bridge.settings().hover_thrust)))
+    }
+}

@@ -1,0 +1,56 @@
+//! Conversions of the `VehicleControl` messages: the mode asked for, and the status the
+//! gateway's core reports.
+
+use super::FieldError;
+use crate::pb;
+use mavbridge::{ModeRequest, VehicleStatus};
+
+/// The mode of a `SetModeRequest`.
+pub fn mode_request(r: &pb::SetModeRequest) -> Result<ModeRequest, FieldError> {
+    match pb::FlightMode::try_from(r.mode) {
+        Ok(pb::FlightMode::Px4Offboard) => Ok(ModeRequest::Px4Offboard),
+        Ok(pb::FlightMode::ArdupilotGuidedNogps) => Ok(ModeRequest::ArduGuidedNoGps),
+        Ok(pb::FlightMode::Unspecified) => Err(FieldError::new(
+            "mode",
+            "is required: FLIGHT_MODE_PX4_OFFBOARD or FLIGHT_MODE_ARDUPILOT_GUIDED_NOGPS",
+        )),
+        Err(_) => Err(FieldError::new("mode", format!("unknown flight mode {}", r.mode))),
+    }
+}
+
+/// The `VehicleStatus` message of the core's status, with the calibration in force.
+pub fn vehicle_status(s: &VehicleStatus, hover_thrust: f64) -> pb::VehicleStatus {
+    pb::VehicleStatus {
+        heartbeat_seen: s.heartbeat_age_ns.is_some(),
+        heartbeat_age_ns: s.heartbeat_age_ns.unwrap_or(0),
+        link_alive: s.link_alive,
+        autopilot: format!("{:?}", s.autopilot),
+        armed: s.armed,
+        custom_mode: s.custom_mode,
+        mode: s.mode.clone(),
+        battery_voltage_v: s.battery_voltage_v,
+        battery_remaining_pct: s.battery_remaining_pct,
+        clock_offset_ns: s.clock_offset_ns.map(|(o, _)| o),
+        clock_offset_from_timesync: s.clock_offset_ns.is_some_and(|(_, t)| t),
+        setpoints_sent: s.counters.setpoints_sent,
+        thrust_clamped: s.counters.thrust_clamped,
+        watchdog_holds: s.counters.watchdog_holds,
+        stale_messages: s.counters.stale_messages,
+        bad_messages: s.counters.bad_messages,
+        hover_thrust,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn modes_are_named_and_an_unset_or_unknown_mode_is_refused_naming_the_field() {
+        let m = |mode| mode_request(&pb::SetModeRequest { mode });
+        assert_eq!(m(pb::FlightMode::Px4Offboard as i32), Ok(ModeRequest::Px4Offboard));
+        assert_eq!(m(pb::FlightMode::ArdupilotGuidedNogps as i32), Ok(ModeRequest::ArduGuidedNoGps));
+        assert_eq!(m(0).map_err(|e| e.field), Err("mode".to_string()));
+        assert_eq!(m(99).map_err(|e| e.field), Err("mode".to_string()));
+    }
+}
