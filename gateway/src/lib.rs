@@ -87,6 +87,18 @@ pub async fn serve(
     config: GatewayConfig,
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), GatewayError> {
+    let link = Link::open(&config.mavlink, config.system_id, config.component_id)?;
+    serve_with_link(listener, config, link, shutdown).await
+}
+
+/// As [`serve`], on a link already open (`config.mavlink` only names it); tests open a
+/// `udpin:127.0.0.1:0` link to learn its port first.
+pub async fn serve_with_link(
+    listener: tokio::net::TcpListener,
+    config: GatewayConfig,
+    link: Link,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<(), GatewayError> {
     if config.max_streams == 0 {
         return Err(GatewayError::Count("max_streams"));
     }
@@ -94,7 +106,6 @@ pub async fn serve(
         return Err(GatewayError::Count("stream_buffer"));
     }
     let bridge = Bridge::new(config.scenario.clone(), config.bridge, 0, 1)?;
-    let link = Link::open(&config.mavlink, config.system_id, config.component_id)?;
     let service = GatewayService::new(bridge, link.clone(), config.max_streams, config.stream_buffer);
     const NAMES: [&str; 2] =
         [PlantServer::<GatewayService>::NAME, VehicleControlServer::<GatewayService>::NAME];

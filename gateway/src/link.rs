@@ -26,6 +26,8 @@ pub struct Link {
     conn: Arc<mavlink::Connection<MavMessage>>,
     header: MavHeader,
     pub address: String,
+    /// The local address of a `udpin` link (its port when it was 0).
+    pub local_addr: Option<std::net::SocketAddr>,
 }
 
 /// Checks an address without opening it.
@@ -50,7 +52,18 @@ impl Link {
     pub fn open(address: &str, system_id: u8, component_id: u8) -> Result<Self, LinkError> {
         check_address(address)?;
         let open_err = |source| LinkError::Open { address: address.into(), source };
-        let parsed = ConnectionAddress::parse_address(address).map_err(open_err)?;
+        let mut local_addr = None;
+        let parsed = match address.strip_prefix("udpin:") {
+            // Bound here, so that the port is known when it was 0 (tests use ephemeral ports).
+            Some(at) => {
+                let socket = std::net::UdpSocket::bind(at).map_err(open_err)?;
+                local_addr = Some(socket.local_addr().map_err(open_err)?);
+                ConnectionAddress::Udp(
+                    mavlink::UdpConfig::from_socket(socket, mavlink::UdpMode::Udpin).map_err(open_err)?,
+                )
+            }
+            None => ConnectionAddress::parse_address(address).map_err(open_err)?,
+        };
         let parsed = match parsed {
             ConnectionAddress::Udp(c) => ConnectionAddress::Udp(c.read_timeout(RECV_TIMEOUT)),
             ConnectionAddress::Serial(c) => ConnectionAddress::Serial(c.timeout(RECV_TIMEOUT)),
@@ -63,6 +76,7 @@ impl Link {
             conn: Arc::new(conn),
             header: MavHeader { system_id: u32::from(system_id), component_id, sequence: 0 },
             address: address.into(),
+            local_addr,
         })
     }
 

@@ -97,7 +97,8 @@ impl SimAutopilot {
     pub fn new(scenario: &Scenario, settings: AutopilotSettings) -> Result<Self, ThrustError> {
         let thrust = ThrustMap::new(settings.hover_thrust, scenario.model.gravity_mps2)?;
         // No watchdog in the model: the autopilot's failsafe is the one that acts.
-        let sim = PlantSim::new(scenario, SimSettings::default()).map_err(|_| ThrustError::Gravity(f64::NAN))?;
+        let sim =
+            PlantSim::new(scenario, SimSettings::default()).map_err(|_| ThrustError::Gravity(f64::NAN))?;
         Ok(Self {
             sim,
             thrust,
@@ -240,7 +241,11 @@ impl SimAutopilot {
                 mavtype: MavType::MAV_TYPE_QUADROTOR,
                 autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
                 base_mode,
-                system_status: if self.armed { MavState::MAV_STATE_ACTIVE } else { MavState::MAV_STATE_STANDBY },
+                system_status: if self.armed {
+                    MavState::MAV_STATE_ACTIVE
+                } else {
+                    MavState::MAV_STATE_STANDBY
+                },
                 mavlink_version: 3,
             }));
             out.push(MavMessage::SYS_STATUS(SYS_STATUS_DATA {
@@ -261,7 +266,8 @@ impl SimAutopilot {
         }
         if now_ns >= self.next_state_ns {
             self.next_state_ns = now_ns + self.settings.state_period_ns;
-            let (attitude, position) = messages::state_messages(self.sim.state(), self.settings.yaw_rad, now_ns);
+            let (attitude, position) =
+                messages::state_messages(self.sim.state(), self.settings.yaw_rad, now_ns);
             out.push(MavMessage::ATTITUDE(attitude));
             out.push(MavMessage::LOCAL_POSITION_NED(position));
         }

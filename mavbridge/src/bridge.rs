@@ -11,8 +11,8 @@ use crate::timesync::TimeSync;
 use mav::{AppliedCommand, CommandMeta, Contacts, Input, PlantSample, Scenario, State};
 use mavlink::MavHeader;
 use mavlink::dialects::common::{
-    COMMAND_LONG_DATA, HEARTBEAT_DATA, LOCAL_POSITION_NED_DATA, MavAutopilot, MavCmd, MavMessage, MavModeFlag,
-    MavResult, MavState, MavType, TIMESYNC_DATA,
+    COMMAND_LONG_DATA, HEARTBEAT_DATA, LOCAL_POSITION_NED_DATA, MavAutopilot, MavCmd, MavMessage,
+    MavModeFlag, MavResult, MavState, MavType, TIMESYNC_DATA,
 };
 
 /// Settings of the bridge, with units.
@@ -80,7 +80,10 @@ impl BridgeSettings {
             ));
         }
         if !(self.start_tolerance_m.is_finite() && self.start_tolerance_m >= 0.0) {
-            return Err(BridgeError::Setting("start_tolerance_m", format!("must be >= 0 m, got {}", self.start_tolerance_m)));
+            return Err(BridgeError::Setting(
+                "start_tolerance_m",
+                format!("must be >= 0 m, got {}", self.start_tolerance_m),
+            ));
         }
         Ok(())
     }
@@ -192,12 +195,23 @@ fn hover(scenario: &Scenario) -> Input {
 }
 
 fn initial_command(scenario: &Scenario) -> AppliedCommand {
-    AppliedCommand { input: hover(scenario), meta: CommandMeta::default(), applied_time_ns: 0, saturated: false, initial: true }
+    AppliedCommand {
+        input: hover(scenario),
+        meta: CommandMeta::default(),
+        applied_time_ns: 0,
+        saturated: false,
+        initial: true,
+    }
 }
 
 impl Bridge {
     /// A bridge for `scenario` that has heard nothing yet, started at gateway time `now_ns`.
-    pub fn new(scenario: Scenario, settings: BridgeSettings, now_ns: u64, flight_id: u64) -> Result<Self, BridgeError> {
+    pub fn new(
+        scenario: Scenario,
+        settings: BridgeSettings,
+        now_ns: u64,
+        flight_id: u64,
+    ) -> Result<Self, BridgeError> {
         settings.validate()?;
         scenario.validate().map_err(|e| BridgeError::Setting("scenario", e.to_string()))?;
         let thrust = ThrustMap::new(settings.hover_thrust, scenario.model.gravity_mps2)?;
@@ -254,7 +268,9 @@ impl Bridge {
 
     /// The vehicle's heartbeat is fresh.
     pub fn link_alive(&self, now_ns: u64) -> bool {
-        self.heard.as_ref().is_some_and(|h| now_ns.saturating_sub(h.local_ns) < self.settings.heartbeat_timeout_ns)
+        self.heard
+            .as_ref()
+            .is_some_and(|h| now_ns.saturating_sub(h.local_ns) < self.settings.heartbeat_timeout_ns)
     }
 
     /// Plant time (ns since the epoch) of a vehicle time.
@@ -276,16 +292,24 @@ impl Bridge {
                     }
                 }
                 self.target = (header.system_id as u8, header.component_id);
-                self.heard = Some(Heard { local_ns: now_ns, autopilot: h.autopilot, armed, custom_mode: h.custom_mode });
+                self.heard = Some(Heard {
+                    local_ns: now_ns,
+                    autopilot: h.autopilot,
+                    armed,
+                    custom_mode: h.custom_mode,
+                });
             }
             MavMessage::SYS_STATUS(s) => {
-                self.battery_voltage_v = (s.voltage_battery != u16::MAX).then(|| f64::from(s.voltage_battery) / 1000.0);
-                self.battery_remaining_pct = (s.battery_remaining >= 0).then(|| f64::from(s.battery_remaining));
+                self.battery_voltage_v =
+                    (s.voltage_battery != u16::MAX).then(|| f64::from(s.voltage_battery) / 1000.0);
+                self.battery_remaining_pct =
+                    (s.battery_remaining >= 0).then(|| f64::from(s.battery_remaining));
             }
             MavMessage::TIMESYNC(t) => {
                 if t.tc1 == 0 {
                     // The vehicle asks: answer with our clock.
-                    event.reply = Some(MavMessage::TIMESYNC(TIMESYNC_DATA { tc1: now_ns as i64, ts1: t.ts1 }));
+                    event.reply =
+                        Some(MavMessage::TIMESYNC(TIMESYNC_DATA { tc1: now_ns as i64, ts1: t.ts1 }));
                 } else {
                     self.timesync.on_answer(t.tc1, t.ts1, now_ns);
                 }
@@ -392,7 +416,8 @@ impl Bridge {
 
     fn setpoint_message(&mut self, now_ns: u64) -> MavMessage {
         let vehicle_ns = self.timesync.vehicle_ns(now_ns).unwrap_or(0);
-        let (data, clamped) = messages::setpoint(&self.setpoint, self.yaw_hold_rad, &self.thrust, vehicle_ns, self.target);
+        let (data, clamped) =
+            messages::setpoint(&self.setpoint, self.yaw_hold_rad, &self.thrust, vehicle_ns, self.target);
         self.counters.setpoints_sent += 1;
         self.counters.thrust_clamped += u64::from(clamped);
         self.next_setpoint_ns = now_ns + self.settings.setpoint_period_ns;
@@ -402,7 +427,9 @@ impl Bridge {
     /// What is due at gateway time `now_ns` (the command timeout's hover, the setpoint resent,
     /// the gateway's heartbeat, a `TIMESYNC` request), appended to `out`.
     pub fn poll(&mut self, now_ns: u64, out: &mut Vec<MavMessage>) {
-        if !self.watchdog_hover && now_ns.saturating_sub(self.command_local_ns) >= self.settings.command_timeout_ns {
+        if !self.watchdog_hover
+            && now_ns.saturating_sub(self.command_local_ns) >= self.settings.command_timeout_ns
+        {
             // Mirrors PX4's offboard-loss failsafe: level attitude at hover thrust, at once.
             self.watchdog_hover = true;
             self.counters.watchdog_holds += 1;
@@ -431,7 +458,11 @@ impl Bridge {
 
     /// The earliest gateway time at which [`Bridge::poll`] has something to do.
     pub fn next_due_ns(&self) -> u64 {
-        let watchdog = if self.watchdog_hover { u64::MAX } else { self.command_local_ns + self.settings.command_timeout_ns };
+        let watchdog = if self.watchdog_hover {
+            u64::MAX
+        } else {
+            self.command_local_ns + self.settings.command_timeout_ns
+        };
         self.next_setpoint_ns.min(self.next_heartbeat_ns).min(self.next_timesync_ns).min(watchdog)
     }
 
@@ -457,7 +488,8 @@ impl Bridge {
         let requested = start.unwrap_or_else(|| scenario.start_state());
         let requested_m = [requested[0], requested[1], requested[2]];
         let vehicle_m = [state[0], state[1], state[2]];
-        let distance_m = requested_m.iter().zip(&vehicle_m).map(|(r, v)| (r - v) * (r - v)).sum::<f64>().sqrt();
+        let distance_m =
+            requested_m.iter().zip(&vehicle_m).map(|(r, v)| (r - v) * (r - v)).sum::<f64>().sqrt();
         if distance_m > self.settings.start_tolerance_m {
             return Err(ResetRefusal::FarFromVehicle {
                 requested_m,
@@ -503,7 +535,10 @@ impl Bridge {
 
     /// `COMMAND_LONG` arming (`true`) or disarming the vehicle.
     pub fn arm_message(&self, arm: bool) -> MavMessage {
-        self.command_long(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, [f32::from(u8::from(arm)), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+        self.command_long(
+            MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+            [f32::from(u8::from(arm)), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        )
     }
 
     /// `COMMAND_LONG` asking for `mode`.
@@ -524,7 +559,11 @@ impl Bridge {
             autopilot,
             armed,
             custom_mode,
-            mode: if self.heard.is_some() { modes::mode_name(autopilot, custom_mode) } else { "unknown".into() },
+            mode: if self.heard.is_some() {
+                modes::mode_name(autopilot, custom_mode)
+            } else {
+                "unknown".into()
+            },
             battery_voltage_v: self.battery_voltage_v,
             battery_remaining_pct: self.battery_remaining_pct,
             clock_offset_ns: self.timesync.offset_ns(),

@@ -6,7 +6,8 @@ use crate::frame::{self, NedState};
 use crate::thrust::ThrustMap;
 use mav::{Input, State};
 use mavlink::dialects::common::{
-    ATTITUDE_DATA, ATTITUDE_QUATERNION_DATA, AttitudeTargetTypemask, LOCAL_POSITION_NED_DATA, SET_ATTITUDE_TARGET_DATA,
+    ATTITUDE_DATA, ATTITUDE_QUATERNION_DATA, AttitudeTargetTypemask, LOCAL_POSITION_NED_DATA,
+    SET_ATTITUDE_TARGET_DATA,
 };
 
 /// The type mask of every setpoint the gateway sends: body rates ignored, attitude and thrust
@@ -60,7 +61,10 @@ pub enum SetpointError {
 
 /// The model's input `[T, phi_d, theta_d]` and the yaw asked for in a `SET_ATTITUDE_TARGET`
 /// (the simulator's side).
-pub fn setpoint_input(d: &SET_ATTITUDE_TARGET_DATA, thrust: &ThrustMap) -> Result<(Input, f64), SetpointError> {
+pub fn setpoint_input(
+    d: &SET_ATTITUDE_TARGET_DATA,
+    thrust: &ThrustMap,
+) -> Result<(Input, f64), SetpointError> {
     let ignored = AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE
         | AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE;
     if d.type_mask.intersects(ignored) {

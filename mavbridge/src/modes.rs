@@ -94,8 +94,12 @@ pub fn mode_name(autopilot: MavAutopilot, custom_mode: u32) -> String {
 /// Whether a heartbeat's mode is the one `request` asks for.
 pub fn is_mode(request: ModeRequest, autopilot: MavAutopilot, custom_mode: u32) -> bool {
     match (request, autopilot) {
-        (ModeRequest::Px4Offboard, MavAutopilot::MAV_AUTOPILOT_PX4) => (custom_mode >> 16) & 0xff == PX4_MAIN_OFFBOARD,
-        (ModeRequest::ArduGuidedNoGps, MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA) => custom_mode == ARDU_GUIDED_NOGPS,
+        (ModeRequest::Px4Offboard, MavAutopilot::MAV_AUTOPILOT_PX4) => {
+            (custom_mode >> 16) & 0xff == PX4_MAIN_OFFBOARD
+        }
+        (ModeRequest::ArduGuidedNoGps, MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA) => {
+            custom_mode == ARDU_GUIDED_NOGPS
+        }
         _ => false,
     }
 }

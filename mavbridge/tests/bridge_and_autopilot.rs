@@ -5,7 +5,9 @@
 use mav::{CommandMeta, Input, Scenario};
 use mavbridge::mavlink::dialects::common::{MavCmd, MavMessage, MavResult};
 use mavbridge::mavlink::{self, MavHeader, MavlinkVersion};
-use mavbridge::{AutopilotSettings, Bridge, BridgeSettings, ModeRequest, ResetRefusal, SimAutopilot, SimMode};
+use mavbridge::{
+    AutopilotSettings, Bridge, BridgeSettings, ModeRequest, ResetRefusal, SimAutopilot, SimMode,
+};
 
 const MS: u64 = 1_000_000;
 
@@ -105,7 +107,10 @@ fn offboard_needs_the_setpoint_stream_and_the_gateway_never_arms_or_switches_on_
     assert!(p.bridge.link_alive(p.now_ns));
     assert_eq!(p.bridge.status(p.now_ns).mode, "POSCTL");
     assert!(p.bridge.counters().setpoints_sent >= 100, "50 Hz: {:?}", p.bridge.counters());
-    assert_eq!(p.command(p.bridge.arm_message(true)), (MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, MavResult::MAV_RESULT_ACCEPTED));
+    assert_eq!(
+        p.command(p.bridge.arm_message(true)),
+        (MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, MavResult::MAV_RESULT_ACCEPTED)
+    );
     assert_eq!(p.command(ask), (MavCmd::MAV_CMD_DO_SET_MODE, MavResult::MAV_RESULT_ACCEPTED));
     p.run(1_100);
     let status = p.bridge.status(p.now_ns);
@@ -133,7 +138,12 @@ fn commands_fly_the_vehicle_and_the_samples_carry_the_plants_stamps() {
     // TIMESYNC measured the clocks on loopback: the command is stamped with the vehicle's time
     // since the reset (the reset was at the vehicle's latest state, at most 10 ms before).
     assert!(applied.applied_time_ns <= 11 * MS, "{applied:?}");
-    assert!(p.bridge.status(p.now_ns).clock_offset_ns.is_some_and(|(o, measured)| measured && o == VEHICLE_AHEAD_NS as i64));
+    assert!(
+        p.bridge
+            .status(p.now_ns)
+            .clock_offset_ns
+            .is_some_and(|(o, measured)| measured && o == VEHICLE_AHEAD_NS as i64)
+    );
     p.to_vehicle(vec![msg]);
     p.run(300);
     let last = p.samples.last().expect("samples").clone();

@@ -1,0 +1,245 @@
+//! Integration tests: the vehicle gateway against `mavsim` (the model playing PX4's side of
+//! MAVLink 2 over UDP on loopback), both in process on ephemeral ports:
+//! - paper-2 in real time: controller -> netem -> gateway -> MAVLink -> simulated vehicle
+//!   reaches the goal without a collision (judged by the gateway's samples and by the
+//!   simulator's own truth);
+//! - the vehicle going silent: the Plant API answers UNAVAILABLE, health goes NOT_SERVING;
+//! - refusals: a Reset far from the vehicle, a mode the vehicle does not know.
+//!
+//! Every wait is bounded; no wall-clock duration is asserted.
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use gateway::mavsim::{Mavsim, MavsimConfig};
+use gateway::{GatewayConfig, GatewayError, Link};
+use hilbench::grpc::{Endpoints, GrpcSettings, TimeMode, netem_config, run_against};
+use hilbench_proto::pb;
+use hilbench_proto::pb::plant_client::PlantClient;
+use hilbench_proto::pb::vehicle_control_client::VehicleControlClient;
+use hilbench_tests::server::{self, Running};
+use mav::Scenario;
+use mavbridge::AutopilotSettings;
+use mpc::ControllerMode;
+use tonic::transport::Channel;
+use tonic_health::pb::HealthCheckRequest;
+use tonic_health::pb::health_check_response::ServingStatus;
+use tonic_health::pb::health_client::HealthClient;
+
+/// Generous bound for anything that must happen "soon" on a loaded machine.
+const PATIENCE: Duration = Duration::from_secs(60);
+
+struct Bench {
+    gateway: Running<GatewayError>,
+    vehicle: Mavsim,
+}
+
+/// A gateway listening for MAVLink on an ephemeral loopback port and a simulated vehicle of
+/// `scenario` sending to it.
+async fn start(scenario: &Scenario) -> Bench {
+    let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("a loopback UDP port");
+    let port = link.local_addr.expect("bound").port();
+    let config = GatewayConfig::new(format!("udpin:127.0.0.1:{port}"), scenario.clone());
+    let gateway = server::start("gateway", move |listener, shutdown| {
+        gateway::serve_with_link(listener, config, link, shutdown)
+    })
+    .await;
+    let vehicle = Mavsim::start(&MavsimConfig {
+        mavlink: format!("udpout:127.0.0.1:{port}"),
+        scenario: scenario.clone(),
+        autopilot: AutopilotSettings::default(),
+    })
+    .expect("mavsim starts");
+    Bench { gateway, vehicle }
+}
+
+async fn vehicle_control(addr: SocketAddr) -> VehicleControlClient<Channel> {
+    VehicleControlClient::connect(format!("http://{addr}")).await.expect("connects")
+}
+
+async fn plant(addr: SocketAddr) -> PlantClient<Channel> {
+    PlantClient::connect(format!("http://{addr}")).await.expect("connects")
+}
+
+async fn health(addr: SocketAddr, service: &str) -> i32 {
+    let channel =
+        Channel::from_shared(format!("http://{addr}")).expect("uri").connect().await.expect("connects");
+    let mut client = HealthClient::new(channel);
+    let r = client.check(HealthCheckRequest { service: service.into() }).await.expect("health answers");
+    r.into_inner().status
+}
+
+/// Polls until `pred` holds of the gateway's status (panics after PATIENCE).
+async fn wait_status(
+    client: &mut VehicleControlClient<Channel>,
+    what: &str,
+    pred: impl Fn(&pb::VehicleStatus) -> bool,
+) {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    loop {
+        let s = client.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+        if pred(&s) {
+            return;
+        }
+        assert!(tokio::time::Instant::now() < deadline, "timed out waiting for {what}; last status {s:?}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+/// Arms the simulated vehicle and switches it to OFFBOARD through VehicleControl.
+async fn arm_and_offboard(addr: SocketAddr) {
+    let mut vc = vehicle_control(addr).await;
+    wait_status(&mut vc, "the vehicle's heartbeat and state", |s| s.link_alive).await;
+    vc.arm(pb::ArmRequest {}).await.expect("armed");
+    vc.set_mode(pb::SetModeRequest { mode: pb::FlightMode::Px4Offboard as i32 }).await.expect("offboard");
+    wait_status(&mut vc, "OFFBOARD, armed", |s| s.armed && s.mode == "OFFBOARD").await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn paper_2_in_real_time_through_netem_and_the_gateway_reaches_the_goal_of_the_simulated_vehicle() {
+    let scenario = Scenario::paper_2();
+    let bench = start(&scenario).await;
+    // Nothing armed or switched the vehicle before it was asked.
+    {
+        let a = bench.vehicle.autopilot();
+        assert!(!a.armed() && a.mode() == mavbridge::SimMode::Posctl);
+    }
+    arm_and_offboard(bench.gateway.addr).await;
+
+    let netem_listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("port");
+    let netem_addr = netem_listener.local_addr().expect("address");
+    let config =
+        netem_config(&bench.gateway.addr.to_string(), &scenario, TimeMode::RealTime).expect("netem config");
+    let (stop_netem, netem_stopped) = tokio::sync::oneshot::channel::<()>();
+    let netem = tokio::spawn(netem::serve(netem_listener, config, async {
+        let _ = netem_stopped.await;
+    }));
+
+    let endpoints = Endpoints {
+        plant: Some(bench.gateway.addr.to_string()),
+        netem: Some(netem_addr.to_string()),
+        controller: None,
+        time_mode: TimeMode::RealTime,
+        keep_netem_profile: false,
+    };
+    let settings = GrpcSettings { timeout: Duration::from_secs(240), ..GrpcSettings::default() };
+    let run =
+        run_against(&scenario, ControllerMode::Nmpc, &settings, &endpoints).await.expect("the run completes");
+    let s = &run.summary;
+    assert!(s.reached && !s.collided, "{s:?}");
+    assert!(s.min_clearance_m >= 0.0, "{s:?}");
+    // Delays were measured from the gateway's stamps: every applied command came after the
+    // sample it was based on.
+    assert!(run.records.len() > 20, "{} cycles", run.records.len());
+
+    // The simulator's own truth: no collision, at the goal, still in OFFBOARD.
+    {
+        let a = bench.vehicle.autopilot();
+        assert!(!a.sim().collided(), "{:?}", a.sim().collisions());
+        let x = a.sim().state();
+        let d = ((x[0] - scenario.goal_m[0]).powi(2)
+            + (x[1] - scenario.goal_m[1]).powi(2)
+            + (x[2] - scenario.goal_m[2]).powi(2))
+        .sqrt();
+        assert!(d < 0.5, "the vehicle is {d} m from the goal: {x:?}");
+        assert_eq!(a.mode(), mavbridge::SimMode::Offboard);
+        assert_eq!(a.counters().refused_setpoints, 0);
+    }
+    let _ = stop_netem.send(());
+    let _ = tokio::time::timeout(PATIENCE, netem).await;
+    bench.gateway.stop().await.expect("gateway stops cleanly");
+    bench.vehicle.stop();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_silent_vehicle_makes_the_plant_api_unavailable_and_health_not_serving_until_it_talks_again() {
+    let scenario = Scenario::paper_2();
+    let bench = start(&scenario).await;
+    let addr = bench.gateway.addr;
+    let mut vc = vehicle_control(addr).await;
+    wait_status(&mut vc, "the vehicle's heartbeat", |s| s.link_alive && s.heartbeat_seen).await;
+    let mut p = plant(addr).await;
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    while p.get_state(pb::GetStateRequest {}).await.is_err() {
+        assert!(tokio::time::Instant::now() < deadline, "no state");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    while health(addr, "hilbench.v1.Plant").await != ServingStatus::Serving as i32 {
+        assert!(tokio::time::Instant::now() < deadline, "never SERVING");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+
+    bench.vehicle.set_silent(true);
+    wait_status(&mut vc, "the link to be lost", |s| !s.link_alive).await;
+    let err = p.get_state(pb::GetStateRequest {}).await.expect_err("UNAVAILABLE");
+    assert_eq!(err.code(), tonic::Code::Unavailable, "{err}");
+    assert!(err.message().contains("heartbeat"), "{err}");
+    let cmd = pb::Command {
+        input: Some(pb::ControlInput { thrust_mps2: 9.81, roll_rad: 0.0, pitch_rad: 0.0 }),
+        ..Default::default()
+    };
+    assert_eq!(p.apply_command(cmd).await.map_err(|e| e.code()).err(), Some(tonic::Code::Unavailable));
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    for service in ["hilbench.v1.Plant", "hilbench.v1.VehicleControl"] {
+        while health(addr, service).await != ServingStatus::NotServing as i32 {
+            assert!(tokio::time::Instant::now() < deadline, "{service} never NOT_SERVING");
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+    // The vehicle talks again: served again.
+    bench.vehicle.set_silent(false);
+    wait_status(&mut vc, "the link to come back", |s| s.link_alive).await;
+    p.get_state(pb::GetStateRequest {}).await.expect("served again");
+    bench.gateway.stop().await.expect("gateway stops cleanly");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_reset_far_from_the_vehicle_and_a_mode_the_vehicle_refuses_are_failed_precondition() {
+    let scenario = Scenario::paper_2();
+    let bench = start(&scenario).await;
+    let addr = bench.gateway.addr;
+    let mut vc = vehicle_control(addr).await;
+    wait_status(&mut vc, "the vehicle's state", |s| s.link_alive).await;
+    let mut p = plant(addr).await;
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    while p.get_state(pb::GetStateRequest {}).await.is_err() {
+        assert!(tokio::time::Instant::now() < deadline, "no state");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    // paper-1 starts at the origin; the vehicle stands at paper-2's start, 3.2 m away.
+    let far = p
+        .reset(pb::ResetRequest { scenario: "paper-1".into(), ..Default::default() })
+        .await
+        .expect_err("refused");
+    assert_eq!(far.code(), tonic::Code::FailedPrecondition, "{far}");
+    assert!(far.message().contains("teleport"), "{far}");
+    // Nothing changed: the scenario in force is still paper-2.
+    let d = p.describe(pb::DescribeRequest {}).await.expect("describe").into_inner();
+    assert_eq!(d.scenario, "paper-2");
+    assert_eq!(d.time_mode, pb::TimeMode::RealTime as i32);
+    // paper-2's own start is where the vehicle is: accepted, with the vehicle's state.
+    let ok =
+        p.reset(pb::ResetRequest { scenario: "paper-2".into(), ..Default::default() }).await.expect("reset");
+    let sample = ok.into_inner().sample.expect("sample");
+    assert_eq!((sample.seq, sample.time_ns), (0, 0));
+
+    // A PX4 vehicle does not know ArduPilot's GUIDED_NOGPS: the COMMAND_ACK result is named.
+    let refused = vc
+        .set_mode(pb::SetModeRequest { mode: pb::FlightMode::ArdupilotGuidedNogps as i32 })
+        .await
+        .expect_err("refused");
+    assert_eq!(refused.code(), tonic::Code::FailedPrecondition, "{refused}");
+    assert!(refused.message().contains("MAV_RESULT_UNSUPPORTED"), "{refused}");
+    // A mode left unset is the caller's error.
+    let unset = vc.set_mode(pb::SetModeRequest { mode: 0 }).await.expect_err("invalid");
+    assert_eq!(unset.code(), tonic::Code::InvalidArgument, "{unset}");
+    // Advance is a lockstep call.
+    let adv = p
+        .advance(pb::AdvanceRequest { duration_ns: 1_000_000, ..Default::default() })
+        .await
+        .expect_err("refused");
+    assert_eq!(adv.code(), tonic::Code::FailedPrecondition);
+    assert!(!bench.vehicle.autopilot().armed(), "nobody asked to arm");
+    bench.gateway.stop().await.expect("gateway stops cleanly");
+}
