@@ -334,7 +334,9 @@ impl pb::plant_server::Plant for GatewayService {
             self.alive(&inner, now)?;
             inner.bridge.apply(command.input, command.meta, now)
         };
-        self.shared.send(&msg);
+        if let Some(msg) = msg {
+            self.shared.send(&msg);
+        }
         Ok(Response::new(pb::ApplyCommandResponse { applied: Some((&applied).into()) }))
     }
 

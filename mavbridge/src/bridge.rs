@@ -395,14 +395,20 @@ impl Bridge {
 
     /// A command from the controller at gateway time `now_ns`: saturated at the scenario's
     /// limits, stamped with the vehicle's clock, and sent at once. Returns what was applied and
-    /// the setpoint to send.
-    pub fn apply(&mut self, input: Input, meta: CommandMeta, now_ns: u64) -> (AppliedCommand, MavMessage) {
+    /// the setpoint to send (none before the vehicle's attitude is known: its yaw is what the
+    /// setpoints hold, and the first poll after it sends the setpoint).
+    pub fn apply(
+        &mut self,
+        input: Input,
+        meta: CommandMeta,
+        now_ns: u64,
+    ) -> (AppliedCommand, Option<MavMessage>) {
         let (saturated_input, saturated) = self.scenario.bounds.saturate(&input);
         let vehicle_ns = self.timesync.vehicle_ns(now_ns).unwrap_or(0);
         self.setpoint = saturated_input;
         self.watchdog_hover = false;
         self.command_local_ns = now_ns;
-        let msg = self.setpoint_message(now_ns);
+        let msg = self.attitude.is_some().then(|| self.setpoint_message(now_ns));
         let (_, clamped) = self.thrust.normalise(saturated_input[0]);
         self.last_command = AppliedCommand {
             input: saturated_input,
@@ -463,7 +469,8 @@ impl Bridge {
         } else {
             self.command_local_ns + self.settings.command_timeout_ns
         };
-        self.next_setpoint_ns.min(self.next_heartbeat_ns).min(self.next_timesync_ns).min(watchdog)
+        let setpoint = if self.attitude.is_some() { self.next_setpoint_ns } else { u64::MAX };
+        setpoint.min(self.next_heartbeat_ns).min(self.next_timesync_ns).min(watchdog)
     }
 
     /// A `Reset`: the scenario (obstacles, goal) changes, plant time restarts at the vehicle's

@@ -144,7 +144,7 @@ fn commands_fly_the_vehicle_and_the_samples_carry_the_plants_stamps() {
             .clock_offset_ns
             .is_some_and(|(o, measured)| measured && o == VEHICLE_AHEAD_NS as i64)
     );
-    p.to_vehicle(vec![msg]);
+    p.to_vehicle(msg.into_iter().collect());
     p.run(300);
     let last = p.samples.last().expect("samples").clone();
     assert!(last.state[2] > 0.05, "climbed: {:?}", last.state);
@@ -174,7 +174,7 @@ fn controller_silence_holds_level_hover_and_a_stopped_stream_fails_the_vehicle_s
     let holds = p.bridge.counters().watchdog_holds;
     assert_eq!(holds, 1);
     let (_, msg) = p.bridge.apply(Input::new(11.0, 0.1, 0.0), CommandMeta::default(), p.now_ns);
-    p.to_vehicle(vec![msg]);
+    p.to_vehicle(msg.into_iter().collect());
     p.run(400);
     assert!(!p.samples.last().expect("samples").watchdog_hover);
     p.run(150);

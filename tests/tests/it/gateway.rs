@@ -243,3 +243,86 @@ async fn a_reset_far_from_the_vehicle_and_a_mode_the_vehicle_refuses_are_failed_
     assert!(!bench.vehicle.autopilot().armed(), "nobody asked to arm");
     bench.gateway.stop().await.expect("gateway stops cleanly");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn pymavlink_as_the_autopilot_sees_setpoints_at_50_hz_heartbeats_no_unasked_command_and_the_hover_hold_after_silence()
+ {
+    let scenario = Scenario::paper_2();
+    let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("a loopback UDP port");
+    let port = link.local_addr.expect("bound").port();
+    let config = GatewayConfig::new(format!("udpin:127.0.0.1:{port}"), scenario.clone());
+    let gateway = server::start("gateway", move |listener, shutdown| {
+        gateway::serve_with_link(listener, config, link, shutdown)
+    })
+    .await;
+    let yaw = 0.5;
+    let script = tokio::task::spawn_blocking(move || {
+        hilbench_tests::python::run_script(
+            "autopilot_gateway.py",
+            &[&port.to_string(), &yaw.to_string(), "30"],
+        )
+    });
+
+    let mut vc = vehicle_control(gateway.addr).await;
+    wait_status(&mut vc, "pymavlink's heartbeat", |s| s.link_alive && s.autopilot == "MAV_AUTOPILOT_PX4")
+        .await;
+    let mut p = plant(gateway.addr).await;
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    while p.get_state(pb::GetStateRequest {}).await.is_err() {
+        assert!(tokio::time::Instant::now() < deadline, "no state from pymavlink");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    // A controller commands at 20 Hz for a second, then falls silent.
+    for k in 1..=20 {
+        let cmd = pb::Command {
+            input: Some(pb::ControlInput { thrust_mps2: 12.0, roll_rad: 0.1, pitch_rad: 0.0 }),
+            command_seq: k,
+            ..Default::default()
+        };
+        let applied = p.apply_command(cmd).await.expect("applied").into_inner().applied.expect("applied");
+        assert!(!applied.saturated && applied.command_seq == k);
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    let held = loop {
+        let s = p.get_state(pb::GetStateRequest {}).await.expect("state").into_inner();
+        if s.watchdog_hover {
+            break s;
+        }
+        assert!(tokio::time::Instant::now() < deadline, "the command timeout never held hover: {s:?}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    assert_eq!(
+        held.last_command.as_ref().map(|c| c.command_seq),
+        Some(20),
+        "the last command is still reported"
+    );
+
+    let out = script.await.expect("the script's thread");
+    let r: serde_json::Value = serde_json::from_str(out.trim()).expect("the script's JSON line");
+    let f = |k: &str| r[k].as_f64().unwrap_or_else(|| panic!("{k} in {r}"));
+    assert!(f("setpoints_per_second_min") >= 20.0, "PX4 needs >= 2 Hz, the gateway promises >= 20 Hz: {r}");
+    assert_eq!(r["type_masks"], serde_json::json!([7]), "body rates ignored, attitude and thrust used: {r}");
+    assert_eq!(r["targets"], serde_json::json!([[1, 1]]), "addressed to the vehicle heard: {r}");
+    assert!(f("quat_norm_err_max") < 1e-6, "{r}");
+    assert!(f("yaw_err_max") < 1e-5, "the yaw held is the vehicle's: {r}");
+    assert!(f("thrust_min") >= 0.0 && f("thrust_max") <= 1.0, "{r}");
+    // The commanded phase: T = 12 m/s^2 at hover thrust 0.5 is 0.5 * 12 / g.
+    assert!(f("commanded") >= 20.0, "{r}");
+    let thrust = r["commanded_thrust"].as_array().expect("thrusts");
+    assert_eq!(thrust.len(), 1, "{r}");
+    assert!((thrust[0].as_f64().expect("thrust") - 0.5 * 12.0 / 9.81).abs() < 1e-6, "{r}");
+    assert!(f("commanded_tilt_min") > 0.09, "{r}");
+    // After the controller fell silent: level hover at hover thrust, held, and still streamed.
+    assert_eq!(r["after_commanded_all_level_hover"], serde_json::json!(true), "{r}");
+    assert!(f("hover_held_s") >= 1.0 && f("after_commanded") >= 20.0, "{r}");
+    // The gateway's own heartbeat (an onboard controller) and TIMESYNC requests; no command.
+    assert!(f("gateway_heartbeats") >= 2.0, "{r}");
+    assert_eq!(r["gateway_heartbeat_types"], serde_json::json!([18]), "MAV_TYPE_ONBOARD_CONTROLLER: {r}");
+    assert_eq!(r["command_longs"], serde_json::json!([]), "the gateway never arms or switches unasked: {r}");
+    assert!(f("timesync_requests") >= 1.0, "{r}");
+    let status = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+    assert!(status.clock_offset_from_timesync, "{status:?}");
+    assert!(status.watchdog_holds >= 1, "{status:?}");
+    gateway.stop().await.expect("gateway stops cleanly");
+}

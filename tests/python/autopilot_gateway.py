@@ -1,0 +1,120 @@
+"""An independent MAVLink implementation (pymavlink) plays the autopilot for the gateway.
+
+Usage: autopilot_gateway.py PORT YAW_RAD SECONDS
+
+Sends to the gateway's `udpin` port, as PX4 does: HEARTBEAT (PX4, disarmed, POSCTL) at 1 Hz,
+ATTITUDE (level, at YAW_RAD) and LOCAL_POSITION_NED (paper-2's start) at 50 Hz, and answers
+TIMESYNC. Records everything the gateway sends until it has seen a commanded phase followed by
+one second of hover (or SECONDS pass), and prints one JSON line of what it saw; the Rust test
+asserts on it (the rate, the type mask, the quaternions, the thrust range, the heartbeats, that
+no COMMAND_LONG came unasked, and the hover hold after the controller fell silent).
+"""
+
+import json
+import math
+import os
+import sys
+import time
+
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil  # noqa: E402  (the environment variable must come first)
+
+mavutil.set_dialect("common")
+m = mavutil.mavlink
+
+port, yaw, seconds = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
+conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
+start = time.monotonic()
+
+
+def boot_ms():
+    return int((time.monotonic() - start) * 1000) + 1
+
+
+PX4_POSCTL = 3 << 16
+setpoints = []  # (t, q, thrust, type_mask, target_system, target_component)
+heartbeats = []
+command_longs = []
+timesync_requests = 0
+next_state = next_heartbeat = 0.0
+hover_since = None
+commanded_seen = False
+
+
+def tilt_and_yaw(q):
+    w, x, y, z = q
+    tilt = math.acos(max(-1.0, min(1.0, 1.0 - 2.0 * (x * x + y * y))))
+    qyaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return tilt, qyaw
+
+
+while time.monotonic() - start < seconds:
+    now = time.monotonic() - start
+    if now >= next_heartbeat:
+        next_heartbeat = now + 1.0
+        conn.mav.heartbeat_send(
+            m.MAV_TYPE_QUADROTOR, m.MAV_AUTOPILOT_PX4, m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, PX4_POSCTL, m.MAV_STATE_STANDBY
+        )
+    if now >= next_state:
+        next_state = now + 0.02
+        conn.mav.attitude_send(boot_ms(), 0.0, 0.0, yaw, 0.0, 0.0, 0.0)
+        conn.mav.local_position_ned_send(boot_ms(), 3.2, 0.0, 0.0, 0.0, 0.0, 0.0)
+    msg = conn.recv_match(blocking=True, timeout=0.005)
+    if msg is None:
+        continue
+    t = time.monotonic() - start
+    kind = msg.get_type()
+    if kind == "SET_ATTITUDE_TARGET":
+        q = list(msg.q)
+        setpoints.append((t, q, msg.thrust, msg.type_mask, msg.target_system, msg.target_component))
+        tilt, _ = tilt_and_yaw(q)
+        hover = abs(msg.thrust - 0.5) < 1e-6 and tilt < 1e-6
+        if not hover:
+            commanded_seen = True
+            hover_since = None
+        elif commanded_seen and hover_since is None:
+            hover_since = t
+        if hover_since is not None and t - hover_since > 1.0:
+            break
+    elif kind == "HEARTBEAT":
+        heartbeats.append((t, msg.type, msg.autopilot))
+    elif kind == "COMMAND_LONG":
+        command_longs.append(msg.command)
+    elif kind == "TIMESYNC" and msg.tc1 == 0:
+        timesync_requests += 1
+        conn.mav.timesync_send(int((time.monotonic() - start) * 1e9) + 1, msg.ts1)
+
+times = [s[0] for s in setpoints]
+# Setpoints per whole second of the observation (the rate PX4 sees).
+windows = []
+if times:
+    w = times[0]
+    while w + 1.0 <= times[-1]:
+        windows.append(sum(1 for t in times if w <= t < w + 1.0))
+        w += 1.0
+quat_norm_err = max((abs(math.sqrt(sum(v * v for v in s[1])) - 1.0) for s in setpoints), default=None)
+yaw_err = max((abs(tilt_and_yaw(s[1])[1] - yaw) for s in setpoints), default=None)
+commanded = [s for s in setpoints if not (abs(s[2] - 0.5) < 1e-6 and tilt_and_yaw(s[1])[0] < 1e-6)]
+last_commanded_t = commanded[-1][0] if commanded else None
+after = [s for s in setpoints if last_commanded_t is not None and s[0] > last_commanded_t]
+report = {
+    "setpoints": len(setpoints),
+    "setpoints_per_second_min": min(windows) if windows else 0,
+    "type_masks": sorted({s[3] for s in setpoints}),
+    "targets": sorted({(s[4], s[5]) for s in setpoints}),
+    "quat_norm_err_max": quat_norm_err,
+    "yaw_err_max": yaw_err,
+    "thrust_min": min((s[2] for s in setpoints), default=None),
+    "thrust_max": max((s[2] for s in setpoints), default=None),
+    "commanded": len(commanded),
+    "commanded_thrust": sorted({round(s[2], 6) for s in commanded}),
+    "commanded_tilt_min": min((tilt_and_yaw(s[1])[0] for s in commanded), default=None),
+    "after_commanded": len(after),
+    "after_commanded_all_level_hover": all(abs(s[2] - 0.5) < 1e-6 and tilt_and_yaw(s[1])[0] < 1e-6 for s in after),
+    "hover_held_s": (times[-1] - hover_since) if hover_since is not None else 0.0,
+    "gateway_heartbeats": len(heartbeats),
+    "gateway_heartbeat_types": sorted({h[1] for h in heartbeats}),
+    "command_longs": command_longs,
+    "timesync_requests": timesync_requests,
+}
+print(json.dumps(report))
