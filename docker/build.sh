@@ -10,9 +10,9 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 target="x86_64-unknown-linux-gnu"
 RUSTFLAGS="-C target-feature=+crt-static" CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-target-static}" \
     CARGO_PROFILE_RELEASE_DEBUG=false CARGO_PROFILE_RELEASE_STRIP=true \
-    cargo build --release --target "$target" -p plant -p netem -p controller -p hilbench
+    cargo build --release --target "$target" -p plant -p netem -p controller -p hilbench -p gateway
 mkdir -p docker/bin
-for bin in plant netem controller hilbench; do
+for bin in plant netem controller hilbench gateway mavsim vehiclectl; do
     cp "${CARGO_TARGET_DIR:-target-static}/$target/release/$bin" docker/bin/
 done
 echo "staged: $(ls docker/bin | tr '\n' ' ')"

@@ -1,0 +1,77 @@
+//! `vehiclectl`: the explicit calls of a gateway's VehicleControl service from a shell (arm,
+//! disarm, set a mode, read the status), so that a person or a script, never the gateway,
+//! decides when the vehicle arms and changes mode.
+
+use clap::{Parser, Subcommand};
+use hilbench_proto::pb;
+use hilbench_proto::pb::vehicle_control_client::VehicleControlClient;
+use std::time::Duration;
+
+/// Arms, disarms, sets the mode of, or reads the status of the vehicle behind a hilbench
+/// gateway (hilbench.v1.VehicleControl).
+#[derive(Debug, Parser)]
+#[command(name = "vehiclectl", version)]
+struct Args {
+    /// The gateway, HOST:PORT.
+    #[arg(long, default_value = "127.0.0.1:50054")]
+    gateway: String,
+    /// Wait this long for the gateway and the vehicle's heartbeat before the first call, s.
+    #[arg(long, default_value_t = 0)]
+    wait_s: u64,
+    #[command(subcommand)]
+    action: Action,
+}
+
+#[derive(Debug, Subcommand)]
+enum Action {
+    /// Print the vehicle's status (JSON-like debug form).
+    Status,
+    /// Arm the vehicle.
+    Arm,
+    /// Disarm the vehicle.
+    Disarm,
+    /// Switch to PX4's OFFBOARD (the gateway must be streaming setpoints: it always does).
+    Offboard,
+    /// Switch to ArduCopter's GUIDED_NOGPS.
+    GuidedNogps,
+    /// Arm, then switch to PX4's OFFBOARD.
+    ArmOffboard,
+}
+
+#[tokio::main(flavor = "current_thread")]
+async fn main() -> anyhow::Result<()> {
+    let args = Args::parse();
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(args.wait_s);
+    let mut client = loop {
+        match VehicleControlClient::connect(format!("http://{}", args.gateway)).await {
+            Ok(c) => break c,
+            Err(e) if tokio::time::Instant::now() >= deadline => {
+                anyhow::bail!("cannot reach the gateway at {}: {e}", args.gateway)
+            }
+            Err(_) => tokio::time::sleep(Duration::from_millis(200)).await,
+        }
+    };
+    loop {
+        let status = client.get_status(pb::GetVehicleStatusRequest {}).await?.into_inner();
+        if status.link_alive || tokio::time::Instant::now() >= deadline {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    let offboard = pb::SetModeRequest { mode: pb::FlightMode::Px4Offboard as i32 };
+    match args.action {
+        Action::Status => println!("{:#?}", client.get_status(pb::GetVehicleStatusRequest {}).await?.into_inner()),
+        Action::Arm => println!("arm: {}", client.arm(pb::ArmRequest {}).await?.into_inner().result),
+        Action::Disarm => println!("disarm: {}", client.disarm(pb::DisarmRequest {}).await?.into_inner().result),
+        Action::Offboard => println!("offboard: {}", client.set_mode(offboard).await?.into_inner().result),
+        Action::GuidedNogps => {
+            let r = pb::SetModeRequest { mode: pb::FlightMode::ArdupilotGuidedNogps as i32 };
+            println!("guided_nogps: {}", client.set_mode(r).await?.into_inner().result)
+        }
+        Action::ArmOffboard => {
+            println!("arm: {}", client.arm(pb::ArmRequest {}).await?.into_inner().result);
+            println!("offboard: {}", client.set_mode(offboard).await?.into_inner().result);
+        }
+    }
+    Ok(())
+}
