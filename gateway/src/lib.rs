@@ -24,7 +24,6 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 use tonic::server::NamedService;
-use tonic_health_status::set_health;
 
 /// Settings of one gateway.
 #[derive(Debug, Clone, PartialEq)]
@@ -69,15 +68,12 @@ pub enum GatewayError {
     Count(&'static str),
 }
 
-mod tonic_health_status {
+/// Reports every one of `names` SERVING or NOT_SERVING.
+async fn set_health(health: &tonic_health::server::HealthReporter, names: &[&str], serving: bool) {
     use tonic_health::ServingStatus;
-    use tonic_health::server::HealthReporter;
-
-    pub async fn set_health(health: &HealthReporter, names: &[&str], serving: bool) {
-        let status = if serving { ServingStatus::Serving } else { ServingStatus::NotServing };
-        for name in names {
-            health.set_service_status(*name, status).await;
-        }
+    let status = if serving { ServingStatus::Serving } else { ServingStatus::NotServing };
+    for name in names {
+        health.set_service_status(*name, status).await;
     }
 }
 
@@ -166,6 +162,9 @@ pub async fn serve_with_link(
         async move {
             shutdown.await;
             tracing::info!("gateway shutting down");
+            // NOT_SERVING first, and for good: the task that follows the heartbeat stops.
+            health_task.abort();
+            set_health(&health, &NAMES, false).await;
             service.close();
         }
     };
@@ -180,7 +179,6 @@ pub async fn serve_with_link(
             signal,
         )
         .await;
-    health_task.abort();
     stop.store(true, Ordering::Relaxed);
     let _ = reader.join();
     let _ = scheduler.join();

@@ -86,8 +86,49 @@ impl Link {
         self.conn.send(&self.header, msg).map(|_| ())
     }
 
-    /// The next message, or `None` when the read timed out or the frame was not one of ours.
+    /// The next message, or `None` when the read timed out or the frame was not one of the
+    /// common dialect's. A transport that fails at once (a serial device unplugged) is retried
+    /// every 10 ms rather than in a busy loop.
     pub fn recv(&self) -> Option<(MavHeader, MavMessage)> {
-        self.conn.recv().ok()
+        use std::io::ErrorKind::{TimedOut, WouldBlock};
+        match self.conn.recv() {
+            Ok(m) => Some(m),
+            Err(mavlink::error::MessageReadError::Io(e)) if !matches!(e.kind(), WouldBlock | TimedOut) => {
+                tracing::debug!("MAVLink read on {}: {e}", self.address);
+                std::thread::sleep(Duration::from_millis(10));
+                None
+            }
+            Err(_) => None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn addresses_are_checked_naming_the_flag_before_anything_opens() {
+        for ok in ["udpin:0.0.0.0:14540", "udpout:127.0.0.1:14550", "serial:/dev/ttyACM0:921600"] {
+            assert!(check_address(ok).is_ok(), "{ok}");
+        }
+        for bad in [
+            "14540",
+            "tcpin:0.0.0.0:5760",
+            "udpin:0.0.0.0",
+            "udpout:host:port",
+            "serial:/dev/ttyACM0",
+            "serial:/dev/x:0",
+        ] {
+            let e = check_address(bad).expect_err(bad).to_string();
+            assert!(e.contains("--mavlink") && e.contains(bad), "{e}");
+        }
+    }
+
+    #[test]
+    fn an_ephemeral_udpin_port_is_known_after_opening() {
+        let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("opens");
+        assert!(link.local_addr.is_some_and(|a| a.port() != 0));
+        assert!(link.recv().is_none(), "nothing arrived: the read times out");
     }
 }

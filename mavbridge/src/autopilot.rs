@@ -76,6 +76,17 @@ pub struct AutopilotCounters {
     pub offboard_failsafes: u64,
 }
 
+/// Why a simulated autopilot cannot start.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AutopilotError {
+    #[error(transparent)]
+    Thrust(#[from] ThrustError),
+    #[error(transparent)]
+    Sim(#[from] mav::SimError),
+    #[error("invalid simulator setting `{0}`: must be > 0")]
+    Setting(&'static str),
+}
+
 #[derive(Debug, Clone)]
 pub struct SimAutopilot {
     sim: PlantSim,

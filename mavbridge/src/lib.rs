@@ -17,7 +17,7 @@ pub mod modes;
 pub mod thrust;
 pub mod timesync;
 
-pub use autopilot::{AutopilotSettings, SimAutopilot, SimMode};
+pub use autopilot::{AutopilotError, AutopilotSettings, SimAutopilot, SimMode};
 pub use bridge::{Bridge, BridgeError, BridgeSettings, Counters, Event, ResetRefusal, VehicleStatus};
 pub use mavlink;
 pub use modes::ModeRequest;

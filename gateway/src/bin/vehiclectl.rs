@@ -15,7 +15,8 @@ struct Args {
     /// The gateway, HOST:PORT.
     #[arg(long, default_value = "127.0.0.1:50054")]
     gateway: String,
-    /// Wait this long for the gateway and the vehicle's heartbeat before the first call, s.
+    /// Wait this long for the gateway, the vehicle's heartbeat and the setpoint stream before
+    /// the first call, s.
     #[arg(long, default_value_t = 0)]
     wait_s: u64,
     #[command(subcommand)]
@@ -53,16 +54,21 @@ async fn main() -> anyhow::Result<()> {
     };
     loop {
         let status = client.get_status(pb::GetVehicleStatusRequest {}).await?.into_inner();
-        if status.link_alive || tokio::time::Instant::now() >= deadline {
+        // PX4 takes OFFBOARD only once setpoints stream: a tenth of a second of them.
+        if (status.link_alive && status.setpoints_sent >= 5) || tokio::time::Instant::now() >= deadline {
             break;
         }
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
     let offboard = pb::SetModeRequest { mode: pb::FlightMode::Px4Offboard as i32 };
     match args.action {
-        Action::Status => println!("{:#?}", client.get_status(pb::GetVehicleStatusRequest {}).await?.into_inner()),
+        Action::Status => {
+            println!("{:#?}", client.get_status(pb::GetVehicleStatusRequest {}).await?.into_inner())
+        }
         Action::Arm => println!("arm: {}", client.arm(pb::ArmRequest {}).await?.into_inner().result),
-        Action::Disarm => println!("disarm: {}", client.disarm(pb::DisarmRequest {}).await?.into_inner().result),
+        Action::Disarm => {
+            println!("disarm: {}", client.disarm(pb::DisarmRequest {}).await?.into_inner().result)
+        }
         Action::Offboard => println!("offboard: {}", client.set_mode(offboard).await?.into_inner().result),
         Action::GuidedNogps => {
             let r = pb::SetModeRequest { mode: pb::FlightMode::ArdupilotGuidedNogps as i32 };

@@ -34,9 +34,8 @@ struct Bench {
     vehicle: Mavsim,
 }
 
-/// A gateway listening for MAVLink on an ephemeral loopback port and a simulated vehicle of
-/// `scenario` sending to it.
-async fn start(scenario: &Scenario) -> Bench {
+/// A gateway for `scenario` listening for MAVLink on an ephemeral loopback UDP port (returned).
+async fn start_gateway(scenario: &Scenario) -> (Running<GatewayError>, u16) {
     let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("a loopback UDP port");
     let port = link.local_addr.expect("bound").port();
     let config = GatewayConfig::new(format!("udpin:127.0.0.1:{port}"), scenario.clone());
@@ -44,6 +43,12 @@ async fn start(scenario: &Scenario) -> Bench {
         gateway::serve_with_link(listener, config, link, shutdown)
     })
     .await;
+    (gateway, port)
+}
+
+/// A gateway and a simulated vehicle of `scenario` sending to it.
+async fn start(scenario: &Scenario) -> Bench {
+    let (gateway, port) = start_gateway(scenario).await;
     let vehicle = Mavsim::start(&MavsimConfig {
         mavlink: format!("udpout:127.0.0.1:{port}"),
         scenario: scenario.clone(),
@@ -59,6 +64,15 @@ async fn vehicle_control(addr: SocketAddr) -> VehicleControlClient<Channel> {
 
 async fn plant(addr: SocketAddr) -> PlantClient<Channel> {
     PlantClient::connect(format!("http://{addr}")).await.expect("connects")
+}
+
+/// Polls `GetState` until the vehicle's first state has arrived.
+async fn wait_for_state(p: &mut PlantClient<Channel>) {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    while let Err(e) = p.get_state(pb::GetStateRequest {}).await {
+        assert!(tokio::time::Instant::now() < deadline, "no state from the vehicle: {e}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
 }
 
 async fn health(addr: SocketAddr, service: &str) -> i32 {
@@ -89,7 +103,11 @@ async fn wait_status(
 /// Arms the simulated vehicle and switches it to OFFBOARD through VehicleControl.
 async fn arm_and_offboard(addr: SocketAddr) {
     let mut vc = vehicle_control(addr).await;
-    wait_status(&mut vc, "the vehicle's heartbeat and state", |s| s.link_alive).await;
+    // PX4 takes OFFBOARD only once setpoints stream (a tenth of a second of them here).
+    wait_status(&mut vc, "the vehicle's heartbeat and the setpoint stream", |s| {
+        s.link_alive && s.setpoints_sent >= 5
+    })
+    .await;
     vc.arm(pb::ArmRequest {}).await.expect("armed");
     vc.set_mode(pb::SetModeRequest { mode: pb::FlightMode::Px4Offboard as i32 }).await.expect("offboard");
     wait_status(&mut vc, "OFFBOARD, armed", |s| s.armed && s.mode == "OFFBOARD").await;
@@ -159,11 +177,7 @@ async fn a_silent_vehicle_makes_the_plant_api_unavailable_and_health_not_serving
     let mut vc = vehicle_control(addr).await;
     wait_status(&mut vc, "the vehicle's heartbeat", |s| s.link_alive && s.heartbeat_seen).await;
     let mut p = plant(addr).await;
-    let deadline = tokio::time::Instant::now() + PATIENCE;
-    while p.get_state(pb::GetStateRequest {}).await.is_err() {
-        assert!(tokio::time::Instant::now() < deadline, "no state");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    wait_for_state(&mut p).await;
     let deadline = tokio::time::Instant::now() + PATIENCE;
     while health(addr, "hilbench.v1.Plant").await != ServingStatus::Serving as i32 {
         assert!(tokio::time::Instant::now() < deadline, "never SERVING");
@@ -202,11 +216,7 @@ async fn a_reset_far_from_the_vehicle_and_a_mode_the_vehicle_refuses_are_failed_
     let mut vc = vehicle_control(addr).await;
     wait_status(&mut vc, "the vehicle's state", |s| s.link_alive).await;
     let mut p = plant(addr).await;
-    let deadline = tokio::time::Instant::now() + PATIENCE;
-    while p.get_state(pb::GetStateRequest {}).await.is_err() {
-        assert!(tokio::time::Instant::now() < deadline, "no state");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    wait_for_state(&mut p).await;
     // paper-1 starts at the origin; the vehicle stands at paper-2's start, 3.2 m away.
     let far = p
         .reset(pb::ResetRequest { scenario: "paper-1".into(), ..Default::default() })
@@ -241,20 +251,18 @@ async fn a_reset_far_from_the_vehicle_and_a_mode_the_vehicle_refuses_are_failed_
         .expect_err("refused");
     assert_eq!(adv.code(), tonic::Code::FailedPrecondition);
     assert!(!bench.vehicle.autopilot().armed(), "nobody asked to arm");
+    // Reflection lists both services (grpcurl needs no .proto files).
+    let services = reflected_services(addr).await;
+    for expected in ["hilbench.v1.Plant", "hilbench.v1.VehicleControl", "grpc.health.v1.Health"] {
+        assert!(services.iter().any(|s| s == expected), "{services:?} lacks {expected}");
+    }
     bench.gateway.stop().await.expect("gateway stops cleanly");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn pymavlink_as_the_autopilot_sees_setpoints_at_50_hz_heartbeats_no_unasked_command_and_the_hover_hold_after_silence()
  {
-    let scenario = Scenario::paper_2();
-    let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("a loopback UDP port");
-    let port = link.local_addr.expect("bound").port();
-    let config = GatewayConfig::new(format!("udpin:127.0.0.1:{port}"), scenario.clone());
-    let gateway = server::start("gateway", move |listener, shutdown| {
-        gateway::serve_with_link(listener, config, link, shutdown)
-    })
-    .await;
+    let (gateway, port) = start_gateway(&Scenario::paper_2()).await;
     let yaw = 0.5;
     let script = tokio::task::spawn_blocking(move || {
         hilbench_tests::python::run_script(
@@ -267,11 +275,7 @@ async fn pymavlink_as_the_autopilot_sees_setpoints_at_50_hz_heartbeats_no_unaske
     wait_status(&mut vc, "pymavlink's heartbeat", |s| s.link_alive && s.autopilot == "MAV_AUTOPILOT_PX4")
         .await;
     let mut p = plant(gateway.addr).await;
-    let deadline = tokio::time::Instant::now() + PATIENCE;
-    while p.get_state(pb::GetStateRequest {}).await.is_err() {
-        assert!(tokio::time::Instant::now() < deadline, "no state from pymavlink");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    wait_for_state(&mut p).await;
     // A controller commands at 20 Hz for a second, then falls silent.
     for k in 1..=20 {
         let cmd = pb::Command {
@@ -325,4 +329,29 @@ async fn pymavlink_as_the_autopilot_sees_setpoints_at_50_hz_heartbeats_no_unaske
     assert!(status.clock_offset_from_timesync, "{status:?}");
     assert!(status.watchdog_holds >= 1, "{status:?}");
     gateway.stop().await.expect("gateway stops cleanly");
+}
+
+/// The services a server's reflection (v1) lists.
+async fn reflected_services(addr: SocketAddr) -> Vec<String> {
+    use tokio_stream::StreamExt;
+    use tonic_reflection::pb::v1::ServerReflectionRequest;
+    use tonic_reflection::pb::v1::server_reflection_client::ServerReflectionClient;
+    use tonic_reflection::pb::v1::server_reflection_request::MessageRequest;
+    use tonic_reflection::pb::v1::server_reflection_response::MessageResponse;
+    let channel =
+        Channel::from_shared(format!("http://{addr}")).expect("uri").connect().await.expect("connects");
+    let mut client = ServerReflectionClient::new(channel);
+    let request = ServerReflectionRequest {
+        host: String::new(),
+        message_request: Some(MessageRequest::ListServices(String::new())),
+    };
+    let mut answers =
+        client.server_reflection_info(tokio_stream::once(request)).await.expect("reflection").into_inner();
+    let answer = answers.next().await.expect("an answer").expect("ok");
+    match answer.message_response {
+        Some(MessageResponse::ListServicesResponse(list)) => {
+            list.service.into_iter().map(|s| s.name).collect()
+        }
+        other => panic!("not a service list: {other:?}"),
+    }
 }
