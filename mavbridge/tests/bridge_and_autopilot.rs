@@ -46,16 +46,16 @@ impl Pair {
         }
     }
 
-    fn to_vehicle(&mut self, msgs: Vec<MavMessage>) {
+    fn send_to_vehicle(&mut self, msgs: Vec<MavMessage>) {
         for m in msgs {
             let (_, m) = wire(&m, 255);
             let mut answers = Vec::new();
             self.vehicle.on_message(&m, self.now_ns + VEHICLE_AHEAD_NS, &mut answers);
-            self.to_gateway(answers);
+            self.send_to_gateway(answers);
         }
     }
 
-    fn to_gateway(&mut self, msgs: Vec<MavMessage>) {
+    fn send_to_gateway(&mut self, msgs: Vec<MavMessage>) {
         if self.silent_vehicle {
             return;
         }
@@ -65,7 +65,7 @@ impl Pair {
             self.samples.extend(event.sample);
             self.acks.extend(event.ack);
             if let Some(reply) = event.reply {
-                self.to_vehicle(vec![reply]);
+                self.send_to_vehicle(vec![reply]);
             }
         }
     }
@@ -77,17 +77,17 @@ impl Pair {
             let mut out = Vec::new();
             self.bridge.poll(self.now_ns, &mut out);
             if !self.silent_vehicle {
-                self.to_vehicle(out);
+                self.send_to_vehicle(out);
             }
             let mut out = Vec::new();
             self.vehicle.poll(self.now_ns + VEHICLE_AHEAD_NS, &mut out);
-            self.to_gateway(out);
+            self.send_to_gateway(out);
         }
     }
 
     fn command(&mut self, msg: MavMessage) -> (MavCmd, MavResult) {
         let before = self.acks.len();
-        self.to_vehicle(vec![msg]);
+        self.send_to_vehicle(vec![msg]);
         *self.acks.get(before).expect("acknowledged")
     }
 }
@@ -144,7 +144,7 @@ fn commands_fly_the_vehicle_and_the_samples_carry_the_plants_stamps() {
             .clock_offset_ns
             .is_some_and(|(o, measured)| measured && o == VEHICLE_AHEAD_NS as i64)
     );
-    p.to_vehicle(msg.into_iter().collect());
+    p.send_to_vehicle(msg.into_iter().collect());
     p.run(300);
     let last = p.samples.last().expect("samples").clone();
     assert!(last.state[2] > 0.05, "climbed: {:?}", last.state);
@@ -174,7 +174,7 @@ fn controller_silence_holds_level_hover_and_a_stopped_stream_fails_the_vehicle_s
     let holds = p.bridge.counters().watchdog_holds;
     assert_eq!(holds, 1);
     let (_, msg) = p.bridge.apply(Input::new(11.0, 0.1, 0.0), CommandMeta::default(), p.now_ns);
-    p.to_vehicle(msg.into_iter().collect());
+    p.send_to_vehicle(msg.into_iter().collect());
     p.run(400);
     assert!(!p.samples.last().expect("samples").watchdog_hover);
     p.run(150);
