@@ -191,6 +191,22 @@ mod tests {
     }
 
     #[test]
+    fn attitude_quaternion_gives_the_same_attitude_as_euler_attitude() {
+        let (roll, pitch, yaw) = (0.12, -0.07, 2.5);
+        let [q1, q2, q3, q4] = frame::quaternion_from_euler(roll, pitch, yaw).map(|v| v as f32);
+        let q = ATTITUDE_QUATERNION_DATA { time_boot_ms: 5, q1, q2, q3, q4, ..Default::default() };
+        let a = Attitude::from_quaternion(&q).expect("a rotation");
+        assert_eq!(a.time_boot_ms, 5);
+        for (got, want) in [(a.roll_rad, roll), (a.pitch_rad, pitch), (a.yaw_rad, yaw)] {
+            assert!((got - want).abs() < 1e-6, "{got} != {want}");
+        }
+        let zero = ATTITUDE_QUATERNION_DATA::default();
+        assert_eq!(Attitude::from_quaternion(&zero), None, "no length: not used");
+        let nan = ATTITUDE_DATA { roll: f32::NAN, ..Default::default() };
+        assert_eq!(Attitude::from_euler(&nan), None);
+    }
+
+    #[test]
     fn setpoints_that_ignore_attitude_or_thrust_or_are_not_rotations_are_refused() {
         let thrust = ThrustMap::new(0.5, 9.81).expect("valid");
         let (mut sp, _) = setpoint(&Input::new(9.81, 0.0, 0.0), 0.0, &thrust, 0, (1, 1));
