@@ -413,6 +413,7 @@ pub fn run_json(r: &RunSummary) -> serde_json::Value {
         "solve_ms": { "mean": r.solve_ms_mean, "median": r.solve_ms_median, "p95": r.solve_ms_p95, "max": r.solve_ms_max },
         "iterations_median": r.iterations_median,
         "fallbacks": r.fallbacks,
+        "best_effort_cycles": r.best_effort_cycles,
         "decisions": r.decisions,
         "cost_gap": r.cost_gap,
         "collisions": r.collisions,

@@ -155,6 +155,9 @@ pub struct RunSummary {
     pub iterations_median: f64,
     /// Cycles that did not send PANOC's plan (see [`CycleRecord::is_fallback`]).
     pub fallbacks: u64,
+    /// Cycles in which no candidate passed the safety check and the closest one was sent
+    /// unverified ("best effort"; 0 when the layer is off).
+    pub best_effort_cycles: u64,
     /// Cycles per decision of the safety layer (`panoc`, `qp`, `shifted_plan`, `brake`; every
     /// one listed, zeros included, when the layer was on; empty when it was off).
     pub decisions: BTreeMap<String, u64>,
@@ -220,6 +223,9 @@ impl CollisionSummary {
     }
 }
 
+/// How a cycle's `reason` marks a command sent unverified (`Selection::reason`).
+pub(crate) const BEST_EFFORT: &str = " best effort";
+
 /// Nearest-rank percentile of a slice (sorted in place); NaN when empty.
 pub fn percentile(values: &mut [f64], p: f64) -> f64 {
     if values.is_empty() {
@@ -278,6 +284,7 @@ pub fn summarize(
         solve_ms_max: percentile(&mut solve_ms, 100.0),
         iterations_median: percentile(&mut iterations, 50.0),
         fallbacks: records.iter().filter(|r| r.is_fallback()).count() as u64,
+        best_effort_cycles: records.iter().filter(|r| r.reason.contains(BEST_EFFORT)).count() as u64,
         decisions: decision_counts(records),
         cost_gap: GapSummary::of(&records.iter().filter_map(|r| r.cost_gap).collect::<Vec<_>>()),
         iteration_limits: records.iter().filter(|r| r.solve.status == SolveStatus::IterationLimit).count()

@@ -237,9 +237,9 @@ impl ScenarioFile {
         }
         if let Some(sweep) = file.sweep.as_mut() {
             let dir = path.parent().unwrap_or(Path::new("."));
-            sweep.load_traces(dir, &|p| read_trace(p)).map_err(|(field, message)| {
-                error(span_of(&root, &field), Some(field), message)
-            })?;
+            sweep
+                .load_traces(dir, &|p| read_trace(p))
+                .map_err(|(field, message)| error(span_of(&root, &field), Some(field), message))?;
         }
         file.validate().map_err(|(field, message)| {
             let span = span_of(&root, &field);
@@ -595,8 +595,11 @@ mod tests {
         assert_eq!(e.field.as_deref(), Some("sweep.families[0].shape"), "{e}");
         assert_eq!(e.line, Some(text.lines().count() + 7), "{e}");
         assert!(e.message.contains("min > max"), "{e}");
-        let ok = ScenarioFile::parse(Path::new("x.toml"), &format!("{text}{}", sweep.replace("[30.0, 1.0]", "[1.0, 30.0]")))
-            .unwrap_or_else(|e| panic!("{e}"));
+        let ok = ScenarioFile::parse(
+            Path::new("x.toml"),
+            &format!("{text}{}", sweep.replace("[30.0, 1.0]", "[1.0, 30.0]")),
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(ok.sweep.map(|s| s.families.len()), Some(1));
         let e = error_of(&format!("{text}\n[sweep]\nrunz = 3\nfamilies = []\n"));
         assert_eq!(e.field.as_deref(), Some("sweep.runz"), "{e}");

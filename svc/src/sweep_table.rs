@@ -275,10 +275,16 @@ impl Family {
         if self.kind == "traces" {
             let extra = NUMERIC.iter().find(|k| self.param(k).is_some()).copied();
             if let Some(key) = extra.or(self.states.as_ref().map(|_| "states")) {
-                return Err((join(path, key), "does not apply to kind \"traces\" (it takes dir, looping)".into()));
+                return Err((
+                    join(path, key),
+                    "does not apply to kind \"traces\" (it takes dir, looping)".into(),
+                ));
             }
             if self.dir.is_none() {
-                return Err((join(path, "dir"), "missing: kind \"traces\" takes dir, a folder of trace files".into()));
+                return Err((
+                    join(path, "dir"),
+                    "missing: kind \"traces\" takes dir, a folder of trace files".into(),
+                ));
             }
             return Ok(());
         }
@@ -299,8 +305,7 @@ impl Family {
         // constraints between them (a uniform's min_s <= max_s) are linear, so the corners
         // hold them all when they hold. Beyond 2^12 corners, the all-low and all-high ones.
         let ranged = self.ranged_count();
-        let corners: Vec<u64> =
-            if ranged <= 12 { (0..1u64 << ranged).collect() } else { vec![0, u64::MAX] };
+        let corners: Vec<u64> = if ranged <= 12 { (0..1u64 << ranged).collect() } else { vec![0, u64::MAX] };
         for corner in corners {
             let mut bit = 0;
             let (table, _) = self.table(
@@ -384,7 +389,10 @@ impl SweepSection {
                 return Err((join(&path, "name"), "must be 1 to 64 printable characters, no comma".into()));
             }
             if names.contains(&name) {
-                return Err((join(&path, "name"), format!("{name:?} names two families; give each a `name`")));
+                return Err((
+                    join(&path, "name"),
+                    format!("{name:?} names two families; give each a `name`"),
+                ));
             }
             names.push(name);
         }
@@ -406,9 +414,10 @@ impl SweepSection {
             let Some(folder) = f.dir.as_deref().filter(|_| f.kind == "traces") else { continue };
             let field = format!("sweep.families[{i}].dir");
             let folder = dir.join(folder);
-            let entries =
-                std::fs::read_dir(&folder).map_err(|e| (field.clone(), format!("{}: {e}", folder.display())))?;
-            let mut files: Vec<_> = entries.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.is_file()).collect();
+            let entries = std::fs::read_dir(&folder)
+                .map_err(|e| (field.clone(), format!("{}: {e}", folder.display())))?;
+            let mut files: Vec<_> =
+                entries.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.is_file()).collect();
             files.sort();
             if files.is_empty() {
                 return Err((field, format!("{}: holds no trace file", folder.display())));
@@ -484,10 +493,16 @@ mod tests {
         assert_eq!(field_of("families = []"), "sweep.families");
         assert_eq!(field_of("runs = 0\n[[families]]\nkind = \"none\""), "sweep.runs");
         assert_eq!(field_of("max_delay_s = -1.0\n[[families]]\nkind = \"none\""), "sweep.max_delay_s");
-        assert_eq!(field_of("[[families]]\nkind = \"none\"\n[[families]]\nkind = \"none\""), "sweep.families[1].name");
+        assert_eq!(
+            field_of("[[families]]\nkind = \"none\"\n[[families]]\nkind = \"none\""),
+            "sweep.families[1].name"
+        );
         assert_eq!(field_of("[[families]]\nkind = \"trace\""), "sweep.families[0].kind");
         assert_eq!(field_of("[[families]]\nkind = \"traces\""), "sweep.families[0].dir");
-        assert_eq!(field_of("[[families]]\nkind = \"traces\"\ndir = \"x\"\nshape = 1.0"), "sweep.families[0].shape");
+        assert_eq!(
+            field_of("[[families]]\nkind = \"traces\"\ndir = \"x\"\nshape = 1.0"),
+            "sweep.families[0].shape"
+        );
         assert_eq!(field_of("[[families]]\nkind = \"gammma\""), "sweep.families[0].kind");
         assert_eq!(
             field_of(
@@ -496,7 +511,8 @@ mod tests {
             "sweep.families[0].states[0].mean_dwell_s"
         );
         // Unknown keys and malformed ranges are serde's, with the key named.
-        let e = toml::from_str::<SweepSection>("[[families]]\nkind = \"none\"\nshap = 1.0").map_err(|e| e.to_string());
+        let e = toml::from_str::<SweepSection>("[[families]]\nkind = \"none\"\nshap = 1.0")
+            .map_err(|e| e.to_string());
         assert!(e.as_ref().is_err_and(|m| m.contains("unknown field `shap`")), "{e:?}");
         let e = toml::from_str::<SweepSection>("[[families]]\nkind = \"gamma\"\nshape = [1.0, 2.0, 3.0]")
             .map_err(|e| e.to_string());

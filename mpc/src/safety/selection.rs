@@ -141,7 +141,7 @@ impl Selection {
             Decision::Brake => 3,
         };
         if !self.verified_safe {
-            out.push_str(" best effort");
+            out.push_str(crate::record::BEST_EFFORT);
         }
         for (name, c) in candidates.iter().take(skip) {
             let mut s = format!("{name}: ");
