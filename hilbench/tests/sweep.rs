@@ -301,3 +301,24 @@ fn bad_flags_and_sweep_tables_are_refused_before_anything_runs() {
     assert_eq!(none.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&none.stderr).contains("no [sweep] table"), "{none:?}");
 }
+
+#[test]
+fn ctrl_c_writes_the_runs_that_finished_marks_the_sweep_interrupted_and_exits_130() {
+    let out = out_dir("sweep-interrupted");
+    let child = Command::new(env!("CARGO_BIN_EXE_hilbench"))
+        .args(["sweep", &long_delays(), "--runs", "5000", "--no-plots", "--quiet", "--out", s(&out)])
+        .spawn()
+        .expect("hilbench starts");
+    // Long enough for the handler to be installed and some runs to finish, far too short for
+    // 5000 runs.
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let signal = Command::new("kill").args(["-INT", &child.id().to_string()]).status().expect("kill runs");
+    assert!(signal.success());
+    let status = child.wait_with_output().expect("hilbench ends").status;
+    assert_eq!(status.code(), Some(130));
+    let v = json_of(&out.join("sweep.json"));
+    assert_eq!(v["interrupted"], true);
+    let runs = v["runs"].as_u64().expect("runs");
+    assert!(runs < 5000, "{runs} runs");
+    assert_eq!(rows_of(&out).len() as u64, runs);
+}

@@ -496,16 +496,20 @@ mod tests {
 
     #[test]
     fn every_file_in_scenarios_is_valid() {
-        let dir = repo_root().join("scenarios");
         let mut n = 0;
-        for entry in std::fs::read_dir(&dir).expect("scenarios/") {
-            let path = entry.expect("entry").path();
-            if path.extension().is_some_and(|e| e == "toml") {
-                ScenarioFile::load(&path).unwrap_or_else(|e| panic!("{e}"));
-                n += 1;
+        let mut sweeps = 0;
+        for dir in [repo_root().join("scenarios"), repo_root().join("scenarios/sweeps")] {
+            for entry in std::fs::read_dir(&dir).expect("scenarios/") {
+                let path = entry.expect("entry").path();
+                if path.extension().is_some_and(|e| e == "toml") {
+                    let file = ScenarioFile::load(&path).unwrap_or_else(|e| panic!("{e}"));
+                    n += 1;
+                    sweeps += usize::from(file.sweep.is_some());
+                }
             }
         }
-        assert!(n >= 4, "{n} scenario files");
+        assert!(n >= 8, "{n} scenario files");
+        assert!(sweeps >= 4, "{sweeps} sweep files");
     }
 
     /// paper-3 with one line replaced (1-based `line` of the file holding `old`).
