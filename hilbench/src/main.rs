@@ -620,11 +620,11 @@ fn print_sweep(v: &serde_json::Value, dir: &std::path::Path) {
         println!(
             "{:<16} {:>6} {:>8} {:>9} {:>7} {:>7} {:>22} {:>16}",
             name,
-            a["runs"],
-            a["reached"],
-            a["collided"],
-            a["missed"],
-            a["errors"],
+            a["runs"].to_string(),
+            a["reached"].to_string(),
+            a["collided"].to_string(),
+            a["missed"].to_string(),
+            a["errors"].to_string(),
             format!(
                 "{}/{}/{}",
                 f(&a["min_clearance_m"]["p1"]),

@@ -250,7 +250,8 @@ impl Family {
             let key = if self.name.is_some() { "name" } else { "weight" };
             return Err((join(path, key), "a regime's state has no name or weight".into()));
         }
-        if !state && !(self.weight.is_finite() && self.weight >= 0.0) {
+        let weight_ok = self.weight.is_finite() && self.weight >= 0.0;
+        if !state && !weight_ok {
             return Err((join(path, "weight"), "must be a finite number >= 0".into()));
         }
         if self.kind == "trace" {

@@ -28,6 +28,9 @@ use crate::cycle_log::CycleRow;
 use draw::RunPlan;
 use stats::RunRow;
 
+/// How often a sweep without a terminal says how far it is.
+const PROGRESS_LINE: Duration = Duration::from_secs(10);
+
 /// Everything a sweep needs, flags applied.
 #[derive(Debug, Clone)]
 pub struct Sweep {
@@ -163,7 +166,24 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
             });
         }
         drop(tx);
-        for result in rx.iter() {
+        // Without a terminal (a log, CI) a line every few seconds says how far the sweep is.
+        let mut said = Instant::now();
+        loop {
+            let result = match rx.recv_timeout(Duration::from_millis(500)) {
+                Ok(result) => result,
+                Err(mpsc::RecvTimeoutError::Timeout) => continue,
+                Err(mpsc::RecvTimeoutError::Disconnected) => break,
+            };
+            if show && bar.is_hidden() && said.elapsed() >= PROGRESS_LINE {
+                said = Instant::now();
+                let elapsed = started.elapsed().as_secs_f64();
+                eprintln!(
+                    "  sweep: {} of {} runs in {elapsed:.0} s ({:.1} runs/s)",
+                    done.len(),
+                    items.len(),
+                    done.len() as f64 / elapsed.max(1e-9)
+                );
+            }
             match result {
                 Some(d) => {
                     if d.row.outcome != "reached" {
@@ -182,7 +202,7 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
     });
     interrupted |= stop.load(Ordering::Relaxed) && done.len() < items.len();
     let order = |m: &str| sweep.modes.iter().position(|x| x.name() == m).unwrap_or(usize::MAX);
-    done.sort_by(|a, b| (a.row.run, order(&a.row.controller)).cmp(&(b.row.run, order(&b.row.controller))));
+    done.sort_by_key(|a| (a.row.run, order(&a.row.controller)));
     SweepResult { done, interrupted, wall_time_s: started.elapsed().as_secs_f64() }
 }
 

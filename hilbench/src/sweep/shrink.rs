@@ -126,14 +126,13 @@ pub fn shrink(sweep: &Sweep, plan: &RunPlan, mode: ControllerMode, flown: &Flown
     Some(best)
 }
 
+/// Flies a candidate trace (counting the rerun): the trace cut to what its run flew, and the
+/// run, when it fails as the original did.
+type Attempt<'a> = dyn FnMut(Vec<f64>, &mut u64) -> Option<(Vec<f64>, Flown)> + 'a;
+
 /// The passes of [`shrink`] over `best` (kept up to date), at most `budget` attempts; true when
 /// they ran to their end.
-fn shrink_with(
-    best: &mut FailureTrace,
-    budget: u64,
-    reruns: &mut u64,
-    attempt: &mut dyn FnMut(Vec<f64>, &mut u64) -> Option<(Vec<f64>, Flown)>,
-) -> bool {
+fn shrink_with(best: &mut FailureTrace, budget: u64, reruns: &mut u64, attempt: &mut Attempt<'_>) -> bool {
     let mut keep = |best: &mut FailureTrace, candidate: Vec<f64>, reruns: &mut u64| -> Option<bool> {
         if *reruns >= budget {
             return None;

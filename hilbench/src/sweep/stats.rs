@@ -341,7 +341,7 @@ pub fn aggregate_with_families(rows: &[&RunRow], family_order: &[String]) -> Val
 /// controller) present twice refused.
 pub fn merge_rows(mut rows: Vec<RunRow>, modes: &[String]) -> Result<Vec<RunRow>, String> {
     let order = |m: &str| modes.iter().position(|x| x == m).unwrap_or(usize::MAX);
-    rows.sort_by(|a, b| (a.run, order(&a.controller)).cmp(&(b.run, order(&b.controller))));
+    rows.sort_by_key(|a| (a.run, order(&a.controller)));
     for w in rows.windows(2) {
         if w[0].run == w[1].run && w[0].controller == w[1].controller {
             return Err(format!("run {} with {} is in two shards", w[0].run, w[0].controller));
