@@ -11,4 +11,5 @@ pub mod plots;
 pub mod progress;
 pub mod report;
 pub mod report_md;
+pub mod sweep;
 pub use hilbench_svc::scenario_file;

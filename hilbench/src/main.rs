@@ -113,9 +113,88 @@ enum Command {
         /// there, as a real flight does, and summary.json's `end_reason` is "collided".
         #[arg(long)]
         continue_after_collision: bool,
+        /// Fly run I of the file's [sweep] again, bit for bit (its delays drawn from the sweep's
+        /// seed, which --seed sets, and I alone).
+        #[arg(long, value_name = "I", conflicts_with_all = ["delay_trace", "keep_netem_profile"])]
+        sweep_run: Option<u64>,
         #[command(flatten)]
         services: EndpointArgs,
     },
+    /// N lockstep runs of a scenario file, each under a delay process drawn from the file's
+    /// [sweep] table; outcomes as distributions (sweep.json, runs.csv, report.md, plots).
+    Sweep(SweepArgs),
+    /// Merge the output directories of a sweep's shards into the sweep.json of the whole.
+    SweepMerge {
+        /// The shards' output directories.
+        #[arg(required = true)]
+        dirs: Vec<PathBuf>,
+        /// Output directory of the merged sweep.
+        #[arg(long)]
+        out: PathBuf,
+        /// Print sweep.json on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(clap::Args, Debug)]
+struct SweepArgs {
+    /// The scenario file, with a [sweep] table.
+    file: PathBuf,
+    /// Runs of the sweep (default: the file's `sweep.runs`).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    runs: Option<u64>,
+    /// Runs flown at once (default: every core).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
+    jobs: Option<u64>,
+    /// Seed of the draws (default: the file's `sweep.seed`, else `scenario.seed`).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Output directory (default: runs/sweep-<unix time>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Controllers to fly each run with (default: the file's `run.modes`).
+    #[arg(long, value_enum)]
+    mode: Option<ModeArg>,
+    /// Fly only the I-th of K disjoint slices of the runs (I from 0); merge the shards'
+    /// directories with `hilbench sweep-merge`.
+    #[arg(long, value_name = "I/K", value_parser = parse_shard)]
+    shard: Option<(u64, u64)>,
+    /// Fly each run over the services (plant, netem, controller on loopback) instead of in
+    /// process: the same numbers, slower.
+    #[arg(long)]
+    grpc: bool,
+    /// Shrink each failing run's delay trace to a smaller one that still fails
+    /// (failures/<run>.csv).
+    #[arg(long)]
+    shrink: bool,
+    /// A run that takes longer than this (wall clock) is a failure, and the sweep goes on
+    /// (default: the file's `sweep.run_timeout_s`, else 300).
+    #[arg(long, value_name = "S", value_parser = parse_timeout)]
+    run_timeout_s: Option<f64>,
+    /// Print sweep.json on stdout instead of the table.
+    #[arg(long)]
+    json: bool,
+}
+
+/// `--shard I/K`.
+fn parse_shard(text: &str) -> Result<(u64, u64), String> {
+    let (i, k) = text.split_once('/').ok_or("expected I/K, e.g. 0/4")?;
+    let i: u64 = i.trim().parse().map_err(|_| format!("{i:?} is not a shard number"))?;
+    let k: u64 = k.trim().parse().map_err(|_| format!("{k:?} is not a number of shards"))?;
+    if k == 0 || i >= k {
+        return Err(format!("shard {i} of {k}: I must be below K (shards 0 to K-1)"));
+    }
+    Ok((i, k))
+}
+
+/// `--run-timeout-s`.
+fn parse_timeout(text: &str) -> Result<f64, String> {
+    let s: f64 = text.parse().map_err(|_| format!("{text:?} is not a number of seconds"))?;
+    if !(s.is_finite() && s > 0.0 && s <= 86_400.0) {
+        return Err("must be in (0, 86400] s".into());
+    }
+    Ok(s)
 }
 
 /// Exit codes: 0 every run ended without a collision, 1 an error (anyhow's), 2 a usage error
@@ -145,7 +224,7 @@ fn main() -> anyhow::Result<()> {
             } else {
                 Transport::Grpc(Endpoints { plant, netem, controller, ..Endpoints::default() })
             };
-            let overrides = Overrides { seed, delay_trace: None, continue_after_collision };
+            let overrides = Overrides { seed, delay_trace: None, continue_after_collision, sweep_run: None };
             reproduce(out, json, &opts, &scenario, &overrides, &transport)?
         }
         Command::Run {
@@ -158,11 +237,22 @@ fn main() -> anyhow::Result<()> {
             seed,
             delay_trace,
             continue_after_collision,
+            sweep_run,
             services,
         } => {
             let transport = (!in_process).then_some((services, time_mode));
-            let overrides = Overrides { seed, delay_trace, continue_after_collision };
+            let overrides = Overrides { seed, delay_trace, continue_after_collision, sweep_run };
             run(&file, mode, out, json, &opts, &overrides, transport)?
+        }
+        Command::Sweep(args) => sweep(args, &opts)?,
+        Command::SweepMerge { dirs, out, json } => {
+            let summary = hilbench::sweep::output::merge(&dirs, &out, opts.plots)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&summary)?);
+            } else if !opts.quiet {
+                print_sweep(&summary, &out);
+            }
+            return Ok(());
         }
     };
     if outcome.any_collided() {
@@ -319,6 +409,8 @@ struct Overrides {
     delay_trace: Option<PathBuf>,
     /// `--continue-after-collision`.
     continue_after_collision: bool,
+    /// `--sweep-run`.
+    sweep_run: Option<u64>,
 }
 
 fn run(
@@ -331,7 +423,18 @@ fn run(
     services: Option<(EndpointArgs, Option<TimeMode>)>,
 ) -> anyhow::Result<Outcome> {
     let mut spec = ScenarioFile::load(file)?;
-    if let Some(seed) = overrides.seed {
+    if let Some(index) = overrides.sweep_run {
+        // The run as the sweep flies it: the scenario's own seed, delays drawn from the
+        // sweep's seed (which --seed sets there) and the index.
+        let table = spec
+            .sweep
+            .as_ref()
+            .with_context(|| format!("--sweep-run: {} has no [sweep] table", file.display()))?;
+        let seed = overrides.seed.or(table.seed).unwrap_or(spec.scenario.seed);
+        let plan = hilbench::sweep::draw::plan(table, &spec.scenario, seed, index)
+            .map_err(|e| anyhow::anyhow!("--sweep-run {index}: {e}"))?;
+        spec.scenario = plan.scenario(&spec.scenario);
+    } else if let Some(seed) = overrides.seed {
         spec.scenario.seed = seed;
     }
     spec.scenario.continue_after_collision |= overrides.continue_after_collision;
@@ -403,4 +506,144 @@ fn print_time(summary: &serde_json::Value, opts: &Options) {
 fn print_outputs(dir: &std::path::Path) {
     println!("Report: {}", dir.join("report.md").display());
     println!("Summary: {}", dir.join("summary.json").display());
+}
+
+/// `hilbench sweep`.
+fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Outcome> {
+    use hilbench::sweep::{Sweep, execute, output};
+    let spec = ScenarioFile::load(&args.file)?;
+    let table = spec.sweep.clone().with_context(|| {
+        format!(
+            "{}: no [sweep] table (the delay families to draw from; see docs/sweep.md)",
+            args.file.display()
+        )
+    })?;
+    let runs = args.runs.or(table.runs).with_context(|| {
+        format!(
+            "--runs: how many runs? (give --runs N, or `runs` in the [sweep] table of {})",
+            args.file.display()
+        )
+    })?;
+    let modes = match args.mode {
+        None => spec.run.modes.iter().map(|m| hilbench::bench::controller_mode(*m)).collect(),
+        Some(ModeArg::Nmpc) => vec![mpc::ControllerMode::Nmpc],
+        Some(ModeArg::Multistage) => vec![mpc::ControllerMode::Multistage],
+        Some(ModeArg::Both) => vec![mpc::ControllerMode::Nmpc, mpc::ControllerMode::Multistage],
+    };
+    anyhow::ensure!(
+        spec.run.time_mode == TimeMode::Lockstep,
+        "{}: a sweep flies in lockstep (run.time_mode is real-time)",
+        args.file.display()
+    );
+    let jobs =
+        args.jobs.map_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()), |j| j as usize);
+    let sweep = Sweep {
+        file: args.file.clone(),
+        seed: args.seed.or(table.seed).unwrap_or(spec.scenario.seed),
+        runs,
+        modes,
+        shard: args.shard,
+        jobs,
+        transport: if args.grpc { Transport::Grpc(Endpoints::default()) } else { Transport::InProcess },
+        run_timeout: std::time::Duration::from_secs_f64(
+            args.run_timeout_s
+                .or(table.run_timeout_s)
+                .unwrap_or(hilbench_svc::sweep_table::DEFAULT_RUN_TIMEOUT_S),
+        ),
+        shrink: args.shrink,
+        shrink_runs: table.shrink_runs.unwrap_or(hilbench_svc::sweep_table::DEFAULT_SHRINK_RUNS),
+        scenario: spec.scenario,
+        table,
+    };
+    let dir = args.out.unwrap_or_else(|| {
+        let secs = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs())
+            .unwrap_or(0);
+        PathBuf::from("runs").join(format!("sweep-{secs}"))
+    });
+    // The output directory before the first run: a sweep that cannot write loses nothing.
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let show = !args.json && !opts.quiet;
+    let items = (sweep.indices().end - sweep.indices().start) * sweep.modes.len() as u64;
+    let bar = hilbench::progress::bar_with_eta(items, "runs", show);
+    let result = execute(&sweep, &bar, show);
+    bar.finish_and_clear();
+    let summary = output::write(&dir, &sweep, &result, opts.plots)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else if show {
+        print_sweep(&summary, &dir);
+    }
+    if result.interrupted {
+        eprintln!(
+            "interrupted: {} run(s) had finished; they are in {}",
+            result.done.len(),
+            dir.join("sweep.json").display()
+        );
+        std::process::exit(EXIT_INTERRUPTED);
+    }
+    std::process::exit(0);
+}
+
+/// The sweep's counts and distributions, per family, on stdout.
+fn print_sweep(v: &serde_json::Value, dir: &std::path::Path) {
+    let f = |x: &serde_json::Value| x.as_f64().map_or_else(|| "-".to_string(), |x| format!("{x:.3}"));
+    println!();
+    println!(
+        "{} runs of {} ({}), seed {}: {} reached, {} collided ({} with the ground), {} missed, {} errors",
+        v["runs"],
+        v["scenario"].as_str().unwrap_or(""),
+        v["file"].as_str().unwrap_or(""),
+        v["seed"],
+        v["reached"],
+        v["collided"],
+        v["collided_ground"],
+        v["missed"],
+        v["errors"]
+    );
+    println!();
+    println!(
+        "{:<16} {:>6} {:>8} {:>9} {:>7} {:>7} {:>22} {:>16}",
+        "family",
+        "runs",
+        "reached",
+        "collided",
+        "missed",
+        "errors",
+        "clearance p1/p5/p50 m",
+        "path p50/p95 m"
+    );
+    let families = v["family_order"].as_array().cloned().unwrap_or_default();
+    for name in families.iter().filter_map(|n| n.as_str()) {
+        let a = &v["families"][name];
+        println!(
+            "{:<16} {:>6} {:>8} {:>9} {:>7} {:>7} {:>22} {:>16}",
+            name,
+            a["runs"].to_string(),
+            a["reached"].to_string(),
+            a["collided"].to_string(),
+            a["missed"].to_string(),
+            a["errors"].to_string(),
+            format!(
+                "{}/{}/{}",
+                f(&a["min_clearance_m"]["p1"]),
+                f(&a["min_clearance_m"]["p5"]),
+                f(&a["min_clearance_m"]["p50"])
+            ),
+            format!("{}/{}", f(&a["path_length_m"]["p50"]), f(&a["path_length_m"]["p95"])),
+        );
+    }
+    let t = &v["timing"];
+    if let (Some(wall), Some(rate)) = (t["wall_time_s"].as_f64(), t["runs_per_s"].as_f64()) {
+        println!();
+        println!(
+            "Time: {wall:.1} s wall, {rate:.1} runs/s with {} jobs (solver {:.1} s of {:.1} s in runs)",
+            t["jobs"],
+            t["solver_s"].as_f64().unwrap_or(0.0),
+            t["run_wall_s"].as_f64().unwrap_or(0.0)
+        );
+    }
+    println!("Report: {}", dir.join("report.md").display());
+    println!("Summary: {}", dir.join("sweep.json").display());
 }
