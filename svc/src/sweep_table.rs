@@ -359,7 +359,28 @@ pub struct SweepSection {
     /// Reruns `--shrink` may spend on one failure.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shrink_runs: Option<u64>,
+    /// How run `i` picks its family.
+    #[serde(default, skip_serializing_if = "FamilyChoice::is_default")]
+    pub family_choice: FamilyChoice,
     pub families: Vec<Family>,
+}
+
+/// How a sweep's run picks its family.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FamilyChoice {
+    /// Drawn by weight (run `i`'s generator).
+    #[default]
+    Weighted,
+    /// Run `i` takes the `i mod F`-th of the `F` families of positive weight: every family gets
+    /// the same number of runs (within one), as a campaign over families needs.
+    InTurn,
+}
+
+impl FamilyChoice {
+    fn is_default(&self) -> bool {
+        *self == Self::Weighted
+    }
 }
 
 impl SweepSection {

@@ -11,7 +11,7 @@
 //! failure is written as, and what `--shrink` shrinks.
 
 use delay::{DelayLine, DelaysTable, Direction};
-use hilbench_svc::sweep_table::SweepSection;
+use hilbench_svc::sweep_table::{Family, FamilyChoice, SweepSection};
 use mav::Scenario;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -63,19 +63,26 @@ pub fn plan(sweep: &SweepSection, scenario: &Scenario, seed: u64, index: u64) ->
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rng.set_stream(index);
     let total = sweep.total_weight();
+    // Drawn in either case, so that the rest of run i's draws do not depend on the choice.
     let mut u = rng.random::<f64>() * total;
-    let family = sweep
-        .families
-        .iter()
-        .find(|f| {
-            if f.weight > 0.0 && u < f.weight {
-                return true;
-            }
-            u -= f.weight;
-            false
-        })
-        .or_else(|| sweep.families.iter().rev().find(|f| f.weight > 0.0))
-        .ok_or("no family has a positive weight")?;
+    let family = match sweep.family_choice {
+        FamilyChoice::Weighted => sweep
+            .families
+            .iter()
+            .find(|f| {
+                if f.weight > 0.0 && u < f.weight {
+                    return true;
+                }
+                u -= f.weight;
+                false
+            })
+            .or_else(|| sweep.families.iter().rev().find(|f| f.weight > 0.0)),
+        FamilyChoice::InTurn => {
+            let positive: Vec<&Family> = sweep.families.iter().filter(|f| f.weight > 0.0).collect();
+            usize::try_from(index % positive.len().max(1) as u64).ok().and_then(|k| positive.get(k).copied())
+        }
+    }
+    .ok_or("no family has a positive weight")?;
     // A `traces` family's file: drawn before the parameters (the two closures below cannot
     // share the generator).
     let trace_u = rng.random::<f64>();
@@ -151,5 +158,24 @@ mod tests {
         }
         // Clipped at max_delay_s: the heaviest Gamma draws hit the clip.
         assert!(plans.iter().any(|p| p.delays_s.contains(&0.33)));
+    }
+
+    #[test]
+    fn families_in_turn_give_run_i_the_family_i_mod_f_and_the_same_draws_otherwise() {
+        let text = "[[families]]\nkind = \"gamma\"\nshape = [1.0, 30.0]\nscale_s = [0.002, 0.04]\n\
+             [[families]]\nweight = 0\nkind = \"constant\"\ndelay_s = 0.1\n\
+             [[families]]\nweight = 3\nkind = \"uniform\"\nmin_s = 0.0\nmax_s = 0.33\n";
+        let weighted = sweep(text);
+        let in_turn = sweep(&format!("family_choice = \"in_turn\"\n{text}"));
+        let scenario = Scenario::paper_2();
+        for i in 0..40 {
+            let p = plan(&in_turn, &scenario, 7, i).expect("a plan");
+            // The zero-weight family never flies.
+            assert_eq!(p.family, if i % 2 == 0 { "gamma" } else { "uniform" }, "run {i}");
+            let w = plan(&weighted, &scenario, 7, i).expect("a plan");
+            if w.family == p.family {
+                assert_eq!(w, p, "run {i}: only the choice of family differs");
+            }
+        }
     }
 }
