@@ -1,12 +1,12 @@
 //! Load benchmarks of netem on loopback (recorded in BENCHMARKS.md). Run in release:
 //!
 //! ```text
-//! cargo run --release -p netem --example load -- throughput --messages 200000 [--rate-hz 20000]
-//! cargo run --release -p netem --example load -- commands --messages 20000
-//! cargo run --release -p netem --example load -- real-time --seconds 60 --rate-hz 1000 --delay-ms 20
+//! cargo run --release -p lab -- load throughput --messages 200000 [--rate-hz 20000]
+//! cargo run --release -p lab -- load commands --messages 20000
+//! cargo run --release -p lab -- load real-time --seconds 60 --rate-hz 1000 --delay-ms 20
 //! cargo build --release -p plant -p netem
-//! cargo run --release -p netem --example load -- idle-streams --streams 60
-//! cargo run --release -p netem --example load -- step-rate --clients 1,4,16
+//! cargo run --release -p lab -- load idle-streams --streams 60
+//! cargo run --release -p lab -- load step-rate --clients 1,4,16
 //! ```
 //!
 //! The first three put a minimal in-process Plant ("echo plant") behind an in-process netem:
@@ -23,7 +23,7 @@ use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use clap::{Parser, Subcommand};
+use clap::Subcommand;
 use delay::{DirectionProfile, Distribution};
 use hilbench_proto::pb;
 use hilbench_proto::pb::netem_control_client::NetemControlClient;
@@ -34,8 +34,8 @@ use tokio_stream::wrappers::ReceiverStream;
 use tonic::transport::{Channel, Server};
 use tonic::{Request, Response, Status};
 
-#[derive(Debug, Parser)]
-struct Args {
+#[derive(Debug, clap::Args)]
+pub struct Args {
     #[command(subcommand)]
     bench: Bench,
 }
@@ -118,8 +118,8 @@ enum Bench {
 /// Where the `plant` and `netem` release binaries are.
 #[derive(Debug, clap::Args)]
 struct Binaries {
-    /// Directory of the `plant` and `netem` binaries (default: the directory above this
-    /// example's, i.e. `target/release`).
+    /// Directory of the `plant` and `netem` binaries (default: this program's, i.e.
+    /// `target/release`).
     #[arg(long)]
     bin_dir: Option<std::path::PathBuf>,
     /// Extra flags for netem, e.g. `--netem-arg=--max-streams=128`.
@@ -320,10 +320,7 @@ impl Binaries {
             return Ok(d.clone());
         }
         let exe = std::env::current_exe()?;
-        exe.parent()
-            .and_then(|examples| examples.parent())
-            .map(std::path::Path::to_path_buf)
-            .context("no directory above this example's")
+        exe.parent().map(std::path::Path::to_path_buf).context("this program's path has no directory")
     }
 
     /// Starts `name` (a binary in [`Binaries::dir`]) on a free loopback port with `args`,
@@ -541,10 +538,12 @@ async fn step_rate(
     Ok(())
 }
 
-#[tokio::main]
-async fn main() -> anyhow::Result<()> {
-    let args = Args::parse();
-    match args.bench {
+pub fn run(args: Args) -> anyhow::Result<()> {
+    tokio::runtime::Builder::new_multi_thread().enable_all().build()?.block_on(bench(args.bench))
+}
+
+async fn bench(bench: Bench) -> anyhow::Result<()> {
+    match bench {
         Bench::Throughput { messages, rate_hz, stream_buffer } => {
             let rig = rig(0.0, messages, rate_hz / 1000, stream_buffer).await?;
             let mut client = PlantClient::new(rig.netem.clone());

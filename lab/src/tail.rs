@@ -1,11 +1,11 @@
-//! Tuning aid: the slowest solves of the paper closed loops, with their ALM statistics.
+//! The slowest solves of the paper closed loops, with their ALM statistics.
 use mpc::{ControllerMode, MpcSettings, accuracy};
 
-fn main() {
+pub fn run() -> anyhow::Result<()> {
     let s = MpcSettings::default();
     for name in mav::Scenario::BUILT_IN {
-        let scenario = mav::Scenario::by_name(name).expect("built in");
-        let solves = accuracy::loop_solves(&scenario, ControllerMode::Multistage, &s).expect("loop");
+        let scenario = mav::Scenario::by_name(name)?;
+        let solves = accuracy::loop_solves(&scenario, ControllerMode::Multistage, &s)?;
         for (k, ls) in solves.iter().enumerate() {
             let r = &ls.report;
             if r.iterations > 100 {
@@ -25,4 +25,5 @@ fn main() {
             }
         }
     }
+    Ok(())
 }

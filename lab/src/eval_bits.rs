@@ -4,7 +4,7 @@
 //! formulations, floors and dead-time compensation, then the path length, final position and
 //! every command of the paper closed loops. Run before and after a change and `diff` the output.
 //!
-//! `cargo run --release -p mpc --example eval_bits [evaluator|closed-loop]`
+//! `cargo run --release -p lab -- eval-bits [evaluator|closed-loop]`
 use mpc::{
     ClosedLoopSettings, ControllerMode, Evaluator, ObstacleFormulation, OcpDefinition, run_closed_loop,
 };
@@ -123,12 +123,25 @@ fn closed_loops() {
     }
 }
 
-fn main() {
-    let what = std::env::args().nth(1);
-    if what.as_deref() != Some("closed-loop") {
+/// What to fingerprint.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Part {
+    Evaluator,
+    ClosedLoop,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// One part alone (default both).
+    part: Option<Part>,
+}
+
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    if args.part != Some(Part::ClosedLoop) {
         evaluator_points();
     }
-    if what.as_deref() != Some("evaluator") {
+    if args.part != Some(Part::Evaluator) {
         closed_loops();
     }
+    Ok(())
 }

@@ -1,4 +1,4 @@
-//! Tuning aid: what one PANOC iteration costs in the multi-stage paper loops, for the solves
+//! What one PANOC iteration costs in the multi-stage paper loops, for the solves
 //! that stop at the iteration budget and for the others. First the loops' own solves (OpEn's
 //! timer), then the same instances solved again in order on one `Mpc` (multipliers and penalty
 //! carried over), with the evaluator's forward and adjoint passes per iteration
@@ -16,15 +16,15 @@ struct Row {
     open_us: f64,
 }
 
-fn main() {
+pub fn run() -> anyhow::Result<()> {
     let s = MpcSettings::default();
     let mode = ControllerMode::Multistage;
     let (mut in_loop, mut replayed) = (Vec::new(), Vec::new());
     for name in mav::Scenario::BUILT_IN {
-        let scenario = mav::Scenario::by_name(name).expect("built in");
+        let scenario = mav::Scenario::by_name(name)?;
         let def = OcpDefinition::from_scenario(&scenario, mode, s.obstacle_margin_m, s.formulation);
-        let solves = accuracy::loop_solves(&scenario, mode, &s).expect("loop");
-        let mut mpc = Mpc::new(def, s).expect("valid");
+        let solves = accuracy::loop_solves(&scenario, mode, &s)?;
+        let mut mpc = Mpc::new(def, s)?;
         for ls in &solves[1..] {
             let r = &ls.report;
             let open_us = r.solve_time.as_secs_f64() * 1e6;
@@ -38,9 +38,9 @@ fn main() {
                 open_us,
             });
             let i = &ls.instance;
-            mpc.set_warm_start(&i.warm_start).expect("valid");
+            mpc.set_warm_start(&i.warm_start)?;
             let t = std::time::Instant::now();
-            let r = mpc.solve(&i.x0, &i.u_prev, &i.weights, &SolveBudget::default()).expect("valid");
+            let r = mpc.solve(&i.x0, &i.u_prev, &i.weights, &SolveBudget::default())?;
             let wall_us = t.elapsed().as_secs_f64() * 1e6;
             replayed.push(Row {
                 at_budget: r.status == SolveStatus::IterationLimit,
@@ -75,4 +75,5 @@ fn main() {
             );
         }
     }
+    Ok(())
 }

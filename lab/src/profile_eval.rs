@@ -1,26 +1,27 @@
 //! Profiling target: the `cost_and_gradient` bench's loop (paper-2, DistanceAlm, c = 1e3, the
-//! forward pass cached every other call), for callgrind's instruction counts.
-//!
-//! `profile_eval [nmpc|multistage] [iterations] [scenarios]`; `scenarios` replaces the
-//! sampling times by that many (0.05 s, 0.075 s, ...).
+//! forward pass cached every other call, `mpc::fixtures::eval_case`), for callgrind's
+//! instruction counts.
+use mpc::fixtures::eval_case;
 use mpc::{ControllerMode, OcpDefinition};
 use std::hint::black_box;
 
-#[path = "../benches/common/eval_case.rs"]
-mod eval_case;
-use eval_case::eval_case;
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// `nmpc` or `multistage`.
+    #[arg(default_value = "multistage", value_parser = crate::mode)]
+    mode: ControllerMode,
+    /// Cost and gradient evaluations.
+    #[arg(default_value_t = 10_000)]
+    iterations: usize,
+    /// Replace the sampling times by this many scenarios (0.05 s, 0.075 s, ...).
+    scenarios: Option<usize>,
+}
 
-fn main() {
-    let mut args = std::env::args().skip(1);
-    let mode = match args.next().as_deref() {
-        Some("nmpc") => ControllerMode::Nmpc,
-        _ => ControllerMode::Multistage,
-    };
-    let iterations: usize = args.next().map_or(10_000, |s| s.parse().expect("iterations"));
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let (mode, iterations) = (args.mode, args.iterations);
     let scenario = mav::Scenario::paper_2();
     let mut def = OcpDefinition::from_scenario(&scenario, mode, 0.1, mpc::ObstacleFormulation::DistanceAlm);
-    if let Some(m) = args.next() {
-        let m: usize = m.parse().expect("scenarios");
+    if let Some(m) = args.scenarios {
         def.sampling_times_s = (0..m).map(|i| 0.05 + 0.025 * i as f64).collect();
     }
     let (mut ev, mut z, y, mut grad) = eval_case(&def);
@@ -38,4 +39,5 @@ fn main() {
         "{:.3} us per cost and gradient ({acc})",
         start.elapsed().as_secs_f64() * 1e6 / iterations as f64
     );
+    Ok(())
 }

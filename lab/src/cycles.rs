@@ -1,22 +1,25 @@
-//! Per-cycle solver statistics of one paper run and what the safety layer chose (development
-//! aid). Usage: cycles SCENARIO MODE; solver settings from the `MPC_*` environment variables
-//! of `benches/common/mpc_env.rs`.
+//! Per-cycle solver statistics of one in-process paper run and what the safety layer chose.
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
 
-#[path = "../benches/common/mpc_env.rs"]
-mod mpc_env;
+use crate::fmt::fixed;
+use crate::settings::MpcFlags;
 
-#[path = "../benches/common/fmt.rs"]
-mod fmt;
-use fmt::fixed;
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// A built-in scenario (`paper-1`, `paper-2`, `paper-3`).
+    #[arg(value_parser = crate::scenario)]
+    scenario: mav::Scenario,
+    /// `nmpc` or `multistage`.
+    #[arg(value_parser = crate::mode)]
+    mode: ControllerMode,
+    #[command(flatten)]
+    mpc: MpcFlags,
+}
 
-fn main() {
-    let args: Vec<String> = std::env::args().collect();
-    let scenario = mav::Scenario::by_name(&args[1]).expect("scenario");
-    let mode = ControllerMode::parse(&args[2]).expect("mode");
-    let mut settings = ClosedLoopSettings::paper(mode);
-    settings.mpc = mpc_env::settings_from_env();
-    let (s, records) = run_closed_loop(&scenario, &settings).expect("run");
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let mut settings = ClosedLoopSettings::paper(args.mode);
+    settings.mpc = args.mpc.settings();
+    let (s, records) = run_closed_loop(&args.scenario, &settings)?;
     for r in &records {
         println!(
             "{:3} t={:6.2} p=[{}] v=[{}] u=[{:6.2} {:6.3} {:6.3}] d={:.3} {:?} it={} outer={} c={:.0e} viol={:.2e} clr={:.3} ms={:.2} cost={:.1} w={:.2?} {}",
@@ -41,4 +44,5 @@ fn main() {
         );
     }
     println!("{s:?}");
+    Ok(())
 }

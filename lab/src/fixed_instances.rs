@@ -1,28 +1,32 @@
-//! Tuning aid: solver settings compared on the *same* problems. The instances (state, last
-//! input, weights, warm start) are those of the in-process paper closed loops with the default
-//! settings; each configuration solves them in order on one `Mpc` (so multipliers and penalty
-//! carry over as in the controller). Unlike `accuracy`, a configuration cannot change which
+//! Solver settings compared on the *same* problems. The instances (state, last input,
+//! weights, warm start) are those of the in-process paper closed loops with the default
+//! settings; the flags' settings solve them in order on one `Mpc` (so multipliers and penalty
+//! carry over as in the controller). Unlike `accuracy`, the settings cannot change which
 //! states are visited, so iteration and pass counts compare like with like.
-//! Usage: fixed_instances; settings from the same environment variables as `accuracy`.
 use mpc::{ControllerMode, Mpc, MpcSettings, OcpDefinition, SolveBudget, SolveStatus, accuracy};
 
-#[path = "../benches/common/mpc_env.rs"]
-mod mpc_env;
+use crate::settings::MpcFlags;
 
-fn main() {
-    let s = mpc_env::settings_from_env();
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    mpc: MpcFlags,
+}
+
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let s = args.mpc.settings();
     for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
         let (mut iters, mut limits, mut cost, mut times) = (Vec::new(), 0, 0.0, Vec::new());
         let mut passes = mpc::PassCounts::default();
         for name in mav::Scenario::BUILT_IN {
-            let scenario = mav::Scenario::by_name(name).expect("built in");
+            let scenario = mav::Scenario::by_name(name)?;
             let def = OcpDefinition::from_scenario(&scenario, mode, s.obstacle_margin_m, s.formulation);
-            let solves = accuracy::loop_solves(&scenario, mode, &MpcSettings::default()).expect("loop");
-            let mut mpc = Mpc::new(def, s).expect("valid");
+            let solves = accuracy::loop_solves(&scenario, mode, &MpcSettings::default())?;
+            let mut mpc = Mpc::new(def, s)?;
             for ls in &solves[1..] {
                 let i = &ls.instance;
-                mpc.set_warm_start(&i.warm_start).expect("valid");
-                let r = mpc.solve(&i.x0, &i.u_prev, &i.weights, &SolveBudget::default()).expect("valid");
+                mpc.set_warm_start(&i.warm_start)?;
+                let r = mpc.solve(&i.x0, &i.u_prev, &i.weights, &SolveBudget::default())?;
                 iters.push(r.iterations as f64);
                 passes.forward += r.passes.forward;
                 passes.adjoint += r.passes.adjoint;
@@ -47,4 +51,5 @@ fn main() {
             passes.adjoint,
         );
     }
+    Ok(())
 }

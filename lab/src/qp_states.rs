@@ -1,16 +1,27 @@
 //! The QP fallback on the problems of the paper closed loops (multi-stage, M = 5, N = 40):
 //! for every cycle of paper-1/2/3, the QP the safety layer would solve there (the cycle's state,
 //! the previous command, the cycle's weights, the previous plan shifted as nominal), timed as
-//! build + clarabel solve. Prints the distribution per scenario. Argument: repetitions per
-//! problem (the fastest counts; default 3). Each problem is also solved with elastic rows
-//! (`QpSettings::elastic_penalty_per_m`) for comparison (not timed); `QP_SHOW=1` lists the
-//! problems where both were solved with elastic rows present. QP settings from the environment
-//! (`benches/common/qp_env.rs`); `QP_SLOW=1` lists the problems over 3 ms.
+//! build + clarabel solve. Prints the distribution per scenario. Each problem is also solved
+//! with elastic rows (`QpSettings::elastic_penalty_per_m`) for comparison (not timed).
 use mpc::{ControllerMode, MpcSettings, OcpDefinition, QpBudget, QpFallback, QpSettings, QpStatus, accuracy};
 use std::time::Instant;
 
-#[path = "../benches/common/qp_env.rs"]
-mod qp_env;
+use crate::settings::QpFlags;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Repetitions per problem (the fastest counts).
+    #[arg(default_value_t = 3, value_parser = clap::value_parser!(u64).range(1..))]
+    repetitions: u64,
+    /// List the problems where both were solved with elastic rows present.
+    #[arg(long, env = "QP_SHOW", value_parser = clap::builder::BoolishValueParser::new())]
+    show: bool,
+    /// List the problems over 3 ms.
+    #[arg(long, env = "QP_SLOW", value_parser = clap::builder::BoolishValueParser::new())]
+    slow: bool,
+    #[command(flatten)]
+    qp: QpFlags,
+}
 
 #[derive(Default)]
 struct Tally {
@@ -27,24 +38,22 @@ impl Tally {
     }
 }
 
-fn main() {
-    let reps: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(3).max(1);
-    let show = std::env::var("QP_SHOW").is_ok();
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let (reps, show) = (args.repetitions, args.show);
     let mut all = Vec::new();
-    let base = qp_env::qp_settings_from_env();
+    let base = args.qp.settings();
     let mpc_settings = MpcSettings::default();
     for scenario in [mav::Scenario::paper_1(), mav::Scenario::paper_2(), mav::Scenario::paper_3()] {
-        let loop_solves =
-            accuracy::loop_solves(&scenario, ControllerMode::Multistage, &mpc_settings).expect("run");
+        let loop_solves = accuracy::loop_solves(&scenario, ControllerMode::Multistage, &mpc_settings)?;
         let def = OcpDefinition::from_scenario(
             &scenario,
             ControllerMode::Multistage,
             mpc_settings.obstacle_margin_m,
             mpc_settings.formulation,
         );
-        let mut qp = QpFallback::new(&def, base).expect("valid");
+        let mut qp = QpFallback::new(&def, base)?;
         let elastic = QpSettings { elastic_penalty_per_m: Some(1e5), ..base };
-        let mut qp_elastic = QpFallback::new(&def, elastic).expect("valid");
+        let mut qp_elastic = QpFallback::new(&def, elastic)?;
         let mut times = Vec::new();
         let (mut iterations, mut solves, mut rows) = (0u64, 0u64, 0u64);
         let (mut hard, mut soft, mut same_worst) = (Tally::default(), Tally::default(), 0.0f64);
@@ -55,14 +64,14 @@ fn main() {
             let mut last = None;
             for _ in 0..reps {
                 let t = Instant::now();
-                let r = qp.solve(x0, u_prev, w, Some(nominal), &QpBudget::default()).expect("valid");
+                let r = qp.solve(x0, u_prev, w, Some(nominal), &QpBudget::default())?;
                 best = best.min(t.elapsed().as_secs_f64() * 1e3);
                 last = Some(r);
             }
             times.push(best);
             // Deterministic: every repetition reports the same (`reps` is at least 1).
             let Some(r) = last else { unreachable!("at least one repetition") };
-            if std::env::var("QP_SLOW").is_ok() && best > 3.0 {
+            if args.slow && best > 3.0 {
                 println!(
                     "    slow: cycle {} {best:.2} ms, {:?}, iterations {}, clarabel solves {}, rows {}, half-planes {}",
                     cycle, r.status, r.iterations, r.clarabel_solves, r.num_clarabel_rows, r.num_half_planes
@@ -72,7 +81,7 @@ fn main() {
             solves += r.clarabel_solves as u64;
             rows += r.num_clarabel_rows as u64;
             hard.add(&r);
-            let re = qp_elastic.solve(x0, u_prev, w, Some(nominal), &QpBudget::default()).expect("valid");
+            let re = qp_elastic.solve(x0, u_prev, w, Some(nominal), &QpBudget::default())?;
             soft.add(&re);
             if r.status == QpStatus::Solved && re.status == QpStatus::Solved && re.num_elastic_rows > 0 {
                 let (a, b) = (qp.solution().expect("solved"), qp_elastic.solution().expect("solved"));
@@ -103,6 +112,7 @@ fn main() {
         all.extend(times);
     }
     print_distribution("all", &mut all);
+    Ok(())
 }
 
 fn print_distribution(name: &str, t: &mut [f64]) {

@@ -1,27 +1,36 @@
-//! Runs the three paper scenarios in process with both controllers and prints a summary line
-//! per run (development aid; `hilbench reproduce` is the product). Solver settings from the
-//! `MPC_*` environment variables of `benches/common/mpc_env.rs`; `MPC_NO_SAFETY=1` flies PANOC's
-//! plans alone (no safety layer).
+//! Runs the paper scenarios in process with both controllers and prints a summary line per run
+//! (`hilbench reproduce` is the product; this is for trying solver settings).
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
 
-#[path = "../benches/common/mpc_env.rs"]
-mod mpc_env;
+use crate::settings::MpcFlags;
 
-fn main() {
-    let only: Vec<String> = std::env::args().skip(1).collect();
-    for name in mav::Scenario::BUILT_IN {
-        if !only.is_empty() && !only.iter().any(|o| o == name) {
-            continue;
-        }
-        let scenario = mav::Scenario::by_name(name).expect("built in");
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Built-in scenarios to run (default all three).
+    #[arg(value_parser = crate::scenario)]
+    scenarios: Vec<mav::Scenario>,
+    /// Fly PANOC's plans alone (no safety layer).
+    #[arg(long, env = "MPC_NO_SAFETY", value_parser = clap::builder::BoolishValueParser::new())]
+    no_safety: bool,
+    #[command(flatten)]
+    mpc: MpcFlags,
+}
+
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let scenarios = match &args.scenarios[..] {
+        [] => mav::Scenario::BUILT_IN.iter().map(|n| mav::Scenario::by_name(n)).collect::<Result<_, _>>()?,
+        chosen => chosen.to_vec(),
+    };
+    for scenario in &scenarios {
+        let name = &scenario.name;
         for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
             let t = std::time::Instant::now();
             let mut settings = ClosedLoopSettings::paper(mode);
-            settings.mpc = mpc_env::settings_from_env();
-            if std::env::var("MPC_NO_SAFETY").is_ok_and(|v| v == "1") {
+            settings.mpc = args.mpc.settings();
+            if args.no_safety {
                 settings.safety = None;
             }
-            match run_closed_loop(&scenario, &settings) {
+            match run_closed_loop(scenario, &settings) {
                 Ok((s, _)) => println!(
                     "{name} {:10} reached={} t={:?} collided={} path={:.2} clear={:.3} cycles={} solve ms mean={:.3} med={:.3} p95={:.3} max={:.3} it_med={} limits={} fb={} end={:?} wall={:.1}s\n   collisions={:?}",
                     s.controller,
@@ -46,4 +55,5 @@ fn main() {
             }
         }
     }
+    Ok(())
 }

@@ -1,27 +1,32 @@
-//! Diagnosis of one delay trace of the survey (`delay_robustness`): per cycle, the plant's
+//! Diagnosis of one delay trace of the survey (`delay-robustness`): per cycle, the plant's
 //! smallest clearance between this cycle's start and the next (and which cylinder), what the
 //! safety layer decided, and how far the plant ended from each scenario's prediction of the
-//! selected plan. Same environment as the survey (COMP, FLOOR, MARGIN, NOSAFETY, FAILSAFE,
-//! WIDTH), plus TRACE=kind:seed.
+//! selected plan. The survey's set-up and flags, plus the trace.
 use mav::{CommandMeta, Input, PlantSim, SimSettings};
 use mpc::{DelaySource, run_closed_loop};
 
-#[path = "../benches/common/delay_traces.rs"]
-mod traces;
+use crate::settings::SurveyFlags;
+use crate::traces::{self, TraceId};
 
-fn main() {
-    let spec = std::env::var("TRACE").unwrap_or_else(|_| "uniform:29".into());
-    let (kind, seed) = spec.split_once(':').expect("TRACE=kind:seed");
-    let seed: u64 = seed.parse().expect("seed");
-    let trace = traces::trace(kind, seed, traces::width_from_env());
-    let (scenario, mut settings) = traces::setup_from_env();
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// The survey's trace, `kind:seed` (`uniform`, `gamma` or `bursts`).
+    #[arg(long, env = "TRACE", default_value = "uniform:29")]
+    trace: TraceId,
+    #[command(flatten)]
+    survey: SurveyFlags,
+}
+
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let trace = traces::trace(args.trace.kind, args.trace.seed, args.survey.width_s);
+    let (scenario, mut settings) = args.survey.setup();
     settings.delays = Some(DelaySource::Trace(trace));
     settings.record_predictions = true;
-    let (summary, records) = run_closed_loop(&scenario, &settings).expect("run");
+    let (summary, records) = run_closed_loop(&scenario, &settings)?;
     println!("{summary:#?}");
 
     // Replay the plant with the recorded commands and delays, watching the clearance.
-    let mut sim = PlantSim::new(&scenario, SimSettings::default()).expect("sim");
+    let mut sim = PlantSim::new(&scenario, SimSettings::default())?;
     let dts = &scenario.sampling_times_s;
     for (k, r) in records.iter().enumerate() {
         let d_ns = mav::s_to_ns(r.delay_s).expect("delay");
@@ -80,4 +85,5 @@ fn main() {
             miss.join(" ")
         );
     }
+    Ok(())
 }

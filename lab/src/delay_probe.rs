@@ -1,32 +1,40 @@
-//! Diagnosis aid: paper-2 under a constant round-trip delay, with and without the safety layer;
-//! prints where the run went and what the layer decided.
-use mpc::{ClosedLoopSettings, ControllerMode, DelaySource, run_closed_loop};
+//! paper-2 under a constant round-trip delay or a trace, both controllers, with and without
+//! the safety layer: where each run went and what the layer decided.
+use anyhow::Context;
+use mpc::{ControllerMode, DelaySource, run_closed_loop};
 
-#[path = "../benches/common/fmt.rs"]
-mod fmt;
-use fmt::fixed;
+use crate::fmt::fixed;
+use crate::settings::ScenarioFlags;
 
-fn main() {
-    // A constant delay in seconds, or a trace file (one delay per line).
-    let arg = std::env::args().nth(1).unwrap_or_else(|| "0.33".into());
-    let trace = match arg.parse::<f64>() {
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// A constant delay in seconds, or a trace file (one delay per line).
+    #[arg(default_value = "0.33")]
+    delay: String,
+    /// Print every cycle.
+    #[arg(long, env = "VERBOSE", value_parser = clap::builder::BoolishValueParser::new())]
+    verbose: bool,
+    #[command(flatten)]
+    scenario: ScenarioFlags,
+}
+
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let trace = match args.delay.parse::<f64>() {
         Ok(d) => vec![d],
-        Err(_) => delay::parse_trace(&std::fs::read_to_string(&arg).expect("trace file")).expect("trace"),
+        Err(_) => {
+            let text = std::fs::read_to_string(&args.delay)
+                .with_context(|| format!("cannot read {}", args.delay))?;
+            delay::parse_trace(&text).with_context(|| args.delay.clone())?
+        }
     };
-    let mut scenario = mav::Scenario::paper_2();
-    scenario.delay_compensation = std::env::var("COMP").is_ok();
-    scenario.min_altitude_m = std::env::var("FLOOR").ok().and_then(|z| z.parse().ok());
     for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
         for safety in [false, true] {
-            let mut settings = ClosedLoopSettings::paper(mode);
-            if let Some(m) = std::env::var("MARGIN").ok().and_then(|m| m.parse().ok()) {
-                settings.mpc.obstacle_margin_m = m;
-            }
+            let (scenario, mut settings) = args.scenario.setup(mode);
             settings.delays = Some(DelaySource::Trace(trace.clone()));
             if !safety {
                 settings.safety = None;
             }
-            let (s, records) = run_closed_loop(&scenario, &settings).expect("run");
+            let (s, records) = run_closed_loop(&scenario, &settings)?;
             println!(
                 "{} safety={safety}: reached={} collided={} clearance={:.3} path={:.2} cycles={} fallbacks={} decisions={:?}",
                 mode.name(),
@@ -38,7 +46,7 @@ fn main() {
                 s.fallbacks,
                 s.decisions
             );
-            if std::env::var("VERBOSE").is_ok() {
+            if args.verbose {
                 for r in &records {
                     println!(
                         "  {:3} t={:5.2} p=[{}] v=[{}] w={:?} pred_clear={:.3} {}",
@@ -54,4 +62,5 @@ fn main() {
             }
         }
     }
+    Ok(())
 }

@@ -1,5 +1,4 @@
-//! Fixed-width printing of the records' vectors for the development aids
-//! (`examples/cycles.rs`, `examples/delay_probe.rs`).
+//! Fixed-width printing of the records' vectors (`cycles`, `delay-probe`).
 
 /// `v`'s values with two decimals, each `width` wide, joined by `sep`.
 pub fn fixed(v: &[f64], width: usize, sep: &str) -> String {

@@ -1,10 +1,17 @@
-//! Profiling target for the fail-safe check: the envelopes of `benches/cycle.rs` (lockstep, and
-//! real time with three commands in flight), repeated, for instruction counts under callgrind.
-//! Argument: repetitions (default 200).
+//! Profiling target for the fail-safe check: the envelopes of `mpc/benches/cycle.rs`
+//! (lockstep, and real time with three commands in flight), repeated, for instruction counts
+//! under callgrind.
 use mpc::{BrakingCheck, FailSafe, InFlight};
 
-fn main() {
-    let reps: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(200);
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Repetitions.
+    #[arg(default_value_t = 200)]
+    repetitions: usize,
+}
+
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let reps = args.repetitions;
     let s = mav::Scenario::paper_2();
     let fs = FailSafe::new(BrakingCheck::default(), s.model, s.bounds, s.obstacles.clone(), 1.0);
     let x0 = [3.1, 1.2, 0.6, 0.1, 1.5, 0.2, 0.05, -0.02];
@@ -18,4 +25,5 @@ fn main() {
             .min(fs.envelope_real_time(std::hint::black_box(&x0), &u_prev, &in_flight, &u).min_clearance_m);
     }
     println!("{reps} x 2 envelopes, worst clearance {worst:.4} m");
+    Ok(())
 }

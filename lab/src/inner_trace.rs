@@ -1,6 +1,5 @@
-//! Tuning aid: PANOC's progress on one inner (fixed penalty, zero multipliers) problem of a loop
-//! solve. Usage: inner_trace SCENARIO MODE CYCLE PENALTY [TOL] [MEM] (default: the loop's own
-//! PANOC tolerance and L-BFGS memory for the mode)
+//! PANOC's progress on one inner (fixed penalty, zero multipliers) problem of a loop solve,
+//! against the iteration budget.
 use std::cell::RefCell;
 
 use mpc::{ControllerMode, Evaluator, MpcSettings, OcpDefinition, accuracy};
@@ -8,20 +7,35 @@ use optimization_engine::constraints::Rectangle;
 use optimization_engine::panoc::{PANOCCache, PANOCOptimizer};
 use optimization_engine::{Problem, SolverError};
 
-fn main() {
-    let args: Vec<String> = std::env::args().collect();
-    let scenario = mav::Scenario::by_name(&args[1]).expect("scenario");
-    let mode = ControllerMode::parse(&args[2]).expect("mode");
-    let k: usize = args[3].parse().expect("cycle");
-    let c: f64 = args[4].parse().expect("penalty");
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// A built-in scenario (`paper-1`, `paper-2`, `paper-3`).
+    #[arg(value_parser = crate::scenario)]
+    scenario: mav::Scenario,
+    /// `nmpc` or `multistage`.
+    #[arg(value_parser = crate::mode)]
+    mode: ControllerMode,
+    /// The loop's cycle.
+    cycle: usize,
+    /// The penalty parameter.
+    penalty: f64,
+    /// PANOC's tolerance (default: the loop's own for the mode).
+    tolerance: Option<f64>,
+    /// L-BFGS memory (default: the loop's own for the mode).
+    lbfgs_memory: Option<usize>,
+}
+
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let (scenario, mode, k, c) = (&args.scenario, args.mode, args.cycle, args.penalty);
     let s = MpcSettings::default();
-    let solves = accuracy::loop_solves(&scenario, mode, &s).expect("loop");
-    let def = OcpDefinition::from_scenario(&scenario, mode, s.obstacle_margin_m, s.formulation);
+    let solves = accuracy::loop_solves(scenario, mode, &s)?;
+    let def = OcpDefinition::from_scenario(scenario, mode, s.obstacle_margin_m, s.formulation);
     // By default the tolerance and memory the loop's PANOC used for this kind of problem.
     let (default_tol, _, default_mem) = s.panoc_for(def.num_scenarios());
-    let tol: f64 = args.get(5).and_then(|a| a.parse().ok()).unwrap_or(default_tol);
-    let mem: usize = args.get(6).and_then(|a| a.parse().ok()).unwrap_or(default_mem);
-    let inst = &solves[k].instance;
+    let tol = args.tolerance.unwrap_or(default_tol);
+    let mem = args.lbfgs_memory.unwrap_or(default_mem);
+    let inst =
+        &solves.get(k).ok_or_else(|| anyhow::anyhow!("cycle {k}: the loop has {}", solves.len()))?.instance;
     let ev = RefCell::new(Evaluator::new(&def));
     let n = def.num_variables();
     let (mut lo, mut hi, mut z0) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
@@ -44,7 +58,10 @@ fn main() {
         let rect = Rectangle::new(Some(&lo), Some(&hi));
         let problem = Problem::new(&rect, grad, cost);
         let mut z = z0.clone();
-        let st = PANOCOptimizer::new(problem, &mut cache).with_max_iter(iters).solve(&mut z).expect("solve");
+        let st = PANOCOptimizer::new(problem, &mut cache)
+            .with_max_iter(iters)
+            .solve(&mut z)
+            .map_err(|e| anyhow::anyhow!("PANOC: {e:?}"))?;
         let obj = ev.borrow_mut().objective(&z);
         let psi = ev.borrow_mut().cost(&z, c, &[]);
         let viol: f64 =
@@ -59,4 +76,5 @@ fn main() {
             break;
         }
     }
+    Ok(())
 }

@@ -1,31 +1,42 @@
 //! Robustness survey: paper-2 with the multi-stage controller under many random delay traces
-//! (uniform, Gamma, bursts in [0, 0.33] s), counting collisions and misses. Settings from the
-//! environment: MARGIN (m), FLOOR (m), COMP (dead-time compensation), NOSAFETY, FAILSAFE (with
-//! DMAX, SAMPLES), WIDTH (of the uniform jitter, s), CASES.
+//! (uniform, Gamma, bursts in [0, 0.33] s), counting collisions and misses.
 use mpc::{DelaySource, run_closed_loop};
 
-#[path = "../benches/common/delay_traces.rs"]
-mod traces;
+use crate::settings::SurveyFlags;
+use crate::traces::{self, TraceId};
 
-fn main() {
-    let cases: u64 = std::env::var("CASES").ok().and_then(|c| c.parse().ok()).unwrap_or(20);
-    let (scenario, mut settings) = traces::setup_from_env();
-    let width = traces::width_from_env();
-    for kind in ["uniform", "gamma", "bursts"] {
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Traces per kind.
+    #[arg(long, env = "CASES", default_value_t = 20)]
+    cases: u64,
+    /// Run this trace alone (`kind:seed`) and print its cycles.
+    #[arg(long, env = "ONLY")]
+    only: Option<TraceId>,
+    /// Also print, per run, how many cycles no candidate passed the checks in.
+    #[arg(long, env = "VERBOSE", value_parser = clap::builder::BoolishValueParser::new())]
+    verbose: bool,
+    #[command(flatten)]
+    survey: SurveyFlags,
+}
+
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let (scenario, mut settings) = args.survey.setup();
+    let width = args.survey.width_s;
+    for kind in traces::KINDS {
         let (mut collided, mut missed, mut fallbacks) = (0, 0, 0);
         // Cycles where no candidate passed the checks; worst clearance; sums for the means.
         let (mut unverified, mut worst, mut runs) = (0, f64::INFINITY, 0);
         let (mut time_s, mut path_m, mut reached_runs) = (0.0, 0.0, 0);
-        for seed in 0..cases {
-            let trace = traces::trace(kind, seed, width);
-            // ONLY=kind:seed runs one trace and prints its cycles (what the controller decided).
-            let only = std::env::var("ONLY").ok();
-            if only.as_ref().is_some_and(|o| *o != format!("{kind}:{seed}")) {
+        for seed in 0..args.cases {
+            // `--only kind:seed` runs one trace and prints its cycles (what the controller decided).
+            if args.only.is_some_and(|o| o != TraceId { kind, seed }) {
                 continue;
             }
+            let trace = traces::trace(kind, seed, width);
             settings.delays = Some(DelaySource::Trace(trace));
-            let (s, records) = run_closed_loop(&scenario, &settings).expect("run");
-            if only.is_some() {
+            let (s, records) = run_closed_loop(&scenario, &settings)?;
+            if args.only.is_some() {
                 for r in &records {
                     let p = &r.record.state;
                     let reason = r.selection.as_ref().map(|s| s.reason()).unwrap_or_default();
@@ -52,7 +63,7 @@ fn main() {
             fallbacks += s.fallbacks;
             let run_unverified =
                 records.iter().filter(|r| r.selection.is_some_and(|s| !s.verified_safe)).count();
-            if run_unverified > 0 && std::env::var("VERBOSE").is_ok() {
+            if run_unverified > 0 && args.verbose {
                 println!("  {kind} seed {seed}: {run_unverified} unverified cycles");
             }
             unverified += run_unverified;
@@ -75,6 +86,7 @@ fn main() {
             path_m / reached_runs
         );
     }
+    Ok(())
 }
 
 fn trace_mean(d: Option<&DelaySource>) -> f64 {

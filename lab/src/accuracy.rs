@@ -1,28 +1,35 @@
-//! Tuning aid: the closed loop's own warm-started solves against the careful reference.
-//! Usage: accuracy [stride]; settings from env MPC_TOL, MPC_AKKT, MPC_NMPC_TOL, MPC_NMPC_AKKT,
-//! MPC_NMPC_MEM, MPC_MEM, MPC_CTOL, MPC_C0, MPC_CMAX, MPC_OUTER, MPC_INNER, MPC_PSLACK (< 0: no
-//! penalty preconditioner), MPC_PER_OUTER (0: no cap), MPC_YMAX, MPC_ELAPSED; MPC_MODE (nmpc or multistage: that mode
-//! alone).
+//! The closed loops' own warm-started solves (paper-1/2/3) against the careful reference
+//! (`mpc::accuracy`): the share within 1 % of its cost, solve times, iterations, passes.
 use mpc::{ControllerMode, OcpDefinition, accuracy, record::percentile};
 
-#[path = "../benches/common/mpc_env.rs"]
-mod mpc_env;
+use crate::settings::MpcFlags;
 
-fn main() {
-    let stride: usize = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(5);
-    let s = mpc_env::settings_from_env();
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Compare every `stride`-th solve with the reference (1000 or more: none).
+    #[arg(default_value_t = 5)]
+    stride: usize,
+    /// That controller alone (`nmpc` or `multistage`; default both).
+    #[arg(long, env = "MPC_MODE", value_parser = crate::mode)]
+    mode: Option<ControllerMode>,
+    #[command(flatten)]
+    mpc: MpcFlags,
+}
+
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let stride = args.stride.max(1);
+    let s = args.mpc.settings();
     println!("{s:?}");
-    let only = std::env::var("MPC_MODE").ok().and_then(|m| ControllerMode::parse(&m));
     for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
-        if only.is_some_and(|m| m != mode) {
+        if args.mode.is_some_and(|m| m != mode) {
             continue;
         }
         let (mut times, mut iters, mut gaps, mut unsafe_count) = (Vec::new(), Vec::new(), Vec::new(), 0);
         let (mut passes, mut limits, mut outers) = ((0u64, 0u64), 0, 0);
         for name in mav::Scenario::BUILT_IN {
-            let scenario = mav::Scenario::by_name(name).expect("built in");
+            let scenario = mav::Scenario::by_name(name)?;
             let def = OcpDefinition::from_scenario(&scenario, mode, s.obstacle_margin_m, s.formulation);
-            let solves = accuracy::loop_solves(&scenario, mode, &s).expect("loop");
+            let solves = accuracy::loop_solves(&scenario, mode, &s)?;
             passes.0 += solves.iter().map(|l| l.report.passes.forward).sum::<u64>();
             passes.1 += solves.iter().map(|l| l.report.passes.adjoint).sum::<u64>();
             limits += solves.iter().filter(|l| l.report.status == mpc::SolveStatus::IterationLimit).count();
@@ -34,7 +41,7 @@ fn main() {
                     unsafe_count += 1;
                 }
                 if k % stride == 0 && stride < 1000 {
-                    let gap = accuracy::loop_solve_gap(&def, &s, ls).expect("reference");
+                    let gap = accuracy::loop_solve_gap(&def, &s, ls)?;
                     gaps.push(gap);
                     if gap > 0.01 {
                         println!(
@@ -72,4 +79,5 @@ fn main() {
             passes.1 as f64 / solves
         );
     }
+    Ok(())
 }
