@@ -1,4 +1,4 @@
-//! Delay statistics of `SPEC.md`: a fixed-size window of observed round-trip delays, a Gamma
+//! Delay statistics of `docs/spec.md`: a fixed-size window of observed round-trip delays, a Gamma
 //! distribution fitted to it by moments, and the scenario weights from its CDF.
 
 use statrs::distribution::{ContinuousCDF, Gamma};

@@ -20,7 +20,7 @@
 //! least 4 cm of clearance).
 //! The model is the plant's (the same dynamics, RK4), so model error is not the gap.
 //!
-//! Two timings. [`FailSafe::envelope`] is the bench's lockstep protocol (SPEC.md): the next
+//! Two timings. [`FailSafe::envelope`] is the bench's lockstep protocol (`docs/spec.md`): the next
 //! sample is taken when this cycle's command has landed, `max(T, d)` later, so one command is
 //! in flight at a time. [`FailSafe::envelope_real_time`] is real time: the controller samples
 //! every `T` whatever the delay, so commands sent before this cycle's may still be in flight
