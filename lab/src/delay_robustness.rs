@@ -17,7 +17,7 @@ pub struct Args {
     #[arg(long, env = "VERBOSE", value_parser = clap::builder::BoolishValueParser::new())]
     verbose: bool,
     #[command(flatten)]
-    survey: SurveyFlags,
+    pub(crate) survey: SurveyFlags,
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {

@@ -10,7 +10,7 @@ use crate::settings::MpcFlags;
 #[derive(Debug, clap::Args)]
 pub struct Args {
     #[command(flatten)]
-    mpc: MpcFlags,
+    pub(crate) mpc: MpcFlags,
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {

@@ -24,6 +24,8 @@ mod profile_solve;
 mod qp_states;
 mod settings;
 mod tail;
+#[cfg(test)]
+mod tests;
 mod traces;
 
 use clap::{Parser, Subcommand};

@@ -15,7 +15,7 @@ pub struct Args {
     #[arg(long, env = "QP_ONLY")]
     only: Option<String>,
     #[command(flatten)]
-    qp: QpFlags,
+    pub(crate) qp: QpFlags,
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
