@@ -1,18 +1,14 @@
 //! How cost, violation and clearance of chosen loop solves evolve with PANOC's iteration
 //! budget: the instances come from the closed loop with the default settings, the solves use
 //! the flags' settings.
-use mpc::{ControllerMode, MpcSettings, OcpDefinition, accuracy};
+use mpc::{MpcSettings, OcpDefinition, accuracy};
 
-use crate::settings::MpcFlags;
+use crate::settings::{LoopArgs, MpcFlags};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// A built-in scenario (`paper-1`, `paper-2`, `paper-3`).
-    #[arg(value_parser = crate::scenario)]
-    scenario: mav::Scenario,
-    /// `nmpc` or `multistage`.
-    #[arg(value_parser = crate::mode)]
-    mode: ControllerMode,
+    #[command(flatten)]
+    run: LoopArgs,
     /// The loop's cycles to sweep.
     #[arg(required = true)]
     cycles: Vec<usize>,
@@ -21,7 +17,7 @@ pub struct Args {
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    let (scenario, mode) = (&args.scenario, args.mode);
+    let (scenario, mode) = (&args.run.scenario, args.run.mode);
     let s = args.mpc.settings();
     let loop_settings = MpcSettings::default();
     let solves = accuracy::loop_solves(scenario, mode, &loop_settings)?;

@@ -1,25 +1,21 @@
 //! Per-cycle solver statistics of one in-process paper run and what the safety layer chose.
-use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
+use mpc::{ClosedLoopSettings, run_closed_loop};
 
 use crate::fmt::fixed;
-use crate::settings::MpcFlags;
+use crate::settings::{LoopArgs, MpcFlags};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// A built-in scenario (`paper-1`, `paper-2`, `paper-3`).
-    #[arg(value_parser = crate::scenario)]
-    scenario: mav::Scenario,
-    /// `nmpc` or `multistage`.
-    #[arg(value_parser = crate::mode)]
-    mode: ControllerMode,
+    #[command(flatten)]
+    run: LoopArgs,
     #[command(flatten)]
     mpc: MpcFlags,
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    let mut settings = ClosedLoopSettings::paper(args.mode);
+    let mut settings = ClosedLoopSettings::paper(args.run.mode);
     settings.mpc = args.mpc.settings();
-    let (s, records) = run_closed_loop(&args.scenario, &settings)?;
+    let (s, records) = run_closed_loop(&args.run.scenario, &settings)?;
     for r in &records {
         println!(
             "{:3} t={:6.2} p=[{}] v=[{}] u=[{:6.2} {:6.3} {:6.3}] d={:.3} {:?} it={} outer={} c={:.0e} viol={:.2e} clr={:.3} ms={:.2} cost={:.1} w={:.2?} {}",

@@ -2,19 +2,17 @@
 //! against the iteration budget.
 use std::cell::RefCell;
 
-use mpc::{ControllerMode, Evaluator, MpcSettings, OcpDefinition, accuracy};
+use mpc::{Evaluator, MpcSettings, OcpDefinition, accuracy};
 use optimization_engine::constraints::Rectangle;
 use optimization_engine::panoc::{PANOCCache, PANOCOptimizer};
 use optimization_engine::{Problem, SolverError};
 
+use crate::settings::LoopArgs;
+
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// A built-in scenario (`paper-1`, `paper-2`, `paper-3`).
-    #[arg(value_parser = crate::scenario)]
-    scenario: mav::Scenario,
-    /// `nmpc` or `multistage`.
-    #[arg(value_parser = crate::mode)]
-    mode: ControllerMode,
+    #[command(flatten)]
+    run: LoopArgs,
     /// The loop's cycle.
     cycle: usize,
     /// The penalty parameter.
@@ -26,7 +24,7 @@ pub struct Args {
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    let (scenario, mode, k, c) = (&args.scenario, args.mode, args.cycle, args.penalty);
+    let (scenario, mode, k, c) = (&args.run.scenario, args.run.mode, args.cycle, args.penalty);
     let s = MpcSettings::default();
     let solves = accuracy::loop_solves(scenario, mode, &s)?;
     let def = OcpDefinition::from_scenario(scenario, mode, s.obstacle_margin_m, s.formulation);

@@ -4,6 +4,17 @@
 use clap::builder::BoolishValueParser;
 use mpc::{ControllerMode, InactiveSetTolerances, MpcSettings, QpSettings};
 
+/// The loop an aid looks into: a built-in scenario and a controller (positional).
+#[derive(Debug, Clone, clap::Args)]
+pub struct LoopArgs {
+    /// A built-in scenario (`paper-1`, `paper-2`, `paper-3`).
+    #[arg(value_parser = crate::scenario)]
+    pub scenario: mav::Scenario,
+    /// `nmpc` or `multistage`.
+    #[arg(value_parser = crate::mode)]
+    pub mode: ControllerMode,
+}
+
 /// PANOC's and the ALM's settings (`MpcSettings`).
 #[derive(Debug, Clone, clap::Args)]
 pub struct MpcFlags {
