@@ -1,7 +1,7 @@
 //! Integration tests: closed_loop.
 //! The whole bench over gRPC (lockstep plant, netem with the scenario's delays, controller, all
 //! on loopback ports, as `hilbench reproduce` runs it) against the in-process closed loop of
-//! `mpc`, which is the contract of SPEC.md's paper mode: same states, commands, weights and
+//! `mpc`, which is the contract of `docs/spec.md`'s paper mode: same states, commands, weights and
 //! solver iterations at every cycle, compared by f64 bits. And the multi-stage controller's
 //! paper-mode results in process.
 
@@ -88,8 +88,8 @@ async fn paper_3_nmpc_over_grpc_is_bit_identical_to_the_in_process_closed_loop()
 
 #[test]
 fn multistage_reaches_the_goal_of_every_paper_scenario_without_touching_a_cylinder() {
-    // With the safety layer (issue 5), as the paper reproduction flies, and without it: PANOC's
-    // plans alone, the controller of issue 3.
+    // With the safety layer, as the paper reproduction flies, and without it: PANOC's plans
+    // alone, the paper's controller.
     let with_layer = ClosedLoopSettings::paper(ControllerMode::Multistage);
     let panoc_alone = ClosedLoopSettings { safety: None, ..with_layer.clone() };
     for (scenario_name, settings) in
