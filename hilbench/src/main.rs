@@ -35,6 +35,9 @@ struct Cli {
     /// Do not draw the plots (PNG and SVG under OUT/plots/).
     #[arg(long, global = true)]
     no_plots: bool,
+    /// Do not write the runs' MCAP files (OUT/<scenario>-<controller>.mcap, for Foxglove).
+    #[arg(long, global = true)]
+    no_mcap: bool,
 }
 
 /// `--mode` of `hilbench run`.
@@ -115,6 +118,10 @@ enum Command {
         continue_after_collision: bool,
         #[command(flatten)]
         services: EndpointArgs,
+        /// Serve the run live to Foxglove over its WebSocket protocol (the channels of the
+        /// MCAP files) while it flies in real time; ADDR defaults to 127.0.0.1:8765.
+        #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+        foxglove_ws: Option<std::net::SocketAddr>,
     },
 }
 
@@ -127,7 +134,7 @@ const EXIT_INTERRUPTED: i32 = 130;
 fn main() -> anyhow::Result<()> {
     let started = Instant::now();
     let cli = Cli::parse();
-    let opts = Options { quiet: cli.quiet, plots: !cli.no_plots, started };
+    let opts = Options { quiet: cli.quiet, plots: !cli.no_plots, mcap: !cli.no_mcap, started };
     let outcome = match cli.command {
         Command::Reproduce {
             out,
@@ -145,7 +152,8 @@ fn main() -> anyhow::Result<()> {
             } else {
                 Transport::Grpc(Endpoints { plant, netem, controller, ..Endpoints::default() })
             };
-            let overrides = Overrides { seed, delay_trace: None, continue_after_collision };
+            let overrides =
+                Overrides { seed, delay_trace: None, continue_after_collision, foxglove_ws: None };
             reproduce(out, json, &opts, &scenario, &overrides, &transport)?
         }
         Command::Run {
@@ -159,9 +167,10 @@ fn main() -> anyhow::Result<()> {
             delay_trace,
             continue_after_collision,
             services,
+            foxglove_ws,
         } => {
             let transport = (!in_process).then_some((services, time_mode));
-            let overrides = Overrides { seed, delay_trace, continue_after_collision };
+            let overrides = Overrides { seed, delay_trace, continue_after_collision, foxglove_ws };
             run(&file, mode, out, json, &opts, &overrides, transport)?
         }
     };
@@ -176,6 +185,8 @@ fn main() -> anyhow::Result<()> {
 struct Options {
     quiet: bool,
     plots: bool,
+    /// Write each run's MCAP file.
+    mcap: bool,
     /// When the command started (for the total wall time).
     started: Instant,
 }
@@ -212,8 +223,17 @@ fn execute(
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let mut plotting_s = None;
     hilbench::bench::write_scenarios(&dir, jobs)?;
+    // Timed for the summary (BENCHMARKS.md: its share of the wall time).
+    let mcap_s = if opts.mcap {
+        let writing = Instant::now();
+        hilbench::foxglove_out::write_outcome(&dir, jobs, &outcome)?;
+        Some(writing.elapsed().as_secs_f64())
+    } else {
+        None
+    };
     if outcome.interrupted {
-        let summary = outcome.summary_json();
+        let mut summary = outcome.summary_json();
+        summary["timing"]["mcap_s"] = serde_json::json!(mcap_s);
         write_summary(&dir, &summary)?;
         write_cycle_logs(&dir, &outcome)?;
         eprintln!(
@@ -227,6 +247,7 @@ fn execute(
         // What finished is kept: summary.json (with the error) and the per-cycle logs.
         let mut summary = outcome.summary_json();
         summary["timing"]["plotting_s"] = serde_json::json!(plotting_s);
+        summary["timing"]["mcap_s"] = serde_json::json!(mcap_s);
         write_summary(&dir, &summary)?;
         write_cycle_logs(&dir, &outcome)?;
         if json {
@@ -249,6 +270,7 @@ fn execute(
     }
     let mut summary = outcome.summary_json();
     summary["timing"]["plotting_s"] = serde_json::json!(plotting_s);
+    summary["timing"]["mcap_s"] = serde_json::json!(mcap_s);
     write_summary(&dir, &summary)?;
     write_cycle_logs(&dir, &outcome)?;
     let parts = report(&outcome);
@@ -319,6 +341,8 @@ struct Overrides {
     delay_trace: Option<PathBuf>,
     /// `--continue-after-collision`.
     continue_after_collision: bool,
+    /// `--foxglove-ws`.
+    foxglove_ws: Option<std::net::SocketAddr>,
 }
 
 fn run(
@@ -343,7 +367,25 @@ fn run(
         spec.scenario.validate().map_err(|e| anyhow::anyhow!("--delay-trace {name}: {e}"))?;
     }
     let transport = &match services {
-        Some((args, time_mode)) => Transport::Grpc(args.endpoints(time_mode.unwrap_or(spec.run.time_mode))),
+        Some((args, time_mode)) => {
+            let mut endpoints = args.endpoints(time_mode.unwrap_or(spec.run.time_mode));
+            if let Some(addr) = overrides.foxglove_ws {
+                if endpoints.time_mode != TimeMode::RealTime {
+                    anyhow::bail!(
+                        "--foxglove-ws needs --time-mode real-time (a lockstep run is over before a viewer connects; open its .mcap file instead)"
+                    );
+                }
+                let live = hilbench::foxglove_out::Live::start(addr)?;
+                if !opts.quiet {
+                    eprintln!("Foxglove: serving the run live on ws://{}", live.addr());
+                }
+                endpoints.live = Some(live);
+            }
+            Transport::Grpc(endpoints)
+        }
+        None if overrides.foxglove_ws.is_some() => {
+            anyhow::bail!("--foxglove-ws needs the services in real time (not --in-process)")
+        }
         None if spec.run.time_mode == TimeMode::RealTime => {
             anyhow::bail!("{}: real time needs the services (not --in-process)", file.display())
         }
