@@ -543,3 +543,87 @@ impl Live {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `q v q*` for a unit quaternion.
+    fn rotate(q: &Quaternion, v: [f64; 3]) -> [f64; 3] {
+        let (w, x, y, z) = (q.w, q.x, q.y, q.z);
+        [
+            (1.0 - 2.0 * (y * y + z * z)) * v[0]
+                + 2.0 * (x * y - w * z) * v[1]
+                + 2.0 * (x * z + w * y) * v[2],
+            2.0 * (x * y + w * z) * v[0]
+                + (1.0 - 2.0 * (x * x + z * z)) * v[1]
+                + 2.0 * (y * z - w * x) * v[2],
+            2.0 * (x * z - w * y) * v[0]
+                + 2.0 * (y * z + w * x) * v[1]
+                + (1.0 - 2.0 * (x * x + y * y)) * v[2],
+        ]
+    }
+
+    #[test]
+    fn the_attitude_points_the_thrust_axis_where_the_model_accelerates() {
+        // mav::MavModel: thrust acts along (cos phi sin theta, -sin phi, cos phi cos theta).
+        for (phi, theta) in [(0.0, 0.0), (0.17, 0.0), (0.0, -0.17), (0.1, 0.15), (-0.17, 0.17)] {
+            let q = attitude(phi, theta);
+            let norm = (q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z).sqrt();
+            assert!((norm - 1.0).abs() < 1e-12);
+            let axis = rotate(&q, [0.0, 0.0, 1.0]);
+            let model = [phi.cos() * theta.sin(), -phi.sin(), phi.cos() * theta.cos()];
+            for k in 0..3 {
+                assert!((axis[k] - model[k]).abs() < 1e-12, "{phi} {theta}: {axis:?} vs {model:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn heavier_scenarios_are_drawn_more_opaque_and_warmer() {
+        let (light, heavy) = (weight_color(0.05), weight_color(0.9));
+        assert!(heavy.a > light.a && heavy.r > light.r && heavy.b < light.b);
+        for w in [f64::NAN, -1.0, 2.0] {
+            let c = weight_color(w);
+            assert!([c.r, c.g, c.b, c.a].iter().all(|v| (0.0..=1.0).contains(v)), "{w}: {c:?}");
+        }
+    }
+
+    /// The fields of the JSON schema of `T`.
+    fn fields<T: JsonMessage>() -> Vec<String> {
+        let schema = serde_json::to_value(schemars::schema_for!(T)).expect("a JSON schema");
+        schema["properties"].as_object().expect("properties").keys().cloned().collect()
+    }
+
+    #[test]
+    fn the_layout_plots_only_fields_the_channels_carry() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/foxglove-layout.json");
+        let layout: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).expect("docs/foxglove-layout.json"))
+                .expect("the layout is JSON");
+        let known: Vec<(&str, Vec<String>)> = vec![
+            ("/state", fields::<StateMsg>()),
+            ("/command", fields::<CommandMsg>()),
+            ("/delays", fields::<DelaysMsg>()),
+            ("/safety", fields::<SafetyMsg>()),
+        ];
+        let mut plotted = 0;
+        for (id, config) in layout["configById"].as_object().expect("configById") {
+            for p in config["paths"].as_array().into_iter().flatten() {
+                let value = p["value"].as_str().expect("a message path");
+                let (topic, field) = value.split_once('.').expect("topic.field");
+                let field = field.split('[').next().unwrap_or(field);
+                let (_, names) =
+                    known.iter().find(|(t, _)| *t == topic).unwrap_or_else(|| panic!("{id}: {value}"));
+                assert!(names.iter().any(|n| n == field), "{id}: {value}: no field {field} in {names:?}");
+                plotted += 1;
+            }
+            if let Some(topics) = config["topics"].as_object() {
+                for topic in topics.keys() {
+                    assert!(TOPICS.contains(&topic.as_str()), "{id}: {topic}");
+                }
+            }
+        }
+        assert!(plotted >= 10, "{plotted} series");
+    }
+}
