@@ -528,7 +528,7 @@ impl Live {
     /// A cycle of a run of `scenario` (the scene with its first cycle and every
     /// [`LIVE_SCENE_EVERY`] cycles).
     pub fn cycle(&self, scenario: &Scenario, record: &CycleRecord) {
-        if record.cycle % LIVE_SCENE_EVERY == 0 {
+        if record.cycle.is_multiple_of(LIVE_SCENE_EVERY) {
             self.inner.channels.scene(scenario, record.sample_time_ns);
         }
         self.inner.channels.cycle(scenario, record);
