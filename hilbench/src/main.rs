@@ -438,7 +438,8 @@ fn print_time(summary: &serde_json::Value, opts: &Options) {
         format!("runs {} (solver {})", secs("wall_time_s"), secs("solver_s"))
     };
     let plots = if opts.plots { format!(", plotting {}", secs("plotting_s")) } else { String::new() };
-    println!("Time: {:.2} s wall in all; {runs}{plots}", opts.started.elapsed().as_secs_f64());
+    let mcap = if opts.mcap { format!(", MCAP files {}", secs("mcap_s")) } else { String::new() };
+    println!("Time: {:.2} s wall in all; {runs}{plots}{mcap}", opts.started.elapsed().as_secs_f64());
 }
 
 /// The files a command wrote.
