@@ -97,6 +97,9 @@ pub struct Outcome {
     pub runs: Vec<RunSummary>,
     /// Per-cycle rows of each run, in the order of `runs`.
     pub cycles: Vec<Vec<crate::cycle_log::CycleRow>>,
+    /// Each run's records, predicted trajectories included (the MCAP logs), in the order of
+    /// `runs`.
+    pub records: Vec<Vec<mpc::CycleRecord>>,
     /// The goal of each run's scenario, m, in the order of `runs`.
     pub goals: Vec<[f64; 3]>,
     pub timings: Vec<TimedRun>,
@@ -194,6 +197,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
         .context("cannot start the tokio runtime")?;
     let mut runs = Vec::with_capacity(jobs.len());
     let mut cycles = Vec::with_capacity(jobs.len());
+    let mut records = Vec::with_capacity(jobs.len());
     let mut goals = Vec::with_capacity(jobs.len());
     let mut timings = Vec::new();
     let mut faults = Vec::with_capacity(jobs.len());
@@ -222,9 +226,12 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                     }
                     Transport::InProcess => {
                         let (scenario, mode) = (scenario.clone(), *mode);
-                        let task = tokio::task::spawn_blocking(move || {
-                            run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode))
-                        });
+                        // With the predicted trajectories, as the gRPC telemetry carries them.
+                        let settings = ClosedLoopSettings {
+                            record_predictions: true,
+                            ..ClosedLoopSettings::paper(mode)
+                        };
+                        let task = tokio::task::spawn_blocking(move || run_closed_loop(&scenario, &settings));
                         match task.await {
                             Ok(run) => Ran::Local(Box::new(run.map_err(|e| e.to_string()))),
                             Err(e) => Ran::Local(Box::new(Err(format!(
@@ -282,6 +289,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                     loop_overhead_s: run.timing.loop_overhead_s(),
                 });
                 cycles.push(crate::cycle_log::from_records(&run.records));
+                records.push(run.records);
                 faults.push(run.faults);
                 delay_profiles.push(run.delay_profile);
                 if let Some(e) = failed {
@@ -301,8 +309,9 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                         break;
                     }
                 };
-                let records: Vec<_> = traces.into_iter().map(|t| t.record).collect();
-                cycles.push(crate::cycle_log::from_records(&records));
+                let run_records: Vec<_> = traces.into_iter().map(|t| t.record).collect();
+                cycles.push(crate::cycle_log::from_records(&run_records));
+                records.push(run_records);
                 faults.push(LinkFaults::default());
                 let network =
                     scenario.network()?.unwrap_or_else(|| delay::NetworkProfile::none(scenario.seed));
@@ -338,6 +347,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
     Ok(Outcome {
         runs,
         cycles,
+        records,
         goals,
         timings,
         faults,

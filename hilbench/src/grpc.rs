@@ -280,6 +280,8 @@ pub struct Endpoints {
     pub time_mode: TimeMode,
     /// Leave the profile of the netem at `netem` alone (what `delay_profile` then reports).
     pub keep_netem_profile: bool,
+    /// Where every cycle also goes as it arrives: the live Foxglove view (`--foxglove-ws`).
+    pub live: Option<crate::foxglove_out::Live>,
 }
 
 /// `--plant`, `--netem`, `--controller` of the CLI: services already running.
@@ -311,6 +313,7 @@ impl EndpointArgs {
             controller: self.controller,
             time_mode,
             keep_netem_profile: self.keep_netem_profile,
+            live: None,
         }
     }
 }
@@ -498,7 +501,8 @@ pub async fn run_against(
     let started = Instant::now();
     let services = Services::start_missing(scenario, mode, endpoints).await?;
     let mut progress = Progress::default();
-    let result = drive(&services, scenario, mode, settings, started, &mut progress).await;
+    let live = endpoints.live.as_ref();
+    let result = drive(&services, scenario, mode, settings, started, &mut progress, live).await;
     let result = match result {
         Ok(run) => Ok(run),
         Err(error) => {
@@ -613,6 +617,7 @@ async fn drive(
     settings: &GrpcSettings,
     started: Instant,
     progress: &mut Progress,
+    live: Option<&crate::foxglove_out::Live>,
 ) -> anyhow::Result<GrpcRun> {
     let deadline = Instant::now() + settings.timeout;
     // A panic in a task of this run (an in-process service's, or this driver's own) ends it.
@@ -721,6 +726,9 @@ async fn drive(
                         cycles.len(),
                         record.cycle
                     );
+                }
+                if let Some(live) = live {
+                    live.cycle(scenario, &record);
                 }
                 cycles.push(record);
                 progress.last_sample = item.sample.take();

@@ -35,6 +35,9 @@ struct Cli {
     /// Do not draw the plots (PNG and SVG under OUT/plots/).
     #[arg(long, global = true)]
     no_plots: bool,
+    /// Do not write the runs' MCAP files (OUT/<scenario>-<controller>.mcap, for Foxglove).
+    #[arg(long, global = true)]
+    no_mcap: bool,
 }
 
 /// `--mode` of `hilbench run`.
@@ -119,6 +122,10 @@ enum Command {
         sweep_run: Option<u64>,
         #[command(flatten)]
         services: EndpointArgs,
+        /// Serve the run live to Foxglove over its WebSocket protocol (the channels of the
+        /// MCAP files) while it flies in real time; ADDR defaults to 127.0.0.1:8765.
+        #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+        foxglove_ws: Option<std::net::SocketAddr>,
     },
     /// N lockstep runs of a scenario file, each under a delay process drawn from the file's
     /// [sweep] table; outcomes as distributions (sweep.json, runs.csv, report.md, plots).
@@ -206,7 +213,7 @@ const EXIT_INTERRUPTED: i32 = 130;
 fn main() -> anyhow::Result<()> {
     let started = Instant::now();
     let cli = Cli::parse();
-    let opts = Options { quiet: cli.quiet, plots: !cli.no_plots, started };
+    let opts = Options { quiet: cli.quiet, plots: !cli.no_plots, mcap: !cli.no_mcap, started };
     let outcome = match cli.command {
         Command::Reproduce {
             out,
@@ -224,7 +231,13 @@ fn main() -> anyhow::Result<()> {
             } else {
                 Transport::Grpc(Endpoints { plant, netem, controller, ..Endpoints::default() })
             };
-            let overrides = Overrides { seed, delay_trace: None, continue_after_collision, sweep_run: None };
+            let overrides = Overrides {
+                seed,
+                delay_trace: None,
+                continue_after_collision,
+                sweep_run: None,
+                foxglove_ws: None,
+            };
             reproduce(out, json, &opts, &scenario, &overrides, &transport)?
         }
         Command::Run {
@@ -239,9 +252,10 @@ fn main() -> anyhow::Result<()> {
             continue_after_collision,
             sweep_run,
             services,
+            foxglove_ws,
         } => {
             let transport = (!in_process).then_some((services, time_mode));
-            let overrides = Overrides { seed, delay_trace, continue_after_collision, sweep_run };
+            let overrides = Overrides { seed, delay_trace, continue_after_collision, sweep_run, foxglove_ws };
             run(&file, mode, out, json, &opts, &overrides, transport)?
         }
         Command::Sweep(args) => sweep(args, &opts)?,
@@ -266,6 +280,8 @@ fn main() -> anyhow::Result<()> {
 struct Options {
     quiet: bool,
     plots: bool,
+    /// Write each run's MCAP file.
+    mcap: bool,
     /// When the command started (for the total wall time).
     started: Instant,
 }
@@ -302,8 +318,17 @@ fn execute(
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let mut plotting_s = None;
     hilbench::bench::write_scenarios(&dir, jobs)?;
+    // Timed for the summary (BENCHMARKS.md: its share of the wall time).
+    let mcap_s = if opts.mcap {
+        let writing = Instant::now();
+        hilbench::foxglove_out::write_outcome(&dir, jobs, &outcome)?;
+        Some(writing.elapsed().as_secs_f64())
+    } else {
+        None
+    };
     if outcome.interrupted {
-        let summary = outcome.summary_json();
+        let mut summary = outcome.summary_json();
+        summary["timing"]["mcap_s"] = serde_json::json!(mcap_s);
         write_summary(&dir, &summary)?;
         write_cycle_logs(&dir, &outcome)?;
         eprintln!(
@@ -317,6 +342,7 @@ fn execute(
         // What finished is kept: summary.json (with the error) and the per-cycle logs.
         let mut summary = outcome.summary_json();
         summary["timing"]["plotting_s"] = serde_json::json!(plotting_s);
+        summary["timing"]["mcap_s"] = serde_json::json!(mcap_s);
         write_summary(&dir, &summary)?;
         write_cycle_logs(&dir, &outcome)?;
         if json {
@@ -339,6 +365,7 @@ fn execute(
     }
     let mut summary = outcome.summary_json();
     summary["timing"]["plotting_s"] = serde_json::json!(plotting_s);
+    summary["timing"]["mcap_s"] = serde_json::json!(mcap_s);
     write_summary(&dir, &summary)?;
     write_cycle_logs(&dir, &outcome)?;
     let parts = report(&outcome);
@@ -411,6 +438,8 @@ struct Overrides {
     continue_after_collision: bool,
     /// `--sweep-run`.
     sweep_run: Option<u64>,
+    /// `--foxglove-ws`.
+    foxglove_ws: Option<std::net::SocketAddr>,
 }
 
 fn run(
@@ -446,7 +475,25 @@ fn run(
         spec.scenario.validate().map_err(|e| anyhow::anyhow!("--delay-trace {name}: {e}"))?;
     }
     let transport = &match services {
-        Some((args, time_mode)) => Transport::Grpc(args.endpoints(time_mode.unwrap_or(spec.run.time_mode))),
+        Some((args, time_mode)) => {
+            let mut endpoints = args.endpoints(time_mode.unwrap_or(spec.run.time_mode));
+            if let Some(addr) = overrides.foxglove_ws {
+                if endpoints.time_mode != TimeMode::RealTime {
+                    anyhow::bail!(
+                        "--foxglove-ws needs --time-mode real-time (a lockstep run is over before a viewer connects; open its .mcap file instead)"
+                    );
+                }
+                let live = hilbench::foxglove_out::Live::start(addr)?;
+                if !opts.quiet {
+                    eprintln!("Foxglove: serving the run live on ws://{}", live.addr());
+                }
+                endpoints.live = Some(live);
+            }
+            Transport::Grpc(endpoints)
+        }
+        None if overrides.foxglove_ws.is_some() => {
+            anyhow::bail!("--foxglove-ws needs the services in real time (not --in-process)")
+        }
         None if spec.run.time_mode == TimeMode::RealTime => {
             anyhow::bail!("{}: real time needs the services (not --in-process)", file.display())
         }
@@ -499,7 +546,8 @@ fn print_time(summary: &serde_json::Value, opts: &Options) {
         format!("runs {} (solver {})", secs("wall_time_s"), secs("solver_s"))
     };
     let plots = if opts.plots { format!(", plotting {}", secs("plotting_s")) } else { String::new() };
-    println!("Time: {:.2} s wall in all; {runs}{plots}", opts.started.elapsed().as_secs_f64());
+    let mcap = if opts.mcap { format!(", MCAP files {}", secs("mcap_s")) } else { String::new() };
+    println!("Time: {:.2} s wall in all; {runs}{plots}{mcap}", opts.started.elapsed().as_secs_f64());
 }
 
 /// The files a command wrote.

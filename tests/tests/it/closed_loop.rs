@@ -31,17 +31,18 @@ async fn assert_grpc_run_is_bit_identical_to_in_process(name: &str, mode: Contro
 
 /// `run` against `mpc::run_closed_loop` of the same scenario and mode, bit for bit.
 fn assert_bit_identical(scenario: &Scenario, mode: ControllerMode, run: &GrpcRun) {
-    let (expected, records) =
-        run_closed_loop(scenario, &ClosedLoopSettings::paper(mode)).expect("in-process closed loop");
+    // With the predicted trajectories, which the telemetry streams to its subscribers.
+    let settings = ClosedLoopSettings { record_predictions: true, ..ClosedLoopSettings::paper(mode) };
+    let (expected, records) = run_closed_loop(scenario, &settings).expect("in-process closed loop");
     let what = format!("{} with {}", scenario.name, mode.name());
     assert!(!records.is_empty(), "{what}: the in-process run has no cycles");
     for (k, (got, trace)) in run.records.iter().zip(&records).enumerate() {
-        // The whole record, bit for bit (Debug prints -0.0 and every digit), but for the solve
-        // time (a wall-clock measurement) and the predictions (streamed to subscribers only).
+        // The whole record, bit for bit (Debug prints -0.0 and every digit), predicted
+        // trajectories and their weights included, but for the solve time (a wall-clock
+        // measurement).
         let comparable = |r: &mpc::CycleRecord| {
             let mut r = r.clone();
             r.solve.solve_ms = 0.0;
-            r.predictions.clear();
             format!("{r:?}")
         };
         assert_eq!(comparable(got), comparable(&trace.record), "{what}: cycle {k} differs");

@@ -4,6 +4,7 @@
 mod closed_loop;
 mod controller;
 mod fault;
+mod foxglove;
 mod netem;
 mod plant;
 mod python;
