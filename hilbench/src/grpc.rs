@@ -221,15 +221,51 @@ pub fn netem_config(
     Ok(config)
 }
 
+/// The plant's settings for `scenario` in `time_mode`.
+pub fn plant_config(scenario: &Scenario, time_mode: TimeMode) -> plant::PlantConfig {
+    match time_mode {
+        TimeMode::Lockstep => plant::PlantConfig::lockstep(scenario.clone()),
+        TimeMode::RealTime => plant::PlantConfig::real_time(scenario.clone()),
+    }
+}
+
+/// A plant served in this process on a loopback port: the task and its address.
+pub(crate) async fn start_plant(config: plant::PlantConfig) -> anyhow::Result<(Running, String)> {
+    let (listener, addr) = bind().await?;
+    let (stop, stopped) = oneshot::channel::<()>();
+    let task = tokio::spawn(async move {
+        plant::serve(listener, config, async {
+            let _ = stopped.await;
+        })
+        .await
+        .map_err(|e| e.to_string())
+    });
+    Ok((Running { name: "plant", stop: Some(stop), task: Some(task) }, addr.to_string()))
+}
+
+/// A netem served in this process on a loopback port: the task and its address.
+pub(crate) async fn start_netem(config: netem::Config) -> anyhow::Result<(Running, String)> {
+    let (listener, addr) = bind().await?;
+    let (stop, stopped) = oneshot::channel::<()>();
+    let task = tokio::spawn(async move {
+        netem::serve(listener, config, async {
+            let _ = stopped.await;
+        })
+        .await
+        .map_err(|e| e.to_string())
+    });
+    Ok((Running { name: "netem", stop: Some(stop), task: Some(task) }, addr.to_string()))
+}
+
 /// A service task with its stop signal.
-struct Running {
+pub(crate) struct Running {
     name: &'static str,
     stop: Option<oneshot::Sender<()>>,
     task: Option<JoinHandle<Result<(), String>>>,
 }
 
 impl Running {
-    async fn stop(mut self) -> anyhow::Result<()> {
+    pub(crate) async fn stop(mut self) -> anyhow::Result<()> {
         if let Some(stop) = self.stop.take() {
             let _ = stop.send(());
         }
@@ -369,36 +405,16 @@ impl Services {
         let (plant, plant_addr) = match &endpoints.plant {
             Some(addr) => (None, addr.clone()),
             None => {
-                let (listener, addr) = bind().await?;
-                let (stop, stopped) = oneshot::channel::<()>();
-                let config = match endpoints.time_mode {
-                    TimeMode::Lockstep => plant::PlantConfig::lockstep(scenario.clone()),
-                    TimeMode::RealTime => plant::PlantConfig::real_time(scenario.clone()),
-                };
-                let task = tokio::spawn(async move {
-                    plant::serve(listener, config, async {
-                        let _ = stopped.await;
-                    })
-                    .await
-                    .map_err(|e| e.to_string())
-                });
-                (Some(Running { name: "plant", stop: Some(stop), task: Some(task) }), addr.to_string())
+                let (running, addr) = start_plant(plant_config(scenario, endpoints.time_mode)).await?;
+                (Some(running), addr)
             }
         };
         let (netem, netem_addr) = match &endpoints.netem {
             Some(addr) => (None, addr.clone()),
             None => {
-                let (listener, addr) = bind().await?;
-                let (stop, stopped) = oneshot::channel::<()>();
                 let config = netem_config(&plant_addr, scenario, endpoints.time_mode)?;
-                let task = tokio::spawn(async move {
-                    netem::serve(listener, config, async {
-                        let _ = stopped.await;
-                    })
-                    .await
-                    .map_err(|e| e.to_string())
-                });
-                (Some(Running { name: "netem", stop: Some(stop), task: Some(task) }), addr.to_string())
+                let (running, addr) = start_netem(config).await?;
+                (Some(running), addr)
             }
         };
         let (listener, controller_addr) = bind().await?;

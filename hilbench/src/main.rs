@@ -113,6 +113,12 @@ enum Command {
         /// there, as a real flight does, and summary.json's `end_reason` is "collided".
         #[arg(long)]
         continue_after_collision: bool,
+        /// Fly your own controller instead of the bench's: a command line (run with `sh -c`)
+        /// that speaks the Plant API as a client at $HILBENCH_PLANT_ADDR (netem, in front of a
+        /// plant started here), with $HILBENCH_SCENARIO and $HILBENCH_TIME_MODE; judged from the
+        /// plant's truth (docs/external-controller.md).
+        #[arg(long, value_name = "CMD", conflicts_with_all = ["in_process", "mode", "plant", "netem", "controller"])]
+        controller_cmd: Option<String>,
         #[command(flatten)]
         services: EndpointArgs,
     },
@@ -158,9 +164,14 @@ fn main() -> anyhow::Result<()> {
             seed,
             delay_trace,
             continue_after_collision,
+            controller_cmd,
             services,
         } => {
-            let transport = (!in_process).then_some((services, time_mode));
+            let transport = match controller_cmd {
+                Some(command) => RunTransport::External { command, time_mode },
+                None if in_process => RunTransport::InProcess,
+                None => RunTransport::Services { endpoints: services, time_mode },
+            };
             let overrides = Overrides { seed, delay_trace, continue_after_collision };
             run(&file, mode, out, json, &opts, &overrides, transport)?
         }
@@ -321,6 +332,14 @@ struct Overrides {
     continue_after_collision: bool,
 }
 
+/// How `hilbench run` flies the file (`time_mode` `None`: the file's).
+enum RunTransport {
+    InProcess,
+    Services { endpoints: EndpointArgs, time_mode: Option<TimeMode> },
+    /// `--controller-cmd`.
+    External { command: String, time_mode: Option<TimeMode> },
+}
+
 fn run(
     file: &std::path::Path,
     mode: Option<ModeArg>,
@@ -328,7 +347,7 @@ fn run(
     json: bool,
     opts: &Options,
     overrides: &Overrides,
-    services: Option<(EndpointArgs, Option<TimeMode>)>,
+    transport: RunTransport,
 ) -> anyhow::Result<Outcome> {
     let mut spec = ScenarioFile::load(file)?;
     if let Some(seed) = overrides.seed {
@@ -342,12 +361,21 @@ fn run(
         spec.scenario.delays = Some(delay::DelaysTable::trace(&name, delays, false));
         spec.scenario.validate().map_err(|e| anyhow::anyhow!("--delay-trace {name}: {e}"))?;
     }
-    let transport = &match services {
-        Some((args, time_mode)) => Transport::Grpc(args.endpoints(time_mode.unwrap_or(spec.run.time_mode))),
-        None if spec.run.time_mode == TimeMode::RealTime => {
+    let transport = &match transport {
+        RunTransport::Services { endpoints, time_mode } => {
+            Transport::Grpc(endpoints.endpoints(time_mode.unwrap_or(spec.run.time_mode)))
+        }
+        RunTransport::External { command, time_mode } => {
+            Transport::External(hilbench::external::ExternalController {
+                command,
+                time_mode: time_mode.unwrap_or(spec.run.time_mode),
+                settings: hilbench::external::ExternalSettings::default(),
+            })
+        }
+        RunTransport::InProcess if spec.run.time_mode == TimeMode::RealTime => {
             anyhow::bail!("{}: real time needs the services (not --in-process)", file.display())
         }
-        None => Transport::InProcess,
+        RunTransport::InProcess => Transport::InProcess,
     };
     let modes = match mode {
         None => None,
@@ -355,7 +383,11 @@ fn run(
         Some(ModeArg::Multistage) => Some(vec![Mode::Multistage]),
         Some(ModeArg::Both) => Some(vec![Mode::Nmpc, Mode::Multistage]),
     };
-    let jobs = file_jobs(&spec, modes.as_deref());
+    let jobs = match transport {
+        // One run of the file's scenario; the mode of the job is not used.
+        Transport::External(_) => vec![(spec.scenario.clone(), mpc::ControllerMode::Multistage)],
+        _ => file_jobs(&spec, modes.as_deref()),
+    };
     let header = |o: &Outcome| {
         format!("{} ({}): {}, {}", spec.scenario.name, file.display(), o.time_mode, transport.describe())
     };
