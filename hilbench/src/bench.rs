@@ -9,10 +9,10 @@ use mav::Scenario;
 use mpc::RunSummary;
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
 
+use crate::external::{ExternalFacts, ExternalFailure, ExternalRun, run_external};
 use crate::grpc::{
     DelayProfileInForce, Endpoints, GrpcSettings, LinkFaults, RunFailure, RunTiming, run_against,
 };
-use crate::external::{ExternalFailure, ExternalFacts, ExternalRun, run_external};
 use crate::report;
 use crate::scenario_file::{Mode, ScenarioFile};
 
@@ -190,6 +190,46 @@ enum Ran {
     External(Box<Result<ExternalRun, ExternalFailure>>),
 }
 
+/// What `run_all` keeps of a run, whichever way it flew.
+struct Flown {
+    summary: RunSummary,
+    rows: Vec<crate::cycle_log::CycleRow>,
+    /// Where the wall time went (runs over services only).
+    timing: Option<RunTiming>,
+    faults: LinkFaults,
+    delay_profile: DelayProfileInForce,
+    external: Option<ExternalFacts>,
+}
+
+/// A run, or its error (`what` failed: ...) with the part that flew, if any.
+type FlownOrFailed = Result<Flown, (String, Option<Box<Flown>>)>;
+
+impl Flown {
+    fn over_grpc(run: Result<crate::grpc::GrpcRun, RunFailure>, what: &str) -> FlownOrFailed {
+        let flown = |run: crate::grpc::GrpcRun| Flown {
+            rows: crate::cycle_log::from_records(&run.records),
+            summary: run.summary,
+            timing: Some(run.timing),
+            faults: run.faults,
+            delay_profile: run.delay_profile,
+            external: None,
+        };
+        run.map(flown).map_err(|f| (format!("{what}: {:#}", f.error), f.partial.map(|p| Box::new(flown(*p)))))
+    }
+
+    fn external(run: Result<ExternalRun, ExternalFailure>, what: &str) -> FlownOrFailed {
+        let flown = |run: ExternalRun| Flown {
+            summary: run.summary,
+            rows: run.rows,
+            timing: Some(run.timing),
+            faults: run.faults,
+            delay_profile: run.delay_profile,
+            external: Some(run.facts),
+        };
+        run.map(flown).map_err(|f| (format!("{what}: {:#}", f.error), f.partial.map(|p| Box::new(flown(*p)))))
+    }
+}
+
 /// How often a real-time run without a terminal says it is still flying.
 const HEARTBEAT: std::time::Duration = std::time::Duration::from_secs(5);
 
@@ -289,91 +329,54 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
             interrupted = true;
             break;
         };
-        let summary = match ran {
-            Ran::Grpc(run) => {
-                let (run, failed) = match *run {
-                    Ok(run) => (run, None),
-                    Err(RunFailure { error: e, partial }) => {
-                        let e = format!("{name} with {controller} over gRPC: {e:#}");
-                        match partial {
-                            Some(run) => (*run, Some(e)),
-                            None => {
-                                error = Some(e);
-                                break;
-                            }
-                        }
-                    }
-                };
-                timings.push(TimedRun {
-                    scenario: name.clone(),
-                    controller: controller.to_string(),
-                    timing: run.timing,
-                    loop_overhead_s: run.timing.loop_overhead_s(),
-                });
-                cycles.push(crate::cycle_log::from_records(&run.records));
-                faults.push(run.faults);
-                delay_profiles.push(run.delay_profile);
-                external.push(None);
-                if let Some(e) = failed {
-                    runs.push(run.summary);
-                    goals.push(scenario.goal_m);
-                    error = Some(e);
-                    failed_run_kept = true;
-                    break;
+        let flown = match ran {
+            Ran::Grpc(run) => Flown::over_grpc(*run, &format!("{name} with {controller} over gRPC")),
+            Ran::External(run) => Flown::external(*run, &format!("{name} with an external controller")),
+            Ran::Local(run) => match *run {
+                Ok((summary, traces)) => {
+                    let records: Vec<_> = traces.into_iter().map(|t| t.record).collect();
+                    let network =
+                        scenario.network()?.unwrap_or_else(|| delay::NetworkProfile::none(scenario.seed));
+                    Ok(Flown {
+                        summary,
+                        rows: crate::cycle_log::from_records(&records),
+                        timing: None,
+                        faults: LinkFaults::default(),
+                        delay_profile: DelayProfileInForce::of("scenario", &network),
+                        external: None,
+                    })
                 }
-                run.summary
-            }
-            Ran::Local(run) => {
-                let (summary, traces) = match *run {
-                    Ok(run) => run,
-                    Err(e) => {
-                        error = Some(format!("{name} with {controller}: {e}"));
-                        break;
-                    }
-                };
-                let records: Vec<_> = traces.into_iter().map(|t| t.record).collect();
-                cycles.push(crate::cycle_log::from_records(&records));
-                faults.push(LinkFaults::default());
-                external.push(None);
-                let network =
-                    scenario.network()?.unwrap_or_else(|| delay::NetworkProfile::none(scenario.seed));
-                delay_profiles.push(DelayProfileInForce::of("scenario", &network));
-                summary
-            }
-            Ran::External(run) => {
-                let (run, failed) = match *run {
-                    Ok(run) => (run, None),
-                    Err(ExternalFailure { error: e, partial }) => {
-                        let e = format!("{name} with an external controller: {e:#}");
-                        match partial {
-                            Some(run) => (*run, Some(e)),
-                            None => {
-                                error = Some(e);
-                                break;
-                            }
-                        }
-                    }
-                };
-                timings.push(TimedRun {
-                    scenario: name.clone(),
-                    controller: controller.to_string(),
-                    timing: run.timing,
-                    loop_overhead_s: run.timing.loop_overhead_s(),
-                });
-                cycles.push(run.rows);
-                faults.push(run.faults);
-                delay_profiles.push(run.delay_profile);
-                external.push(Some(run.facts));
-                if let Some(e) = failed {
-                    runs.push(run.summary);
-                    goals.push(scenario.goal_m);
-                    error = Some(e);
-                    failed_run_kept = true;
-                    break;
-                }
-                run.summary
+                Err(e) => Err((format!("{name} with {controller}: {e}"), None)),
+            },
+        };
+        let (run, failed) = match flown {
+            Ok(run) => (run, None),
+            Err((e, Some(partial))) => (*partial, Some(e)),
+            Err((e, None)) => {
+                error = Some(e);
+                break;
             }
         };
+        if let Some(timing) = run.timing {
+            timings.push(TimedRun {
+                scenario: name.clone(),
+                controller: controller.to_string(),
+                timing,
+                loop_overhead_s: timing.loop_overhead_s(),
+            });
+        }
+        cycles.push(run.rows);
+        faults.push(run.faults);
+        delay_profiles.push(run.delay_profile);
+        external.push(run.external);
+        if let Some(e) = failed {
+            runs.push(run.summary);
+            goals.push(scenario.goal_m);
+            error = Some(e);
+            failed_run_kept = true;
+            break;
+        }
+        let summary = run.summary;
         let collided = if summary.collided {
             format!("; COLLIDED: {}", report::collisions_text(&summary))
         } else {

@@ -43,8 +43,8 @@ use tokio::process::{Child, Command};
 
 use crate::cycle_log::CycleRow;
 use crate::grpc::{
-    DelayProfileInForce, LinkFaults, RunTiming, Running, TimeMode, connect, netem_config, plant_config,
-    start_netem, start_plant,
+    DelayProfileInForce, LinkFaults, RunFailure, RunTiming, Running, TimeMode, connect, netem_config,
+    plant_config, start_netem, start_plant,
 };
 use crate::scenario_file::{Mode, ScenarioFile};
 
@@ -55,8 +55,8 @@ pub const CONTROLLER_NAME: &str = "external";
 const TAIL_LINES: usize = 20;
 /// The longest line kept, characters.
 const TAIL_LINE_CHARS: usize = 400;
-/// After the controller's exit, how long the plant's stream may stay quiet before what it
-/// produced is taken as complete.
+/// Lockstep: after the controller's exit, how long the plant's stream may stay quiet before
+/// what it produced is taken as complete.
 const DRAIN_QUIET: Duration = Duration::from_millis(200);
 
 /// An external controller and how to fly it.
@@ -131,25 +131,7 @@ pub struct ExternalRun {
 
 /// A run that failed: the error, and what the plant flew before it (`None` when it failed
 /// before the plant's first sample), its `end_reason` "error".
-#[derive(Debug)]
-pub struct ExternalFailure {
-    pub error: anyhow::Error,
-    pub partial: Option<Box<ExternalRun>>,
-}
-
-impl std::fmt::Display for ExternalFailure {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{:#}", self.error)
-    }
-}
-
-impl std::error::Error for ExternalFailure {}
-
-impl From<anyhow::Error> for ExternalFailure {
-    fn from(error: anyhow::Error) -> Self {
-        Self { error, partial: None }
-    }
-}
+pub type ExternalFailure = RunFailure<ExternalRun>;
 
 /// Flies `scenario` with `controller` against a plant and netem started here (see the module's
 /// documentation).
@@ -158,24 +140,23 @@ pub async fn run_external(
     controller: &ExternalController,
 ) -> Result<ExternalRun, ExternalFailure> {
     let started = Instant::now();
+    let network = scenario.network().map_err(|e| anyhow!("{e}"))?;
+    let network = network.unwrap_or_else(|| delay::NetworkProfile::none(scenario.seed));
+    let delay_profile = DelayProfileInForce::of("scenario", &network);
     let mut config = plant_config(scenario, controller.time_mode);
     config.stream_buffer = stream_buffer(scenario, config.rate_hz);
     let (plant, plant_addr) = start_plant(config).await?;
-    let services = (|| async {
-        let netem = netem_config(&plant_addr, scenario, controller.time_mode)?;
-        start_netem(netem).await
-    })()
-    .await;
-    let (netem, netem_addr) = match services {
+    let netem = match netem_config(&plant_addr, scenario, controller.time_mode) {
+        Ok(config) => start_netem(config).await,
+        Err(e) => Err(e),
+    };
+    let (netem, netem_addr) = match netem {
         Ok(n) => n,
         Err(e) => {
             let _ = plant.stop().await;
             return Err(e.into());
         }
     };
-    let network = scenario.network().map_err(|e| anyhow!("{e}"))?;
-    let network = network.unwrap_or_else(|| delay::NetworkProfile::none(scenario.seed));
-    let delay_profile = DelayProfileInForce::of("scenario", &network);
     let mut flight = Flight::new(scenario, controller, delay_profile);
     let result = flight.fly(&plant_addr, &netem_addr, started).await;
     let stopping = Instant::now();
@@ -220,7 +201,11 @@ struct Flight<'a> {
 }
 
 impl<'a> Flight<'a> {
-    fn new(scenario: &'a Scenario, controller: &'a ExternalController, delay_profile: DelayProfileInForce) -> Self {
+    fn new(
+        scenario: &'a Scenario,
+        controller: &'a ExternalController,
+        delay_profile: DelayProfileInForce,
+    ) -> Self {
         Self {
             scenario,
             controller,
@@ -232,7 +217,12 @@ impl<'a> Flight<'a> {
         }
     }
 
-    async fn fly(&mut self, plant_addr: &str, netem_addr: &str, started: Instant) -> anyhow::Result<ExternalRun> {
+    async fn fly(
+        &mut self,
+        plant_addr: &str,
+        netem_addr: &str,
+        started: Instant,
+    ) -> anyhow::Result<ExternalRun> {
         let settings = &self.controller.settings;
         let deadline = started + settings.timeout;
         let mut plant = PlantClient::new(connect(plant_addr, deadline).await?);
@@ -252,11 +242,14 @@ impl<'a> Flight<'a> {
             .context("plant StreamState")?
             .into_inner();
         let scenario_file = ScenarioTempFile::write(self.scenario)?;
-        let mut process = Process::spawn(&self.controller.command, &[
-            ("HILBENCH_PLANT_ADDR", netem_addr),
-            ("HILBENCH_SCENARIO", &scenario_file.path.display().to_string()),
-            ("HILBENCH_TIME_MODE", self.controller.time_mode.name()),
-        ])?;
+        let mut process = Process::spawn(
+            &self.controller.command,
+            &[
+                ("HILBENCH_PLANT_ADDR", netem_addr),
+                ("HILBENCH_SCENARIO", &scenario_file.path.display().to_string()),
+                ("HILBENCH_TIME_MODE", self.controller.time_mode.name()),
+            ],
+        )?;
         self.setup_s = started.elapsed().as_secs_f64();
         let episode_started = Instant::now();
         self.episode_started = Some(episode_started);
@@ -277,18 +270,19 @@ impl<'a> Flight<'a> {
                     exited = Some(status);
                     self.exit = Some(format!("exited: {status}"));
                     // What the plant produced before the exit still counts: a controller may
-                    // stop once it sees the goal.
-                    loop {
-                        match tokio::time::timeout(DRAIN_QUIET, stream.message()).await {
-                            Ok(item) => {
-                                let item = item.context("the plant's state stream")?
-                                    .ok_or_else(|| anyhow!("the plant ended its state stream"))?;
-                                self.judge.see(&item)?;
-                                if self.judge.end.is_some() {
-                                    break;
-                                }
-                            }
-                            Err(_) => break,
+                    // stop once it sees the goal. In lockstep until the stream is quiet (a
+                    // call in flight may still advance the plant); in real time the plant
+                    // flies on without it, so only what has already arrived.
+                    let quiet = match self.controller.time_mode {
+                        TimeMode::Lockstep => DRAIN_QUIET,
+                        TimeMode::RealTime => Duration::ZERO,
+                    };
+                    while let Ok(item) = tokio::time::timeout(quiet, stream.message()).await {
+                        let item = item.context("the plant's state stream")?
+                            .ok_or_else(|| anyhow!("the plant ended its state stream"))?;
+                        self.judge.see(&item)?;
+                        if self.judge.end.is_some() {
+                            break;
                         }
                     }
                     if self.judge.end.is_none() {
@@ -332,7 +326,12 @@ impl<'a> Flight<'a> {
         if finish == Finish::Collided {
             summary.end_reason = finish.name().to_string();
         }
-        Ok(ExternalRun {
+        Ok(self.run(summary, last, episode_s))
+    }
+
+    /// The run, ended at `last` with `summary`.
+    fn run(&self, summary: RunSummary, last: PlantSample, episode_s: f64) -> ExternalRun {
+        ExternalRun {
             summary,
             rows: self.judge.rows.clone(),
             faults: faults_of(&last),
@@ -340,7 +339,7 @@ impl<'a> Flight<'a> {
             timing: RunTiming { setup_s: self.setup_s, episode_s, solver_s: 0.0, teardown_s: 0.0 },
             delay_profile: self.delay_profile.clone(),
             facts: self.facts(),
-        })
+        }
     }
 
     fn facts(&self) -> ExternalFacts {
@@ -360,15 +359,7 @@ impl<'a> Flight<'a> {
         let mut summary = self.judge.summary(&last, None);
         summary.end_reason = "error".to_string();
         let episode_s = self.episode_started.map_or(0.0, |t| t.elapsed().as_secs_f64());
-        Some(ExternalRun {
-            summary,
-            rows: self.judge.rows.clone(),
-            faults: faults_of(&last),
-            final_sample: last,
-            timing: RunTiming { setup_s: self.setup_s, episode_s, solver_s: 0.0, teardown_s: 0.0 },
-            delay_profile: self.delay_profile.clone(),
-            facts: self.facts(),
-        })
+        Some(self.run(summary, last, episode_s))
     }
 }
 
@@ -479,8 +470,9 @@ impl Judge {
             None => "no plant sample yet".to_string(),
             Some(s) => {
                 let g = self.scenario.goal_m;
-                let d = ((s.state[0] - g[0]).powi(2) + (s.state[1] - g[1]).powi(2) + (s.state[2] - g[2]).powi(2))
-                    .sqrt();
+                let d =
+                    ((s.state[0] - g[0]).powi(2) + (s.state[1] - g[1]).powi(2) + (s.state[2] - g[2]).powi(2))
+                        .sqrt();
                 format!(
                     "plant time {:.3} s, {d:.2} m from the goal, {} command(s) applied",
                     ns_to_s(s.time_ns),
@@ -494,7 +486,8 @@ impl Judge {
     /// solve statistics are unknown (no records), its cycles are the commands applied.
     fn summary(&self, last: &PlantSample, time_to_goal_ns: Option<u64>) -> RunSummary {
         // The mode only names the controller, which is replaced.
-        let mut summary = mpc::summarize(&self.scenario.name, ControllerMode::Multistage, &[], last, time_to_goal_ns);
+        let mut summary =
+            mpc::summarize(&self.scenario.name, ControllerMode::Multistage, &[], last, time_to_goal_ns);
         summary.controller = CONTROLLER_NAME.to_string();
         summary.cycles = self.rows.len() as u64;
         summary

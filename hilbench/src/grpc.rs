@@ -141,22 +141,23 @@ impl LinkFaults {
 
 /// A run that failed part-way: the error, and what it flew before it (`None` when it failed
 /// before its first cycle). The partial run's summary ends with `end_reason` "error", from the
-/// last sample its telemetry carried.
+/// last sample its telemetry carried. `R` is the run: the bench's controller's ([`GrpcRun`]) or
+/// an external one's (`crate::external::ExternalRun`).
 #[derive(Debug)]
-pub struct RunFailure {
+pub struct RunFailure<R = GrpcRun> {
     pub error: anyhow::Error,
-    pub partial: Option<Box<GrpcRun>>,
+    pub partial: Option<Box<R>>,
 }
 
-impl std::fmt::Display for RunFailure {
+impl<R> std::fmt::Display for RunFailure<R> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "{:#}", self.error)
     }
 }
 
-impl std::error::Error for RunFailure {}
+impl<R: std::fmt::Debug> std::error::Error for RunFailure<R> {}
 
-impl From<anyhow::Error> for RunFailure {
+impl<R> From<anyhow::Error> for RunFailure<R> {
     fn from(error: anyhow::Error) -> Self {
         Self { error, partial: None }
     }

@@ -117,11 +117,24 @@ enum Command {
         /// that speaks the Plant API as a client at $HILBENCH_PLANT_ADDR (netem, in front of a
         /// plant started here), with $HILBENCH_SCENARIO and $HILBENCH_TIME_MODE; judged from the
         /// plant's truth (docs/external-controller.md).
-        #[arg(long, value_name = "CMD", conflicts_with_all = ["in_process", "mode", "plant", "netem", "controller"])]
+        #[arg(
+            long,
+            value_name = "CMD",
+            value_parser = command_line,
+            conflicts_with_all = ["in_process", "mode", "plant", "netem", "controller"]
+        )]
         controller_cmd: Option<String>,
         #[command(flatten)]
         services: EndpointArgs,
     },
+}
+
+/// `--controller-cmd`: a command line with something to run.
+fn command_line(s: &str) -> Result<String, String> {
+    if s.trim().is_empty() {
+        return Err("is empty: give the command that starts your controller".to_string());
+    }
+    Ok(s.to_string())
 }
 
 /// Exit codes: 0 every run ended without a collision, 1 an error (anyhow's), 2 a usage error
@@ -335,9 +348,15 @@ struct Overrides {
 /// How `hilbench run` flies the file (`time_mode` `None`: the file's).
 enum RunTransport {
     InProcess,
-    Services { endpoints: EndpointArgs, time_mode: Option<TimeMode> },
+    Services {
+        endpoints: EndpointArgs,
+        time_mode: Option<TimeMode>,
+    },
     /// `--controller-cmd`.
-    External { command: String, time_mode: Option<TimeMode> },
+    External {
+        command: String,
+        time_mode: Option<TimeMode>,
+    },
 }
 
 fn run(

@@ -66,8 +66,21 @@ fn hilbench(args: &[&str], out: &Path) -> (Option<i32>, String, serde_json::Valu
 }
 
 /// One run of `command` on `scenario` in lockstep, through the library (as `run_all` calls it).
-fn fly(scenario: &mav::Scenario, command: &str, settings: ExternalSettings) -> Result<ExternalRun, ExternalFailure> {
-    let controller = ExternalController { command: command.to_string(), time_mode: TimeMode::Lockstep, settings };
+fn fly(
+    scenario: &mav::Scenario,
+    command: &str,
+    settings: ExternalSettings,
+) -> Result<ExternalRun, ExternalFailure> {
+    fly_in(TimeMode::Lockstep, scenario, command, settings)
+}
+
+fn fly_in(
+    time_mode: TimeMode,
+    scenario: &mav::Scenario,
+    command: &str,
+    settings: ExternalSettings,
+) -> Result<ExternalRun, ExternalFailure> {
+    let controller = ExternalController { command: command.to_string(), time_mode, settings };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -90,7 +103,8 @@ fn the_python_pd_controller_reaches_the_open_field_goal_in_lockstep_judged_from_
     assert_eq!(run["collided"], false);
     // The plant's truth: the last position is inside the goal's tolerance (0.15 m of [3, 4, 1]),
     // the path at least the straight line from the start (5.10 m), the time the plant's.
-    let p: Vec<f64> = run["final_position_m"].as_array().expect("a position").iter().filter_map(|v| v.as_f64()).collect();
+    let p: Vec<f64> =
+        run["final_position_m"].as_array().expect("a position").iter().filter_map(|v| v.as_f64()).collect();
     let miss_m = ((p[0] - 3.0).powi(2) + (p[1] - 4.0).powi(2) + (p[2] - 1.0).powi(2)).sqrt();
     assert!(miss_m < 0.15, "{p:?}");
     let path_m = run["path_length_m"].as_f64().expect("a path length");
@@ -200,4 +214,31 @@ fn two_lockstep_runs_of_the_python_controller_with_one_seed_are_identical() {
     // Row for row (the CSV's text: its NaN cells compare as text).
     assert_eq!(hilbench::cycle_log::to_csv(&a.rows), hilbench::cycle_log::to_csv(&b.rows));
     assert_eq!(a.facts, b.facts);
+}
+
+#[test]
+fn in_real_time_the_python_controller_streams_and_reaches_the_open_field_goal() {
+    let run = fly_in(TimeMode::RealTime, &open_field(), &python_controller(), ExternalSettings::default())
+        .unwrap_or_else(|e| panic!("{e}"));
+    let s = &run.summary;
+    assert!(s.reached && !s.collided, "{} at {:?}", s.end_reason, s.final_position_m);
+    // A command per streamed sample (20 Hz) over several seconds of plant time.
+    assert!(run.facts.commands_applied > 20, "{:?}", run.facts);
+    assert_eq!(run.facts.plant_steps_missed, 0);
+    assert_eq!(run.facts.exit, "stopped by the bench");
+}
+
+#[test]
+fn an_empty_controller_command_or_one_with_mode_is_a_usage_error() {
+    let file = repo("examples/python-controller/open-field.toml").display().to_string();
+    for args in [vec!["--controller-cmd", " "], vec!["--controller-cmd", "true", "--mode", "nmpc"]] {
+        let output = Command::new(hilbench_tests::service_binary("hilbench"))
+            .args(["run", &file])
+            .args(&args)
+            .output()
+            .expect("hilbench runs");
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.contains("--controller-cmd"), "{args:?}: {stderr}");
+    }
 }
