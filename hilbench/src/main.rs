@@ -124,6 +124,11 @@ enum Command {
             conflicts_with_all = ["in_process", "mode", "plant", "netem", "controller"]
         )]
         controller_cmd: Option<String>,
+        /// With --controller-cmd: fail the run when plant time has not moved for this long
+        /// (wall time, s; in lockstep a controller that stopped calling Step, or is slow to
+        /// start).
+        #[arg(long, value_name = "S", requires = "controller_cmd", value_parser = positive_seconds)]
+        stall_timeout_s: Option<f64>,
         #[command(flatten)]
         services: EndpointArgs,
     },
@@ -135,6 +140,15 @@ fn command_line(s: &str) -> Result<String, String> {
         return Err("is empty: give the command that starts your controller".to_string());
     }
     Ok(s.to_string())
+}
+
+/// `--stall-timeout-s`: a finite duration above 0 and at most a day.
+fn positive_seconds(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|e| format!("{s:?} is not a number of seconds: {e}"))?;
+    if !(v > 0.0 && v <= 86_400.0) {
+        return Err(format!("must be > 0 and at most 86400 s, got {s}"));
+    }
+    Ok(v)
 }
 
 /// Exit codes: 0 every run ended without a collision, 1 an error (anyhow's), 2 a usage error
@@ -178,10 +192,11 @@ fn main() -> anyhow::Result<()> {
             delay_trace,
             continue_after_collision,
             controller_cmd,
+            stall_timeout_s,
             services,
         } => {
             let transport = match controller_cmd {
-                Some(command) => RunTransport::External { command, time_mode },
+                Some(command) => RunTransport::External { command, time_mode, stall_timeout_s },
                 None if in_process => RunTransport::InProcess,
                 None => RunTransport::Services { endpoints: services, time_mode },
             };
@@ -352,10 +367,11 @@ enum RunTransport {
         endpoints: EndpointArgs,
         time_mode: Option<TimeMode>,
     },
-    /// `--controller-cmd`.
+    /// `--controller-cmd` (and `--stall-timeout-s`).
     External {
         command: String,
         time_mode: Option<TimeMode>,
+        stall_timeout_s: Option<f64>,
     },
 }
 
@@ -384,11 +400,15 @@ fn run(
         RunTransport::Services { endpoints, time_mode } => {
             Transport::Grpc(endpoints.endpoints(time_mode.unwrap_or(spec.run.time_mode)))
         }
-        RunTransport::External { command, time_mode } => {
+        RunTransport::External { command, time_mode, stall_timeout_s } => {
+            let mut settings = hilbench::external::ExternalSettings::default();
+            if let Some(s) = stall_timeout_s {
+                settings.stall_timeout = std::time::Duration::from_secs_f64(s);
+            }
             Transport::External(hilbench::external::ExternalController {
                 command,
                 time_mode: time_mode.unwrap_or(spec.run.time_mode),
-                settings: hilbench::external::ExternalSettings::default(),
+                settings,
             })
         }
         RunTransport::InProcess if spec.run.time_mode == TimeMode::RealTime => {

@@ -229,9 +229,15 @@ fn in_real_time_the_python_controller_streams_and_reaches_the_open_field_goal() 
 }
 
 #[test]
-fn an_empty_controller_command_or_one_with_mode_is_a_usage_error() {
+fn an_empty_controller_command_a_bad_stall_timeout_or_a_mode_beside_it_is_a_usage_error() {
     let file = repo("examples/python-controller/open-field.toml").display().to_string();
-    for args in [vec!["--controller-cmd", " "], vec!["--controller-cmd", "true", "--mode", "nmpc"]] {
+    // Each with the flag the error names.
+    for (args, named) in [
+        (vec!["--controller-cmd", " "], "--controller-cmd"),
+        (vec!["--controller-cmd", "true", "--mode", "nmpc"], "--mode"),
+        (vec!["--controller-cmd", "true", "--stall-timeout-s", "NaN"], "--stall-timeout-s"),
+        (vec!["--stall-timeout-s", "5"], "--controller-cmd"),
+    ] {
         let output = Command::new(hilbench_tests::service_binary("hilbench"))
             .args(["run", &file])
             .args(&args)
@@ -239,6 +245,6 @@ fn an_empty_controller_command_or_one_with_mode_is_a_usage_error() {
             .expect("hilbench runs");
         let stderr = String::from_utf8_lossy(&output.stderr);
         assert_eq!(output.status.code(), Some(2), "{args:?}: {stderr}");
-        assert!(stderr.contains("--controller-cmd"), "{args:?}: {stderr}");
+        assert!(stderr.contains(named), "{args:?}: {stderr}");
     }
 }
