@@ -164,7 +164,7 @@ pub async fn run_external(
     match result {
         Ok(mut run) => {
             stopped.map_err(ExternalFailure::from)?;
-            run.timing.teardown_s = stopping.elapsed().as_secs_f64();
+            run.timing.teardown_s += stopping.elapsed().as_secs_f64();
             Ok(run)
         }
         Err(error) => Err(ExternalFailure { error, partial: flight.partial().map(Box::new) }),
@@ -197,6 +197,8 @@ struct Flight<'a> {
     delay_profile: DelayProfileInForce,
     exit: Option<String>,
     setup_s: f64,
+    /// Stopping the controller's process, s (part of the run's teardown).
+    stop_s: f64,
     episode_started: Option<Instant>,
 }
 
@@ -213,6 +215,7 @@ impl<'a> Flight<'a> {
             delay_profile,
             exit: None,
             setup_s: 0.0,
+            stop_s: 0.0,
             episode_started: None,
         }
     }
@@ -317,9 +320,11 @@ impl<'a> Flight<'a> {
             }
         }
         let episode_s = episode_started.elapsed().as_secs_f64();
+        let stopping = Instant::now();
         if exited.is_none() {
             self.exit = Some(process.stop(settings.stop_grace).await);
         }
+        self.stop_s = stopping.elapsed().as_secs_f64();
         let (finish, last) = self.judge.end.clone().ok_or_else(|| anyhow!("the run has no end"))?;
         let time_to_goal_ns = (finish == Finish::Reached).then_some(last.time_ns);
         let mut summary = self.judge.summary(&last, time_to_goal_ns);
@@ -336,7 +341,7 @@ impl<'a> Flight<'a> {
             rows: self.judge.rows.clone(),
             faults: faults_of(&last),
             final_sample: last,
-            timing: RunTiming { setup_s: self.setup_s, episode_s, solver_s: 0.0, teardown_s: 0.0 },
+            timing: RunTiming { setup_s: self.setup_s, episode_s, solver_s: 0.0, teardown_s: self.stop_s },
             delay_profile: self.delay_profile.clone(),
             facts: self.facts(),
         }
@@ -529,9 +534,13 @@ struct Process {
 
 impl Process {
     fn spawn(command: &str, env: &[(&str, &str)]) -> anyhow::Result<Self> {
+        // The trap makes the shell wait for the command on SIGTERM and exit after it (traps run
+        // once the foreground command has finished; its own SIGTERM disposition is the default):
+        // a shell killed at once would orphan the controller, and an orphan is reaped by
+        // whatever PID 1 is, lazily or never in some containers.
         let mut child = Command::new("sh")
             .arg("-c")
-            .arg(command)
+            .arg(format!("trap 'exit 143' TERM\n{command}"))
             .envs(env.iter().copied())
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
@@ -572,20 +581,27 @@ impl Process {
         self.group = None;
     }
 
-    /// SIGTERM to the group, SIGKILL after `grace`: how it ended.
+    /// SIGTERM to the group, SIGKILL to what is left of it after `grace`: how it ended. The
+    /// whole group gets the grace, not just the shell: `sh -c` may die of the SIGTERM at once
+    /// while the controller it started is still cleaning up.
     async fn stop(&mut self, grace: Duration) -> String {
         self.signal(rustix::process::Signal::TERM);
-        match tokio::time::timeout(grace, self.child.wait()).await {
-            Ok(_) => {
-                // Whatever its shell started goes too.
-                self.kill();
-                "stopped by the bench".to_string()
+        let deadline = tokio::time::Instant::now() + grace;
+        let mut exited = false;
+        loop {
+            exited = exited || matches!(self.child.try_wait(), Ok(Some(_)));
+            let group_gone =
+                self.group.is_none_or(|group| rustix::process::test_kill_process_group(group).is_err());
+            if exited && group_gone {
+                self.group = None;
+                return "stopped by the bench".to_string();
             }
-            Err(_) => {
+            if tokio::time::Instant::now() >= deadline {
                 self.kill();
                 let _ = self.child.wait().await;
-                "killed by the bench".to_string()
+                return "killed by the bench".to_string();
             }
+            tokio::time::sleep(Duration::from_millis(10)).await;
         }
     }
 }

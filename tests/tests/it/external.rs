@@ -123,6 +123,7 @@ fn the_python_pd_controller_reaches_the_open_field_goal_in_lockstep_judged_from_
     assert!((100.0..300.0).contains(&latency_ms), "{latency_ms}");
     let csv = std::fs::read_to_string(out.join("open-field-external.csv")).expect("the CSV");
     assert_eq!(csv.lines().count() as u64, cycles + 1);
+    let _ = std::fs::remove_dir_all(out);
 }
 
 #[test]
@@ -140,6 +141,7 @@ fn a_controller_that_exits_with_an_error_fails_the_run_naming_its_status_and_las
     // The failed run is kept as far as the plant flew it: not at all.
     assert_eq!(summary["runs"][0]["end_reason"], "error");
     assert_eq!(summary["runs"][0]["external_controller"]["commands_applied"], 0);
+    let _ = std::fs::remove_dir_all(out);
 }
 
 #[test]
@@ -177,6 +179,7 @@ fn the_python_controller_flying_straight_into_a_paper_1_cylinder_is_reported_col
     assert_eq!(run["reached"], false);
     assert_eq!(run["collisions"][0]["kind"], "cylinder");
     assert!(run["min_clearance_m"].as_f64().is_some_and(|c| c < 0.0), "{}", run["min_clearance_m"]);
+    let _ = std::fs::remove_dir_all(out);
 }
 
 /// Twenty delay seeds: the sweep of issue 21's example (a loop here; `hilbench sweep
