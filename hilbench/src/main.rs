@@ -120,6 +120,22 @@ enum Command {
         /// seed, which --seed sets, and I alone).
         #[arg(long, value_name = "I", conflicts_with_all = ["delay_trace", "keep_netem_profile"])]
         sweep_run: Option<u64>,
+        /// Fly your own controller instead of the bench's: a command line (run with `sh -c`)
+        /// that speaks the Plant API as a client at $HILBENCH_PLANT_ADDR (netem, in front of a
+        /// plant started here), with $HILBENCH_SCENARIO and $HILBENCH_TIME_MODE; judged from the
+        /// plant's truth (docs/external-controller.md).
+        #[arg(
+            long,
+            value_name = "CMD",
+            value_parser = command_line,
+            conflicts_with_all = ["in_process", "mode", "plant", "netem", "controller"]
+        )]
+        controller_cmd: Option<String>,
+        /// With --controller-cmd: fail the run when plant time has not moved for this long
+        /// (wall time, s; in lockstep a controller that stopped calling Step, or is slow to
+        /// start).
+        #[arg(long, value_name = "S", requires = "controller_cmd", value_parser = positive_seconds)]
+        stall_timeout_s: Option<f64>,
         #[command(flatten)]
         services: EndpointArgs,
         /// Serve the run live to Foxglove over its WebSocket protocol (the channels of the
@@ -204,6 +220,23 @@ fn parse_timeout(text: &str) -> Result<f64, String> {
     Ok(s)
 }
 
+/// `--controller-cmd`: a command line with something to run.
+fn command_line(s: &str) -> Result<String, String> {
+    if s.trim().is_empty() {
+        return Err("is empty: give the command that starts your controller".to_string());
+    }
+    Ok(s.to_string())
+}
+
+/// `--stall-timeout-s`: a finite duration above 0 and at most a day.
+fn positive_seconds(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|e| format!("{s:?} is not a number of seconds: {e}"))?;
+    if !(v > 0.0 && v <= 86_400.0) {
+        return Err(format!("must be > 0 and at most 86400 s, got {s}"));
+    }
+    Ok(v)
+}
+
 /// Exit codes: 0 every run ended without a collision, 1 an error (anyhow's), 2 a usage error
 /// (clap's), [`EXIT_COLLISION`] a run collided (a result scripts must be able to tell from both).
 const EXIT_COLLISION: i32 = 3;
@@ -251,10 +284,16 @@ fn main() -> anyhow::Result<()> {
             delay_trace,
             continue_after_collision,
             sweep_run,
+            controller_cmd,
+            stall_timeout_s,
             services,
             foxglove_ws,
         } => {
-            let transport = (!in_process).then_some((services, time_mode));
+            let transport = match controller_cmd {
+                Some(command) => RunTransport::External { command, time_mode, stall_timeout_s },
+                None if in_process => RunTransport::InProcess,
+                None => RunTransport::Services { endpoints: services, time_mode },
+            };
             let overrides = Overrides { seed, delay_trace, continue_after_collision, sweep_run, foxglove_ws };
             run(&file, mode, out, json, &opts, &overrides, transport)?
         }
@@ -442,6 +481,21 @@ struct Overrides {
     foxglove_ws: Option<std::net::SocketAddr>,
 }
 
+/// How `hilbench run` flies the file (`time_mode` `None`: the file's).
+enum RunTransport {
+    InProcess,
+    Services {
+        endpoints: EndpointArgs,
+        time_mode: Option<TimeMode>,
+    },
+    /// `--controller-cmd` (and `--stall-timeout-s`).
+    External {
+        command: String,
+        time_mode: Option<TimeMode>,
+        stall_timeout_s: Option<f64>,
+    },
+}
+
 fn run(
     file: &std::path::Path,
     mode: Option<ModeArg>,
@@ -449,7 +503,7 @@ fn run(
     json: bool,
     opts: &Options,
     overrides: &Overrides,
-    services: Option<(EndpointArgs, Option<TimeMode>)>,
+    transport: RunTransport,
 ) -> anyhow::Result<Outcome> {
     let mut spec = ScenarioFile::load(file)?;
     if let Some(index) = overrides.sweep_run {
@@ -474,8 +528,13 @@ fn run(
         spec.scenario.delays = Some(delay::DelaysTable::trace(&name, delays, false));
         spec.scenario.validate().map_err(|e| anyhow::anyhow!("--delay-trace {name}: {e}"))?;
     }
-    let transport = &match services {
-        Some((args, time_mode)) => {
+    if overrides.foxglove_ws.is_some() && !matches!(transport, RunTransport::Services { .. }) {
+        anyhow::bail!(
+            "--foxglove-ws needs the bench's services in real time (not --in-process or --controller-cmd)"
+        );
+    }
+    let transport = &match transport {
+        RunTransport::Services { endpoints: args, time_mode } => {
             let mut endpoints = args.endpoints(time_mode.unwrap_or(spec.run.time_mode));
             if let Some(addr) = overrides.foxglove_ws {
                 if endpoints.time_mode != TimeMode::RealTime {
@@ -491,13 +550,21 @@ fn run(
             }
             Transport::Grpc(endpoints)
         }
-        None if overrides.foxglove_ws.is_some() => {
-            anyhow::bail!("--foxglove-ws needs the services in real time (not --in-process)")
+        RunTransport::External { command, time_mode, stall_timeout_s } => {
+            let mut settings = hilbench::external::ExternalSettings::default();
+            if let Some(s) = stall_timeout_s {
+                settings.stall_timeout = std::time::Duration::from_secs_f64(s);
+            }
+            Transport::External(hilbench::external::ExternalController {
+                command,
+                time_mode: time_mode.unwrap_or(spec.run.time_mode),
+                settings,
+            })
         }
-        None if spec.run.time_mode == TimeMode::RealTime => {
+        RunTransport::InProcess if spec.run.time_mode == TimeMode::RealTime => {
             anyhow::bail!("{}: real time needs the services (not --in-process)", file.display())
         }
-        None => Transport::InProcess,
+        RunTransport::InProcess => Transport::InProcess,
     };
     let modes = match mode {
         None => None,
@@ -505,7 +572,11 @@ fn run(
         Some(ModeArg::Multistage) => Some(vec![Mode::Multistage]),
         Some(ModeArg::Both) => Some(vec![Mode::Nmpc, Mode::Multistage]),
     };
-    let jobs = file_jobs(&spec, modes.as_deref());
+    let jobs = match transport {
+        // One run of the file's scenario; the mode of the job is not used.
+        Transport::External(_) => vec![(spec.scenario.clone(), mpc::ControllerMode::Multistage)],
+        _ => file_jobs(&spec, modes.as_deref()),
+    };
     let header = |o: &Outcome| {
         format!("{} ({}): {}, {}", spec.scenario.name, file.display(), o.time_mode, transport.describe())
     };

@@ -3,6 +3,7 @@
 
 mod closed_loop;
 mod controller;
+mod external;
 mod fault;
 mod foxglove;
 mod netem;
