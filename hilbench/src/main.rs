@@ -185,8 +185,13 @@ struct SweepArgs {
     shard: Option<(u64, u64)>,
     /// Fly each run over the services (plant, netem, controller on loopback) instead of in
     /// process: the same numbers, slower.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "controller_cmd")]
     grpc: bool,
+    /// Sweep your own controller instead of the bench's: a command line that speaks the Plant
+    /// API as a client at $HILBENCH_PLANT_ADDR (as `hilbench run --controller-cmd`), started
+    /// for each run, judged from the plant's truth (docs/external-controller.md).
+    #[arg(long, value_name = "CMD", value_parser = command_line, conflicts_with = "mode")]
+    controller_cmd: Option<String>,
     /// Shrink each failing run's delay trace to a smaller one that still fails
     /// (failures/<run>.csv).
     #[arg(long)]
@@ -644,6 +649,8 @@ fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Outcome> {
         )
     })?;
     let modes = match args.mode {
+        // One flight per run for an external controller (the mode names no controller then).
+        None if args.controller_cmd.is_some() => vec![mpc::ControllerMode::Multistage],
         None => spec.run.modes.iter().map(|m| hilbench::bench::controller_mode(*m)).collect(),
         Some(ModeArg::Nmpc) => vec![mpc::ControllerMode::Nmpc],
         Some(ModeArg::Multistage) => vec![mpc::ControllerMode::Multistage],
@@ -663,7 +670,15 @@ fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Outcome> {
         modes,
         shard: args.shard,
         jobs,
-        transport: if args.grpc { Transport::Grpc(Endpoints::default()) } else { Transport::InProcess },
+        transport: match args.controller_cmd {
+            Some(command) => Transport::External(hilbench::external::ExternalController {
+                command,
+                time_mode: TimeMode::Lockstep,
+                settings: hilbench::external::ExternalSettings::default(),
+            }),
+            None if args.grpc => Transport::Grpc(Endpoints::default()),
+            None => Transport::InProcess,
+        },
         run_timeout: std::time::Duration::from_secs_f64(
             args.run_timeout_s
                 .or(table.run_timeout_s)

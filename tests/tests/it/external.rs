@@ -185,22 +185,30 @@ fn the_python_controller_flying_straight_into_a_paper_1_cylinder_is_reported_col
 /// Twenty delay seeds: the sweep of issue 21's example (a loop here; `hilbench sweep
 /// --controller-cmd` once the sweep exists).
 #[test]
-fn the_python_controller_reaches_the_open_field_goal_under_twenty_delay_seeds() {
-    let mut times_s = Vec::new();
-    for seed in 0..20 {
-        let mut scenario = open_field();
-        scenario.seed = seed;
-        let run = fly(&scenario, &python_controller(), ExternalSettings::default())
-            .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
-        let s = &run.summary;
-        assert!(s.reached && !s.collided, "seed {seed}: {} at {:?}", s.end_reason, s.final_position_m);
-        assert_eq!(run.facts.plant_steps_missed, 0, "seed {seed}");
-        times_s.push(s.time_to_goal_s.expect("reached"));
+fn a_sweep_of_the_python_controller_under_twenty_delay_processes_reaches_every_goal() {
+    let out = temp_dir("sweep");
+    let file = repo("examples/python-controller/open-field.toml");
+    let controller = python_controller();
+    let run = Command::new(hilbench_tests::service_binary("hilbench"))
+        .args(["sweep", file.to_str().expect("utf-8"), "--controller-cmd", &controller, "--jobs", "2"])
+        .args(["--quiet", "--no-plots", "--out"])
+        .arg(&out)
+        .stdin(Stdio::null())
+        .output()
+        .expect("hilbench runs");
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let sweep: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("sweep.json")).expect("sweep.json"))
+            .expect("JSON");
+    assert_eq!(sweep["runs"], 20, "the file's sweep.runs");
+    assert_eq!((sweep["reached"].as_u64(), sweep["collided"].as_u64()), (Some(20), Some(0)), "{sweep}");
+    for family in ["gamma", "uniform"] {
+        assert_eq!(sweep["families"][family]["runs"], 10, "families in turn: {family}");
     }
-    // The seeds drew different delays, so the flights differ.
-    times_s.sort_by(f64::total_cmp);
-    times_s.dedup();
-    assert!(times_s.len() > 10, "{times_s:?}");
+    // The runs drew different delays, so the flights differ.
+    let path_m = &sweep["path_length_m"];
+    assert_ne!(path_m["p50"], path_m["p95"], "{path_m}");
+    let _ = std::fs::remove_dir_all(&out);
 }
 
 #[test]
