@@ -121,6 +121,14 @@ impl CycleController {
     }
 
     /// See [`SafetyLayer::set_in_flight`] (nothing without the layer).
+    /// The longest delay measured lately, for the safety layer's fail-safe check
+    /// ([`SafetyLayer::cover_delays_up_to`]).
+    pub fn cover_delays_up_to(&mut self, observed_max_s: Option<f64>) {
+        if let Some(layer) = self.safety.as_mut() {
+            layer.cover_delays_up_to(observed_max_s);
+        }
+    }
+
     pub fn set_in_flight(&mut self, in_flight: Option<&[crate::fail_safe::InFlight]>) {
         if let Some(layer) = self.safety.as_mut() {
             layer.set_in_flight(in_flight);

@@ -92,6 +92,11 @@ impl DelayWindow {
         self.next = 0;
     }
 
+    /// The longest delay in the window, s (`None` when empty).
+    pub fn max_s(&self) -> Option<f64> {
+        self.buf[..self.len].iter().copied().reduce(f64::max)
+    }
+
     /// Mean and population variance (the method of moments uses the sample's own moments).
     pub fn moments(&self) -> Option<(f64, f64)> {
         if self.len == 0 {

@@ -315,6 +315,9 @@ impl Episode {
                 SolveBudget { deadline: Some(*deadline), ..SolveBudget::default() }
             }
         };
+        // The fail-safe check covers the delays this link has shown, the tail beyond the
+        // scenario tree's largest sampling time included.
+        self.controller.cover_delays_up_to(self.weights.window().max_s());
         let weights = self.weights.weights().to_vec();
         let outcome = self.controller.step(self.cycle, sample.time_ns, &x0, &u_prev, &weights, &budget)?;
         // Finite and inside the bounds by construction (the cycle controller sanitises); the

@@ -35,6 +35,10 @@ use mav::{Cylinder, InputBounds, MavModel, ModelParams, Scenario, State, rk4_ste
 use crate::command::braking_command;
 use crate::error::MpcError;
 
+/// The longest round-trip delay the fail-safe check widens its range to, s: beyond it a link
+/// is down rather than slow (the plant's watchdog takes over).
+pub const MAX_COVERED_DELAY_S: f64 = 3.0;
+
 /// Settings of the fail-safe check (validated with the safety layer's settings).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -111,6 +115,15 @@ impl BrakingCheck {
             return bad("braking_check.ground_z_m", "must be finite");
         }
         Ok(())
+    }
+
+    /// The check over delays up to the larger of `base_max_delay_s` (the scenario tree's
+    /// range) and `observed_max_s` (the longest delay measured lately), capped at
+    /// [`MAX_COVERED_DELAY_S`]: a tail beyond the tree's largest sampling time is still a delay
+    /// the next command may meet, and braking must hold for it too.
+    pub fn covering(self, base_max_delay_s: f64, observed_max_s: Option<f64>) -> Self {
+        let observed = observed_max_s.filter(|d| d.is_finite()).unwrap_or(0.0);
+        Self { max_delay_s: base_max_delay_s.max(observed.min(MAX_COVERED_DELAY_S)), ..self }
     }
 
     /// The `k`-th of the sampled delays, s.

@@ -88,3 +88,16 @@ fn a_longer_delay_reaches_further() {
     let bad = BrakingCheck { delay_samples: 1, ..BrakingCheck::default() };
     assert!(bad.validate().is_err());
 }
+
+#[test]
+fn the_check_widens_to_the_longest_delay_measured_never_narrows_below_the_tree_and_caps() {
+    let base = BrakingCheck::default();
+    assert_eq!(base.covering(0.33, None).max_delay_s, 0.33);
+    assert_eq!(base.covering(0.33, Some(0.1)).max_delay_s, 0.33, "never below the tree's range");
+    assert_eq!(base.covering(0.33, Some(1.2)).max_delay_s, 1.2, "a tail beyond it is covered");
+    assert_eq!(base.covering(0.33, Some(60.0)).max_delay_s, MAX_COVERED_DELAY_S);
+    assert_eq!(base.covering(0.33, Some(f64::NAN)).max_delay_s, 0.33);
+    // Widening and narrowing again: the range follows the window, down to the tree's.
+    let wide = base.covering(0.33, Some(1.2));
+    assert_eq!(wide.covering(0.33, Some(0.2)).max_delay_s, 0.33);
+}
