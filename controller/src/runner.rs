@@ -1,4 +1,4 @@
-//! The control loop: a Plant API client running `SPEC.md`'s cycle.
+//! The control loop: a Plant API client running `docs/spec.md`'s cycle.
 //!
 //! Lockstep (the controller drives plant time): at `t_k` it solves from the sample, sends the
 //! command, and asks for `Advance(min_cycle, wait_for_command_seq = k)`, so the next sample

@@ -9,6 +9,7 @@ use mav::Scenario;
 use mpc::RunSummary;
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
 
+use crate::external::{ExternalFacts, ExternalFailure, ExternalRun, run_external};
 use crate::grpc::{
     DelayProfileInForce, Endpoints, GrpcSettings, LinkFaults, RunFailure, RunTiming, run_against,
 };
@@ -60,6 +61,9 @@ pub enum Transport {
     InProcess,
     /// Plant, netem and controller over gRPC; what `Endpoints` does not name is started here.
     Grpc(Endpoints),
+    /// An external controller's process against a plant and netem started here, judged from
+    /// the plant's truth (`crate::external`); a job's controller mode is not used.
+    External(crate::external::ExternalController),
 }
 
 impl Transport {
@@ -68,6 +72,7 @@ impl Transport {
         match self {
             Transport::InProcess => "in-process",
             Transport::Grpc(_) => "grpc",
+            Transport::External(_) => "external",
         }
     }
 
@@ -77,6 +82,7 @@ impl Transport {
             Transport::InProcess => "in process",
             Transport::Grpc(e) if e.is_local() => "over gRPC (plant, netem, controller on loopback)",
             Transport::Grpc(_) => "over gRPC (given services)",
+            Transport::External(_) => "over gRPC (an external controller; plant and netem on loopback)",
         }
     }
 }
@@ -97,6 +103,9 @@ pub struct Outcome {
     pub runs: Vec<RunSummary>,
     /// Per-cycle rows of each run, in the order of `runs`.
     pub cycles: Vec<Vec<crate::cycle_log::CycleRow>>,
+    /// Each run's records, predicted trajectories included (the MCAP logs), in the order of
+    /// `runs`.
+    pub records: Vec<Vec<mpc::CycleRecord>>,
     /// The goal of each run's scenario, m, in the order of `runs`.
     pub goals: Vec<[f64; 3]>,
     pub timings: Vec<TimedRun>,
@@ -104,6 +113,9 @@ pub struct Outcome {
     pub faults: Vec<LinkFaults>,
     /// The delay process of each run, in the order of `runs`.
     pub delay_profiles: Vec<DelayProfileInForce>,
+    /// What each run's external controller did, in the order of `runs` (`None` for the
+    /// bench's controller).
+    pub external: Vec<Option<ExternalFacts>>,
     /// The error that ended the command early (a run that failed: a service died, a trace
     /// ran out, ...): `runs` holds the runs that finished before it, and no later run started.
     pub error: Option<String>,
@@ -152,6 +164,9 @@ impl Outcome {
                     add_cycle_metrics(&mut v, rows, goal);
                     faults.add_to(&mut v);
                     v["delay_profile"] = serde_json::json!(delay_profile);
+                    if let Some(Some(facts)) = self.external.get(i) {
+                        v["external_controller"] = serde_json::json!(facts);
+                    }
                     if self.failed_run_kept && i + 1 == self.runs.len() {
                         v["error"] = serde_json::json!(self.error);
                     }
@@ -175,6 +190,51 @@ impl Outcome {
 enum Ran {
     Grpc(Box<Result<crate::grpc::GrpcRun, RunFailure>>),
     Local(Box<Result<(mpc::RunSummary, Vec<mpc::CycleTrace>), String>>),
+    External(Box<Result<ExternalRun, ExternalFailure>>),
+}
+
+/// What `run_all` keeps of a run, whichever way it flew.
+struct Flown {
+    summary: RunSummary,
+    rows: Vec<crate::cycle_log::CycleRow>,
+    /// The controller's records (none for an external controller, which has no telemetry).
+    records: Vec<mpc::CycleRecord>,
+    /// Where the wall time went (runs over services only).
+    timing: Option<RunTiming>,
+    faults: LinkFaults,
+    delay_profile: DelayProfileInForce,
+    external: Option<ExternalFacts>,
+}
+
+/// A run, or its error (`what` failed: ...) with the part that flew, if any.
+type FlownOrFailed = Result<Flown, (String, Option<Box<Flown>>)>;
+
+impl Flown {
+    fn over_grpc(run: Result<crate::grpc::GrpcRun, RunFailure>, what: &str) -> FlownOrFailed {
+        let flown = |run: crate::grpc::GrpcRun| Flown {
+            rows: crate::cycle_log::from_records(&run.records),
+            records: run.records,
+            summary: run.summary,
+            timing: Some(run.timing),
+            faults: run.faults,
+            delay_profile: run.delay_profile,
+            external: None,
+        };
+        run.map(flown).map_err(|f| (format!("{what}: {:#}", f.error), f.partial.map(|p| Box::new(flown(*p)))))
+    }
+
+    fn external(run: Result<ExternalRun, ExternalFailure>, what: &str) -> FlownOrFailed {
+        let flown = |run: ExternalRun| Flown {
+            summary: run.summary,
+            rows: run.rows,
+            records: Vec::new(),
+            timing: Some(run.timing),
+            faults: run.faults,
+            delay_profile: run.delay_profile,
+            external: Some(run.facts),
+        };
+        run.map(flown).map_err(|f| (format!("{what}: {:#}", f.error), f.partial.map(|p| Box::new(flown(*p)))))
+    }
 }
 
 /// How often a real-time run without a terminal says it is still flying.
@@ -194,18 +254,29 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
         .context("cannot start the tokio runtime")?;
     let mut runs = Vec::with_capacity(jobs.len());
     let mut cycles = Vec::with_capacity(jobs.len());
+    let mut records = Vec::with_capacity(jobs.len());
     let mut goals = Vec::with_capacity(jobs.len());
     let mut timings = Vec::new();
     let mut faults = Vec::with_capacity(jobs.len());
     let mut delay_profiles = Vec::with_capacity(jobs.len());
+    let mut external = Vec::with_capacity(jobs.len());
     let mut error = None;
     let mut failed_run_kept = false;
     let mut interrupted = false;
     let bar = crate::progress::bar(jobs.len() as u64, "runs", progress);
-    let real_time = matches!(transport, Transport::Grpc(e) if e.time_mode == crate::grpc::TimeMode::RealTime);
+    let real_time = match transport {
+        Transport::Grpc(e) => e.time_mode == crate::grpc::TimeMode::RealTime,
+        Transport::External(c) => c.time_mode == crate::grpc::TimeMode::RealTime,
+        Transport::InProcess => false,
+    };
     for (scenario, mode) in jobs {
         let name = &scenario.name;
-        bar.set_message(format!("{name} with {}", mode.name()));
+        // The controller flown: the job's mode, or the external controller.
+        let controller = match transport {
+            Transport::External(_) => crate::external::CONTROLLER_NAME,
+            _ => mode.name(),
+        };
+        bar.set_message(format!("{name} with {controller}"));
         let run_started = Instant::now();
         let ran = runtime.block_on(async {
             let job = async {
@@ -220,11 +291,21 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                             Err(anyhow::anyhow!("the run {}", hilbench_svc::task_failure(e)).into())
                         })))
                     }
+                    Transport::External(ext) => {
+                        let (scenario, ext) = (scenario.clone(), ext.clone());
+                        let task = tokio::spawn(async move { run_external(&scenario, &ext).await });
+                        Ran::External(Box::new(task.await.unwrap_or_else(|e| {
+                            Err(anyhow::anyhow!("the run {}", hilbench_svc::task_failure(e)).into())
+                        })))
+                    }
                     Transport::InProcess => {
                         let (scenario, mode) = (scenario.clone(), *mode);
-                        let task = tokio::task::spawn_blocking(move || {
-                            run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode))
-                        });
+                        // With the predicted trajectories, as the gRPC telemetry carries them.
+                        let settings = ClosedLoopSettings {
+                            record_predictions: true,
+                            ..ClosedLoopSettings::paper(mode)
+                        };
+                        let task = tokio::task::spawn_blocking(move || run_closed_loop(&scenario, &settings));
                         match task.await {
                             Ok(run) => Ran::Local(Box::new(run.map_err(|e| e.to_string()))),
                             Err(e) => Ran::Local(Box::new(Err(format!(
@@ -243,8 +324,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
                 loop {
                     tick.tick().await;
                     let text = format!(
-                        "  {name} {:<11} flying ({:.0} s)",
-                        mode.name(),
+                        "  {name} {controller:<11} flying ({:.0} s)",
                         run_started.elapsed().as_secs_f64()
                     );
                     crate::progress::line(&bar, progress, &text);
@@ -260,56 +340,56 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
             interrupted = true;
             break;
         };
-        let summary = match ran {
-            Ran::Grpc(run) => {
-                let (run, failed) = match *run {
-                    Ok(run) => (run, None),
-                    Err(RunFailure { error: e, partial }) => {
-                        let e = format!("{name} with {} over gRPC: {e:#}", mode.name());
-                        match partial {
-                            Some(run) => (*run, Some(e)),
-                            None => {
-                                error = Some(e);
-                                break;
-                            }
-                        }
-                    }
-                };
-                timings.push(TimedRun {
-                    scenario: name.clone(),
-                    controller: mode.name().to_string(),
-                    timing: run.timing,
-                    loop_overhead_s: run.timing.loop_overhead_s(),
-                });
-                cycles.push(crate::cycle_log::from_records(&run.records));
-                faults.push(run.faults);
-                delay_profiles.push(run.delay_profile);
-                if let Some(e) = failed {
-                    runs.push(run.summary);
-                    goals.push(scenario.goal_m);
-                    error = Some(e);
-                    failed_run_kept = true;
-                    break;
+        let flown = match ran {
+            Ran::Grpc(run) => Flown::over_grpc(*run, &format!("{name} with {controller} over gRPC")),
+            Ran::External(run) => Flown::external(*run, &format!("{name} with an external controller")),
+            Ran::Local(run) => match *run {
+                Ok((summary, traces)) => {
+                    let records: Vec<_> = traces.into_iter().map(|t| t.record).collect();
+                    let network =
+                        scenario.network()?.unwrap_or_else(|| delay::NetworkProfile::none(scenario.seed));
+                    Ok(Flown {
+                        summary,
+                        rows: crate::cycle_log::from_records(&records),
+                        records,
+                        timing: None,
+                        faults: LinkFaults::default(),
+                        delay_profile: DelayProfileInForce::of("scenario", &network),
+                        external: None,
+                    })
                 }
-                run.summary
-            }
-            Ran::Local(run) => {
-                let (summary, traces) = match *run {
-                    Ok(run) => run,
-                    Err(e) => {
-                        error = Some(format!("{name} with {}: {e}", mode.name()));
-                        break;
-                    }
-                };
-                let records: Vec<_> = traces.into_iter().map(|t| t.record).collect();
-                cycles.push(crate::cycle_log::from_records(&records));
-                faults.push(LinkFaults::default());
-                let network =
-                    scenario.network()?.unwrap_or_else(|| delay::NetworkProfile::none(scenario.seed));
-                delay_profiles.push(DelayProfileInForce::of("scenario", &network));
-                summary
+                Err(e) => Err((format!("{name} with {controller}: {e}"), None)),
+            },
+        };
+        let (run, failed) = match flown {
+            Ok(run) => (run, None),
+            Err((e, Some(partial))) => (*partial, Some(e)),
+            Err((e, None)) => {
+                error = Some(e);
+                break;
             }
         };
+        if let Some(timing) = run.timing {
+            timings.push(TimedRun {
+                scenario: name.clone(),
+                controller: controller.to_string(),
+                timing,
+                loop_overhead_s: timing.loop_overhead_s(),
+            });
+        }
+        cycles.push(run.rows);
+        records.push(run.records);
+        faults.push(run.faults);
+        delay_profiles.push(run.delay_profile);
+        external.push(run.external);
+        if let Some(e) = failed {
+            runs.push(run.summary);
+            goals.push(scenario.goal_m);
+            error = Some(e);
+            failed_run_kept = true;
+            break;
+        }
+        let summary = run.summary;
         let mut collided = if summary.collided {
             format!("; COLLIDED: {}", report::collisions_text(&summary))
         } else {
@@ -322,8 +402,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
             }
         }
         let done = format!(
-            "  {name} {:<11} done ({} cycles, {:.2} s){collided}",
-            mode.name(),
+            "  {name} {controller:<11} done ({} cycles, {:.2} s){collided}",
             summary.cycles,
             run_started.elapsed().as_secs_f64()
         );
@@ -338,16 +417,19 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
     Ok(Outcome {
         runs,
         cycles,
+        records,
         goals,
         timings,
         faults,
         delay_profiles,
+        external,
         error,
         failed_run_kept,
         interrupted,
         transport: transport.name(),
         time_mode: match transport {
             Transport::Grpc(e) => e.time_mode.name(),
+            Transport::External(c) => c.time_mode.name(),
             Transport::InProcess => "lockstep",
         },
         wall_time_s: started.elapsed().as_secs_f64(),

@@ -141,22 +141,23 @@ impl LinkFaults {
 
 /// A run that failed part-way: the error, and what it flew before it (`None` when it failed
 /// before its first cycle). The partial run's summary ends with `end_reason` "error", from the
-/// last sample its telemetry carried.
+/// last sample its telemetry carried. `R` is the run: the bench's controller's ([`GrpcRun`]) or
+/// an external one's (`crate::external::ExternalRun`).
 #[derive(Debug)]
-pub struct RunFailure {
+pub struct RunFailure<R = GrpcRun> {
     pub error: anyhow::Error,
-    pub partial: Option<Box<GrpcRun>>,
+    pub partial: Option<Box<R>>,
 }
 
-impl std::fmt::Display for RunFailure {
+impl<R> std::fmt::Display for RunFailure<R> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "{:#}", self.error)
     }
 }
 
-impl std::error::Error for RunFailure {}
+impl<R: std::fmt::Debug> std::error::Error for RunFailure<R> {}
 
-impl From<anyhow::Error> for RunFailure {
+impl<R> From<anyhow::Error> for RunFailure<R> {
     fn from(error: anyhow::Error) -> Self {
         Self { error, partial: None }
     }
@@ -221,15 +222,51 @@ pub fn netem_config(
     Ok(config)
 }
 
+/// The plant's settings for `scenario` in `time_mode`.
+pub fn plant_config(scenario: &Scenario, time_mode: TimeMode) -> plant::PlantConfig {
+    match time_mode {
+        TimeMode::Lockstep => plant::PlantConfig::lockstep(scenario.clone()),
+        TimeMode::RealTime => plant::PlantConfig::real_time(scenario.clone()),
+    }
+}
+
+/// A plant served in this process on a loopback port: the task and its address.
+pub(crate) async fn start_plant(config: plant::PlantConfig) -> anyhow::Result<(Running, String)> {
+    let (listener, addr) = bind().await?;
+    let (stop, stopped) = oneshot::channel::<()>();
+    let task = tokio::spawn(async move {
+        plant::serve(listener, config, async {
+            let _ = stopped.await;
+        })
+        .await
+        .map_err(|e| e.to_string())
+    });
+    Ok((Running { name: "plant", stop: Some(stop), task: Some(task) }, addr.to_string()))
+}
+
+/// A netem served in this process on a loopback port: the task and its address.
+pub(crate) async fn start_netem(config: netem::Config) -> anyhow::Result<(Running, String)> {
+    let (listener, addr) = bind().await?;
+    let (stop, stopped) = oneshot::channel::<()>();
+    let task = tokio::spawn(async move {
+        netem::serve(listener, config, async {
+            let _ = stopped.await;
+        })
+        .await
+        .map_err(|e| e.to_string())
+    });
+    Ok((Running { name: "netem", stop: Some(stop), task: Some(task) }, addr.to_string()))
+}
+
 /// A service task with its stop signal.
-struct Running {
+pub(crate) struct Running {
     name: &'static str,
     stop: Option<oneshot::Sender<()>>,
     task: Option<JoinHandle<Result<(), String>>>,
 }
 
 impl Running {
-    async fn stop(mut self) -> anyhow::Result<()> {
+    pub(crate) async fn stop(mut self) -> anyhow::Result<()> {
         if let Some(stop) = self.stop.take() {
             let _ = stop.send(());
         }
@@ -280,6 +317,8 @@ pub struct Endpoints {
     pub time_mode: TimeMode,
     /// Leave the profile of the netem at `netem` alone (what `delay_profile` then reports).
     pub keep_netem_profile: bool,
+    /// Where every cycle also goes as it arrives: the live Foxglove view (`--foxglove-ws`).
+    pub live: Option<crate::foxglove_out::Live>,
 }
 
 /// `--plant`, `--netem`, `--controller` of the CLI: services already running.
@@ -311,6 +350,7 @@ impl EndpointArgs {
             controller: self.controller,
             time_mode,
             keep_netem_profile: self.keep_netem_profile,
+            live: None,
         }
     }
 }
@@ -369,36 +409,16 @@ impl Services {
         let (plant, plant_addr) = match &endpoints.plant {
             Some(addr) => (None, addr.clone()),
             None => {
-                let (listener, addr) = bind().await?;
-                let (stop, stopped) = oneshot::channel::<()>();
-                let config = match endpoints.time_mode {
-                    TimeMode::Lockstep => plant::PlantConfig::lockstep(scenario.clone()),
-                    TimeMode::RealTime => plant::PlantConfig::real_time(scenario.clone()),
-                };
-                let task = tokio::spawn(async move {
-                    plant::serve(listener, config, async {
-                        let _ = stopped.await;
-                    })
-                    .await
-                    .map_err(|e| e.to_string())
-                });
-                (Some(Running { name: "plant", stop: Some(stop), task: Some(task) }), addr.to_string())
+                let (running, addr) = start_plant(plant_config(scenario, endpoints.time_mode)).await?;
+                (Some(running), addr)
             }
         };
         let (netem, netem_addr) = match &endpoints.netem {
             Some(addr) => (None, addr.clone()),
             None => {
-                let (listener, addr) = bind().await?;
-                let (stop, stopped) = oneshot::channel::<()>();
                 let config = netem_config(&plant_addr, scenario, endpoints.time_mode)?;
-                let task = tokio::spawn(async move {
-                    netem::serve(listener, config, async {
-                        let _ = stopped.await;
-                    })
-                    .await
-                    .map_err(|e| e.to_string())
-                });
-                (Some(Running { name: "netem", stop: Some(stop), task: Some(task) }), addr.to_string())
+                let (running, addr) = start_netem(config).await?;
+                (Some(running), addr)
             }
         };
         let (listener, controller_addr) = bind().await?;
@@ -498,7 +518,8 @@ pub async fn run_against(
     let started = Instant::now();
     let services = Services::start_missing(scenario, mode, endpoints).await?;
     let mut progress = Progress::default();
-    let result = drive(&services, scenario, mode, settings, started, &mut progress).await;
+    let live = endpoints.live.as_ref();
+    let result = drive(&services, scenario, mode, settings, started, &mut progress, live).await;
     let result = match result {
         Ok(run) => Ok(run),
         Err(error) => {
@@ -613,6 +634,7 @@ async fn drive(
     settings: &GrpcSettings,
     started: Instant,
     progress: &mut Progress,
+    live: Option<&crate::foxglove_out::Live>,
 ) -> anyhow::Result<GrpcRun> {
     let deadline = Instant::now() + settings.timeout;
     // A panic in a task of this run (an in-process service's, or this driver's own) ends it.
@@ -721,6 +743,9 @@ async fn drive(
                         cycles.len(),
                         record.cycle
                     );
+                }
+                if let Some(live) = live {
+                    live.cycle(scenario, &record);
                 }
                 cycles.push(record);
                 progress.last_sample = item.sample.take();

@@ -14,6 +14,7 @@ mod delays;
 mod inputs;
 mod paths;
 mod style;
+pub mod sweep;
 #[cfg(test)]
 pub(crate) mod tests;
 mod three_d;

@@ -34,3 +34,15 @@ pub fn bar(len: u64, unit: &str, show: bool) -> ProgressBar {
     bar.enable_steady_tick(Duration::from_millis(120));
     bar
 }
+
+/// [`bar`] with the rate and the time left: for a sweep's many short runs.
+pub fn bar_with_eta(len: u64, unit: &str, show: bool) -> ProgressBar {
+    let bar = bar(len, unit, show);
+    let template = format!(
+        "{{spinner}} [{{elapsed_precise}}] {{bar:30}} {{pos}}/{{len}} {unit} ({{per_sec}}, {{eta}} left)  {{msg}}"
+    );
+    if let Ok(style) = ProgressStyle::with_template(&template) {
+        bar.set_style(style);
+    }
+    bar
+}

@@ -1,5 +1,5 @@
 //! One RK4 step of the MAV model (the plant's truth integrator), 1 ms step.
-//! Target (issue 2): at least 5 million steps per second on one core.
+//! Target (BENCHMARKS.md): at least 5 million steps per second on one core.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use mav::{Input, MavModel, State, rk4_step};

@@ -1,20 +1,18 @@
-//! QP-linearized fallback (issue 5): linearize + condense + clarabel solve for paper-2,
+//! QP-linearized fallback: linearize + condense + clarabel solve for paper-2,
 //! multi-stage (M = 5, N = 40, three cylinders). Target: median at most 3 ms. The default
 //! settings against the full QP (no move blocking, every row from the start).
 use criterion::{Criterion, criterion_group, criterion_main};
 use mpc::{QpBudget, QpFallback, QpSettings};
 use std::hint::black_box;
 
-#[path = "common/qp_cases.rs"]
-mod qp_cases;
-use qp_cases::{U_PREV, W5, qp_cases};
+use mpc::fixtures::{U_PREV, W5, qp_cases};
 
 fn qp_build_and_solve(c: &mut Criterion) {
     let (def, cases) = qp_cases();
     for case in &cases {
         let (x0, nominal) = (case.x0, Some(&case.nominal[..]));
         // The default (move-blocked corrections, lazy rows) and the full QP in all 120 inputs
-        // with every row from the start (the fallback before issue 5's speed-up).
+        // with every row from the start (the fallback without move blocking or lazy rows).
         let full = QpSettings { block_steps: 1, lazy_slack_m: f64::INFINITY, ..Default::default() };
         for (variant, settings) in [("default", QpSettings::default()), ("full", full)] {
             let mut qp = QpFallback::new(&def, settings).expect("valid");

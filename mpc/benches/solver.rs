@@ -4,9 +4,7 @@ use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use mpc::{ControllerMode, Mpc, MpcSettings, OcpDefinition, SolveBudget, accuracy};
 use std::hint::black_box;
 
-#[path = "common/eval_case.rs"]
-mod eval_case;
-use eval_case::eval_case;
+use mpc::fixtures::eval_case;
 
 fn cost_and_gradient(c: &mut Criterion) {
     let scenario = mav::Scenario::paper_2();

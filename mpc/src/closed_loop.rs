@@ -169,10 +169,11 @@ pub fn run_closed_loop(
             }
             None => {}
         }
-        let weights = episode.weights().to_vec();
         let mut out = episode.on_sample(&sample, &CycleTiming::Lockstep)?;
         if settings.record_predictions {
-            out.record.predictions = episode.predictions(&weights);
+            // The weights the solve used (updated from this sample's stamps), as the controller
+            // service streams them.
+            out.record.predictions = episode.predictions(&out.record.weights);
         }
         // A trace that ends the run: an error naming it and the cycle, never a made-up delay.
         if let Some(Err(ended)) = delay_line.as_ref().map(|line| line.check_next()) {

@@ -99,6 +99,21 @@ impl Finish {
     }
 }
 
+/// Whether `sample` ends a flight of `scenario` ([`Episode::finish`]; also how `hilbench`
+/// judges an external controller from the plant's samples): after a collision (unless the
+/// scenario asks to go on), at the goal, or at `max_ns` (the scenario's `max_duration_s`).
+pub fn finish_at(scenario: &Scenario, max_ns: u64, sample: &PlantSample) -> Option<Finish> {
+    if sample.collided && !scenario.continue_after_collision {
+        Some(Finish::Collided)
+    } else if scenario.goal_reached(&sample.state) {
+        Some(Finish::Reached)
+    } else if sample.time_ns >= max_ns {
+        Some(Finish::TimeLimit)
+    } else {
+        None
+    }
+}
+
 /// What one cycle decided.
 #[derive(Debug, Clone)]
 pub struct CycleOutput {
@@ -226,15 +241,7 @@ impl Episode {
     /// lockstep stops there; one in real time keeps holding the goal (a vehicle must not be left
     /// uncontrolled) and only reports it.
     pub fn finish(&self, sample: &PlantSample) -> Option<Finish> {
-        if sample.collided && !self.scenario.continue_after_collision {
-            Some(Finish::Collided)
-        } else if self.scenario.goal_reached(&sample.state) {
-            Some(Finish::Reached)
-        } else if sample.time_ns >= self.max_ns {
-            Some(Finish::TimeLimit)
-        } else {
-            None
-        }
+        finish_at(&self.scenario, self.max_ns, sample)
     }
 
     /// A new goal from the next cycle on. Refused, with nothing changed, when it cannot be the
@@ -308,6 +315,9 @@ impl Episode {
                 SolveBudget { deadline: Some(*deadline), ..SolveBudget::default() }
             }
         };
+        // The fail-safe check covers the delays this link has shown, the tail beyond the
+        // scenario tree's largest sampling time included.
+        self.controller.cover_delays_up_to(self.weights.window().max_s());
         let weights = self.weights.weights().to_vec();
         let outcome = self.controller.step(self.cycle, sample.time_ns, &x0, &u_prev, &weights, &budget)?;
         // Finite and inside the bounds by construction (the cycle controller sanitises); the

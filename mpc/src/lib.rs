@@ -21,6 +21,8 @@ pub mod delays;
 pub mod episode;
 pub mod error;
 pub mod fail_safe;
+#[cfg(feature = "bench-fixtures")]
+pub mod fixtures;
 pub mod problem;
 pub mod qp;
 pub mod record;

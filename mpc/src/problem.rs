@@ -1,4 +1,4 @@
-//! The optimal control problem of `SPEC.md` and its hot path: cost, penalty and gradient by
+//! The optimal control problem of `docs/spec.md` and its hot path: cost, penalty and gradient by
 //! hand-derived reverse mode (the adjoint of the explicit Euler recursion), allocation-free.
 //!
 //! Decision variables are *scaled*: `u_j[c] = u_ref[c] + scale[j][c] * z_j[c]`, with

@@ -30,7 +30,7 @@
 //! forward sensitivity pass and one adjoint pass per input (`O(M N^2)` small vector
 //! operations, no `8N x 3N` matrix products), the gradient with one adjoint pass per scenario.
 //!
-//! Speed (issue 5; measured in `BENCHMARKS.md`). The condensed QP is dense: `H` is a full
+//! Speed (measured in `BENCHMARKS.md`, "The QP fallback"). The condensed QP is dense: `H` is a full
 //! matrix and a half-plane at point `k` involves every input before `k`, so each of clarabel's
 //! ~20 KKT factorizations costs about `sum over rows of width^2` with QDLDL's scalar scatter
 //! loop (faer's supernodal LDL is no faster here: every row is its own size-1 supernode). Two

@@ -187,6 +187,10 @@ pub struct RunSummary {
     /// Cycles that stopped at the iteration limit.
     pub iteration_limits: u64,
     pub final_position_m: [f64; 3],
+    /// The plant's last state (position, velocity, roll, pitch): where the MCAP log's last
+    /// pose comes from. Not a `summary.json` key (`final_position_m` is).
+    #[serde(skip)]
+    pub final_state: [f64; 8],
     /// Every entry into a cylinder or the ground.
     pub collisions: Vec<CollisionSummary>,
 }
@@ -365,6 +369,7 @@ pub fn summarize(
         iteration_limits: records.iter().filter(|r| r.solve.status == SolveStatus::IterationLimit).count()
             as u64,
         final_position_m: [x[0], x[1], x[2]],
+        final_state: last.state.into(),
         collisions: last
             .collisions
             .iter()

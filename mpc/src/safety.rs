@@ -75,6 +75,9 @@ pub struct SafetyLayer {
     qp_budget: QpBudget,
     /// The fail-safe check, when the settings ask for it.
     fail_safe: Option<FailSafe>,
+    /// The delay range of the check as set up (the scenario tree's), s; the range in force may
+    /// be wider ([`SafetyLayer::cover_delays_up_to`]).
+    base_max_delay_s: f64,
     /// Real time: the commands in flight at this cycle's sample (`None`: lockstep timing).
     in_flight: Option<Vec<InFlight>>,
     /// The cycle's state and last applied input (for the fail-safe check).
@@ -96,6 +99,7 @@ impl SafetyLayer {
             FailSafe::new(check, def.model, def.bounds, def.obstacles.clone(), settings.brake_gain_per_s)
         });
         Ok(Self {
+            base_max_delay_s: fail_safe.as_ref().map_or(0.0, |f| f.check.max_delay_s),
             fail_safe,
             in_flight: None,
             x0: [0.0; 8],
@@ -121,6 +125,15 @@ impl SafetyLayer {
 
     pub fn settings(&self) -> &SafetySettings {
         &self.settings
+    }
+
+    /// Widens the fail-safe check's delay range to the longest delay measured lately,
+    /// `observed_max_s` (never below the range it was set up with; see
+    /// [`crate::fail_safe::BrakingCheck::covering`]). No effect without the check.
+    pub fn cover_delays_up_to(&mut self, observed_max_s: Option<f64>) {
+        if let Some(fs) = self.fail_safe.as_mut() {
+            fs.check = fs.check.covering(self.base_max_delay_s, observed_max_s);
+        }
     }
 
     /// The timing the fail-safe check assumes from the next selection on: `None`, lockstep (one

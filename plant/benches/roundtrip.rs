@@ -1,7 +1,7 @@
 //! Lockstep over gRPC on loopback: one round trip = apply a command + advance 1 ms + read the
 //! state, i.e. one `Step` call (the way a lockstep driver uses the plant), plus the same work as
 //! three separate calls (`ApplyCommand`, `Advance`, `GetState`) for comparison.
-//! Target (issue 2): at least 5,000 round trips per second.
+//! Target (BENCHMARKS.md): at least 5,000 round trips per second.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use hilbench_proto::pb;

@@ -85,7 +85,7 @@ fn current_sample(
 /// exactly once, in order, with period 0. The other sub-steps end wherever a caller stopped
 /// (a command's arrival, a lockstep read, a real-time tick catching up with the clock at
 /// whatever time it woke), and feeding streams there gave a period-0 subscriber of a
-/// real-time plant about two samples per step at irregular times (issue 19).
+/// real-time plant about two samples per step at irregular times.
 fn on_step(
     sim: &PlantSim,
     next_seq: &mut u64,

@@ -7,6 +7,7 @@
 
 pub mod scenario_file;
 pub mod streams;
+pub mod sweep_table;
 
 use std::future::Future;
 use std::net::SocketAddr;

@@ -144,6 +144,9 @@ pub struct ScenarioFile {
     #[serde(default)]
     pub run: RunSection,
     pub scenario: Scenario,
+    /// The delay families of `hilbench sweep` (optional; see `sweep_table`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sweep: Option<crate::sweep_table::SweepSection>,
 }
 
 /// A file that cannot be used, with where and why.
@@ -203,7 +206,7 @@ impl ScenarioFile {
         scenario.obstacle_margin_m = None;
         scenario.fail_safe = false;
         scenario.continue_after_collision = false;
-        let file = ScenarioFile { run, scenario };
+        let file = ScenarioFile { run, scenario, sweep: None };
         let text = toml::to_string(&file).map_err(|e| format!("cannot write the scenario as TOML: {e}"))?;
         Ok(format!("# The scenario as flown (overrides applied, traces inline).\n{text}"))
     }
@@ -231,6 +234,12 @@ impl ScenarioFile {
                 let field = format!("scenario.delays.{}", e.field);
                 error(span_of(&root, &field), Some(field), e.reason)
             })?;
+        }
+        if let Some(sweep) = file.sweep.as_mut() {
+            let dir = path.parent().unwrap_or(Path::new("."));
+            sweep
+                .load_traces(dir, &|p| read_trace(p))
+                .map_err(|(field, message)| error(span_of(&root, &field), Some(field), message))?;
         }
         file.validate().map_err(|(field, message)| {
             let span = span_of(&root, &field);
@@ -261,6 +270,9 @@ impl ScenarioFile {
             if self.run.modes[..i].contains(m) {
                 return Err((format!("run.modes[{i}]"), "is listed twice".into()));
             }
+        }
+        if let Some(sweep) = &self.sweep {
+            sweep.validate()?;
         }
         let s = &self.scenario;
         // The controller's options beyond the paper come from `[run]`, which overwrites them.
@@ -484,16 +496,20 @@ mod tests {
 
     #[test]
     fn every_file_in_scenarios_is_valid() {
-        let dir = repo_root().join("scenarios");
         let mut n = 0;
-        for entry in std::fs::read_dir(&dir).expect("scenarios/") {
-            let path = entry.expect("entry").path();
-            if path.extension().is_some_and(|e| e == "toml") {
-                ScenarioFile::load(&path).unwrap_or_else(|e| panic!("{e}"));
-                n += 1;
+        let mut sweeps = 0;
+        for dir in [repo_root().join("scenarios"), repo_root().join("scenarios/sweeps")] {
+            for entry in std::fs::read_dir(&dir).expect("scenarios/") {
+                let path = entry.expect("entry").path();
+                if path.extension().is_some_and(|e| e == "toml") {
+                    let file = ScenarioFile::load(&path).unwrap_or_else(|e| panic!("{e}"));
+                    n += 1;
+                    sweeps += usize::from(file.sweep.is_some());
+                }
             }
         }
-        assert!(n >= 4, "{n} scenario files");
+        assert!(n >= 8, "{n} scenario files");
+        assert!(sweeps >= 4, "{sweeps} sweep files");
     }
 
     /// paper-3 with one line replaced (1-based `line` of the file holding `old`).
@@ -573,6 +589,24 @@ mod tests {
         }
         let (text, _) = edited("kind = \"none\"", "kind = \"trace\"\nfile = \"no-such-trace.csv\"");
         assert!(error_of(&text).message.contains("no-such-trace.csv"), "the missing file is named");
+    }
+
+    #[test]
+    fn a_bad_sweep_table_is_refused_with_its_line_and_field() {
+        let text = std::fs::read_to_string(repo_root().join("scenarios/paper-3.toml")).expect("paper-3");
+        let sweep = "\n[sweep]\nruns = 10\n\n[[sweep.families]]\nkind = \"gamma\"\nshape = [30.0, 1.0]\nscale_s = 0.01\n";
+        let e = error_of(&format!("{text}{sweep}"));
+        assert_eq!(e.field.as_deref(), Some("sweep.families[0].shape"), "{e}");
+        assert_eq!(e.line, Some(text.lines().count() + 7), "{e}");
+        assert!(e.message.contains("min > max"), "{e}");
+        let ok = ScenarioFile::parse(
+            Path::new("x.toml"),
+            &format!("{text}{}", sweep.replace("[30.0, 1.0]", "[1.0, 30.0]")),
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(ok.sweep.map(|s| s.families.len()), Some(1));
+        let e = error_of(&format!("{text}\n[sweep]\nrunz = 3\nfamilies = []\n"));
+        assert_eq!(e.field.as_deref(), Some("sweep.runz"), "{e}");
     }
 
     #[test]

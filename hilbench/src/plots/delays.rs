@@ -6,8 +6,7 @@ use plotters::prelude::*;
 use statrs::distribution::{Continuous, Gamma};
 
 use super::style::{
-    BOUND, FONT, LABEL_PX, TICK_PX, controller_color, controller_label, draw_legend, extent, panel_font,
-    title_font,
+    BOUND, controller_color, controller_label, draw_legend, draw_mesh, extent, panel_font, title_font,
 };
 use super::{DrawResult, RunData};
 use crate::cycle_log::CycleRow;
@@ -65,15 +64,7 @@ pub(super) fn draw_delays<DB: DrawingBackend>(
         .x_label_area_size(45)
         .y_label_area_size(70)
         .build_cartesian_2d(t.0..t.1.max(t.0 + 1e-3), 0.0..y_hi)?;
-    chart
-        .configure_mesh()
-        .x_desc("plant time of the sample the command came from [s]")
-        .y_desc("delay [ms]")
-        .axis_desc_style((FONT, LABEL_PX))
-        .label_style((FONT, TICK_PX))
-        .light_line_style(BLACK.mix(0.05))
-        .bold_line_style(BLACK.mix(0.15))
-        .draw()?;
+    draw_mesh(&mut chart, "plant time of the sample the command came from [s]", "delay [ms]")?;
     chart.draw_series(LineSeries::new(d.iter().map(|q| (q.0, q.1 * 1e3)), color.mix(0.35)))?;
     chart.draw_series(d.iter().map(|q| Circle::new((q.0, q.1 * 1e3), 3, color.filled())))?;
 
@@ -111,15 +102,7 @@ pub(super) fn draw_delays<DB: DrawingBackend>(
         .x_label_area_size(45)
         .y_label_area_size(80)
         .build_cartesian_2d(x_lo..x_hi, 0.0..(y_max * 1.4).max(1e-6))?;
-    chart
-        .configure_mesh()
-        .x_desc("delay [ms]")
-        .y_desc("density [1/ms]")
-        .axis_desc_style((FONT, LABEL_PX))
-        .label_style((FONT, TICK_PX))
-        .light_line_style(BLACK.mix(0.05))
-        .bold_line_style(BLACK.mix(0.15))
-        .draw()?;
+    draw_mesh(&mut chart, "delay [ms]", "density [1/ms]")?;
     chart
         .draw_series(density.iter().enumerate().filter(|(_, h)| **h > 0.0).map(|(i, h)| {
             let a = x0 + width * i as f64;

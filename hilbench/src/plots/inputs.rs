@@ -4,8 +4,8 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::style::{
-    BOUND, FONT, LABEL_PX, PALETTE, TICK_PX, controller_color, controller_label, draw_legend, extent, pad,
-    panel_font, samples, steps, title_font,
+    BOUND, PALETTE, controller_color, controller_label, draw_legend, draw_mesh, extent, pad, panel_font,
+    samples, steps, title_font,
 };
 use super::{DrawResult, RunData};
 
@@ -36,15 +36,7 @@ fn draw_panel<DB: DrawingBackend>(
         .x_label_area_size(40)
         .y_label_area_size(70)
         .build_cartesian_2d(t.0..t.1.max(t.0 + 1e-3), pad((lo, hi), 0.08, 1e-3))?;
-    chart
-        .configure_mesh()
-        .x_desc("plant time [s]")
-        .y_desc(p.unit)
-        .axis_desc_style((FONT, LABEL_PX))
-        .label_style((FONT, TICK_PX))
-        .light_line_style(BLACK.mix(0.05))
-        .bold_line_style(BLACK.mix(0.15))
-        .draw()?;
+    draw_mesh(&mut chart, "plant time [s]", p.unit)?;
     for (i, b) in [p.bounds.0, p.bounds.1].into_iter().enumerate() {
         let s =
             chart.draw_series(DashedLineSeries::new([(t.0, b), (t.1, b)], 8, 5, BOUND.stroke_width(2)))?;

@@ -1,6 +1,7 @@
 //! Styling shared by every figure: the embedded font, sizes, colours and labels, and the
 //! axis ranges and series drawn from the per-cycle rows.
 
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use crate::cycle_log::CycleRow;
@@ -33,6 +34,23 @@ pub(super) fn draw_legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::Coor
         .label_font((FONT, TICK_PX))
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK.mix(0.4))
+        .draw()
+}
+
+/// The axes and grid of every 2-D figure: the axis descriptions, the fonts, a light grid.
+pub(super) fn draw_mesh<'a, DB: DrawingBackend + 'a>(
+    chart: &mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    x_desc: &str,
+    y_desc: &str,
+) -> super::DrawResult<DB> {
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .axis_desc_style((FONT, LABEL_PX))
+        .label_style((FONT, TICK_PX))
+        .light_line_style(BLACK.mix(0.05))
+        .bold_line_style(BLACK.mix(0.15))
         .draw()
 }
 

@@ -4,7 +4,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::paths::{Swatch, circle, draw_legend, horizontal_extent, path, path_label};
-use super::style::{BOUND, CYLINDER, FONT, LABEL_PX, TICK_PX, controller_color, pad, title_font};
+use super::style::{BOUND, CYLINDER, controller_color, draw_mesh, pad, title_font};
 use super::{DrawResult, RunData};
 
 pub(super) fn draw_top<DB: DrawingBackend>(
@@ -33,15 +33,7 @@ pub(super) fn draw_top<DB: DrawingBackend>(
     let (cx, cy) = ((x.start + x.end) / 2.0, (y.start + y.end) / 2.0);
     let (hw, hh) = (m_per_px * pw / 2.0, m_per_px * ph / 2.0);
     let mut chart = builder(&root).build_cartesian_2d((cx - hw)..(cx + hw), (cy - hh)..(cy + hh))?;
-    chart
-        .configure_mesh()
-        .x_desc("x [m]")
-        .y_desc("y [m]")
-        .axis_desc_style((FONT, LABEL_PX))
-        .label_style((FONT, TICK_PX))
-        .light_line_style(BLACK.mix(0.05))
-        .bold_line_style(BLACK.mix(0.15))
-        .draw()?;
+    draw_mesh(&mut chart, "x [m]", "y [m]")?;
     for c in &scenario.obstacles {
         let outline = circle(c.x_m, c.y_m, c.radius_m);
         chart.draw_series([Polygon::new(outline.clone(), CYLINDER.mix(0.35).filled())])?;

@@ -3,9 +3,7 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::style::{
-    FONT, LABEL_PX, PALETTE, TICK_PX, controller_label, draw_legend, extent, steps, title_font,
-};
+use super::style::{PALETTE, controller_label, draw_legend, draw_mesh, extent, steps, title_font};
 use super::{DrawResult, RunData};
 
 pub(super) fn draw_weights<DB: DrawingBackend>(
@@ -25,15 +23,7 @@ pub(super) fn draw_weights<DB: DrawingBackend>(
         .x_label_area_size(50)
         .y_label_area_size(70)
         .build_cartesian_2d(t.0..t.1.max(t.0 + 1e-3), 0.0..1.05)?;
-    chart
-        .configure_mesh()
-        .x_desc("plant time [s]")
-        .y_desc("weight [-]")
-        .axis_desc_style((FONT, LABEL_PX))
-        .label_style((FONT, TICK_PX))
-        .light_line_style(BLACK.mix(0.05))
-        .bold_line_style(BLACK.mix(0.15))
-        .draw()?;
+    draw_mesh(&mut chart, "plant time [s]", "weight [-]")?;
     for i in 0..m {
         let color = PALETTE[i % PALETTE.len()];
         let label = match s.sampling_times_s.get(i) {

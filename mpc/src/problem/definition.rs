@@ -40,6 +40,8 @@ pub enum ObstacleFormulation {
     /// OpEn's penalty method (PM). Its units are m^3, its gradient scales with `R (zo - z)^2`
     /// (so a 1.5 m cylinder and a 0.25 m one are penalised very differently), and the penalty
     /// must grow large to push violations to zero, which makes PANOC's problem stiff.
+    /// Measured on the paper loops: the penalty method either left violations or, uncapped,
+    /// multiplied the penalty to 1e42 and drove the vehicle into the ground.
     PaperPenalty,
     /// `g = min(R - d, zo - z) <= 0` per point (horizontal distance `d` to the axis), handled
     /// by OpEn's augmented Lagrangian (ALM) with multipliers warm-started across cycles. The

@@ -29,13 +29,13 @@ pub struct MpcSettings {
     /// the AKKT residual, also times `γ`, is below its tolerance), with `γ = 0.95 / L` and `L`
     /// the Lipschitz estimate of the gradient: the same number is a much looser test where
     /// active long-horizon penalties make `L` large (multi-stage) than where they do not.
-    /// Measured (BENCHMARKS.md, issue 3): at 3e-2 / 1e-1 the NMPC's costs stay within 1 % of
+    /// Measured (`lab accuracy`; BENCHMARKS.md, "The solver"): at 3e-2 / 1e-1 the NMPC's costs stay within 1 % of
     /// the careful reference on every sampled loop state with 10 iterations at the median
     /// (25 at 1e-3 / 1e-2), while multi-stage solves at those values miss by up to 40 %.
     pub single_scenario_tolerance: f64,
     /// `akkt_tolerance` of standard NMPC (one scenario); see `single_scenario_tolerance`.
     pub single_scenario_akkt_tolerance: f64,
-    /// `lbfgs_memory` of standard NMPC (one scenario). Measured (BENCHMARKS.md, issue 3): at
+    /// `lbfgs_memory` of standard NMPC (one scenario). Measured (`lab accuracy`): at
     /// the NMPC tolerances, memories 5, 7 and 10 cost the same per solve; 7 kept every
     /// sampled loop state within 1 % of the reference and no predicted clearance below zero.
     pub single_scenario_lbfgs_memory: usize,
@@ -59,24 +59,24 @@ pub struct MpcSettings {
     /// `single_scenario_lbfgs_memory`.
     pub lbfgs_memory: usize,
     /// PANOC iterations per outer iteration; `None`: whatever is left of the solve's budget.
-    /// Measured (BENCHMARKS.md, issue 3): caps of 20-100 did not reduce the solves that stop
+    /// Measured (`lab accuracy`): caps of 20-100 did not reduce the solves that stop
     /// at the budget.
     pub max_inner_iterations_per_outer: Option<usize>,
     /// Upper bound of every ALM multiplier (the box `Y`), in units of the cost per metre of
     /// violation. Where a point of a long-horizon scenario stays inside an inflated cylinder
     /// whatever the inputs, its multiplier grows every outer iteration and cycle up to this
-    /// bound; measured (BENCHMARKS.md, issue 3), a bound of 100 halves the solves that stop at
+    /// bound; measured (`lab accuracy`), a bound of 100 halves the solves that stop at
     /// the iteration budget but lets standard NMPC cut deeper into the cylinders.
     pub max_multiplier: f64,
     /// Adds the penalty's Gauss-Newton diagonal of the constraints that are active or within
     /// this distance of active at the warm start (and at each outer iteration's start) to the
     /// preconditioner, m; `None` keeps the objective's hover diagonal alone. Measured
-    /// (BENCHMARKS.md, issue 3): with the hover sensitivities it made multi-stage solves slower,
+    /// (`lab fixed-instances`): with the hover sensitivities it made multi-stage solves slower,
     /// so it is off by default.
     pub penalty_preconditioner_slack_m: Option<f64>,
     /// Standard NMPC (one scenario) only: warm-start each cycle from the last plan shifted by
     /// the time since the last cycle's sample, in whole sampling times, instead of by one step
-    /// (see [`crate::CycleController::step`]). Off by default: the issue's protocol shifts by
+    /// (see [`crate::CycleController::step`]). Off by default: `docs/spec.md`'s protocol shifts by
     /// one step, and the paper-1 result depends on it (measured: with it the NMPC no longer
     /// stalls in front of the cylinder; BENCHMARKS.md).
     pub warm_start_by_elapsed_time: bool,
@@ -84,8 +84,8 @@ pub struct MpcSettings {
     /// constraint term in the augmented Lagrangian (no predicted point with `c g + y > 0`),
     /// where the Lipschitz constant is the objective's alone and OpEn's `γ`-scaled tests mean
     /// what they mean for standard NMPC (see `single_scenario_tolerance`). `None` (default):
-    /// `tolerance` and `akkt_tolerance` throughout. Measured (BENCHMARKS.md, issue 3, sixth
-    /// pass): with [`InactiveSetTolerances::MEASURED`] the multi-stage median along the paper
+    /// `tolerance` and `akkt_tolerance` throughout. Measured (`lab accuracy
+    /// --inactive-set measured`, recorded in docs/notebook/benchmarks-history.md): with [`InactiveSetTolerances::MEASURED`] the multi-stage median along the paper
     /// loops drops from 0.22-0.27 ms to 0.13-0.15 ms at a little lower accuracy (61 of 70
     /// sampled states within 1 % of the reference, against 65 of 73), but the closed
     /// loops change, and the default paper-1 run then dives into the ground (paper mode has
@@ -112,7 +112,7 @@ pub struct InactiveSetTolerances {
 }
 
 impl InactiveSetTolerances {
-    /// The values measured in BENCHMARKS.md (issue 3, sixth pass): 1e-2 and 3e-2 are
+    /// The values measured with `lab accuracy` (docs/notebook/benchmarks-history.md): 1e-2 and 3e-2 are
     /// standard NMPC's kind of test at the multi-stage objective's Lipschitz constant (~25 in
     /// the scaled variables), and 0.5 rejects the 3-5 % of results whose residual is an order
     /// above the rest (median 0.18, 90th percentile 0.29, largest 12 along the paper loops).

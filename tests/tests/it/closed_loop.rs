@@ -1,7 +1,7 @@
 //! Integration tests: closed_loop.
 //! The whole bench over gRPC (lockstep plant, netem with the scenario's delays, controller, all
 //! on loopback ports, as `hilbench reproduce` runs it) against the in-process closed loop of
-//! `mpc`, which is the contract of SPEC.md's paper mode: same states, commands, weights and
+//! `mpc`, which is the contract of `docs/spec.md`'s paper mode: same states, commands, weights and
 //! solver iterations at every cycle, compared by f64 bits. And the multi-stage controller's
 //! paper-mode results in process.
 
@@ -31,17 +31,18 @@ async fn assert_grpc_run_is_bit_identical_to_in_process(name: &str, mode: Contro
 
 /// `run` against `mpc::run_closed_loop` of the same scenario and mode, bit for bit.
 fn assert_bit_identical(scenario: &Scenario, mode: ControllerMode, run: &GrpcRun) {
-    let (expected, records) =
-        run_closed_loop(scenario, &ClosedLoopSettings::paper(mode)).expect("in-process closed loop");
+    // With the predicted trajectories, which the telemetry streams to its subscribers.
+    let settings = ClosedLoopSettings { record_predictions: true, ..ClosedLoopSettings::paper(mode) };
+    let (expected, records) = run_closed_loop(scenario, &settings).expect("in-process closed loop");
     let what = format!("{} with {}", scenario.name, mode.name());
     assert!(!records.is_empty(), "{what}: the in-process run has no cycles");
     for (k, (got, trace)) in run.records.iter().zip(&records).enumerate() {
-        // The whole record, bit for bit (Debug prints -0.0 and every digit), but for the solve
-        // time (a wall-clock measurement) and the predictions (streamed to subscribers only).
+        // The whole record, bit for bit (Debug prints -0.0 and every digit), predicted
+        // trajectories and their weights included, but for the solve time (a wall-clock
+        // measurement).
         let comparable = |r: &mpc::CycleRecord| {
             let mut r = r.clone();
             r.solve.solve_ms = 0.0;
-            r.predictions.clear();
             format!("{r:?}")
         };
         assert_eq!(comparable(got), comparable(&trace.record), "{what}: cycle {k} differs");
@@ -88,8 +89,8 @@ async fn paper_3_nmpc_over_grpc_is_bit_identical_to_the_in_process_closed_loop()
 
 #[test]
 fn multistage_reaches_the_goal_of_every_paper_scenario_without_touching_a_cylinder() {
-    // With the safety layer (issue 5), as the paper reproduction flies, and without it: PANOC's
-    // plans alone, the controller of issue 3.
+    // With the safety layer, as the paper reproduction flies, and without it: PANOC's plans
+    // alone, the paper's controller.
     let with_layer = ClosedLoopSettings::paper(ControllerMode::Multistage);
     let panoc_alone = ClosedLoopSettings { safety: None, ..with_layer.clone() };
     for (scenario_name, settings) in

@@ -3,7 +3,9 @@
 
 mod closed_loop;
 mod controller;
+mod external;
 mod fault;
+mod foxglove;
 mod gateway;
 mod netem;
 mod plant;

@@ -1,0 +1,625 @@
+//! An external controller under test: a process that speaks the Plant API as a client, flown
+//! against a plant and netem served here on loopback, judged from the plant's truth alone.
+//!
+//! [`run_external`] flies one run: it starts a plant (lockstep or real time) and a netem with the
+//! scenario's network in front of it, resets the plant to the scenario, subscribes to the
+//! plant's `StreamState` with period 0 (every integration step, on the plant itself, not
+//! through netem), then starts the controller's command line (`sh -c`) in a process group of
+//! its own with `HILBENCH_PLANT_ADDR` (netem's address), `HILBENCH_SCENARIO` (the scenario as
+//! flown, written to a temporary file) and `HILBENCH_TIME_MODE`. The controller flies: in
+//! lockstep it calls `Step` itself (netem delays its commands and advances the plant on to
+//! each release), in real time it streams.
+//!
+//! The run ends at the first plant step whose sample ends a flight (`mpc::episode::finish_at`,
+//! the rule of the bench's own controller: a collision unless the scenario goes on after one,
+//! the goal within `goal_tolerance_m` and `goal_speed_tolerance_mps`, or `max_duration_s` of
+//! plant time). The summary is that sample's: path length, smallest clearance, collisions,
+//! time to the goal, all integrated by the plant. Judging at every step (1 ms) rather than at
+//! the controller's calls makes the end independent of how the controller splits its steps,
+//! and lockstep runs of a deterministic controller bit-identical. What the controller does after
+//! that step (it is still stepping until the bench's SIGTERM lands) is not judged.
+//!
+//! A run fails, with the controller's last lines of output in the error, when the controller
+//! exits before the run ends (whatever its status), when plant time stops moving for
+//! [`ExternalSettings::stall_timeout`] (a hung controller in lockstep; a dead plant in real
+//! time), or when the plant is reset under the run. The process group is always killed: at the
+//! end of a run SIGTERM, then SIGKILL after [`ExternalSettings::stop_grace`]; on any error, and
+//! when the run is dropped, SIGKILL.
+
+use std::collections::VecDeque;
+use std::path::PathBuf;
+use std::process::{ExitStatus, Stdio};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, anyhow, bail};
+use hilbench_proto::pb;
+use hilbench_proto::pb::plant_client::PlantClient;
+use mav::{PlantSample, Scenario, ns_to_s};
+use mpc::{ControllerMode, Finish, RunSummary};
+use tokio::io::{AsyncBufReadExt, AsyncRead, BufReader};
+use tokio::process::{Child, Command};
+
+use crate::cycle_log::CycleRow;
+use crate::grpc::{
+    DelayProfileInForce, LinkFaults, RunFailure, RunTiming, Running, TimeMode, connect, netem_config,
+    plant_config, start_netem, start_plant,
+};
+use crate::scenario_file::{Mode, ScenarioFile};
+
+/// `RunSummary::controller` of an external controller's run (and its CSV's name).
+pub const CONTROLLER_NAME: &str = "external";
+
+/// Lines of the controller's output (stdout and stderr) kept for error messages.
+const TAIL_LINES: usize = 20;
+/// The longest line kept, characters.
+const TAIL_LINE_CHARS: usize = 400;
+/// Lockstep: after the controller's exit, how long the plant's stream may stay quiet before
+/// what it produced is taken as complete.
+const DRAIN_QUIET: Duration = Duration::from_millis(200);
+
+/// An external controller and how to fly it.
+#[derive(Debug, Clone)]
+pub struct ExternalController {
+    /// A shell command line, run with `sh -c` (e.g.
+    /// `python examples/python-controller/controller.py`).
+    pub command: String,
+    pub time_mode: TimeMode,
+    pub settings: ExternalSettings,
+}
+
+/// Wall-clock bounds of an external run.
+#[derive(Debug, Clone)]
+pub struct ExternalSettings {
+    /// Bound on the whole run; a run that takes longer is an error.
+    pub timeout: Duration,
+    /// Plant time does not move for this long (no new plant step): the run fails. In lockstep
+    /// this is a controller that stopped calling `Step` (hung, or waiting on something); it
+    /// includes the controller's start-up before its first `Step`.
+    pub stall_timeout: Duration,
+    /// After SIGTERM at the end of a run, how long the controller may take to exit before
+    /// SIGKILL.
+    pub stop_grace: Duration,
+}
+
+impl Default for ExternalSettings {
+    fn default() -> Self {
+        Self {
+            timeout: Duration::from_secs(600),
+            stall_timeout: Duration::from_secs(10),
+            stop_grace: Duration::from_secs(2),
+        }
+    }
+}
+
+/// What `summary.json` says of the external controller of a run (`external_controller`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ExternalFacts {
+    /// The command line.
+    pub command: String,
+    /// How its process ended: `stopped by the bench` (SIGTERM after the run ended), `killed by
+    /// the bench` (SIGKILL: it outlived the grace, or the run failed), or its own exit
+    /// (`exited: exit status: 1`) when that came first.
+    pub exit: String,
+    /// Commands the plant applied, as seen at its steps (one replaced within a step is not
+    /// seen); the CSV has a row for each.
+    pub commands_applied: u64,
+    /// Of them, commands the plant clipped at its actuator limits.
+    pub commands_saturated: u64,
+    /// Plant steps judged (samples of the plant's stream up to the end of the run).
+    pub plant_steps_judged: u64,
+    /// Plant steps the bench's stream missed (its buffer holds the whole run, so 0 unless a
+    /// single call advanced further than that); the end is then judged at the next step seen.
+    pub plant_steps_missed: u64,
+}
+
+/// One run of an external controller.
+#[derive(Debug, Clone)]
+pub struct ExternalRun {
+    pub summary: RunSummary,
+    /// One row per command the plant applied (see [`Judge`]).
+    pub rows: Vec<CycleRow>,
+    /// The plant's sample of the step that ended the run.
+    pub final_sample: PlantSample,
+    pub timing: RunTiming,
+    /// The plant's watchdog (the bench does not see the controller's link).
+    pub faults: LinkFaults,
+    pub delay_profile: DelayProfileInForce,
+    pub facts: ExternalFacts,
+}
+
+/// A run that failed: the error, and what the plant flew before it (`None` when it failed
+/// before the plant's first sample), its `end_reason` "error".
+pub type ExternalFailure = RunFailure<ExternalRun>;
+
+/// Flies `scenario` with `controller` against a plant and netem started here (see the module's
+/// documentation).
+pub async fn run_external(
+    scenario: &Scenario,
+    controller: &ExternalController,
+) -> Result<ExternalRun, ExternalFailure> {
+    let started = Instant::now();
+    let network = scenario.network().map_err(|e| anyhow!("{e}"))?;
+    let network = network.unwrap_or_else(|| delay::NetworkProfile::none(scenario.seed));
+    let delay_profile = DelayProfileInForce::of("scenario", &network);
+    let mut config = plant_config(scenario, controller.time_mode);
+    config.stream_buffer = stream_buffer(scenario, config.rate_hz);
+    let (plant, plant_addr) = start_plant(config).await?;
+    let netem = match netem_config(&plant_addr, scenario, controller.time_mode) {
+        Ok(config) => start_netem(config).await,
+        Err(e) => Err(e),
+    };
+    let (netem, netem_addr) = match netem {
+        Ok(n) => n,
+        Err(e) => {
+            let _ = plant.stop().await;
+            return Err(e.into());
+        }
+    };
+    let mut flight = Flight::new(scenario, controller, delay_profile);
+    let result = flight.fly(&plant_addr, &netem_addr, started).await;
+    let stopping = Instant::now();
+    let stopped = stop_all([netem, plant]).await;
+    match result {
+        Ok(mut run) => {
+            stopped.map_err(ExternalFailure::from)?;
+            run.timing.teardown_s += stopping.elapsed().as_secs_f64();
+            Ok(run)
+        }
+        Err(error) => Err(ExternalFailure { error, partial: flight.partial().map(Box::new) }),
+    }
+}
+
+/// The plant's stream buffer: the whole run's steps (and a second past its end), so that a
+/// controller that advances far in one call loses the bench none; at most two minutes of steps.
+fn stream_buffer(scenario: &Scenario, rate_hz: f64) -> usize {
+    let steps = (scenario.max_duration_s + 1.0) * rate_hz;
+    (steps.ceil() as usize).clamp(plant::config::DEFAULT_STREAM_BUFFER, 120_000)
+}
+
+async fn stop_all(running: [Running; 2]) -> anyhow::Result<()> {
+    let mut result = Ok(());
+    for r in running {
+        let stopped = r.stop().await;
+        if result.is_ok() {
+            result = stopped;
+        }
+    }
+    result
+}
+
+/// One run as it goes: the judge, the process, the facts.
+struct Flight<'a> {
+    scenario: &'a Scenario,
+    controller: &'a ExternalController,
+    judge: Judge,
+    delay_profile: DelayProfileInForce,
+    exit: Option<String>,
+    setup_s: f64,
+    /// Stopping the controller's process, s (part of the run's teardown).
+    stop_s: f64,
+    episode_started: Option<Instant>,
+}
+
+impl<'a> Flight<'a> {
+    fn new(
+        scenario: &'a Scenario,
+        controller: &'a ExternalController,
+        delay_profile: DelayProfileInForce,
+    ) -> Self {
+        Self {
+            scenario,
+            controller,
+            judge: Judge::new(scenario),
+            delay_profile,
+            exit: None,
+            setup_s: 0.0,
+            stop_s: 0.0,
+            episode_started: None,
+        }
+    }
+
+    async fn fly(
+        &mut self,
+        plant_addr: &str,
+        netem_addr: &str,
+        started: Instant,
+    ) -> anyhow::Result<ExternalRun> {
+        let settings = &self.controller.settings;
+        let deadline = started + settings.timeout;
+        let mut plant = PlantClient::new(connect(plant_addr, deadline).await?);
+        // The bench resets the plant to the scenario, whole, for every run.
+        plant
+            .reset(pb::ResetRequest {
+                scenario: String::new(),
+                initial_state: None,
+                definition: Some(self.scenario.into()),
+            })
+            .await
+            .context("plant Reset")?;
+        // On the plant itself: the truth, undelayed. It starts with the reset's sample.
+        let mut stream = plant
+            .stream_state(pb::StreamStateRequest { period_ns: 0 })
+            .await
+            .context("plant StreamState")?
+            .into_inner();
+        let scenario_file = ScenarioTempFile::write(self.scenario)?;
+        let mut process = Process::spawn(
+            &self.controller.command,
+            &[
+                ("HILBENCH_PLANT_ADDR", netem_addr),
+                ("HILBENCH_SCENARIO", &scenario_file.path.display().to_string()),
+                ("HILBENCH_TIME_MODE", self.controller.time_mode.name()),
+            ],
+        )?;
+        self.setup_s = started.elapsed().as_secs_f64();
+        let episode_started = Instant::now();
+        self.episode_started = Some(episode_started);
+        let mut panicked = crate::panics::watch();
+        let mut last_step_at = Instant::now();
+        let mut exited: Option<ExitStatus> = None;
+        while self.judge.end.is_none() {
+            let stall = tokio::time::Instant::from_std(last_step_at + settings.stall_timeout);
+            tokio::select! {
+                item = stream.message() => {
+                    let item = item.context("the plant's state stream")?
+                        .ok_or_else(|| anyhow!("the plant ended its state stream"))?;
+                    self.judge.see(&item)?;
+                    last_step_at = Instant::now();
+                }
+                status = process.child.wait(), if exited.is_none() => {
+                    let status = status.context("waiting for the controller")?;
+                    exited = Some(status);
+                    self.exit = Some(format!("exited: {status}"));
+                    // What the plant produced before the exit still counts: a controller may
+                    // stop once it sees the goal. In lockstep until the stream is quiet (a
+                    // call in flight may still advance the plant); in real time the plant
+                    // flies on without it, so only what has already arrived.
+                    let quiet = match self.controller.time_mode {
+                        TimeMode::Lockstep => DRAIN_QUIET,
+                        TimeMode::RealTime => Duration::ZERO,
+                    };
+                    while let Ok(item) = tokio::time::timeout(quiet, stream.message()).await {
+                        let item = item.context("the plant's state stream")?
+                            .ok_or_else(|| anyhow!("the plant ended its state stream"))?;
+                        self.judge.see(&item)?;
+                        if self.judge.end.is_some() {
+                            break;
+                        }
+                    }
+                    if self.judge.end.is_none() {
+                        bail!(
+                            "the controller exited ({status}) before the run ended ({}){}",
+                            self.judge.where_now(),
+                            process.tail_text()
+                        );
+                    }
+                }
+                () = tokio::time::sleep_until(stall) => {
+                    process.kill();
+                    bail!(
+                        "plant time has not moved for {:.0} s ({}): the controller {}{}",
+                        settings.stall_timeout.as_secs_f64(),
+                        self.judge.where_now(),
+                        match self.controller.time_mode {
+                            TimeMode::Lockstep => "stopped calling Step (hung?)",
+                            TimeMode::RealTime => "cannot move it in real time: the plant stalled",
+                        },
+                        process.tail_text()
+                    );
+                }
+                () = tokio::time::sleep_until(tokio::time::Instant::from_std(deadline)) => {
+                    process.kill();
+                    bail!("the run did not end within {:?} ({})", settings.timeout, self.judge.where_now());
+                }
+                panic = panicked.changed() => {
+                    let what = panic.ok().and_then(|()| panicked.borrow().clone());
+                    bail!("a task of the run panicked: {}", what.unwrap_or_default());
+                }
+            }
+        }
+        let episode_s = episode_started.elapsed().as_secs_f64();
+        let stopping = Instant::now();
+        if exited.is_none() {
+            self.exit = Some(process.stop(settings.stop_grace).await);
+        }
+        self.stop_s = stopping.elapsed().as_secs_f64();
+        let (finish, last) = self.judge.end.clone().ok_or_else(|| anyhow!("the run has no end"))?;
+        let time_to_goal_ns = (finish == Finish::Reached).then_some(last.time_ns);
+        let mut summary = self.judge.summary(&last, time_to_goal_ns);
+        if finish == Finish::Collided {
+            summary.end_reason = finish.name().to_string();
+        }
+        Ok(self.run(summary, last, episode_s))
+    }
+
+    /// The run, ended at `last` with `summary`.
+    fn run(&self, summary: RunSummary, last: PlantSample, episode_s: f64) -> ExternalRun {
+        ExternalRun {
+            summary,
+            rows: self.judge.rows.clone(),
+            faults: faults_of(&last),
+            final_sample: last,
+            timing: RunTiming { setup_s: self.setup_s, episode_s, solver_s: 0.0, teardown_s: self.stop_s },
+            delay_profile: self.delay_profile.clone(),
+            facts: self.facts(),
+        }
+    }
+
+    fn facts(&self) -> ExternalFacts {
+        ExternalFacts {
+            command: self.controller.command.clone(),
+            exit: self.exit.clone().unwrap_or_else(|| "killed by the bench".to_string()),
+            commands_applied: self.judge.rows.len() as u64,
+            commands_saturated: self.judge.saturated,
+            plant_steps_judged: self.judge.steps,
+            plant_steps_missed: self.judge.missed,
+        }
+    }
+
+    /// The run as far as the plant flew it (after an error): `None` before its first sample.
+    fn partial(&self) -> Option<ExternalRun> {
+        let last = self.judge.last.clone()?;
+        let mut summary = self.judge.summary(&last, None);
+        summary.end_reason = "error".to_string();
+        let episode_s = self.episode_started.map_or(0.0, |t| t.elapsed().as_secs_f64());
+        Some(self.run(summary, last, episode_s))
+    }
+}
+
+fn faults_of(last: &PlantSample) -> LinkFaults {
+    LinkFaults { watchdog_hover_s: ns_to_s(last.watchdog_hover_ns), ..LinkFaults::default() }
+}
+
+/// Judges a run from the plant's samples, one per integration step.
+///
+/// The per-cycle rows are the plant's view: a row per command applied, at the first step at or
+/// after its application (`t_s` and the state are that step's; `command` the input applied,
+/// after clipping; `known_delay_s` the command's round trip from the plant's stamps, applied
+/// time minus the `based_on_sample_time_ns` the controller stamped it with: meaningful only
+/// when it stamps its commands, as the Plant API asks). The controller's internals are unknown: no weights, `status` `external`,
+/// `iterations` 0, `solve_ms`, `cost`, `constraint_violation` and `predicted_clearance_m` NaN,
+/// `decision`, `cost_gap` and `injected_delay_s` empty.
+struct Judge {
+    scenario: Scenario,
+    max_ns: u64,
+    step_ns: Option<u64>,
+    flight_id: Option<u64>,
+    /// The newest sample judged.
+    last: Option<PlantSample>,
+    /// Why and where the run ended: the first step that ends it.
+    end: Option<(Finish, PlantSample)>,
+    rows: Vec<CycleRow>,
+    /// The last command seen: (`command_seq`, applied time).
+    command: Option<(u64, u64)>,
+    saturated: u64,
+    steps: u64,
+    missed: u64,
+}
+
+impl Judge {
+    fn new(scenario: &Scenario) -> Self {
+        Self {
+            scenario: scenario.clone(),
+            max_ns: mav::s_to_ns(scenario.max_duration_s).unwrap_or(u64::MAX),
+            step_ns: None,
+            flight_id: None,
+            last: None,
+            end: None,
+            rows: Vec::new(),
+            command: None,
+            saturated: 0,
+            steps: 0,
+            missed: 0,
+        }
+    }
+
+    fn see(&mut self, item: &pb::StateSample) -> anyhow::Result<()> {
+        if self.end.is_some() {
+            return Ok(());
+        }
+        let sample = PlantSample::try_from(item).map_err(|e| anyhow!("the plant's sample: {e}"))?;
+        match self.flight_id {
+            None => self.flight_id = Some(sample.flight_id),
+            Some(id) if id != sample.flight_id => bail!(
+                "the plant was reset under the run at plant time {:.3} s (the bench resets it; a controller must not call Reset)",
+                self.last.as_ref().map_or(0.0, |s| ns_to_s(s.time_ns))
+            ),
+            Some(_) => {}
+        }
+        if let Some(prev) = &self.last {
+            // Every step comes once, in order: a larger gap is steps the stream dropped.
+            let gap_ns = sample.time_ns.saturating_sub(prev.time_ns);
+            match self.step_ns {
+                Some(step) if gap_ns > step => self.missed += gap_ns / step - 1,
+                None if gap_ns > 0 => self.step_ns = Some(gap_ns),
+                _ => {}
+            }
+        }
+        self.steps += 1;
+        let applied = &sample.last_command;
+        let key = (applied.meta.command_seq, applied.applied_time_ns);
+        if !applied.initial && self.command != Some(key) {
+            self.command = Some(key);
+            self.saturated += u64::from(applied.saturated);
+            let round_trip_ns = applied.applied_time_ns.saturating_sub(applied.meta.based_on_sample_time_ns);
+            self.rows.push(CycleRow {
+                cycle: self.rows.len() as u64,
+                t_s: ns_to_s(sample.time_ns),
+                state: sample.state.into(),
+                command: applied.input.into(),
+                known_delay_s: ns_to_s(round_trip_ns),
+                injected_delay_s: None,
+                weights: Vec::new(),
+                status: CONTROLLER_NAME.to_string(),
+                iterations: 0,
+                solve_ms: f64::NAN,
+                cost: f64::NAN,
+                constraint_violation: f64::NAN,
+                predicted_clearance_m: f64::NAN,
+                decision: String::new(),
+                reason: String::new(),
+                cost_gap: None,
+            });
+        }
+        if let Some(finish) = mpc::episode::finish_at(&self.scenario, self.max_ns, &sample) {
+            self.end = Some((finish, sample.clone()));
+        }
+        self.last = Some(sample);
+        Ok(())
+    }
+
+    /// Plant time and distance to the goal of the newest sample, for errors.
+    fn where_now(&self) -> String {
+        match &self.last {
+            None => "no plant sample yet".to_string(),
+            Some(s) => {
+                let g = self.scenario.goal_m;
+                let d =
+                    ((s.state[0] - g[0]).powi(2) + (s.state[1] - g[1]).powi(2) + (s.state[2] - g[2]).powi(2))
+                        .sqrt();
+                format!(
+                    "plant time {:.3} s, {d:.2} m from the goal, {} command(s) applied",
+                    ns_to_s(s.time_ns),
+                    self.rows.len()
+                )
+            }
+        }
+    }
+
+    /// The one summary (`mpc::summarize`) of the plant's `last` sample; the controller's
+    /// solve statistics are unknown (no records), its cycles are the commands applied.
+    fn summary(&self, last: &PlantSample, time_to_goal_ns: Option<u64>) -> RunSummary {
+        // The mode only names the controller, which is replaced.
+        let mut summary =
+            mpc::summarize(&self.scenario.name, ControllerMode::Multistage, &[], last, time_to_goal_ns);
+        summary.controller = CONTROLLER_NAME.to_string();
+        summary.cycles = self.rows.len() as u64;
+        summary
+    }
+}
+
+/// The scenario as flown, in a temporary file (`HILBENCH_SCENARIO`), removed on drop.
+struct ScenarioTempFile {
+    dir: PathBuf,
+    path: PathBuf,
+}
+
+impl ScenarioTempFile {
+    fn write(scenario: &Scenario) -> anyhow::Result<Self> {
+        static RUNS: AtomicU64 = AtomicU64::new(0);
+        let n = RUNS.fetch_add(1, Ordering::Relaxed);
+        let dir = std::env::temp_dir().join(format!("hilbench-external-{}-{n}", std::process::id()));
+        std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        let path = dir.join(format!("{}.toml", scenario.name));
+        let text = ScenarioFile::as_flown(scenario, vec![Mode::Multistage]).map_err(anyhow::Error::msg)?;
+        std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
+        Ok(Self { dir, path })
+    }
+}
+
+impl Drop for ScenarioTempFile {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// The controller's process, in a process group of its own (so that what its shell starts is
+/// stopped with it), its output's last lines kept. Killed (the whole group) when dropped.
+struct Process {
+    child: Child,
+    group: Option<rustix::process::Pid>,
+    tail: Arc<Mutex<VecDeque<String>>>,
+}
+
+impl Process {
+    fn spawn(command: &str, env: &[(&str, &str)]) -> anyhow::Result<Self> {
+        // The trap makes the shell wait for the command on SIGTERM and exit after it (traps run
+        // once the foreground command has finished; its own SIGTERM disposition is the default):
+        // a shell killed at once would orphan the controller, and an orphan is reaped by
+        // whatever PID 1 is, lazily or never in some containers.
+        let mut child = Command::new("sh")
+            .arg("-c")
+            .arg(format!("trap 'exit 143' TERM\n{command}"))
+            .envs(env.iter().copied())
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .process_group(0)
+            .kill_on_drop(true)
+            .spawn()
+            .with_context(|| format!("cannot start the controller `{command}` with sh"))?;
+        let group = child.id().and_then(|id| rustix::process::Pid::from_raw(id as i32));
+        let tail = Arc::new(Mutex::new(VecDeque::with_capacity(TAIL_LINES)));
+        if let Some(out) = child.stdout.take() {
+            tokio::spawn(keep_tail(out, tail.clone()));
+        }
+        if let Some(err) = child.stderr.take() {
+            tokio::spawn(keep_tail(err, tail.clone()));
+        }
+        Ok(Self { child, group, tail })
+    }
+
+    /// The last lines of its output, for an error message.
+    fn tail_text(&self) -> String {
+        let tail = self.tail.lock().unwrap_or_else(PoisonError::into_inner);
+        if tail.is_empty() {
+            return "; it printed nothing".to_string();
+        }
+        let lines: Vec<&str> = tail.iter().map(String::as_str).collect();
+        format!("; its last output:\n    {}", lines.join("\n    "))
+    }
+
+    fn signal(&self, signal: rustix::process::Signal) {
+        if let Some(group) = self.group {
+            let _ = rustix::process::kill_process_group(group, signal);
+        }
+    }
+
+    fn kill(&mut self) {
+        self.signal(rustix::process::Signal::KILL);
+        self.group = None;
+    }
+
+    /// SIGTERM to the group, SIGKILL to what is left of it after `grace`: how it ended. The
+    /// whole group gets the grace, not just the shell: `sh -c` may die of the SIGTERM at once
+    /// while the controller it started is still cleaning up.
+    async fn stop(&mut self, grace: Duration) -> String {
+        self.signal(rustix::process::Signal::TERM);
+        let deadline = tokio::time::Instant::now() + grace;
+        let mut exited = false;
+        loop {
+            exited = exited || matches!(self.child.try_wait(), Ok(Some(_)));
+            let group_gone =
+                self.group.is_none_or(|group| rustix::process::test_kill_process_group(group).is_err());
+            if exited && group_gone {
+                self.group = None;
+                return "stopped by the bench".to_string();
+            }
+            if tokio::time::Instant::now() >= deadline {
+                self.kill();
+                let _ = self.child.wait().await;
+                return "killed by the bench".to_string();
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    }
+}
+
+impl Drop for Process {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+async fn keep_tail(output: impl AsyncRead + Unpin, tail: Arc<Mutex<VecDeque<String>>>) {
+    let mut lines = BufReader::new(output).lines();
+    while let Ok(Some(line)) = lines.next_line().await {
+        let mut tail = tail.lock().unwrap_or_else(PoisonError::into_inner);
+        if tail.len() == TAIL_LINES {
+            tail.pop_front();
+        }
+        tail.push_back(line.chars().take(TAIL_LINE_CHARS).collect());
+    }
+}

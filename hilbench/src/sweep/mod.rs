@@ -1,0 +1,256 @@
+//! `hilbench sweep FILE`: N closed-loop runs of a scenario file, each under a delay process
+//! drawn from the file's `[sweep]` table ([`draw`]), flown in lockstep the way `hilbench run`
+//! flies a run ([`fly`] is `bench::run_all` with one job, so whatever transport `run` gains, a
+//! sweep gains), on worker threads; outcomes as distributions ([`stats`]), failures written as
+//! replayable traces and optionally shrunk ([`shrink`]), sharded and merged ([`stats::merge`]).
+//!
+//! Scheduling is the simplest that fills the cores: `--jobs` threads take the next (run,
+//! controller) pair from a shared counter; each run is independent, so the order in which they
+//! finish changes nothing in the outputs (rows are sorted by run).
+
+pub mod draw;
+pub mod output;
+pub mod shrink;
+pub mod stats;
+
+use std::ops::Range;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, mpsc};
+use std::time::{Duration, Instant};
+
+use hilbench_svc::sweep_table::SweepSection;
+use mav::Scenario;
+use mpc::{ControllerMode, RunSummary};
+
+use crate::bench::{Transport, run_all};
+use crate::cycle_log::CycleRow;
+use draw::RunPlan;
+use stats::RunRow;
+
+/// How often a sweep without a terminal says how far it is.
+const PROGRESS_LINE: Duration = Duration::from_secs(10);
+
+/// Everything a sweep needs, flags applied.
+#[derive(Debug, Clone)]
+pub struct Sweep {
+    /// The scenario file (named in the outputs).
+    pub file: PathBuf,
+    pub scenario: Scenario,
+    pub table: SweepSection,
+    /// Seed of the draws.
+    pub seed: u64,
+    /// Runs of the whole sweep (all shards).
+    pub runs: u64,
+    pub modes: Vec<ControllerMode>,
+    /// `(i, k)`: the i-th of k slices of the runs.
+    pub shard: Option<(u64, u64)>,
+    pub jobs: usize,
+    pub transport: Transport,
+    pub run_timeout: Duration,
+    pub shrink: bool,
+    pub shrink_runs: u64,
+}
+
+impl Sweep {
+    /// The run indices of this shard: the i-th of k contiguous slices of `0..runs`.
+    pub fn indices(&self) -> Range<u64> {
+        match self.shard {
+            None => 0..self.runs,
+            Some((i, k)) => {
+                let at = |j: u64| (u128::from(self.runs) * u128::from(j) / u128::from(k)) as u64;
+                at(i)..at(i + 1)
+            }
+        }
+    }
+
+    /// Run `index`'s delays.
+    pub fn plan(&self, index: u64) -> Result<RunPlan, String> {
+        draw::plan(&self.table, &self.scenario, self.seed, index)
+    }
+}
+
+/// A run as flown: its summary and per-cycle rows.
+#[derive(Debug, Clone)]
+pub struct Flown {
+    pub summary: RunSummary,
+    pub rows: Vec<CycleRow>,
+}
+
+/// What became of one run.
+#[derive(Debug, Clone)]
+pub enum Flight {
+    Flown(Box<Flown>),
+    /// The run stopped with an error (a trace that ran out, a service that failed, ...).
+    Failed(String),
+    /// The run took longer than the time limit; its thread is left to finish on its own.
+    TimedOut(Duration),
+    /// Ctrl-C.
+    Interrupted,
+}
+
+/// Flies `scenario` with `mode` as `hilbench run` does (`bench::run_all` with one job), on a
+/// thread of its own so that a run that hangs past `timeout` is given up (and counted) while
+/// the sweep goes on.
+pub fn fly(scenario: &Scenario, mode: ControllerMode, transport: &Transport, timeout: Duration) -> Flight {
+    let (tx, rx) = mpsc::channel();
+    let (scenario, transport) = (scenario.clone(), transport.clone());
+    let spawned = std::thread::Builder::new().name("hilbench-sweep-run".into()).spawn(move || {
+        let _ = tx.send(run_all(&[(scenario, mode)], &transport, false));
+    });
+    if let Err(e) = spawned {
+        return Flight::Failed(format!("cannot start the run's thread: {e}"));
+    }
+    match rx.recv_timeout(timeout) {
+        Ok(Ok(mut outcome)) => {
+            if outcome.interrupted {
+                return Flight::Interrupted;
+            }
+            if let Some(e) = outcome.error {
+                return Flight::Failed(e);
+            }
+            match (outcome.runs.pop(), outcome.cycles.pop()) {
+                (Some(summary), Some(rows)) => Flight::Flown(Box::new(Flown { summary, rows })),
+                _ => Flight::Failed("the run ended without a summary".into()),
+            }
+        }
+        Ok(Err(e)) => Flight::Failed(format!("{e:#}")),
+        Err(mpsc::RecvTimeoutError::Timeout) => Flight::TimedOut(timeout),
+        Err(mpsc::RecvTimeoutError::Disconnected) => Flight::Failed("the run's thread panicked".into()),
+    }
+}
+
+/// One finished (run, controller): its row, and the trace written for a failure.
+#[derive(Debug, Clone)]
+pub struct Done {
+    pub row: RunRow,
+    /// A failure's delays (shrunk with `--shrink`), and how the shrink went.
+    pub failure: Option<shrink::FailureTrace>,
+}
+
+/// What a sweep gives back.
+#[derive(Debug, Clone)]
+pub struct SweepResult {
+    /// Sorted by run, then controller (in `modes` order).
+    pub done: Vec<Done>,
+    pub interrupted: bool,
+    pub wall_time_s: f64,
+}
+
+/// Flies every run of the shard on `sweep.jobs` threads. `bar` counts finished runs.
+pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> SweepResult {
+    let started = Instant::now();
+    let items: Vec<(u64, ControllerMode)> =
+        sweep.indices().flat_map(|i| sweep.modes.iter().map(move |m| (i, *m))).collect();
+    let stop = Arc::new(AtomicBool::new(false));
+    watch_ctrl_c(Arc::clone(&stop));
+    let next = AtomicUsize::new(0);
+    let (tx, rx) = mpsc::channel::<Option<Done>>();
+    let mut done = Vec::with_capacity(items.len());
+    let mut interrupted = false;
+    std::thread::scope(|s| {
+        for _ in 0..sweep.jobs.max(1) {
+            let tx = tx.clone();
+            let (items, next, stop) = (&items, &next, &stop);
+            s.spawn(move || {
+                while !stop.load(Ordering::Relaxed) {
+                    let Some(&(index, mode)) = items.get(next.fetch_add(1, Ordering::Relaxed)) else { break };
+                    let result = one(sweep, index, mode);
+                    if result.is_none() {
+                        stop.store(true, Ordering::Relaxed);
+                    }
+                    if tx.send(result).is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+        drop(tx);
+        // Without a terminal (a log, CI) a line every few seconds says how far the sweep is.
+        let mut said = Instant::now();
+        loop {
+            let result = match rx.recv_timeout(Duration::from_millis(500)) {
+                Ok(result) => result,
+                Err(mpsc::RecvTimeoutError::Timeout) => continue,
+                Err(mpsc::RecvTimeoutError::Disconnected) => break,
+            };
+            if show && bar.is_hidden() && said.elapsed() >= PROGRESS_LINE {
+                said = Instant::now();
+                let elapsed = started.elapsed().as_secs_f64();
+                eprintln!(
+                    "  sweep: {} of {} runs in {elapsed:.0} s ({:.1} runs/s)",
+                    done.len(),
+                    items.len(),
+                    done.len() as f64 / elapsed.max(1e-9)
+                );
+            }
+            match result {
+                Some(d) => {
+                    if d.row.outcome != "reached" {
+                        let text = format!(
+                            "  run {} {}: {} ({})",
+                            d.row.run, d.row.controller, d.row.outcome, d.row.what
+                        );
+                        crate::progress::line(bar, show && !bar.is_hidden(), &text);
+                    }
+                    done.push(d);
+                    bar.inc(1);
+                }
+                None => interrupted = true,
+            }
+        }
+    });
+    interrupted |= stop.load(Ordering::Relaxed) && done.len() < items.len();
+    let order = |m: &str| sweep.modes.iter().position(|x| x.name() == m).unwrap_or(usize::MAX);
+    done.sort_by_key(|a| (a.row.run, order(&a.row.controller)));
+    SweepResult { done, interrupted, wall_time_s: started.elapsed().as_secs_f64() }
+}
+
+/// Run `index` with `mode`: drawn, flown, its row, its failure's trace (shrunk when asked).
+/// `None`: Ctrl-C.
+fn one(sweep: &Sweep, index: u64, mode: ControllerMode) -> Option<Done> {
+    let started = Instant::now();
+    let plan = match sweep.plan(index) {
+        Ok(plan) => plan,
+        Err(e) => {
+            let row = RunRow::of_error(index, mode, "", "", "error", &e, 0.0);
+            return Some(Done { row, failure: None });
+        }
+    };
+    let scenario = plan.scenario(&sweep.scenario);
+    let flight = fly(&scenario, mode, &sweep.transport, sweep.run_timeout);
+    let wall_s = started.elapsed().as_secs_f64();
+    let row = match &flight {
+        Flight::Interrupted => return None,
+        Flight::Flown(f) => RunRow::of_flight(index, mode, &plan, f, wall_s),
+        Flight::Failed(e) => {
+            RunRow::of_error(index, mode, &plan.family, &plan.params_text(), "error", e, wall_s)
+        }
+        Flight::TimedOut(limit) => {
+            let e = format!("the run took longer than the per-run time limit of {} s", limit.as_secs_f64());
+            RunRow::of_error(index, mode, &plan.family, &plan.params_text(), "timeout", &e, wall_s)
+        }
+    };
+    let failure = match &flight {
+        _ if row.outcome == "reached" => None,
+        Flight::Flown(f) if sweep.shrink => shrink::shrink(sweep, &plan, mode, f),
+        Flight::Flown(f) => Some(shrink::FailureTrace::unshrunk(&plan, f)),
+        _ => Some(shrink::FailureTrace::whole(&plan)),
+    };
+    Some(Done { row, failure })
+}
+
+/// Sets `stop` at the first Ctrl-C (SIGINT). The runs in flight see it too (`run_all` listens
+/// for it) and end as interrupted.
+fn watch_ctrl_c(stop: Arc<AtomicBool>) {
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build();
+    if let Ok(runtime) = runtime {
+        let _ = std::thread::Builder::new().name("hilbench-sweep-ctrl-c".into()).spawn(move || {
+            runtime.block_on(async {
+                if tokio::signal::ctrl_c().await.is_ok() {
+                    stop.store(true, Ordering::Relaxed);
+                }
+            });
+        });
+    }
+}

@@ -1,0 +1,361 @@
+//! What a sweep writes into its directory: `sweep.json` (stable keys, docs/output.md),
+//! `runs.csv`, `failures/<run>.csv`, `report.md` and the plots; and `hilbench sweep-merge`,
+//! which puts shards' directories together into the directory of the whole sweep.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use serde_json::{Value, json};
+
+use super::stats::{self, RunRow};
+use super::{Done, Sweep, SweepResult};
+
+/// Folder of the failures' traces.
+pub const FAILURES_DIR: &str = "failures";
+
+/// What `sweep.json` says besides the numbers of the runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Meta {
+    pub scenario: String,
+    pub file: String,
+    pub seed: u64,
+    /// Runs of the whole sweep (every shard).
+    pub runs_planned: u64,
+    /// `i/K`, or none for a whole sweep.
+    pub shard: Option<String>,
+    pub controllers: Vec<String>,
+    pub families: Vec<String>,
+    pub transport: String,
+    pub shrink: bool,
+}
+
+impl Meta {
+    pub fn of(sweep: &Sweep) -> Self {
+        Self {
+            scenario: sweep.scenario.name.clone(),
+            file: sweep.file.display().to_string(),
+            seed: sweep.seed,
+            runs_planned: sweep.runs,
+            shard: sweep.shard.map(|(i, k)| format!("{i}/{k}")),
+            controllers: sweep.modes.iter().map(|m| m.name().to_string()).collect(),
+            families: sweep.table.families.iter().map(|f| f.name().to_string()).collect(),
+            transport: sweep.transport.name().to_string(),
+            shrink: sweep.shrink,
+        }
+    }
+}
+
+/// The file name of a failure's trace: `<run>.csv`, or `<run>-<controller>.csv` when the sweep
+/// flies more than one controller.
+pub fn failure_file(run: u64, controller: &str, controllers: usize) -> String {
+    if controllers > 1 { format!("{run}-{controller}.csv") } else { format!("{run}.csv") }
+}
+
+/// `sweep.json`: the numbers of `rows`, `failures` as given, `timing`.
+pub fn sweep_json(
+    meta: &Meta,
+    rows: &[&RunRow],
+    failures: Vec<Value>,
+    interrupted: bool,
+    timing: Value,
+) -> Value {
+    let mut v = stats::aggregate_with_families(rows, &meta.families);
+    if meta.controllers.len() > 1 {
+        let mut by = serde_json::Map::new();
+        for c in &meta.controllers {
+            let of: Vec<&RunRow> = rows.iter().copied().filter(|r| &r.controller == c).collect();
+            by.insert(c.clone(), stats::aggregate_with_families(&of, &meta.families));
+        }
+        v["by_controller"] = Value::Object(by);
+    }
+    v["failures"] = Value::Array(failures);
+    v["scenario"] = json!(meta.scenario);
+    v["file"] = json!(meta.file);
+    v["seed"] = json!(meta.seed);
+    v["runs_planned"] = json!(meta.runs_planned);
+    v["shard"] = json!(meta.shard);
+    v["controllers"] = json!(meta.controllers);
+    v["family_order"] = json!(meta.families);
+    v["transport"] = json!(meta.transport);
+    v["time_mode"] = json!("lockstep");
+    v["shrink"] = json!(meta.shrink);
+    v["interrupted"] = json!(interrupted);
+    v["timing"] = timing;
+    v["hilbench_version"] = json!(env!("CARGO_PKG_VERSION"));
+    v["hilbench_commit"] = json!(env!("HILBENCH_COMMIT"));
+    v
+}
+
+/// One entry of `failures`.
+fn failure_json(d: &Done, meta: &Meta) -> Value {
+    let r = &d.row;
+    let file = d
+        .failure
+        .as_ref()
+        .map(|_| format!("{FAILURES_DIR}/{}", failure_file(r.run, &r.controller, meta.controllers.len())));
+    let f = d.failure.as_ref();
+    json!({
+        "run": r.run,
+        "controller": r.controller,
+        "family": r.family,
+        "parameters": r.params,
+        "outcome": r.outcome,
+        "what": r.what,
+        "time_s": r.fail_time_s,
+        "position_m": r.fail_position_m,
+        "trace_file": file,
+        "trace_delays": f.map(|f| f.delays_s.len()),
+        "flown_delays": f.map(|f| f.original_len),
+        "shrink": f.and_then(|f| f.shrink).map(|(reruns, complete)| json!({"reruns": reruns, "complete": complete})),
+        "replay": f.and_then(|f| f.replay.as_ref()),
+    })
+}
+
+/// Writes the directory of a finished (or interrupted) sweep; returns `sweep.json`'s value.
+pub fn write(dir: &Path, sweep: &Sweep, result: &SweepResult, plots: bool) -> anyhow::Result<Value> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let meta = Meta::of(sweep);
+    let rows: Vec<&RunRow> = result.done.iter().map(|d| &d.row).collect();
+    write_file(&dir.join("runs.csv"), &stats::to_csv(&rows))?;
+    let mut failures = Vec::new();
+    for d in result.done.iter().filter(|d| d.row.failed()) {
+        if let Some(f) = &d.failure {
+            let folder = dir.join(FAILURES_DIR);
+            std::fs::create_dir_all(&folder)
+                .with_context(|| format!("cannot create {}", folder.display()))?;
+            let r = &d.row;
+            let controllers = meta.controllers.len();
+            let mut header = vec![
+                format!(
+                    "hilbench sweep {} (seed {}): run {} with {}",
+                    meta.file, meta.seed, r.run, r.controller
+                ),
+                format!("family {} ({}): {}", r.family, r.params, r.what),
+            ];
+            match f.shrink {
+                Some((reruns, complete)) => header.push(format!(
+                    "shrunk from {} to {} delays in {reruns} reruns{}",
+                    f.original_len,
+                    f.delays_s.len(),
+                    if complete { "" } else { " (budget used up)" }
+                )),
+                None if f.replay.is_some() => header.push("the delays of the cycles the run flew".into()),
+                None => header.push("every delay the run had".into()),
+            }
+            header.push(format!(
+                "replay: hilbench run {} --mode {} --delay-trace <this file>",
+                meta.file, r.controller
+            ));
+            write_file(&folder.join(failure_file(r.run, &r.controller, controllers)), &f.to_text(&header))?;
+        }
+        failures.push(failure_json(d, &meta));
+    }
+    let run_wall_s: f64 = rows.iter().map(|r| r.wall_s).sum();
+    let solver_s: f64 = rows.iter().filter_map(|r| r.solver_s).sum();
+    let timing = json!({
+        "wall_time_s": result.wall_time_s,
+        "runs_per_s": rows.len() as f64 / result.wall_time_s.max(1e-9),
+        "jobs": sweep.jobs,
+        "run_wall_s": run_wall_s,
+        "solver_s": solver_s,
+    });
+    let summary = sweep_json(&meta, &rows, failures, result.interrupted, timing);
+    finish(dir, &meta, &rows, &summary, &sweep.scenario, plots)?;
+    Ok(summary)
+}
+
+/// `sweep.json`, `report.md` and the plots of `rows`.
+fn finish(
+    dir: &Path,
+    meta: &Meta,
+    rows: &[&RunRow],
+    summary: &Value,
+    scenario: &mav::Scenario,
+    plots: bool,
+) -> anyhow::Result<()> {
+    write_file(&dir.join("sweep.json"), &serde_json::to_string_pretty(summary)?)?;
+    let figures =
+        if plots { crate::plots::sweep::write(dir, scenario, rows, &meta.families)? } else { Vec::new() };
+    write_file(&dir.join("report.md"), &report(meta, summary, rows, &figures, dir))?;
+    Ok(())
+}
+
+fn write_file(path: &Path, text: &str) -> anyhow::Result<()> {
+    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// `report.md`.
+fn report(meta: &Meta, v: &Value, rows: &[&RunRow], figures: &[PathBuf], dir: &Path) -> String {
+    let mut out = String::new();
+    let f = |x: &Value| x.as_f64().map_or_else(|| "-".to_string(), |x| format!("{x:.3}"));
+    let _ = writeln!(out, "# hilbench sweep {}\n", meta.file);
+    let shard = meta.shard.as_ref().map(|s| format!(", shard {s}")).unwrap_or_default();
+    let _ = writeln!(
+        out,
+        "Scenario `{}`, {} of {} runs{shard}, seed {}, controllers {}, {} in lockstep{}.\n",
+        meta.scenario,
+        rows.len(),
+        meta.runs_planned,
+        meta.seed,
+        meta.controllers.join(", "),
+        meta.transport,
+        if v["interrupted"] == true { " (interrupted: what had finished)" } else { "" }
+    );
+    let _ = writeln!(
+        out,
+        "| family | runs | reached | collided | of which ground | missed | errors | best-effort cycles | clearance p1 / p5 / p50 [m] | path p50 / p95 [m] | time to goal p50 / p95 [s] |"
+    );
+    let _ = writeln!(out, "|---|---|---|---|---|---|---|---|---|---|---|");
+    let line = |name: &str, a: &Value| {
+        format!(
+            "| {name} | {} | {} | {} | {} | {} | {} | {} | {} / {} / {} | {} / {} | {} / {} |",
+            a["runs"],
+            a["reached"],
+            a["collided"],
+            a["collided_ground"],
+            a["missed"],
+            a["errors"],
+            a["best_effort_cycles"],
+            f(&a["min_clearance_m"]["p1"]),
+            f(&a["min_clearance_m"]["p5"]),
+            f(&a["min_clearance_m"]["p50"]),
+            f(&a["path_length_m"]["p50"]),
+            f(&a["path_length_m"]["p95"]),
+            f(&a["time_to_goal_s"]["p50"]),
+            f(&a["time_to_goal_s"]["p95"]),
+        )
+    };
+    for name in &meta.families {
+        let _ = writeln!(out, "{}", line(name, &v["families"][name]));
+    }
+    let _ = writeln!(out, "{}\n", line("**all**", v));
+    let _ = writeln!(
+        out,
+        "Solve time (ms, over runs): median of the runs' medians {}, 99th percentile of their 99th percentiles {}, max {}.\n",
+        f(&v["solve_ms"]["p50"]),
+        f(&v["solve_ms"]["p99"]),
+        f(&v["solve_ms"]["max"])
+    );
+    let failures = v["failures"].as_array().cloned().unwrap_or_default();
+    if !failures.is_empty() {
+        let _ = writeln!(out, "## Failures\n");
+        for x in failures.iter().take(200) {
+            let trace = x["trace_file"].as_str().map(|t| format!(" ([trace]({t}))")).unwrap_or_default();
+            let _ = writeln!(
+                out,
+                "- run {} ({}, {} {}): {}: {}{trace}",
+                x["run"],
+                x["controller"].as_str().unwrap_or(""),
+                x["family"].as_str().unwrap_or(""),
+                x["parameters"].as_str().unwrap_or(""),
+                x["outcome"].as_str().unwrap_or(""),
+                x["what"].as_str().unwrap_or("")
+            );
+        }
+        if failures.len() > 200 {
+            let _ = writeln!(out, "- ... and {} more (sweep.json)", failures.len() - 200);
+        }
+        let _ = writeln!(out);
+    }
+    let pngs: Vec<&PathBuf> = figures.iter().filter(|p| p.extension().is_some_and(|e| e == "png")).collect();
+    if !pngs.is_empty() {
+        let _ = writeln!(out, "## Plots\n");
+        for p in pngs {
+            let rel = p.strip_prefix(dir).unwrap_or(p);
+            let _ = writeln!(out, "![{}]({})\n", rel.display(), rel.display());
+        }
+    }
+    let _ = writeln!(
+        out,
+        "Every run is a line of [runs.csv](runs.csv); the numbers are in [sweep.json](sweep.json)."
+    );
+    out
+}
+
+/// `hilbench sweep-merge`: the shards' `runs.csv`, failures and traces into `out`, and the
+/// `sweep.json` of the whole. The shards must come from the same file, seed and number of
+/// runs, and no (run, controller) may be in two of them.
+pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value> {
+    anyhow::ensure!(!dirs.is_empty(), "sweep-merge: no shard directory given");
+    let mut rows = Vec::new();
+    let mut failures = Vec::new();
+    let mut meta: Option<Meta> = None;
+    let mut interrupted = false;
+    let (mut run_wall_s, mut solver_s) = (0.0, 0.0);
+    for dir in dirs {
+        let path = dir.join("sweep.json");
+        let text =
+            std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+        let v: Value =
+            serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+        let strings = |key: &str| -> Vec<String> {
+            v[key].as_array().into_iter().flatten().filter_map(|s| s.as_str().map(String::from)).collect()
+        };
+        let this = Meta {
+            scenario: v["scenario"].as_str().unwrap_or_default().to_string(),
+            file: v["file"].as_str().unwrap_or_default().to_string(),
+            seed: v["seed"].as_u64().with_context(|| format!("{}: no `seed`", path.display()))?,
+            runs_planned: v["runs_planned"]
+                .as_u64()
+                .with_context(|| format!("{}: no `runs_planned`", path.display()))?,
+            shard: None,
+            controllers: strings("controllers"),
+            families: strings("family_order"),
+            transport: v["transport"].as_str().unwrap_or_default().to_string(),
+            shrink: v["shrink"] == true,
+        };
+        match &meta {
+            None => meta = Some(this),
+            Some(m) => anyhow::ensure!(
+                *m == this,
+                "{}: another sweep than {} (file, seed, runs, controllers, families, transport and --shrink must agree)",
+                path.display(),
+                dirs[0].display()
+            ),
+        }
+        interrupted |= v["interrupted"] == true;
+        run_wall_s += v["timing"]["run_wall_s"].as_f64().unwrap_or(0.0);
+        solver_s += v["timing"]["solver_s"].as_f64().unwrap_or(0.0);
+        let csv_path = dir.join("runs.csv");
+        let csv = std::fs::read_to_string(&csv_path)
+            .with_context(|| format!("cannot read {}", csv_path.display()))?;
+        rows.extend(stats::from_csv(&csv).map_err(|e| anyhow::anyhow!("{}: {e}", csv_path.display()))?);
+        for failure in v["failures"].as_array().into_iter().flatten() {
+            if let Some(trace) = failure["trace_file"].as_str() {
+                let to = out.join(trace);
+                if let Some(parent) = to.parent() {
+                    std::fs::create_dir_all(parent)
+                        .with_context(|| format!("cannot create {}", parent.display()))?;
+                }
+                std::fs::copy(dir.join(trace), &to).with_context(|| {
+                    format!("cannot copy {} to {}", dir.join(trace).display(), to.display())
+                })?;
+            }
+            failures.push(failure.clone());
+        }
+    }
+    let meta = meta.context("sweep-merge: no shard")?;
+    let rows = stats::merge_rows(rows, &meta.controllers).map_err(|e| anyhow::anyhow!("sweep-merge: {e}"))?;
+    let order = |c: &str| meta.controllers.iter().position(|x| x == c).unwrap_or(usize::MAX);
+    failures.sort_by_key(|f| {
+        (f["run"].as_u64().unwrap_or(u64::MAX), order(f["controller"].as_str().unwrap_or("")))
+    });
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let refs: Vec<&RunRow> = rows.iter().collect();
+    write_file(&out.join("runs.csv"), &stats::to_csv(&refs))?;
+    let timing = json!({ "shards": dirs.len(), "run_wall_s": run_wall_s, "solver_s": solver_s });
+    let summary = sweep_json(&meta, &refs, failures, interrupted, timing);
+    let scenario = crate::scenario_file::ScenarioFile::load(Path::new(&meta.file)).map(|f| f.scenario).ok();
+    match scenario {
+        Some(s) => finish(out, &meta, &refs, &summary, &s, plots)?,
+        // The scenario file is elsewhere: no top view of the failures.
+        None => finish_without_scenario(out, &meta, &refs, &summary)?,
+    }
+    Ok(summary)
+}
+
+fn finish_without_scenario(dir: &Path, meta: &Meta, rows: &[&RunRow], summary: &Value) -> anyhow::Result<()> {
+    write_file(&dir.join("sweep.json"), &serde_json::to_string_pretty(summary)?)?;
+    write_file(&dir.join("report.md"), &report(meta, summary, rows, &[], dir))
+}

@@ -1,0 +1,259 @@
+//! A failing run's delays as a trace that replays the failure (`hilbench run FILE
+//! --delay-trace failures/<run>.csv`), and `--shrink`: the trace made smaller while the run
+//! still fails the same way, as proptest shrinks a failing case.
+//!
+//! The trace of a failure is the delays of the cycles it flew (the rest were never used), so
+//! replaying it flies the same run to the bit. Shrinking then tries, in this order, each within
+//! a budget of reruns: deleting chunks of delays (halves, quarters, ... single delays: a shorter
+//! trace), setting chunks to zero (fewer bursts, smaller delays), and rounding every delay to
+//! the millisecond. A candidate is kept when its run fails with the same outcome (`collided`
+//! or `missed`); a candidate the run outlasts ends in an error and is not kept. After each kept
+//! candidate the trace is cut to the cycles that run flew. The result is the trace of the last
+//! kept run, so its replay is that run.
+
+use mpc::ControllerMode;
+
+use super::draw::RunPlan;
+use super::{Flight, Flown, Sweep, fly};
+
+/// A failure's trace, and the numbers its replay gives.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FailureTrace {
+    pub delays_s: Vec<f64>,
+    /// Delays of the failing run as flown (before shrinking).
+    pub original_len: usize,
+    /// `Some` after `--shrink`: reruns spent, and whether shrinking ran to its end (rather
+    /// than to its budget).
+    pub shrink: Option<(u64, bool)>,
+    /// What replaying the trace gives (`None` for an error or a time-out: the whole trace the
+    /// run had is written, it is not a replay of a finished run).
+    pub replay: Option<Replay>,
+}
+
+/// The numbers of a replayed failure, as `summary.json` has them.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Replay {
+    pub outcome: String,
+    pub end_reason: String,
+    pub cycles: u64,
+    pub min_clearance_m: f64,
+    pub path_length_m: f64,
+    pub end_time_s: f64,
+}
+
+impl Replay {
+    fn of(flown: &Flown) -> Self {
+        let s = &flown.summary;
+        Self {
+            outcome: outcome(flown).to_string(),
+            end_reason: s.end_reason.clone(),
+            cycles: s.cycles,
+            min_clearance_m: s.min_clearance_m,
+            path_length_m: s.path_length_m,
+            end_time_s: s.end_time_s,
+        }
+    }
+}
+
+fn outcome(flown: &Flown) -> &'static str {
+    let s = &flown.summary;
+    if s.collided {
+        "collided"
+    } else if s.reached {
+        "reached"
+    } else {
+        "missed"
+    }
+}
+
+impl FailureTrace {
+    /// The delays of the cycles a failed run flew.
+    pub fn unshrunk(plan: &RunPlan, flown: &Flown) -> Self {
+        let n = flown.rows.len().min(plan.delays_s.len());
+        Self {
+            delays_s: plan.delays_s[..n].to_vec(),
+            original_len: n,
+            shrink: None,
+            replay: Some(Replay::of(flown)),
+        }
+    }
+
+    /// Every delay a run had (one that stopped with an error or timed out).
+    pub fn whole(plan: &RunPlan) -> Self {
+        Self {
+            delays_s: plan.delays_s.clone(),
+            original_len: plan.delays_s.len(),
+            shrink: None,
+            replay: None,
+        }
+    }
+
+    /// The trace file's text (`delay::parse_trace`'s format), `header` as comment lines.
+    pub fn to_text(&self, header: &[String]) -> String {
+        let mut out = String::with_capacity(24 * self.delays_s.len() + 200);
+        for h in header {
+            out.push_str(&format!("# {h}\n"));
+        }
+        out.push_str("delay_s\n");
+        for d in &self.delays_s {
+            out.push_str(&format!("{d:?}\n"));
+        }
+        out
+    }
+}
+
+/// `--shrink` of a failed run (`flown`, under `plan`).
+pub fn shrink(sweep: &Sweep, plan: &RunPlan, mode: ControllerMode, flown: &Flown) -> Option<FailureTrace> {
+    let want = outcome(flown);
+    let mut best = FailureTrace::unshrunk(plan, flown);
+    let budget = sweep.shrink_runs;
+    let mut reruns = 0u64;
+    // The candidate's run if it fails as the original did, and the trace cut to what it flew.
+    let mut attempt = |delays: Vec<f64>, reruns: &mut u64| -> Option<(Vec<f64>, Flown)> {
+        *reruns += 1;
+        let candidate = RunPlan { delays_s: delays, ..plan.clone() };
+        match fly(&candidate.scenario(&sweep.scenario), mode, &sweep.transport, sweep.run_timeout) {
+            Flight::Flown(f) if outcome(&f) == want => {
+                let mut d = candidate.delays_s;
+                d.truncate(f.rows.len());
+                Some((d, *f))
+            }
+            _ => None,
+        }
+    };
+    let complete = shrink_with(&mut best, budget, &mut reruns, &mut attempt);
+    best.shrink = Some((reruns, complete));
+    Some(best)
+}
+
+/// Flies a candidate trace (counting the rerun): the trace cut to what its run flew, and the
+/// run, when it fails as the original did.
+type Attempt<'a> = dyn FnMut(Vec<f64>, &mut u64) -> Option<(Vec<f64>, Flown)> + 'a;
+
+/// The passes of [`shrink`] over `best` (kept up to date), at most `budget` attempts; true when
+/// they ran to their end.
+fn shrink_with(best: &mut FailureTrace, budget: u64, reruns: &mut u64, attempt: &mut Attempt<'_>) -> bool {
+    let mut keep = |best: &mut FailureTrace, candidate: Vec<f64>, reruns: &mut u64| -> Option<bool> {
+        if *reruns >= budget {
+            return None;
+        }
+        Some(match attempt(candidate, reruns) {
+            Some((delays, flown)) => {
+                best.delays_s = delays;
+                best.replay = Some(Replay::of(&flown));
+                true
+            }
+            None => false,
+        })
+    };
+    // Shorter: delete chunks.
+    let mut size = best.delays_s.len() / 2;
+    while size >= 1 {
+        let mut i = 0;
+        while i < best.delays_s.len() {
+            let mut candidate = best.delays_s[..i].to_vec();
+            candidate.extend_from_slice(&best.delays_s[(i + size).min(best.delays_s.len())..]);
+            match keep(best, candidate, reruns) {
+                None => return false,
+                Some(true) => {}
+                Some(false) => i += size,
+            }
+        }
+        size /= 2;
+    }
+    // Fewer bursts, smaller delays: zero chunks.
+    let mut size = best.delays_s.len() / 2;
+    while size >= 1 {
+        let mut i = 0;
+        while i < best.delays_s.len() {
+            let end = (i + size).min(best.delays_s.len());
+            if best.delays_s[i..end].iter().all(|d| *d == 0.0) {
+                i += size;
+                continue;
+            }
+            let mut candidate = best.delays_s.clone();
+            candidate[i..end].iter_mut().for_each(|d| *d = 0.0);
+            match keep(best, candidate, reruns) {
+                None => return false,
+                Some(_) => i += size,
+            }
+        }
+        size /= 2;
+    }
+    // Round numbers: every delay to the millisecond.
+    let rounded: Vec<f64> = best.delays_s.iter().map(|d| (d * 1e3).round() / 1e3).collect();
+    if rounded != best.delays_s && keep(best, rounded, reruns).is_none() {
+        return false;
+    }
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn flown(cycles: usize, collided: bool) -> Flown {
+        let scenario = mav::Scenario::paper_2();
+        let sim = mav::PlantSim::new(&scenario, mav::SimSettings::default()).expect("a plant");
+        let mut summary = mpc::summarize("x", ControllerMode::Multistage, &[], &sim.peek(), None);
+        summary.collided = collided;
+        summary.cycles = cycles as u64;
+        let row = crate::cycle_log::CycleRow {
+            cycle: 0,
+            t_s: 0.0,
+            state: [0.0; 8],
+            command: [0.0; 3],
+            known_delay_s: 0.0,
+            injected_delay_s: None,
+            weights: vec![],
+            status: String::new(),
+            iterations: 0,
+            solve_ms: 0.0,
+            cost: 0.0,
+            constraint_violation: 0.0,
+            predicted_clearance_m: 0.0,
+            decision: String::new(),
+            reason: String::new(),
+            cost_gap: None,
+        };
+        Flown { summary, rows: vec![row; cycles] }
+    }
+
+    /// A stand-in for the closed loop: the run "collides" at the first cycle after two delays
+    /// of at least 0.3 s in a row, and flies on (to a time limit) otherwise.
+    fn model(delays: &[f64]) -> Option<(Vec<f64>, Flown)> {
+        let at = delays.windows(2).position(|w| w[0] >= 0.3 && w[1] >= 0.3)?;
+        let cycles = at + 2;
+        Some((delays[..cycles].to_vec(), flown(cycles, true)))
+    }
+
+    #[test]
+    fn shrinking_keeps_the_failure_and_leaves_the_smallest_trace_that_fails() {
+        let mut delays: Vec<f64> = (0..120).map(|k| 0.0123 * (k % 7) as f64).collect();
+        delays[50] = 0.3123;
+        delays[51] = 0.33;
+        delays[80] = 0.31;
+        let (cut, f) = model(&delays).expect("fails");
+        let mut best =
+            FailureTrace { delays_s: cut, original_len: 52, shrink: None, replay: Some(Replay::of(&f)) };
+        let mut reruns = 0;
+        let complete = shrink_with(&mut best, 1000, &mut reruns, &mut |d, r| {
+            *r += 1;
+            model(&d)
+        });
+        assert!(complete);
+        assert_eq!(best.delays_s, vec![0.312, 0.33], "after {reruns} reruns");
+        assert!(model(&best.delays_s).is_some());
+        // A budget stops it early, with a trace that still fails.
+        let (cut, f) = model(&delays).expect("fails");
+        let mut early =
+            FailureTrace { delays_s: cut, original_len: 52, shrink: None, replay: Some(Replay::of(&f)) };
+        let mut reruns = 0;
+        assert!(!shrink_with(&mut early, 5, &mut reruns, &mut |d, r| {
+            *r += 1;
+            model(&d)
+        }));
+        assert_eq!(reruns, 5);
+        assert!(model(&early.delays_s).is_some() && early.delays_s.len() <= 52);
+    }
+}

@@ -1,0 +1,397 @@
+//! A sweep's numbers: one [`RunRow`] per (run, controller), the line of `runs.csv`, built from
+//! the run's `mpc::RunSummary` (the summary the rest of the bench uses) and its per-cycle rows;
+//! and the distributions of `sweep.json` ([`aggregate`]), computed from rows alone so that the
+//! shards of a sweep merge into the sweep's own numbers ([`merge_rows`]).
+//!
+//! Percentiles are `mpc::record::percentile`'s nearest rank. `solve_ms` is over runs: `p50` the
+//! median of the runs' median solve times, `p99` the 99th percentile of the runs' 99th
+//! percentiles, `max` the largest solve; wall-clock times, so they differ between two sweeps of
+//! the same runs.
+
+use std::fmt::Write as _;
+
+use mpc::ControllerMode;
+use mpc::record::percentile;
+use serde_json::{Value, json};
+
+use super::Flown;
+use super::draw::RunPlan;
+
+/// One (run, controller) of a sweep: a line of `runs.csv`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunRow {
+    pub run: u64,
+    pub controller: String,
+    pub family: String,
+    /// The family's drawn parameters, `key=value;...`.
+    pub params: String,
+    /// `reached`, `collided`, `missed` (the time limit without a collision), `error`, `timeout`.
+    pub outcome: String,
+    /// Some collision was with the ground.
+    pub collided_ground: bool,
+    pub min_clearance_m: Option<f64>,
+    pub path_length_m: Option<f64>,
+    pub time_to_goal_s: Option<f64>,
+    pub end_time_s: Option<f64>,
+    pub cycles: u64,
+    pub fallbacks: u64,
+    pub best_effort_cycles: u64,
+    pub solve_ms_p50: Option<f64>,
+    pub solve_ms_p99: Option<f64>,
+    pub solve_ms_max: Option<f64>,
+    /// Mean and largest delay of the cycles flown, s.
+    pub mean_delay_s: Option<f64>,
+    pub max_delay_s: Option<f64>,
+    /// Where and when a failure happened: the first collision, or where a missed run ended.
+    pub fail_time_s: Option<f64>,
+    pub fail_position_m: Option<[f64; 3]>,
+    /// What happened, in words (empty for a run that reached its goal).
+    pub what: String,
+    /// Solver time of the run, s (wall clock).
+    pub solver_s: Option<f64>,
+    /// Wall time of the run, s.
+    pub wall_s: f64,
+}
+
+/// The columns of `runs.csv`.
+pub const CSV_HEADER: &str = "run,controller,family,params,outcome,collided_ground,min_clearance_m,path_length_m,time_to_goal_s,end_time_s,cycles,fallbacks,best_effort_cycles,solve_ms_p50,solve_ms_p99,solve_ms_max,mean_delay_s,max_delay_s,fail_time_s,fail_x_m,fail_y_m,fail_z_m,what,solver_s,wall_s";
+
+impl RunRow {
+    /// The row of a run that flew.
+    pub fn of_flight(run: u64, mode: ControllerMode, plan: &RunPlan, flown: &Flown, wall_s: f64) -> Self {
+        let s = &flown.summary;
+        let mut solve_ms: Vec<f64> = flown.rows.iter().map(|r| r.solve_ms).collect();
+        let stat = |v: &mut Vec<f64>, p: f64| (!v.is_empty()).then(|| percentile(v, p));
+        let flown_delays = &plan.delays_s[..flown.rows.len().min(plan.delays_s.len())];
+        let outcome = if s.collided {
+            "collided"
+        } else if s.reached {
+            "reached"
+        } else {
+            "missed"
+        };
+        let first = s.collisions.first();
+        let (fail_time_s, fail_position_m, what) = match outcome {
+            "collided" => (
+                first.map(|c| c.time_s),
+                first.map(|c| c.position_m),
+                s.collisions.iter().map(|c| c.describe()).collect::<Vec<_>>().join("; "),
+            ),
+            "missed" => {
+                let p = s.final_position_m;
+                (
+                    Some(s.end_time_s),
+                    Some(p),
+                    format!(
+                        "missed the goal: {} at {:.2} s, at [{:.2}, {:.2}, {:.2}] m",
+                        s.end_reason, s.end_time_s, p[0], p[1], p[2]
+                    ),
+                )
+            }
+            _ => (None, None, String::new()),
+        };
+        Self {
+            run,
+            controller: mode.name().to_string(),
+            family: plan.family.clone(),
+            params: plan.params_text(),
+            outcome: outcome.to_string(),
+            collided_ground: s.collisions.iter().any(|c| c.kind == "ground"),
+            min_clearance_m: Some(s.min_clearance_m),
+            path_length_m: Some(s.path_length_m),
+            time_to_goal_s: s.time_to_goal_s,
+            end_time_s: Some(s.end_time_s),
+            cycles: s.cycles,
+            fallbacks: s.fallbacks,
+            best_effort_cycles: s.best_effort_cycles,
+            solve_ms_p50: stat(&mut solve_ms, 50.0),
+            solve_ms_p99: stat(&mut solve_ms, 99.0),
+            solve_ms_max: stat(&mut solve_ms, 100.0),
+            mean_delay_s: (!flown_delays.is_empty())
+                .then(|| flown_delays.iter().sum::<f64>() / flown_delays.len() as f64),
+            max_delay_s: flown_delays.iter().copied().reduce(f64::max),
+            fail_time_s,
+            fail_position_m,
+            what,
+            solver_s: Some(s.solve_ms_mean * s.cycles as f64 * 1e-3).filter(|v| v.is_finite()),
+            wall_s,
+        }
+    }
+
+    /// The row of a run that did not fly to its end (`outcome` `error` or `timeout`).
+    pub fn of_error(
+        run: u64,
+        mode: ControllerMode,
+        family: &str,
+        params: &str,
+        outcome: &str,
+        what: &str,
+        wall_s: f64,
+    ) -> Self {
+        Self {
+            run,
+            controller: mode.name().to_string(),
+            family: family.to_string(),
+            params: params.to_string(),
+            outcome: outcome.to_string(),
+            collided_ground: false,
+            min_clearance_m: None,
+            path_length_m: None,
+            time_to_goal_s: None,
+            end_time_s: None,
+            cycles: 0,
+            fallbacks: 0,
+            best_effort_cycles: 0,
+            solve_ms_p50: None,
+            solve_ms_p99: None,
+            solve_ms_max: None,
+            mean_delay_s: None,
+            max_delay_s: None,
+            fail_time_s: None,
+            fail_position_m: None,
+            what: what.to_string(),
+            solver_s: None,
+            wall_s,
+        }
+    }
+
+    /// The line of `runs.csv` (numbers written so that they read back to the bit).
+    pub fn to_csv(&self) -> String {
+        let n = |v: Option<f64>| v.map(|v| format!("{v:?}")).unwrap_or_default();
+        let p = self.fail_position_m;
+        let cells = [
+            self.run.to_string(),
+            quote(&self.controller),
+            quote(&self.family),
+            quote(&self.params),
+            self.outcome.clone(),
+            self.collided_ground.to_string(),
+            n(self.min_clearance_m),
+            n(self.path_length_m),
+            n(self.time_to_goal_s),
+            n(self.end_time_s),
+            self.cycles.to_string(),
+            self.fallbacks.to_string(),
+            self.best_effort_cycles.to_string(),
+            n(self.solve_ms_p50),
+            n(self.solve_ms_p99),
+            n(self.solve_ms_max),
+            n(self.mean_delay_s),
+            n(self.max_delay_s),
+            n(self.fail_time_s),
+            n(p.map(|p| p[0])),
+            n(p.map(|p| p[1])),
+            n(p.map(|p| p[2])),
+            quote(&self.what),
+            n(self.solver_s),
+            format!("{:?}", self.wall_s),
+        ];
+        cells.join(",")
+    }
+
+    /// A line of `runs.csv` back (`line` is 1-based, for errors).
+    pub fn from_csv(text: &str, line: usize) -> Result<Self, String> {
+        let cells = split_csv(text).map_err(|e| format!("line {line}: {e}"))?;
+        let columns = CSV_HEADER.split(',').count();
+        if cells.len() != columns {
+            return Err(format!("line {line}: {} cells, {columns} expected", cells.len()));
+        }
+        let col = |i: usize| CSV_HEADER.split(',').nth(i).unwrap_or("?");
+        let num = |i: usize| -> Result<Option<f64>, String> {
+            let c = &cells[i];
+            if c.is_empty() {
+                return Ok(None);
+            }
+            c.parse().map(Some).map_err(|_| format!("line {line}: `{}`: {c:?} is not a number", col(i)))
+        };
+        let int = |i: usize| -> Result<u64, String> {
+            cells[i].parse().map_err(|_| format!("line {line}: `{}`: {:?} is not a count", col(i), cells[i]))
+        };
+        let position = match (num(19)?, num(20)?, num(21)?) {
+            (Some(x), Some(y), Some(z)) => Some([x, y, z]),
+            _ => None,
+        };
+        Ok(Self {
+            run: int(0)?,
+            controller: cells[1].clone(),
+            family: cells[2].clone(),
+            params: cells[3].clone(),
+            outcome: cells[4].clone(),
+            collided_ground: cells[5] == "true",
+            min_clearance_m: num(6)?,
+            path_length_m: num(7)?,
+            time_to_goal_s: num(8)?,
+            end_time_s: num(9)?,
+            cycles: int(10)?,
+            fallbacks: int(11)?,
+            best_effort_cycles: int(12)?,
+            solve_ms_p50: num(13)?,
+            solve_ms_p99: num(14)?,
+            solve_ms_max: num(15)?,
+            mean_delay_s: num(16)?,
+            max_delay_s: num(17)?,
+            fail_time_s: num(18)?,
+            fail_position_m: position,
+            what: cells[22].clone(),
+            solver_s: num(23)?,
+            wall_s: num(24)?.unwrap_or(0.0),
+        })
+    }
+
+    pub fn failed(&self) -> bool {
+        self.outcome != "reached"
+    }
+}
+
+/// `runs.csv` of `rows`.
+pub fn to_csv(rows: &[&RunRow]) -> String {
+    let mut out = String::with_capacity(200 * (rows.len() + 1));
+    let _ = writeln!(out, "{CSV_HEADER}");
+    for r in rows {
+        let _ = writeln!(out, "{}", r.to_csv());
+    }
+    out
+}
+
+/// The rows of a `runs.csv`.
+pub fn from_csv(text: &str) -> Result<Vec<RunRow>, String> {
+    let mut lines = text.lines().enumerate();
+    match lines.next() {
+        Some((_, h)) if h == CSV_HEADER => {}
+        _ => return Err("line 1: not the header of a sweep's runs.csv".into()),
+    }
+    lines.filter(|(_, l)| !l.is_empty()).map(|(i, l)| RunRow::from_csv(l, i + 1)).collect()
+}
+
+/// A CSV cell: quoted when it holds a comma, a quote or a line end.
+fn quote(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) { format!("\"{}\"", s.replace('"', "\"\"")) } else { s.to_string() }
+}
+
+fn split_csv(line: &str) -> Result<Vec<String>, String> {
+    let mut cells = Vec::new();
+    let mut cell = String::new();
+    let mut chars = line.chars().peekable();
+    let mut quoted = false;
+    while let Some(c) = chars.next() {
+        match (quoted, c) {
+            (true, '"') if chars.peek() == Some(&'"') => {
+                cell.push('"');
+                chars.next();
+            }
+            (true, '"') => quoted = false,
+            (true, c) => cell.push(c),
+            (false, '"') if cell.is_empty() => quoted = true,
+            (false, ',') => cells.push(std::mem::take(&mut cell)),
+            (false, c) => cell.push(c),
+        }
+    }
+    if quoted {
+        return Err("a quoted cell is not closed".into());
+    }
+    cells.push(cell);
+    Ok(cells)
+}
+
+fn pct(values: &[f64], p: f64) -> Value {
+    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() { Value::Null } else { json!(percentile(&mut v, p)) }
+}
+
+/// The keys of `sweep.json` over `rows` (and of each of its families).
+pub fn aggregate(rows: &[&RunRow]) -> Value {
+    let count = |outcome: &str| rows.iter().filter(|r| r.outcome == outcome).count();
+    let clearance: Vec<f64> = rows.iter().filter_map(|r| r.min_clearance_m).collect();
+    let reached: Vec<&&RunRow> = rows.iter().filter(|r| r.outcome == "reached").collect();
+    let path: Vec<f64> = reached.iter().filter_map(|r| r.path_length_m).collect();
+    let time: Vec<f64> = reached.iter().filter_map(|r| r.time_to_goal_s).collect();
+    let p50s: Vec<f64> = rows.iter().filter_map(|r| r.solve_ms_p50).collect();
+    let p99s: Vec<f64> = rows.iter().filter_map(|r| r.solve_ms_p99).collect();
+    let max = rows.iter().filter_map(|r| r.solve_ms_max).reduce(f64::max);
+    json!({
+        "runs": rows.len(),
+        "reached": count("reached"),
+        "collided": count("collided"),
+        "collided_ground": rows.iter().filter(|r| r.collided_ground).count(),
+        "missed": count("missed"),
+        "errors": count("error") + count("timeout"),
+        "timeouts": count("timeout"),
+        "best_effort_cycles": rows.iter().map(|r| r.best_effort_cycles).sum::<u64>(),
+        "fallbacks": rows.iter().map(|r| r.fallbacks).sum::<u64>(),
+        "min_clearance_m": { "p1": pct(&clearance, 1.0), "p5": pct(&clearance, 5.0), "p50": pct(&clearance, 50.0) },
+        "path_length_m": { "p50": pct(&path, 50.0), "p95": pct(&path, 95.0) },
+        "time_to_goal_s": { "p50": pct(&time, 50.0), "p95": pct(&time, 95.0) },
+        "solve_ms": { "p50": pct(&p50s, 50.0), "p99": pct(&p99s, 99.0), "max": max },
+    })
+}
+
+/// The aggregate keys, with `families` (the same per family, in `family_order`).
+pub fn aggregate_with_families(rows: &[&RunRow], family_order: &[String]) -> Value {
+    let mut v = aggregate(rows);
+    let mut families = serde_json::Map::new();
+    for name in family_order {
+        let of: Vec<&RunRow> = rows.iter().copied().filter(|r| &r.family == name).collect();
+        families.insert(name.clone(), aggregate(&of));
+    }
+    v["families"] = Value::Object(families);
+    v
+}
+
+/// Rows of shards put together: sorted by run and controller (`modes` order), a (run,
+/// controller) present twice refused.
+pub fn merge_rows(mut rows: Vec<RunRow>, modes: &[String]) -> Result<Vec<RunRow>, String> {
+    let order = |m: &str| modes.iter().position(|x| x == m).unwrap_or(usize::MAX);
+    rows.sort_by_key(|a| (a.run, order(&a.controller)));
+    for w in rows.windows(2) {
+        if w[0].run == w[1].run && w[0].controller == w[1].controller {
+            return Err(format!("run {} with {} is in two shards", w[0].run, w[0].controller));
+        }
+    }
+    Ok(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(run: u64, outcome: &str, clearance: f64) -> RunRow {
+        let mut r =
+            RunRow::of_error(run, ControllerMode::Multistage, "gamma", "shape=1.5;x=2", outcome, "", 0.25);
+        r.min_clearance_m = Some(clearance);
+        r.path_length_m = Some(5.0 + run as f64);
+        r.time_to_goal_s = Some(10.0);
+        r.what = "cylinder 1, 0.01 m deep, at \"3\" s".into();
+        r.fail_position_m = Some([1.0, 2.0 / 3.0, 0.1]);
+        r
+    }
+
+    #[test]
+    fn a_runs_csv_line_reads_back_to_the_bit() {
+        let rows =
+            [row(0, "reached", 0.1 / 3.0), row(1, "collided", -0.02), row(2, "error", f64::MIN_POSITIVE)];
+        let text = to_csv(&rows.iter().collect::<Vec<_>>());
+        assert_eq!(text.lines().count(), 4);
+        assert_eq!(from_csv(&text), Ok(rows.to_vec()));
+        assert!(from_csv("run,controller\n").is_err());
+    }
+
+    #[test]
+    fn aggregates_count_outcomes_and_take_nearest_rank_percentiles() {
+        let rows: Vec<RunRow> =
+            (0..100).map(|i| row(i, if i < 3 { "collided" } else { "reached" }, i as f64)).collect();
+        let refs: Vec<&RunRow> = rows.iter().collect();
+        let v = aggregate_with_families(&refs, &["gamma".to_string()]);
+        assert_eq!(
+            (v["runs"].as_u64(), v["reached"].as_u64(), v["collided"].as_u64()),
+            (Some(100), Some(97), Some(3))
+        );
+        assert_eq!(v["min_clearance_m"]["p1"], 0.0);
+        assert_eq!(v["min_clearance_m"]["p5"], 4.0);
+        assert_eq!(v["min_clearance_m"]["p50"], 49.0);
+        // Path lengths over the 97 runs that reached the goal, 8..=104 m.
+        assert_eq!(v["path_length_m"]["p50"], 56.0);
+        assert_eq!(v["families"]["gamma"]["runs"], 100);
+        assert_eq!(merge_rows(vec![rows[1].clone(), rows[0].clone()], &[]).map(|r| r[0].run), Ok(0));
+        assert!(merge_rows(vec![rows[1].clone(), rows[1].clone()], &[]).is_err());
+    }
+}

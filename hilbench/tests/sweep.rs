@@ -1,0 +1,324 @@
+//! `hilbench sweep`, `hilbench sweep-merge` and `hilbench run --sweep-run` as a user runs them:
+//! the outputs and their keys, run i flown again alone, a failure's trace replayed (shrunk or
+//! not), shards merged, the services' numbers, bad input refused before anything runs.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use hilbench::sweep::stats::{RunRow, from_csv};
+use serde_json::Value;
+
+fn hilbench(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_hilbench")).args(args).output().expect("hilbench runs")
+}
+
+fn repo(path: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(path).display().to_string()
+}
+
+/// Long delays: the paper's controller collides within a few cycles (runs 0, 1, 3) or misses
+/// the goal (run 2).
+fn long_delays() -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/sweep-long-delays.toml").display().to_string()
+}
+
+fn out_dir(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8")
+}
+
+fn json_of(path: &Path) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())))
+        .expect("JSON")
+}
+
+fn rows_of(dir: &Path) -> Vec<RunRow> {
+    from_csv(&std::fs::read_to_string(dir.join("runs.csv")).expect("runs.csv")).expect("a sweep's runs.csv")
+}
+
+/// A row without its wall-clock numbers.
+fn deterministic(r: &RunRow) -> RunRow {
+    RunRow {
+        solve_ms_p50: None,
+        solve_ms_p99: None,
+        solve_ms_max: None,
+        solver_s: None,
+        wall_s: 0.0,
+        ..r.clone()
+    }
+}
+
+/// `sweep.json` without the wall-clock keys (`timing`, `solve_ms` at every level) and `shard`.
+fn without_timing(mut v: Value) -> Value {
+    fn strip(v: &mut Value) {
+        if let Some(o) = v.as_object_mut() {
+            o.remove("solve_ms");
+            o.remove("timing");
+            o.remove("shard");
+            for (_, x) in o.iter_mut() {
+                strip(x);
+            }
+        }
+    }
+    strip(&mut v);
+    v
+}
+
+#[test]
+fn a_sweep_writes_its_outputs_with_the_stable_keys_and_run_i_flies_again_alone_bit_for_bit() {
+    let out = out_dir("sweep-outputs");
+    let file = repo("scenarios/sweeps/paper-2-delays.toml");
+    let sweep = hilbench(&["sweep", &file, "--runs", "6", "--jobs", "2", "--quiet", "--out", s(&out)]);
+    assert!(sweep.status.success(), "{sweep:?}");
+    let v = json_of(&out.join("sweep.json"));
+    for key in [
+        "runs",
+        "reached",
+        "collided",
+        "collided_ground",
+        "missed",
+        "best_effort_cycles",
+        "families",
+        "failures",
+    ] {
+        assert!(v.get(key).is_some(), "sweep.json without {key}: {v}");
+    }
+    for (key, sub) in [
+        ("min_clearance_m", &["p1", "p5", "p50"][..]),
+        ("path_length_m", &["p50", "p95"]),
+        ("time_to_goal_s", &["p50", "p95"]),
+        ("solve_ms", &["p50", "p99", "max"]),
+    ] {
+        for p in sub {
+            assert!(v[key].get(*p).is_some(), "sweep.json without {key}.{p}");
+        }
+    }
+    assert_eq!(v["runs"], 6);
+    let counted: u64 =
+        ["reached", "collided", "missed", "errors"].iter().map(|k| v[*k].as_u64().expect("a count")).sum();
+    assert_eq!(counted, 6, "every run counted once: {v}");
+    let families: u64 = ["uniform", "gamma", "bursts"]
+        .iter()
+        .map(|f| v["families"][*f]["runs"].as_u64().expect("a family"))
+        .sum();
+    assert_eq!(families, 6);
+    let rows = rows_of(&out);
+    assert_eq!(rows.iter().map(|r| r.run).collect::<Vec<_>>(), (0..6).collect::<Vec<_>>());
+    assert!(out.join("report.md").exists());
+    for plot in ["sweep-clearance-cdf", "sweep-path-length", "sweep-failures-top"] {
+        assert!(out.join("plots").join(format!("{plot}.png")).exists(), "{plot}");
+    }
+    // Run i alone, by index: the same flight, to the bit.
+    for row in [&rows[1], &rows[4]] {
+        let i = row.run.to_string();
+        let alone = out_dir(&format!("sweep-run-{i}"));
+        let run = hilbench(&[
+            "run",
+            &file,
+            "--in-process",
+            "--no-plots",
+            "--quiet",
+            "--sweep-run",
+            &i,
+            "--out",
+            s(&alone),
+        ]);
+        assert!(run.status.code() == Some(0) || run.status.code() == Some(3), "{run:?}");
+        let r = &json_of(&alone.join("summary.json"))["runs"][0];
+        assert_eq!(r["min_clearance_m"].as_f64(), row.min_clearance_m, "run {i}");
+        assert_eq!(r["path_length_m"].as_f64(), row.path_length_m, "run {i}");
+        assert_eq!(r["cycles"].as_u64(), Some(row.cycles), "run {i}");
+        assert_eq!(r["time_to_goal_s"].as_f64(), row.time_to_goal_s, "run {i}");
+    }
+}
+
+#[test]
+fn a_failures_trace_replays_it_bit_for_bit_shrunk_or_not() {
+    let file = long_delays();
+    for shrink in [false, true] {
+        let out = out_dir(&format!("sweep-failures-{shrink}"));
+        let mut args = vec!["sweep", &file, "--runs", "2", "--no-plots", "--quiet", "--out", s(&out)];
+        if shrink {
+            args.push("--shrink");
+        }
+        let sweep = hilbench(&args);
+        assert!(sweep.status.success(), "{sweep:?}");
+        let v = json_of(&out.join("sweep.json"));
+        assert_eq!(v["collided"], 2, "the paper's controller collides under 0.31-0.33 s delays: {v}");
+        for failure in v["failures"].as_array().expect("failures") {
+            let trace = out.join(failure["trace_file"].as_str().expect("a trace file"));
+            let (kept, flown) = (failure["trace_delays"].as_u64(), failure["flown_delays"].as_u64());
+            if shrink {
+                assert!(failure["shrink"]["reruns"].as_u64() > Some(0), "{failure}");
+                assert!(kept <= flown, "{failure}");
+            } else {
+                assert_eq!(kept, flown, "{failure}");
+            }
+            let replay = out_dir(&format!("sweep-replay-{shrink}-{}", failure["run"]));
+            let run = hilbench(&[
+                "run",
+                &file,
+                "--in-process",
+                "--mode",
+                "multistage",
+                "--no-plots",
+                "--quiet",
+                "--delay-trace",
+                s(&trace),
+                "--out",
+                s(&replay),
+            ]);
+            assert_eq!(run.status.code(), Some(3), "a collision again: {run:?}");
+            let r = &json_of(&replay.join("summary.json"))["runs"][0];
+            let want = &failure["replay"];
+            for key in ["min_clearance_m", "path_length_m", "cycles", "end_reason"] {
+                assert_eq!(r[key], want[key], "{key} of {}", trace.display());
+            }
+        }
+    }
+}
+
+#[test]
+fn two_shards_merged_equal_the_unsharded_sweep() {
+    let file = long_delays();
+    let whole = out_dir("sweep-whole");
+    let run = |extra: &[&str], dir: &Path| {
+        let out = hilbench(
+            &[
+                &["sweep", &file, "--runs", "4", "--jobs", "2", "--no-plots", "--quiet", "--out", s(dir)],
+                extra,
+            ]
+            .concat(),
+        );
+        assert!(out.status.success(), "{out:?}");
+    };
+    run(&[], &whole);
+    let (a, b) = (out_dir("sweep-shard-0"), out_dir("sweep-shard-1"));
+    run(&["--shard", "0/2"], &a);
+    run(&["--shard", "1/2"], &b);
+    assert_eq!(rows_of(&a).len() + rows_of(&b).len(), 4);
+    let merged = out_dir("sweep-merged");
+    let merge = hilbench(&["sweep-merge", s(&b), s(&a), "--out", s(&merged), "--no-plots", "--quiet"]);
+    assert!(merge.status.success(), "{merge:?}");
+    assert_eq!(
+        without_timing(json_of(&merged.join("sweep.json"))),
+        without_timing(json_of(&whole.join("sweep.json")))
+    );
+    let strip = |rows: Vec<RunRow>| rows.iter().map(deterministic).collect::<Vec<_>>();
+    assert_eq!(strip(rows_of(&merged)), strip(rows_of(&whole)));
+    for f in json_of(&merged.join("sweep.json"))["failures"].as_array().expect("failures") {
+        let trace = f["trace_file"].as_str().expect("a trace");
+        assert_eq!(
+            std::fs::read_to_string(merged.join(trace)).expect("merged trace"),
+            std::fs::read_to_string(whole.join(trace)).expect("whole trace")
+        );
+    }
+    // A shard merged twice is refused.
+    let twice = hilbench(&["sweep-merge", s(&a), s(&a), "--out", s(&out_dir("sweep-twice")), "--quiet"]);
+    assert_eq!(twice.status.code(), Some(1), "{twice:?}");
+    assert!(String::from_utf8_lossy(&twice.stderr).contains("in two shards"), "{twice:?}");
+}
+
+#[test]
+fn a_sweep_over_grpc_gives_the_numbers_of_the_sweep_in_process() {
+    let file = long_delays();
+    let (local, grpc) = (out_dir("sweep-local"), out_dir("sweep-grpc"));
+    for (dir, extra) in [(&local, None), (&grpc, Some("--grpc"))] {
+        let mut args =
+            vec!["sweep", &file, "--runs", "2", "--jobs", "1", "--no-plots", "--quiet", "--out", s(dir)];
+        args.extend(extra);
+        let out = hilbench(&args);
+        assert!(out.status.success(), "{out:?}");
+    }
+    let strip = |rows: Vec<RunRow>| rows.iter().map(deterministic).collect::<Vec<_>>();
+    let rows = strip(rows_of(&local));
+    assert_eq!(rows.len(), 2);
+    assert_eq!(strip(rows_of(&grpc)), rows);
+    assert_eq!(json_of(&grpc.join("sweep.json"))["transport"], "grpc");
+}
+
+#[test]
+fn a_run_past_the_time_limit_is_a_failure_with_its_reason_and_the_sweep_goes_on() {
+    let out = out_dir("sweep-timeout");
+    let sweep = hilbench(&[
+        "sweep",
+        &long_delays(),
+        "--runs",
+        "3",
+        "--run-timeout-s",
+        "0.001",
+        "--no-plots",
+        "--quiet",
+        "--out",
+        s(&out),
+    ]);
+    assert!(sweep.status.success(), "{sweep:?}");
+    let v = json_of(&out.join("sweep.json"));
+    assert_eq!(
+        (v["runs"].as_u64(), v["timeouts"].as_u64(), v["errors"].as_u64()),
+        (Some(3), Some(3), Some(3)),
+        "{v}"
+    );
+    let rows = rows_of(&out);
+    assert!(rows.iter().all(|r| r.outcome == "timeout" && r.what.contains("time limit")), "{rows:?}");
+}
+
+#[test]
+fn bad_flags_and_sweep_tables_are_refused_before_anything_runs() {
+    let file = long_delays();
+    for (args, flag) in [
+        (vec!["--runs", "0"], "--runs"),
+        (vec!["--shard", "3/2"], "--shard"),
+        (vec!["--shard", "1"], "--shard"),
+        (vec!["--jobs", "0"], "--jobs"),
+        (vec!["--run-timeout-s", "nan"], "--run-timeout-s"),
+    ] {
+        let out = out_dir("sweep-refused");
+        let run = hilbench(&[&["sweep", &file, "--out", s(&out)], &args[..]].concat());
+        assert_eq!(run.status.code(), Some(2), "{args:?}: {run:?}");
+        assert!(String::from_utf8_lossy(&run.stderr).contains(flag), "{args:?}: {run:?}");
+        assert!(!out.exists(), "{args:?}: something ran");
+    }
+    let dir = out_dir("sweep-bad-table");
+    std::fs::create_dir_all(&dir).expect("a directory");
+    let text = std::fs::read_to_string(&file).expect("the test file");
+    let bad = text.replace("delay_s = [0.31, 0.33]", "delay_s = [0.33, 0.31]");
+    let line = bad.lines().position(|l| l.contains("[0.33, 0.31]")).expect("the line") + 1;
+    let path = dir.join("bad.toml");
+    std::fs::write(&path, bad).expect("write");
+    let run = hilbench(&["sweep", s(&path), "--out", s(&dir.join("out"))]);
+    assert_eq!(run.status.code(), Some(1), "{run:?}");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains(&format!("bad.toml:{line}: field `sweep.families[0].delay_s`")), "{stderr}");
+    assert!(!dir.join("out").exists());
+    // No [sweep] table, no --runs: each named.
+    let none = hilbench(&["sweep", &repo("scenarios/paper-2.toml"), "--out", s(&dir.join("out"))]);
+    assert_eq!(none.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&none.stderr).contains("no [sweep] table"), "{none:?}");
+}
+
+#[test]
+fn ctrl_c_writes_the_runs_that_finished_marks_the_sweep_interrupted_and_exits_130() {
+    let out = out_dir("sweep-interrupted");
+    let child = Command::new(env!("CARGO_BIN_EXE_hilbench"))
+        .args(["sweep", &long_delays(), "--runs", "5000", "--no-plots", "--quiet", "--out", s(&out)])
+        .spawn()
+        .expect("hilbench starts");
+    // Long enough for the handler to be installed and some runs to finish, far too short for
+    // 5000 runs.
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let signal = Command::new("kill").args(["-INT", &child.id().to_string()]).status().expect("kill runs");
+    assert!(signal.success());
+    let status = child.wait_with_output().expect("hilbench ends").status;
+    assert_eq!(status.code(), Some(130));
+    let v = json_of(&out.join("sweep.json"));
+    assert_eq!(v["interrupted"], true);
+    let runs = v["runs"].as_u64().expect("runs");
+    assert!(runs < 5000, "{runs} runs");
+    assert_eq!(rows_of(&out).len() as u64, runs);
+}

@@ -1,0 +1,543 @@
+//! The `[sweep]` table of a scenario file: the delay families `hilbench sweep` draws each run's
+//! delay process from.
+//!
+//! ```toml
+//! [sweep]
+//! runs = 200              # default of --runs
+//! seed = 1                # default of --seed (else scenario.seed)
+//! max_delay_s = 0.33      # every drawn delay clipped here (optional)
+//!
+//! [[sweep.families]]
+//! name = "gamma"          # default: the kind
+//! weight = 1.0            # default 1; a run's family is drawn by weight
+//! kind = "gamma"          # a kind of [scenario.delays] ...
+//! shape = [1.0, 30.0]     # ... whose parameters are numbers or ranges [min, max]
+//! scale_s = [0.002, 0.04]
+//! ```
+//!
+//! A family is a delay kind of `delay::spec` (`constant`, `uniform`, `normal`, `gamma`,
+//! `lognormal`, `pareto`, `regime` with ranged states) or `traces`, a folder of recorded trace
+//! files. A run's parameters are drawn uniformly in each range; [`Family::table`] turns the
+//! drawn values into a `delay::DelaysTable`, the one thing the rest of the bench flies.
+//!
+//! Validation ([`SweepSection::validate`]) refuses ranges with min > max, non-finite or
+//! negative values (but `mu`, the log of a delay), weights that do not sum to a positive
+//! number, and any family some draw of which is not a valid delays table: every corner of the
+//! ranges goes through `DelaysTable::to_network` (the one conversion), so a key that does not
+//! belong to the kind, or a `uniform` whose `min_s` range overlaps its `max_s` range, is
+//! refused with the key named.
+
+use std::path::Path;
+
+use delay::DelaysTable;
+
+/// A parameter of a family: one value for every run, or a range drawn uniformly per run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Param {
+    Fixed(f64),
+    Range(f64, f64),
+}
+
+impl Param {
+    fn bounds(self) -> (f64, f64) {
+        match self {
+            Param::Fixed(v) => (v, v),
+            Param::Range(lo, hi) => (lo, hi),
+        }
+    }
+}
+
+impl serde::Serialize for Param {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match *self {
+            Param::Fixed(v) => s.serialize_f64(v),
+            Param::Range(lo, hi) => [lo, hi].serialize(s),
+        }
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for Param {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl<'de> serde::de::Visitor<'de> for Visitor {
+            type Value = Param;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("a number or a range [min, max]")
+            }
+            fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<Param, E> {
+                Ok(Param::Fixed(v))
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<Param, E> {
+                Ok(Param::Fixed(v as f64))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<Param, E> {
+                Ok(Param::Fixed(v as f64))
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Param, A::Error> {
+                let wrong = || serde::de::Error::custom("a range is [min, max]: two numbers");
+                let lo: f64 = seq.next_element()?.ok_or_else(wrong)?;
+                let hi: f64 = seq.next_element()?.ok_or_else(wrong)?;
+                if seq.next_element::<f64>()?.is_some() {
+                    return Err(wrong());
+                }
+                Ok(Param::Range(lo, hi))
+            }
+        }
+        d.deserialize_any(Visitor)
+    }
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// One family of delay processes.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Family {
+    /// Name in the outputs (default: the kind); unique in the sweep.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    /// Relative weight of the family (a regime's state has none).
+    #[serde(default = "one")]
+    pub weight: f64,
+    /// A kind of `[scenario.delays]` but `trace`, or `traces` (a folder of trace files).
+    pub kind: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub delay_s: Option<Param>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_s: Option<Param>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_s: Option<Param>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mean_s: Option<Param>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub std_s: Option<Param>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shape: Option<Param>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scale_s: Option<Param>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mu: Option<Param>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma: Option<Param>,
+    /// A regime state's mean dwell, in messages or seconds.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mean_dwell_messages: Option<Param>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mean_dwell_s: Option<Param>,
+    /// A regime's states, each a family without name or weight.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub states: Option<Vec<Family>>,
+    /// `traces`: the folder, relative to the scenario file; every file in it is a trace.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dir: Option<String>,
+    /// `traces`: replay a trace from its start once used up (default: a run that outlasts
+    /// its trace ends with an error, counted as a failure).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub looping: Option<bool>,
+    /// `traces`: the files read from `dir` (name, delays), sorted by name; filled by the loader.
+    #[serde(skip)]
+    pub traces: Vec<(String, Vec<f64>)>,
+}
+
+/// The numeric keys of a family, in the order they are drawn.
+const NUMERIC: [&str; 11] = [
+    "delay_s",
+    "min_s",
+    "max_s",
+    "mean_s",
+    "std_s",
+    "shape",
+    "scale_s",
+    "mu",
+    "sigma",
+    "mean_dwell_messages",
+    "mean_dwell_s",
+];
+
+impl Family {
+    fn param(&self, key: &str) -> Option<Param> {
+        match key {
+            "delay_s" => self.delay_s,
+            "min_s" => self.min_s,
+            "max_s" => self.max_s,
+            "mean_s" => self.mean_s,
+            "std_s" => self.std_s,
+            "shape" => self.shape,
+            "scale_s" => self.scale_s,
+            "mu" => self.mu,
+            "sigma" => self.sigma,
+            "mean_dwell_messages" => self.mean_dwell_messages,
+            "mean_dwell_s" => self.mean_dwell_s,
+            _ => None,
+        }
+    }
+
+    /// The family's name in the outputs.
+    pub fn name(&self) -> &str {
+        self.name.as_deref().unwrap_or(&self.kind)
+    }
+
+    /// The delays table of one draw: `pick(key, lo, hi)` gives each ranged parameter's value
+    /// (`key` is its path in the family, e.g. `states[1].delay_s`), `pick_trace(n)` the index
+    /// of a `traces` family's file. Returns the table and the drawn values by path.
+    pub fn table(
+        &self,
+        pick: &mut dyn FnMut(&str, f64, f64) -> f64,
+        pick_trace: &mut dyn FnMut(usize) -> usize,
+    ) -> (DelaysTable, Vec<(String, f64)>) {
+        let mut params = Vec::new();
+        let table = self.table_at("", pick, pick_trace, &mut params);
+        (table, params)
+    }
+
+    fn table_at(
+        &self,
+        path: &str,
+        pick: &mut dyn FnMut(&str, f64, f64) -> f64,
+        pick_trace: &mut dyn FnMut(usize) -> usize,
+        params: &mut Vec<(String, f64)>,
+    ) -> DelaysTable {
+        if self.kind == "traces" {
+            let i = pick_trace(self.traces.len().max(1)).min(self.traces.len().saturating_sub(1));
+            let (name, delays) = self.traces.get(i).cloned().unwrap_or_default();
+            params.push((join(path, "trace"), i as f64));
+            return DelaysTable::trace(&name, delays, self.looping.unwrap_or(false));
+        }
+        let mut table = DelaysTable { kind: Some(self.kind.clone()), ..DelaysTable::default() };
+        for key in NUMERIC {
+            let Some(p) = self.param(key) else { continue };
+            let here = join(path, key);
+            let value = match p {
+                Param::Fixed(v) => v,
+                Param::Range(lo, hi) => {
+                    let v = pick(&here, lo, hi);
+                    params.push((here, v));
+                    v
+                }
+            };
+            let slot = match key {
+                "delay_s" => &mut table.delay_s,
+                "min_s" => &mut table.min_s,
+                "max_s" => &mut table.max_s,
+                "mean_s" => &mut table.mean_s,
+                "std_s" => &mut table.std_s,
+                "shape" => &mut table.shape,
+                "scale_s" => &mut table.scale_s,
+                "mu" => &mut table.mu,
+                "sigma" => &mut table.sigma,
+                "mean_dwell_messages" => &mut table.mean_dwell_messages,
+                _ => &mut table.mean_dwell_s,
+            };
+            *slot = Some(value);
+        }
+        if let Some(states) = &self.states {
+            table.states = Some(
+                states
+                    .iter()
+                    .enumerate()
+                    .map(|(i, s)| s.table_at(&join(path, &format!("states[{i}]")), pick, pick_trace, params))
+                    .collect(),
+            );
+        }
+        table
+    }
+
+    /// `(path, reason)` of the first bad key of this family (at `path`).
+    fn validate(&self, path: &str, state: bool) -> Result<(), (String, String)> {
+        if state && (self.name.is_some() || self.weight != 1.0) {
+            let key = if self.name.is_some() { "name" } else { "weight" };
+            return Err((join(path, key), "a regime's state has no name or weight".into()));
+        }
+        let weight_ok = self.weight.is_finite() && self.weight >= 0.0;
+        if !state && !weight_ok {
+            return Err((join(path, "weight"), "must be a finite number >= 0".into()));
+        }
+        if self.kind == "trace" {
+            return Err((
+                join(path, "kind"),
+                "a family of recorded traces is kind \"traces\" with `dir`, a folder of trace files".into(),
+            ));
+        }
+        for key in NUMERIC {
+            let Some(p) = self.param(key) else { continue };
+            let (lo, hi) = p.bounds();
+            if !(lo.is_finite() && hi.is_finite()) {
+                return Err((join(path, key), "must be finite".into()));
+            }
+            if key != "mu" && (lo < 0.0 || hi < 0.0) {
+                return Err((join(path, key), "must not be negative".into()));
+            }
+            if lo > hi {
+                return Err((join(path, key), format!("range [{lo}, {hi}]: min > max")));
+            }
+        }
+        if self.kind == "traces" {
+            let extra = NUMERIC.iter().find(|k| self.param(k).is_some()).copied();
+            if let Some(key) = extra.or(self.states.as_ref().map(|_| "states")) {
+                return Err((
+                    join(path, key),
+                    "does not apply to kind \"traces\" (it takes dir, looping)".into(),
+                ));
+            }
+            if self.dir.is_none() {
+                return Err((
+                    join(path, "dir"),
+                    "missing: kind \"traces\" takes dir, a folder of trace files".into(),
+                ));
+            }
+            return Ok(());
+        }
+        for (key, set) in [("dir", self.dir.is_some()), ("looping", self.looping.is_some())] {
+            if set {
+                return Err((join(path, key), "belongs to kind \"traces\" only".into()));
+            }
+        }
+        if let Some(states) = &self.states {
+            for (i, s) in states.iter().enumerate() {
+                s.validate(&join(path, &format!("states[{i}]")), true)?;
+            }
+        }
+        if state {
+            return Ok(());
+        }
+        // Every corner of the ranges must be a valid delays table: the kind's keys, and the
+        // constraints between them (a uniform's min_s <= max_s) are linear, so the corners
+        // hold them all when they hold. Beyond 2^12 corners, the all-low and all-high ones.
+        let ranged = self.ranged_count();
+        let corners: Vec<u64> = if ranged <= 12 { (0..1u64 << ranged).collect() } else { vec![0, u64::MAX] };
+        for corner in corners {
+            let mut bit = 0;
+            let (table, _) = self.table(
+                &mut |_, lo, hi| {
+                    let v = if corner >> bit.min(63) & 1 == 1 { hi } else { lo };
+                    bit += 1;
+                    v
+                },
+                &mut |_| 0,
+            );
+            table.to_network(0, &mut |_| Ok(vec![0.0])).map_err(|e| {
+                let at_corner = if ranged > 0 { " (at a corner of the ranges)" } else { "" };
+                (join(path, &e.field), format!("{}{at_corner}", e.reason))
+            })?;
+        }
+        Ok(())
+    }
+
+    fn ranged_count(&self) -> u32 {
+        let own = NUMERIC.iter().filter(|k| matches!(self.param(k), Some(Param::Range(..)))).count() as u32;
+        own + self.states.iter().flatten().map(Family::ranged_count).sum::<u32>()
+    }
+}
+
+fn join(path: &str, key: &str) -> String {
+    if path.is_empty() { key.to_string() } else { format!("{path}.{key}") }
+}
+
+/// The default per-run time limit, s.
+pub const DEFAULT_RUN_TIMEOUT_S: f64 = 300.0;
+/// The default number of reruns `--shrink` may spend on one failure.
+pub const DEFAULT_SHRINK_RUNS: u64 = 150;
+
+/// The `[sweep]` table.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SweepSection {
+    /// Runs of the sweep (`--runs` overrides).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub runs: Option<u64>,
+    /// Seed of the draws (`--seed` overrides; default `scenario.seed`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
+    /// Every drawn delay is clipped to this, s (a trace's too).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_delay_s: Option<f64>,
+    /// A run that takes longer than this wall time is a failure (`--run-timeout-s` overrides).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub run_timeout_s: Option<f64>,
+    /// Reruns `--shrink` may spend on one failure.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shrink_runs: Option<u64>,
+    /// How run `i` picks its family.
+    #[serde(default, skip_serializing_if = "FamilyChoice::is_default")]
+    pub family_choice: FamilyChoice,
+    pub families: Vec<Family>,
+}
+
+/// How a sweep's run picks its family.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FamilyChoice {
+    /// Drawn by weight (run `i`'s generator).
+    #[default]
+    Weighted,
+    /// Run `i` takes the `i mod F`-th of the `F` families of positive weight: every family gets
+    /// the same number of runs (within one), as a campaign over families needs.
+    InTurn,
+}
+
+impl FamilyChoice {
+    fn is_default(&self) -> bool {
+        *self == Self::Weighted
+    }
+}
+
+impl SweepSection {
+    /// `(field path, reason)` of the first bad key, paths under `sweep`.
+    pub fn validate(&self) -> Result<(), (String, String)> {
+        if self.families.is_empty() {
+            return Err(("sweep.families".into(), "must hold at least one family".into()));
+        }
+        if self.runs == Some(0) {
+            return Err(("sweep.runs".into(), "must be at least 1".into()));
+        }
+        if let Some(m) = self.max_delay_s
+            && !(m.is_finite() && m > 0.0 && m <= delay::MAX_DELAY_S)
+        {
+            return Err(("sweep.max_delay_s".into(), format!("must be in (0, {}] s", delay::MAX_DELAY_S)));
+        }
+        if let Some(t) = self.run_timeout_s
+            && !(t.is_finite() && t > 0.0 && t <= 86_400.0)
+        {
+            return Err(("sweep.run_timeout_s".into(), "must be in (0, 86400] s".into()));
+        }
+        let mut names: Vec<&str> = Vec::new();
+        for (i, f) in self.families.iter().enumerate() {
+            let path = format!("sweep.families[{i}]");
+            f.validate(&path, false)?;
+            let name = f.name();
+            if name.is_empty() || name.len() > 64 || name.chars().any(|c| c.is_control() || c == ',') {
+                return Err((join(&path, "name"), "must be 1 to 64 printable characters, no comma".into()));
+            }
+            if names.contains(&name) {
+                return Err((
+                    join(&path, "name"),
+                    format!("{name:?} names two families; give each a `name`"),
+                ));
+            }
+            names.push(name);
+        }
+        let total: f64 = self.families.iter().map(|f| f.weight).sum();
+        if !(total.is_finite() && total > 0.0) {
+            return Err(("sweep.families".into(), "the weights must sum to a positive number".into()));
+        }
+        Ok(())
+    }
+
+    /// Reads every `traces` family's folder (relative to `dir`, the scenario file's) with
+    /// `read_trace`; errors as `(field path, reason)`.
+    pub fn load_traces(
+        &mut self,
+        dir: &Path,
+        read_trace: &dyn Fn(&Path) -> Result<Vec<f64>, String>,
+    ) -> Result<(), (String, String)> {
+        for (i, f) in self.families.iter_mut().enumerate() {
+            let Some(folder) = f.dir.as_deref().filter(|_| f.kind == "traces") else { continue };
+            let field = format!("sweep.families[{i}].dir");
+            let folder = dir.join(folder);
+            let entries = std::fs::read_dir(&folder)
+                .map_err(|e| (field.clone(), format!("{}: {e}", folder.display())))?;
+            let mut files: Vec<_> =
+                entries.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.is_file()).collect();
+            files.sort();
+            if files.is_empty() {
+                return Err((field, format!("{}: holds no trace file", folder.display())));
+            }
+            f.traces = files
+                .iter()
+                .map(|p| read_trace(p).map(|d| (p.display().to_string(), d)))
+                .collect::<Result<_, _>>()
+                .map_err(|e| (field.clone(), e))?;
+        }
+        Ok(())
+    }
+
+    /// The families' total weight.
+    pub fn total_weight(&self) -> f64 {
+        self.families.iter().map(|f| f.weight).sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn section(text: &str) -> SweepSection {
+        toml::from_str(text).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    fn field_of(text: &str) -> String {
+        match section(text).validate() {
+            Ok(()) => panic!("accepted: {text}"),
+            Err((field, _)) => field,
+        }
+    }
+
+    #[test]
+    fn a_family_draws_its_ranges_into_a_delays_table() {
+        let s = section(
+            "[[families]]\nkind = \"gamma\"\nshape = [1.0, 30.0]\nscale_s = 0.01\n\
+             [[families]]\nname = \"bursts\"\nweight = 2\nkind = \"regime\"\n\
+             [[families.states]]\nkind = \"constant\"\ndelay_s = [0.0, 0.06]\nmean_dwell_messages = [10, 60]\n\
+             [[families.states]]\nkind = \"constant\"\ndelay_s = 0.3\nmean_dwell_messages = 5\n",
+        );
+        assert_eq!(s.validate(), Ok(()));
+        assert_eq!(s.total_weight(), 3.0);
+        let (t, params) = s.families[0].table(&mut |_, lo, hi| (lo + hi) / 2.0, &mut |_| 0);
+        assert_eq!((t.kind.as_deref(), t.shape, t.scale_s), (Some("gamma"), Some(15.5), Some(0.01)));
+        assert_eq!(params, vec![("shape".to_string(), 15.5)]);
+        let (t, params) = s.families[1].table(&mut |_, _, hi| hi, &mut |_| 0);
+        let states = t.states.expect("states");
+        assert_eq!((states[0].delay_s, states[0].mean_dwell_messages), (Some(0.06), Some(60.0)));
+        assert_eq!(states[1].delay_s, Some(0.3));
+        let names: Vec<&str> = params.iter().map(|(k, _)| k.as_str()).collect();
+        assert_eq!(names, ["states[0].delay_s", "states[0].mean_dwell_messages"]);
+        assert_eq!(s.families[1].name(), "bursts");
+    }
+
+    #[test]
+    fn bad_ranges_weights_and_keys_are_refused_naming_the_field() {
+        let gamma = |extra: &str| format!("[[families]]\nkind = \"gamma\"\nscale_s = 0.01\n{extra}");
+        assert_eq!(field_of(&gamma("shape = [30.0, 1.0]")), "sweep.families[0].shape");
+        assert_eq!(field_of(&gamma("shape = [-1.0, 1.0]")), "sweep.families[0].shape");
+        assert_eq!(field_of(&gamma("shape = nan")), "sweep.families[0].shape");
+        assert_eq!(field_of(&gamma("shape = [1.0, inf]")), "sweep.families[0].shape");
+        assert_eq!(field_of(&gamma("shape = 2.0\nweight = -1.0")), "sweep.families[0].weight");
+        assert_eq!(field_of(&gamma("shape = 2.0\nweight = 0.0")), "sweep.families");
+        assert_eq!(field_of(&gamma("shape = 2.0\nmin_s = 0.1")), "sweep.families[0].min_s");
+        assert_eq!(field_of("[[families]]\nkind = \"gamma\"\nshape = 2.0"), "sweep.families[0].scale_s");
+        // Some draws would have min_s > max_s.
+        assert_eq!(
+            field_of("[[families]]\nkind = \"uniform\"\nmin_s = [0.0, 0.2]\nmax_s = [0.1, 0.3]"),
+            "sweep.families[0].max_s"
+        );
+        assert_eq!(field_of("families = []"), "sweep.families");
+        assert_eq!(field_of("runs = 0\n[[families]]\nkind = \"none\""), "sweep.runs");
+        assert_eq!(field_of("max_delay_s = -1.0\n[[families]]\nkind = \"none\""), "sweep.max_delay_s");
+        assert_eq!(
+            field_of("[[families]]\nkind = \"none\"\n[[families]]\nkind = \"none\""),
+            "sweep.families[1].name"
+        );
+        assert_eq!(field_of("[[families]]\nkind = \"trace\""), "sweep.families[0].kind");
+        assert_eq!(field_of("[[families]]\nkind = \"traces\""), "sweep.families[0].dir");
+        assert_eq!(
+            field_of("[[families]]\nkind = \"traces\"\ndir = \"x\"\nshape = 1.0"),
+            "sweep.families[0].shape"
+        );
+        assert_eq!(field_of("[[families]]\nkind = \"gammma\""), "sweep.families[0].kind");
+        assert_eq!(
+            field_of(
+                "[[families]]\nkind = \"regime\"\n[[families.states]]\nkind = \"constant\"\ndelay_s = 0.1\nmean_dwell_s = [2.0, 1.0]"
+            ),
+            "sweep.families[0].states[0].mean_dwell_s"
+        );
+        // Unknown keys and malformed ranges are serde's, with the key named.
+        let e = toml::from_str::<SweepSection>("[[families]]\nkind = \"none\"\nshap = 1.0")
+            .map_err(|e| e.to_string());
+        assert!(e.as_ref().is_err_and(|m| m.contains("unknown field `shap`")), "{e:?}");
+        let e = toml::from_str::<SweepSection>("[[families]]\nkind = \"gamma\"\nshape = [1.0, 2.0, 3.0]")
+            .map_err(|e| e.to_string());
+        assert!(e.as_ref().is_err_and(|m| m.contains("[min, max]")), "{e:?}");
+    }
+}

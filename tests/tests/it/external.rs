@@ -1,0 +1,261 @@
+//! An external controller under test (`hilbench run --controller-cmd`, `hilbench::external`):
+//! the Python PD controller of examples/python-controller (grpcio, stubs generated from proto/
+//! at its start, run by the test venv's interpreter) flown against a plant and netem started by
+//! the bench, judged from the plant's truth; and controllers that fail.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use hilbench::external::{ExternalController, ExternalFailure, ExternalRun, ExternalSettings, run_external};
+use hilbench::grpc::TimeMode;
+use hilbench::scenario_file::ScenarioFile;
+use hilbench_tests::python::python;
+
+/// Longer than any run here takes: a hang is the failure these tests catch.
+const PATIENCE: Duration = Duration::from_secs(120);
+
+fn repo(path: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(path)
+}
+
+/// The Python controller's command line, under the test venv's interpreter.
+fn python_controller() -> String {
+    let controller = repo("examples/python-controller/controller.py");
+    format!("'{}' '{}'", python().display(), controller.display())
+}
+
+fn open_field() -> mav::Scenario {
+    ScenarioFile::load(&repo("examples/python-controller/open-field.toml")).expect("open-field.toml").scenario
+}
+
+fn temp_dir(what: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("hilbench-external-test-{what}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+/// `hilbench ARGS` to its end: exit code, stderr, and `OUT/summary.json`.
+fn hilbench(args: &[&str], out: &Path) -> (Option<i32>, String, serde_json::Value) {
+    let mut child = Command::new(hilbench_tests::service_binary("hilbench"))
+        .args(args)
+        .args(["--out", &out.display().to_string(), "--no-plots", "--quiet"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("hilbench starts");
+    let started = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            break status;
+        }
+        if started.elapsed() > PATIENCE {
+            let _ = child.kill();
+            panic!("hilbench {args:?} did not end within {PATIENCE:?}");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let mut stderr = String::new();
+    if let Some(mut e) = child.stderr.take() {
+        let _ = std::io::Read::read_to_string(&mut e, &mut stderr);
+    }
+    let summary = std::fs::read_to_string(out.join("summary.json"))
+        .unwrap_or_else(|e| panic!("no summary.json ({e}); stderr:\n{stderr}"));
+    (status.code(), stderr, serde_json::from_str(&summary).expect("summary.json is JSON"))
+}
+
+/// One run of `command` on `scenario` in lockstep, through the library (as `run_all` calls it).
+fn fly(
+    scenario: &mav::Scenario,
+    command: &str,
+    settings: ExternalSettings,
+) -> Result<ExternalRun, ExternalFailure> {
+    fly_in(TimeMode::Lockstep, scenario, command, settings)
+}
+
+fn fly_in(
+    time_mode: TimeMode,
+    scenario: &mav::Scenario,
+    command: &str,
+    settings: ExternalSettings,
+) -> Result<ExternalRun, ExternalFailure> {
+    let controller = ExternalController { command: command.to_string(), time_mode, settings };
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .expect("a runtime");
+    runtime.block_on(run_external(scenario, &controller))
+}
+
+#[test]
+fn the_python_pd_controller_reaches_the_open_field_goal_in_lockstep_judged_from_the_plants_samples() {
+    let out = temp_dir("reach");
+    let file = repo("examples/python-controller/open-field.toml").display().to_string();
+    let (code, stderr, summary) = hilbench(&["run", &file, "--controller-cmd", &python_controller()], &out);
+    assert_eq!(code, Some(0), "{stderr}");
+    assert_eq!(summary["transport"], "external");
+    assert_eq!(summary["time_mode"], "lockstep");
+    let run = &summary["runs"][0];
+    assert_eq!(run["controller"], "external");
+    assert_eq!((run["reached"].as_bool(), run["end_reason"].as_str()), (Some(true), Some("reached")));
+    assert_eq!(run["collided"], false);
+    // The plant's truth: the last position is inside the goal's tolerance (0.15 m of [3, 4, 1]),
+    // the path at least the straight line from the start (5.10 m), the time the plant's.
+    let p: Vec<f64> =
+        run["final_position_m"].as_array().expect("a position").iter().filter_map(|v| v.as_f64()).collect();
+    let miss_m = ((p[0] - 3.0).powi(2) + (p[1] - 4.0).powi(2) + (p[2] - 1.0).powi(2)).sqrt();
+    assert!(miss_m < 0.15, "{p:?}");
+    let path_m = run["path_length_m"].as_f64().expect("a path length");
+    assert!((26f64.sqrt()..8.0).contains(&path_m), "{path_m}");
+    let time_s = run["time_to_goal_s"].as_f64().expect("a time to the goal");
+    assert!(time_s > 0.0 && time_s < 30.0, "{time_s}");
+    // Every command the plant applied is a row of the CSV, stamped with its round trip: the
+    // paper's Gamma(12, 0.015) delays (mean 0.18 s) on commands, the controller's time none.
+    let facts = &run["external_controller"];
+    let cycles = run["cycles"].as_u64().expect("cycles");
+    assert!(cycles > 10, "{cycles}");
+    assert_eq!(facts["commands_applied"].as_u64(), Some(cycles));
+    assert_eq!(facts["plant_steps_missed"], 0);
+    assert_eq!(facts["exit"], "stopped by the bench");
+    let latency_ms = run["end_to_end_latency_ms"]["median"].as_f64().expect("a latency");
+    assert!((100.0..300.0).contains(&latency_ms), "{latency_ms}");
+    let csv = std::fs::read_to_string(out.join("open-field-external.csv")).expect("the CSV");
+    assert_eq!(csv.lines().count() as u64, cycles + 1);
+    let _ = std::fs::remove_dir_all(out);
+}
+
+#[test]
+fn a_controller_that_exits_with_an_error_fails_the_run_naming_its_status_and_last_output() {
+    let out = temp_dir("exit");
+    let file = repo("examples/python-controller/open-field.toml").display().to_string();
+    let command = "echo starting; echo 'no route to the moon' >&2; exit 4";
+    let (code, stderr, summary) = hilbench(&["run", &file, "--controller-cmd", command], &out);
+    assert_eq!(code, Some(1), "{stderr}");
+    for expected in ["exited (exit status: 4) before the run ended", "no route to the moon"] {
+        assert!(stderr.contains(expected), "{expected:?} not in {stderr}");
+    }
+    let error = summary["error"].as_str().expect("the error in summary.json");
+    assert!(error.contains("exit status: 4"), "{error}");
+    // The failed run is kept as far as the plant flew it: not at all.
+    assert_eq!(summary["runs"][0]["end_reason"], "error");
+    assert_eq!(summary["runs"][0]["external_controller"]["commands_applied"], 0);
+    let _ = std::fs::remove_dir_all(out);
+}
+
+#[test]
+fn a_controller_that_stops_stepping_fails_the_run_at_the_stall_timeout_and_is_killed() {
+    let pid_file = temp_dir("hang").with_extension("pid");
+    // It writes its pid and sleeps without ever calling Step: plant time stands still.
+    let command = format!("echo $$ > '{}'; exec sleep 60", pid_file.display());
+    let settings = ExternalSettings { stall_timeout: Duration::from_secs(2), ..ExternalSettings::default() };
+    let failure = fly(&open_field(), &command, settings).expect_err("a controller that never steps");
+    let error = format!("{failure}");
+    assert!(error.contains("plant time has not moved for 2 s"), "{error}");
+    assert!(error.contains("stopped calling Step"), "{error}");
+    let partial = failure.partial.expect("the plant's first sample is kept");
+    assert_eq!(partial.summary.end_reason, "error");
+    assert_eq!(partial.final_sample.time_ns, 0);
+    // Its process is gone (or a zombie its parent has not reaped yet), not left sleeping.
+    let pid = std::fs::read_to_string(&pid_file).expect("the pid file");
+    let stat = PathBuf::from(format!("/proc/{}/stat", pid.trim()));
+    let started = Instant::now();
+    while std::fs::read_to_string(&stat).is_ok_and(|s| !s.contains(") Z ")) {
+        assert!(started.elapsed() < Duration::from_secs(10), "pid {} still runs", pid.trim());
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let _ = std::fs::remove_file(pid_file);
+}
+
+#[test]
+fn the_python_controller_flying_straight_into_a_paper_1_cylinder_is_reported_collided_with_exit_3() {
+    let out = temp_dir("collide");
+    let file = repo("scenarios/paper-1.toml").display().to_string();
+    let (code, stderr, summary) = hilbench(&["run", &file, "--controller-cmd", &python_controller()], &out);
+    assert_eq!(code, Some(3), "{stderr}");
+    let run = &summary["runs"][0];
+    assert_eq!((run["collided"].as_bool(), run["end_reason"].as_str()), (Some(true), Some("collided")));
+    assert_eq!(run["reached"], false);
+    assert_eq!(run["collisions"][0]["kind"], "cylinder");
+    assert!(run["min_clearance_m"].as_f64().is_some_and(|c| c < 0.0), "{}", run["min_clearance_m"]);
+    let _ = std::fs::remove_dir_all(out);
+}
+
+/// Twenty delay seeds: the sweep of issue 21's example (a loop here; `hilbench sweep
+/// --controller-cmd` once the sweep exists).
+#[test]
+fn a_sweep_of_the_python_controller_under_twenty_delay_processes_reaches_every_goal() {
+    let out = temp_dir("sweep");
+    let file = repo("examples/python-controller/open-field.toml");
+    let controller = python_controller();
+    let run = Command::new(hilbench_tests::service_binary("hilbench"))
+        .args(["sweep", file.to_str().expect("utf-8"), "--controller-cmd", &controller, "--jobs", "2"])
+        .args(["--quiet", "--no-plots", "--out"])
+        .arg(&out)
+        .stdin(Stdio::null())
+        .output()
+        .expect("hilbench runs");
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let sweep: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("sweep.json")).expect("sweep.json"))
+            .expect("JSON");
+    assert_eq!(sweep["runs"], 20, "the file's sweep.runs");
+    assert_eq!((sweep["reached"].as_u64(), sweep["collided"].as_u64()), (Some(20), Some(0)), "{sweep}");
+    for family in ["gamma", "uniform"] {
+        assert_eq!(sweep["families"][family]["runs"], 10, "families in turn: {family}");
+    }
+    // The runs drew different delays, so the flights differ.
+    let path_m = &sweep["path_length_m"];
+    assert_ne!(path_m["p50"], path_m["p95"], "{path_m}");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn two_lockstep_runs_of_the_python_controller_with_one_seed_are_identical() {
+    let scenario = open_field();
+    let a = fly(&scenario, &python_controller(), ExternalSettings::default()).expect("first run");
+    let b = fly(&scenario, &python_controller(), ExternalSettings::default()).expect("second run");
+    assert!(a.summary.reached);
+    assert_eq!(hilbench::bench::run_json(&a.summary), hilbench::bench::run_json(&b.summary));
+    // Each reset starts a new flight id (from a random point per plant): all else is equal.
+    let mut b_final = b.final_sample.clone();
+    b_final.flight_id = a.final_sample.flight_id;
+    assert_eq!(a.final_sample, b_final);
+    // Row for row (the CSV's text: its NaN cells compare as text).
+    assert_eq!(hilbench::cycle_log::to_csv(&a.rows), hilbench::cycle_log::to_csv(&b.rows));
+    assert_eq!(a.facts, b.facts);
+}
+
+#[test]
+fn in_real_time_the_python_controller_streams_and_reaches_the_open_field_goal() {
+    let run = fly_in(TimeMode::RealTime, &open_field(), &python_controller(), ExternalSettings::default())
+        .unwrap_or_else(|e| panic!("{e}"));
+    let s = &run.summary;
+    assert!(s.reached && !s.collided, "{} at {:?}", s.end_reason, s.final_position_m);
+    // A command per streamed sample (20 Hz) over several seconds of plant time.
+    assert!(run.facts.commands_applied > 20, "{:?}", run.facts);
+    assert_eq!(run.facts.plant_steps_missed, 0);
+    assert_eq!(run.facts.exit, "stopped by the bench");
+}
+
+#[test]
+fn an_empty_controller_command_a_bad_stall_timeout_or_a_mode_beside_it_is_a_usage_error() {
+    let file = repo("examples/python-controller/open-field.toml").display().to_string();
+    // Each with the flag the error names.
+    for (args, named) in [
+        (vec!["--controller-cmd", " "], "--controller-cmd"),
+        (vec!["--controller-cmd", "true", "--mode", "nmpc"], "--mode"),
+        (vec!["--controller-cmd", "true", "--stall-timeout-s", "NaN"], "--stall-timeout-s"),
+        (vec!["--stall-timeout-s", "5"], "--controller-cmd"),
+    ] {
+        let output = Command::new(hilbench_tests::service_binary("hilbench"))
+            .args(["run", &file])
+            .args(&args)
+            .output()
+            .expect("hilbench runs");
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.contains(named), "{args:?}: {stderr}");
+    }
+}
