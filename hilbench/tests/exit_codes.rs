@@ -1,6 +1,8 @@
 //! `hilbench`'s exit codes, as a script sees them: 0 no collision, 1 an error, 2 a usage error,
 //! 3 a run collided.
 
+mod common;
+
 use std::path::Path;
 use std::process::{Command, Output};
 
@@ -11,20 +13,17 @@ fn hilbench(args: &[&str]) -> Output {
 /// paper-2 with the vehicle launched at 12 m/s straight at a cylinder 1.5 m ahead it cannot stop in front of
 /// (tilt limited to 10 degrees), for 2 s of plant time.
 fn colliding_scenario(dir: &Path) -> std::path::PathBuf {
-    let paper_2 =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/paper-2.toml"))
-            .expect("scenarios/paper-2.toml");
-    let text = paper_2
-        .replace("name = \"paper-2\"", "name = \"launched\"")
-        .replace(
-            "start = [3.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]",
-            "start = [3.5, 0.0, 1.0, 0.0, 12.0, 0.0, 0.0, 0.0]",
-        )
-        .replace("max_duration_s = 60.0", "max_duration_s = 2.0");
-    assert_ne!(text, paper_2);
-    let path = dir.join("launched.toml");
-    std::fs::write(&path, text).expect("write the scenario");
-    path
+    common::paper_2_variant(
+        dir,
+        "launched",
+        &[
+            (
+                "start = [3.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]",
+                "start = [3.5, 0.0, 1.0, 0.0, 12.0, 0.0, 0.0, 0.0]",
+            ),
+            ("max_duration_s = 60.0", "max_duration_s = 2.0"),
+        ],
+    )
 }
 
 #[test]

@@ -1,6 +1,8 @@
 //! A run that went wrong says why where the user looks: the line printed per run, report.md,
 //! summary.json and the per-cycle CSV's `decision` and `reason` columns.
 
+mod common;
+
 use std::path::Path;
 use std::process::Command;
 
@@ -8,23 +10,20 @@ use std::process::Command;
 /// surface with a 0.2 m margin: until it has moved away, no candidate passes the safety
 /// layer's check, and it flies on best-effort commands.
 fn tight_start(dir: &Path) -> std::path::PathBuf {
-    let paper_2 =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/paper-2.toml"))
-            .expect("scenarios/paper-2.toml");
-    let text = paper_2
-        .replace("name = \"paper-2\"", "name = \"tight\"")
-        .replace("modes = [\"nmpc\", \"multistage\"]", "modes = [\"multistage\"]\nobstacle_margin_m = 0.2")
-        .replace("floor = false\n", "")
-        .replace("delay_compensation = false\n", "")
-        .replace(
-            "start = [3.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]",
-            "start = [3.8, 1.5, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]",
-        )
-        .replace("max_duration_s = 60.0", "max_duration_s = 10.0");
-    assert_ne!(text, paper_2);
-    let path = dir.join("tight.toml");
-    std::fs::write(&path, text).expect("write the scenario");
-    path
+    common::paper_2_variant(
+        dir,
+        "tight",
+        &[
+            ("modes = [\"nmpc\", \"multistage\"]", "modes = [\"multistage\"]\nobstacle_margin_m = 0.2"),
+            ("floor = false\n", ""),
+            ("delay_compensation = false\n", ""),
+            (
+                "start = [3.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]",
+                "start = [3.8, 1.5, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]",
+            ),
+            ("max_duration_s = 60.0", "max_duration_s = 10.0"),
+        ],
+    )
 }
 
 #[test]
