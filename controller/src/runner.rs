@@ -489,7 +489,10 @@ async fn fly(
         if lockstep { config.rpc_timeout.max(LOCKSTEP_MIN_RPC_TIMEOUT) } else { config.rpc_timeout };
     if current.flight.is_none() {
         let number = shared.status().episode + 1;
-        let settings = episode_settings(config, &current.scenario, current.mode);
+        let mut settings = episode_settings(config, &current.scenario, current.mode);
+        // The fail-safe check counts on the plant's braking watchdog only where the plant says
+        // it has one (a gateway's watchdog only levels the vehicle).
+        settings.plant_watchdog_s = hilbench_proto::convert::plant::braking_watchdog_s(&description);
         let episode =
             Episode::new(current.scenario.clone(), settings).map_err(|e| LoopError::Bad(e.to_string()))?;
         let sample = if config.reset_plant {

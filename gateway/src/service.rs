@@ -197,6 +197,8 @@ impl GatewayService {
             // time_boot_ms: the vehicle's clock counts milliseconds.
             step_ns: 1_000_000,
             watchdog_timeout_ns: Some(inner.bridge.settings().command_timeout_ns),
+            // The gateway's own watchdog holds level hover (the vehicle's failsafe is PX4's).
+            watchdog_action: mav::WatchdogAction::Hover,
         };
         let implementation = format!("{IMPLEMENTATION} {}", self.shared.link.address);
         conv::plant_description(inner.bridge.scenario(), &settings, pb::TimeMode::RealTime, &implementation)

@@ -6,6 +6,7 @@
 //! It is a pure library: no clock, no I/O, no async. Time is an argument (integer nanoseconds
 //! of plant time), so the same code runs in real time, in lockstep and inside tests.
 
+pub mod command;
 pub mod geometry;
 pub mod model;
 pub mod scenario;
@@ -18,8 +19,8 @@ pub use scenario::{
     PAPER_DELAY_GAMMA, Scenario, ScenarioError,
 };
 pub use sim::{
-    AppliedCommand, CollisionEvent, CollisionKind, CommandMeta, Contacts, PlantSample, PlantSim, SimError,
-    SimSettings,
+    AppliedCommand, CollisionEvent, CollisionKind, CommandMeta, Contacts, DEFAULT_WATCHDOG_TIMEOUT_NS,
+    PlantSample, PlantSim, SimError, SimSettings, WATCHDOG_BRAKE_PERIOD_NS, WatchdogAction,
 };
 
 /// The bench's one pair of time conversions (defined in `delay`, the crate below this one).

@@ -102,9 +102,9 @@ pub struct Scenario {
     /// `None`: the controller's own setting (0.1 m by default, as in paper mode).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub obstacle_margin_m: Option<f64>,
-    /// The safety layer judges candidate commands with the fail-safe check over this
-    /// scenario's delay range (its largest sampling time; see `mpc::fail_safe`) instead of by
-    /// their plans' predictions. Off in paper mode and by default in scenario files.
+    /// The safety layer judges candidate commands with the fail-safe check (every delay, the
+    /// plant's braking watchdog included; see `mpc::fail_safe`) instead of by their plans'
+    /// predictions. Off in paper mode, on by default in scenario files.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub fail_safe: bool,
     /// A lockstep run goes on after the vehicle's first collision (to see the rest of the

@@ -11,18 +11,46 @@ use crate::model::{Input, InputBounds, MavModel, State, rk4_step};
 use crate::ns_to_s;
 use crate::scenario::Scenario;
 
+/// The plant's default watchdog timeout, ns: like PX4's offboard-loss timeout, half a second
+/// without a command means the link is down rather than slow.
+pub const DEFAULT_WATCHDOG_TIMEOUT_NS: u64 = 500_000_000;
+
+/// How often the braking watchdog recomputes its command, ns (50 Hz, on the plant-time grid).
+pub const WATCHDOG_BRAKE_PERIOD_NS: u64 = 20_000_000;
+
+/// What the plant does when no command arrived for the watchdog's timeout.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum WatchdogAction {
+    /// Brake to a standstill on board, as PX4's Hold failsafe does: the controller's braking
+    /// law ([`crate::command::braking_command`], gain
+    /// [`crate::command::DEFAULT_BRAKE_GAIN_PER_S`]) recomputed from the true state every
+    /// [`WATCHDOG_BRAKE_PERIOD_NS`], until the next command. A command is then never held
+    /// longer than the timeout, which is what lets a controller's fail-safe check cover any
+    /// delay (`mpc::fail_safe`).
+    #[default]
+    Brake,
+    /// Level attitude at hover thrust: the vehicle coasts on (drag slows it).
+    Hover,
+}
+
 /// Settings of the truth simulation.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SimSettings {
     /// Integration step of RK4, ns (default 1 ms, the plant's 1 kHz rate).
     pub step_ns: u64,
-    /// Hold hover when no command arrived for this long, ns; `None` disables the watchdog.
+    /// The watchdog fires when no command arrived for this long, ns; `None` disables it.
     pub watchdog_timeout_ns: Option<u64>,
+    /// What the watchdog does until the next command.
+    pub watchdog_action: WatchdogAction,
 }
 
 impl Default for SimSettings {
     fn default() -> Self {
-        Self { step_ns: 1_000_000, watchdog_timeout_ns: None }
+        Self {
+            step_ns: 1_000_000,
+            watchdog_timeout_ns: Some(DEFAULT_WATCHDOG_TIMEOUT_NS),
+            watchdog_action: WatchdogAction::Brake,
+        }
     }
 }
 
@@ -395,7 +423,25 @@ impl PlantSim {
             && self.time_ns.saturating_sub(self.last_command_time_ns) >= timeout
         {
             self.watchdog_hover = true;
-            self.effective_input = self.model.params.hover_input();
+            self.effective_input = self.watchdog_input();
+        } else if self.watchdog_hover
+            && self.settings.watchdog_action == WatchdogAction::Brake
+            && self.time_ns.is_multiple_of(WATCHDOG_BRAKE_PERIOD_NS)
+        {
+            self.effective_input = self.watchdog_input();
+        }
+    }
+
+    /// The watchdog's command from the current state.
+    fn watchdog_input(&self) -> Input {
+        match self.settings.watchdog_action {
+            WatchdogAction::Hover => self.model.params.hover_input(),
+            WatchdogAction::Brake => Input::from(crate::command::braking_command(
+                &self.model.params,
+                &self.bounds,
+                &self.state.into(),
+                crate::command::DEFAULT_BRAKE_GAIN_PER_S,
+            )),
         }
     }
 

@@ -42,6 +42,10 @@ pub struct EpisodeSettings {
     /// The safety layer's fail-safe check for every scenario, whether or not the scenario asks
     /// for it (the controller's `--fail-safe`).
     pub fail_safe: bool,
+    /// The plant's braking watchdog, s (what its `Describe` says): the fail-safe check counts
+    /// on a command never being held longer ([`crate::fail_safe::BrakingCheck::plant_watchdog_s`]).
+    /// Default: the bench's plants' (`mav::DEFAULT_WATCHDOG_TIMEOUT_NS`, braking).
+    pub plant_watchdog_s: Option<f64>,
     /// Whether round-trip delays are expected: the multi-stage weights are then the Gamma fit of
     /// the measured delays, otherwise the scenario's nominal weights.
     pub delays_expected: bool,
@@ -59,6 +63,7 @@ impl EpisodeSettings {
             mpc,
             safety: Some(SafetySettings::default()),
             fail_safe: false,
+            plant_watchdog_s: Some(mav::ns_to_s(mav::DEFAULT_WATCHDOG_TIMEOUT_NS)),
             delays_expected: false,
             #[cfg(feature = "fault-injection")]
             fault: None,
@@ -375,8 +380,10 @@ fn build_controller(scenario: &Scenario, settings: &EpisodeSettings) -> Result<C
         settings.mpc.obstacle_margin_m,
         settings.mpc.formulation,
     );
-    let safety =
-        settings.safety.map(|s| s.with_fail_safe(scenario, settings.fail_safe || scenario.fail_safe));
+    let safety = settings.safety.map(|s| {
+        s.with_fail_safe(scenario, settings.fail_safe || scenario.fail_safe)
+            .with_plant_watchdog(settings.plant_watchdog_s)
+    });
     let controller = CycleController::new(def, settings.mpc, safety)?;
     #[cfg(feature = "fault-injection")]
     let controller = controller.with_fault(settings.fault);

@@ -32,7 +32,7 @@ use std::collections::VecDeque;
 
 use mav::{Cylinder, InputBounds, MavModel, ModelParams, Scenario, State, rk4_step};
 
-use crate::command::braking_command;
+use crate::command::{DEFAULT_BRAKE_GAIN_PER_S, braking_command};
 use crate::error::MpcError;
 
 /// The longest round-trip delay the fail-safe check widens its range to, s: beyond it a link
@@ -49,7 +49,8 @@ pub struct BrakingCheck {
     /// Shortest cycle, s: the next sample is `max(min_cycle_s, d)` after this one.
     pub min_cycle_s: f64,
     /// Delays sampled in `[0, max_delay_s]`, evenly, ends included (for this cycle's command
-    /// and, independently, for the braking cycles after it): `delay_samples^2` flights.
+    /// and, independently, for the braking cycles after it): `delay_samples^2` flights
+    /// (`(delay_samples + 1)^2` with the plant's watchdog).
     pub delay_samples: usize,
     /// How long braking is flown after the next sample, s.
     pub horizon_s: f64,
@@ -57,6 +58,14 @@ pub struct BrakingCheck {
     pub step_s: f64,
     /// A flight stops early once the speed is below this, m/s (the vehicle hovers).
     pub stop_speed_mps: f64,
+    /// The plant's watchdog, s: a command that has been on this long without a newer one
+    /// landing gives way to the plant's own braking (`mav::WatchdogAction::Brake`, the default
+    /// of the bench's plants) until the next lands. Then no command is held longer than this,
+    /// whatever the delay, and the check covers every delay: the sampled delays up to
+    /// `min(max_delay_s, plant_watchdog_s)` and one long delay ([`MAX_COVERED_DELAY_S`]) for
+    /// every delay past the watchdog. `None`: the plant holds a command until the next one
+    /// lands, and the check covers delays up to `max_delay_s` only.
+    pub plant_watchdog_s: Option<f64>,
     /// The ground, m. The check judges what the vehicle will physically do, so a flight that
     /// goes below it fails even where the problem has no floor (paper mode); a floor, when
     /// there is one, is checked instead. A vehicle already lower may not sink further. `None`:
@@ -73,6 +82,7 @@ impl Default for BrakingCheck {
             horizon_s: 5.0,
             step_s: 0.02,
             stop_speed_mps: 0.005,
+            plant_watchdog_s: Some(mav::ns_to_s(mav::DEFAULT_WATCHDOG_TIMEOUT_NS)),
             ground_z_m: Some(0.0),
         }
     }
@@ -111,6 +121,9 @@ impl BrakingCheck {
         if !(self.stop_speed_mps.is_finite() && self.stop_speed_mps >= 0.0) {
             return bad("braking_check.stop_speed_mps", "must be finite and >= 0");
         }
+        if self.plant_watchdog_s.is_some_and(|w| !(w.is_finite() && w > 0.0)) {
+            return bad("braking_check.plant_watchdog_s", "must be finite and > 0");
+        }
         if self.ground_z_m.is_some_and(|z| !z.is_finite()) {
             return bad("braking_check.ground_z_m", "must be finite");
         }
@@ -126,9 +139,17 @@ impl BrakingCheck {
         Self { max_delay_s: base_max_delay_s.max(observed.min(MAX_COVERED_DELAY_S)), ..self }
     }
 
-    /// The `k`-th of the sampled delays, s.
-    fn delay(&self, k: usize) -> f64 {
-        self.max_delay_s * k as f64 / (self.delay_samples - 1) as f64
+    /// The sampled delays, s: `delay_samples` evenly over `[0, max_delay_s]` (ends
+    /// included), or with the plant's watchdog over `[0, min(max_delay_s, plant_watchdog_s)]`
+    /// and then [`MAX_COVERED_DELAY_S`] for the delays past it (see
+    /// [`BrakingCheck::plant_watchdog_s`]).
+    fn delays(&self) -> impl Iterator<Item = f64> + '_ {
+        let (even_s, long) = match self.plant_watchdog_s {
+            Some(w) => (self.max_delay_s.min(w), Some(MAX_COVERED_DELAY_S.max(w))),
+            None => (self.max_delay_s, None),
+        };
+        let n = self.delay_samples;
+        (0..n).map(move |k| even_s * k as f64 / (n - 1) as f64).chain(long)
     }
 }
 
@@ -177,7 +198,8 @@ impl FailSafe {
     ) -> Self {
         // About one braking command per cycle of the longest delay is in flight at a time
         // (more grow the queue).
-        let in_flight = (check.max_delay_s / check.min_cycle_s).ceil().min(256.0) as usize + 2;
+        let longest_s = check.delays().fold(0.0, f64::max);
+        let in_flight = (longest_s / check.min_cycle_s).ceil().min(256.0) as usize + 2;
         Self {
             check,
             model: MavModel::new(params),
@@ -202,9 +224,9 @@ impl FailSafe {
         let mut out =
             Envelope { min_clearance_m: f64::INFINITY, min_altitude_m: f64::INFINITY, finite: true };
         self.observe(&State::from(*x0), &mut out);
-        for a in 0..self.check.delay_samples {
-            for b in 0..self.check.delay_samples {
-                fly(self.check.delay(a), self.check.delay(b), &mut out);
+        for d in self.check.delays() {
+            for d_next in self.check.delays() {
+                fly(d, d_next, &mut out);
                 if !out.finite {
                     return out;
                 }
@@ -244,15 +266,15 @@ impl FailSafe {
         out: &mut Envelope,
     ) {
         let period = self.check.min_cycle_s;
-        let mut x = State::from(*x0);
-        let (mut t, mut applied, mut landed_at) = (0.0f64, *u_prev, 0.0f64);
+        let mut link = Link { x: State::from(*x0), t: 0.0, applied: *u_prev, landed_at: 0.0 };
+        let mut landed_at = 0.0f64;
         // What was sent up to this cycle lands in order.
         // (`sent_ago_s` at least 0, so every one lands within `[0, d]`.)
         let sent = in_flight.iter().map(|f| ((d - f.sent_ago_s.max(0.0)).max(0.0), f.command));
         for (at, u) in sent.chain(std::iter::once((d, *command))) {
             landed_at = landed_at.max(at);
-            x = self.hold(x, &applied, landed_at - t, out);
-            (t, applied) = (landed_at, u);
+            self.run_until(&mut link, landed_at, out);
+            link.land(u);
         }
         // Braking from the next sample on; a brake can be computed before the command lands.
         brakes.clear();
@@ -262,22 +284,21 @@ impl FailSafe {
             let landing = brakes.front().map(|(at, _)| *at).filter(|at| *at <= next_sample);
             let event = landing.unwrap_or(next_sample);
             if event > end {
-                self.hold(x, &applied, end - t, out);
+                self.run_until(&mut link, end, out);
                 return;
             }
-            x = self.hold(x, &applied, event - t, out);
-            t = event;
+            self.run_until(&mut link, event, out);
             if landing.is_some() {
                 if let Some((_, u)) = brakes.pop_front() {
-                    applied = u;
+                    link.land(u);
                 }
-                if speed_mps(&x) < self.check.stop_speed_mps {
+                if speed_mps(&link.x) < self.check.stop_speed_mps {
                     return;
                 }
             } else {
                 let brake =
-                    braking_command(&self.model.params, &self.bounds, &x.into(), self.brake_gain_per_s);
-                landed_at = landed_at.max(t + d_next);
+                    braking_command(&self.model.params, &self.bounds, &link.x.into(), self.brake_gain_per_s);
+                landed_at = landed_at.max(link.t + d_next);
                 brakes.push_back((landed_at, brake));
                 next_sample += period;
             }
@@ -294,23 +315,53 @@ impl FailSafe {
         out: &mut Envelope,
     ) {
         let t_min = self.check.min_cycle_s;
-        let mut x = State::from(*x0);
+        // The previous command landed at the sample at the latest (the lockstep protocol
+        // samples when it lands): the latest landing holds it longest before a watchdog.
+        let mut link = Link { x: State::from(*x0), t: 0.0, applied: *u_prev, landed_at: 0.0 };
         // Until the command lands, the previous one; then the command until the next sample.
-        x = self.hold(x, u_prev, d, out);
-        x = self.hold(x, command, t_min.max(d) - d, out);
+        self.run_until(&mut link, d, out);
+        link.land(*command);
+        let mut sample = t_min.max(d);
+        self.run_until(&mut link, sample, out);
         // From the next sample on, the controller brakes, every command `d_next` late.
-        let end = t_min.max(d) + self.check.horizon_s;
-        let mut t = t_min.max(d);
-        let mut applied = *command;
-        while t < end && out.finite {
-            let brake = braking_command(&self.model.params, &self.bounds, &x.into(), self.brake_gain_per_s);
-            x = self.hold(x, &applied, d_next, out);
-            applied = brake;
-            x = self.hold(x, &applied, t_min.max(d_next) - d_next, out);
-            t += t_min.max(d_next);
-            if speed_mps(&x) < self.check.stop_speed_mps {
+        let end = sample + self.check.horizon_s;
+        while sample < end && out.finite {
+            let brake =
+                braking_command(&self.model.params, &self.bounds, &link.x.into(), self.brake_gain_per_s);
+            self.run_until(&mut link, sample + d_next, out);
+            link.land(brake);
+            sample += t_min.max(d_next);
+            self.run_until(&mut link, sample, out);
+            if speed_mps(&link.x) < self.check.stop_speed_mps {
                 break;
             }
+        }
+    }
+
+    /// Flies the link's applied command on to time `t_s`; with the plant's braking watchdog
+    /// ([`BrakingCheck::plant_watchdog_s`]), a command on for that long gives way to the
+    /// plant's own braking, recomputed every `step_s`, until the next command lands.
+    fn run_until(&self, link: &mut Link, t_s: f64, out: &mut Envelope) {
+        if t_s <= link.t {
+            return;
+        }
+        let fires_at = self.check.plant_watchdog_s.map_or(f64::INFINITY, |w| link.landed_at + w);
+        if t_s <= fires_at {
+            link.x = self.hold(link.x, &link.applied, t_s - link.t, out);
+            link.t = t_s;
+            return;
+        }
+        if fires_at > link.t {
+            link.x = self.hold(link.x, &link.applied, fires_at - link.t, out);
+            link.t = fires_at;
+        }
+        // The plant brakes with its own gain (mav's default), every `step_s`.
+        while link.t < t_s && out.finite {
+            let step = self.check.step_s.min(t_s - link.t);
+            let brake =
+                braking_command(&self.model.params, &self.bounds, &link.x.into(), DEFAULT_BRAKE_GAIN_PER_S);
+            link.x = self.hold(link.x, &brake, step, out);
+            link.t += step;
         }
     }
 
@@ -338,6 +389,22 @@ impl FailSafe {
         let (c, _) = mav::geometry::min_clearance(&self.cylinders, x[0], x[1], x[2]);
         out.min_clearance_m = out.min_clearance_m.min(c);
         out.min_altitude_m = out.min_altitude_m.min(x[2]);
+    }
+}
+
+/// The vehicle in one flight of the check: its state at time `t` (s after the sample), the
+/// command applied and when it landed.
+struct Link {
+    x: State,
+    t: f64,
+    applied: [f64; 3],
+    landed_at: f64,
+}
+
+impl Link {
+    /// A command lands now.
+    fn land(&mut self, u: [f64; 3]) {
+        (self.applied, self.landed_at) = (u, self.t);
     }
 }
 

@@ -15,7 +15,11 @@
 
 pub mod accuracy;
 pub mod closed_loop;
-pub mod command;
+pub mod command {
+    //! The commands every part of the controller falls back on (the sanitiser and braking):
+    //! `mav`'s, the ones the plant's watchdog brakes with too.
+    pub use mav::command::{DEFAULT_BRAKE_GAIN_PER_S, braking_command, sanitize_command};
+}
 pub mod cycle;
 pub mod delays;
 pub mod episode;

@@ -1,7 +1,7 @@
 //! Settings of the plant service: validated data with documented defaults and units.
 
 use hilbench_svc::streams::DEFAULT_MAX_STREAMS;
-use mav::{Scenario, SimSettings};
+use mav::{Scenario, SimSettings, WatchdogAction};
 use std::fmt;
 use std::str::FromStr;
 
@@ -64,8 +64,8 @@ impl ConfigError {
 /// bench's cycles are 50 ms); at most about 80 KB for a subscriber that stopped reading.
 pub const DEFAULT_STREAM_BUFFER: usize = 256;
 
-/// Default watchdog timeout in real time, ns (500 ms).
-pub const DEFAULT_REAL_TIME_WATCHDOG_NS: u64 = 500_000_000;
+/// Default watchdog timeout, ns (500 ms), in both time modes.
+pub const DEFAULT_WATCHDOG_NS: u64 = mav::DEFAULT_WATCHDOG_TIMEOUT_NS;
 
 /// Settings of one plant service.
 #[derive(Debug, Clone, PartialEq)]
@@ -77,9 +77,14 @@ pub struct PlantConfig {
     /// RK4 integration rate, Hz; the step is `round(1e9 / rate_hz)` ns (default 1000, i.e. 1 ms).
     /// In real time it is also the rate of the integration task.
     pub rate_hz: f64,
-    /// With no command for this long, ns, the plant holds hover and says so in its samples;
-    /// `None` = off. Default: 500 ms in real time, off in lockstep.
+    /// With no command for this long, ns, the watchdog takes over until the next command and
+    /// the samples say so (`watchdog_hover`); `None` = off. Default 500 ms in both time modes:
+    /// in lockstep only a delay that long fires it (a heavy-tailed delay process), and the
+    /// vehicle must then behave as it would on a real link.
     pub watchdog_timeout_ns: Option<u64>,
+    /// What the watchdog does: brake to a standstill (default, as PX4's Hold failsafe) or hold
+    /// level hover.
+    pub watchdog_action: WatchdogAction,
     /// Samples queued per `StreamState` subscriber; when the queue is full, its oldest sample
     /// is discarded for the newest (the subscriber sees a gap in `seq`, finds the freshest
     /// state when it reads again, and the plant never waits for it), counted and logged.
@@ -97,25 +102,22 @@ impl Default for PlantConfig {
 }
 
 impl PlantConfig {
-    /// Lockstep on `scenario`, 1 kHz, no watchdog.
+    /// Lockstep on `scenario`, 1 kHz, the braking watchdog at 500 ms.
     pub fn lockstep(scenario: Scenario) -> Self {
         Self {
             scenario,
             time_mode: TimeMode::Lockstep,
             rate_hz: 1000.0,
-            watchdog_timeout_ns: None,
+            watchdog_timeout_ns: Some(DEFAULT_WATCHDOG_NS),
+            watchdog_action: WatchdogAction::Brake,
             stream_buffer: DEFAULT_STREAM_BUFFER,
             max_streams: DEFAULT_MAX_STREAMS,
         }
     }
 
-    /// Real time on `scenario`, 1 kHz, watchdog 500 ms.
+    /// Real time on `scenario`, 1 kHz, the braking watchdog at 500 ms.
     pub fn real_time(scenario: Scenario) -> Self {
-        Self {
-            time_mode: TimeMode::RealTime,
-            watchdog_timeout_ns: Some(DEFAULT_REAL_TIME_WATCHDOG_NS),
-            ..Self::lockstep(scenario)
-        }
+        Self { time_mode: TimeMode::RealTime, ..Self::lockstep(scenario) }
     }
 
     /// Checks every setting and returns the truth simulation's settings.
@@ -130,6 +132,7 @@ impl PlantConfig {
             ));
         }
         settings.watchdog_timeout_ns = self.watchdog_timeout_ns;
+        settings.watchdog_action = self.watchdog_action;
         if self.stream_buffer == 0 {
             return Err(ConfigError::new("stream_buffer", "must be at least 1"));
         }
@@ -148,9 +151,9 @@ mod tests {
     fn defaults_are_valid_and_bad_settings_are_named() {
         let s = PlantConfig::default().validate().expect("valid");
         assert_eq!(s.step_ns, 1_000_000);
-        assert_eq!(s.watchdog_timeout_ns, None);
+        assert_eq!((s.watchdog_timeout_ns, s.watchdog_action), (Some(500_000_000), WatchdogAction::Brake));
         let rt = PlantConfig::real_time(Scenario::paper_2()).validate().expect("valid");
-        assert_eq!(rt.watchdog_timeout_ns, Some(500_000_000));
+        assert_eq!((rt.watchdog_timeout_ns, rt.watchdog_action), (Some(500_000_000), WatchdogAction::Brake));
         let bad = PlantConfig { rate_hz: f64::NAN, ..Default::default() };
         assert_eq!(bad.validate().map_err(|e| e.field), Err("rate_hz".to_string()));
         let bad = PlantConfig { watchdog_timeout_ns: Some(0), ..Default::default() };

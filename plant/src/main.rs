@@ -13,6 +13,12 @@ enum Mode {
     Lockstep,
 }
 
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum WatchdogArg {
+    Brake,
+    Hover,
+}
+
 /// The hilbench plant: the MAV truth simulation served over gRPC (hilbench.v1.Plant, with
 /// health checking and server reflection).
 #[derive(Debug, Parser)]
@@ -34,10 +40,14 @@ struct Args {
     /// RK4 integration rate, Hz (the step is 1/rate).
     #[arg(long, default_value_t = 1000.0)]
     rate_hz: f64,
-    /// Hold hover after this long without a command, ms; 0 = off.
-    /// Default: 500 in real time, off in lockstep.
+    /// The watchdog fires after this long without a command, ms; 0 = off (default 500).
     #[arg(long)]
     watchdog_ms: Option<u64>,
+    /// What the watchdog does until the next command: brake to a standstill on board (as
+    /// PX4's Hold failsafe; what the controller's fail-safe check assumes), or hold level
+    /// hover (the vehicle coasts on).
+    #[arg(long, value_enum, default_value_t = WatchdogArg::Brake)]
+    watchdog_action: WatchdogArg,
     /// StreamState streams served at once; one more is refused with RESOURCE_EXHAUSTED.
     #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = at_least_one())]
     max_streams: usize,
@@ -52,6 +62,10 @@ fn config(args: &Args) -> anyhow::Result<PlantConfig> {
     };
     config.rate_hz = args.rate_hz;
     config.max_streams = args.max_streams;
+    config.watchdog_action = match args.watchdog_action {
+        WatchdogArg::Brake => mav::WatchdogAction::Brake,
+        WatchdogArg::Hover => mav::WatchdogAction::Hover,
+    };
     if let Some(ms) = args.watchdog_ms {
         config.watchdog_timeout_ns = match ms {
             0 => None,

@@ -86,7 +86,11 @@ fn falling_below_the_ground_is_a_collision() {
 #[test]
 fn watchdog_holds_hover_until_the_next_command() {
     let s = Scenario::paper_1();
-    let settings = SimSettings { watchdog_timeout_ns: Some(100_000_000), ..Default::default() };
+    let settings = SimSettings {
+        watchdog_timeout_ns: Some(100_000_000),
+        watchdog_action: WatchdogAction::Hover,
+        ..Default::default()
+    };
     let mut a = PlantSim::new(&s, settings).expect("valid");
     a.apply(Input::new(12.0, 0.1, 0.0), CommandMeta::default()).expect("finite");
     a.advance(99_000_000, |_| {});
@@ -104,6 +108,39 @@ fn watchdog_holds_hover_until_the_next_command() {
     assert_eq!(a.watchdog_hover_ns(), 50_000_000, "counted after the next command");
     a.reset(s.start_state()).expect("finite");
     assert_eq!(a.watchdog_hover_ns(), 0);
+}
+
+#[test]
+fn the_braking_watchdog_applies_the_braking_law_every_20_ms_until_the_vehicle_stands_still() {
+    let s = Scenario::paper_2();
+    let mut a = PlantSim::new(&s, SimSettings::default()).expect("valid");
+    a.reset(State::from([0.0, 0.0, 1.0, 1.5, -0.5, 0.0, 0.0, 0.0])).expect("finite");
+    a.apply(Input::new(9.81, 0.0, 0.0), CommandMeta::default()).expect("finite");
+    let brake = |a: &PlantSim| {
+        Input::from(crate::command::braking_command(
+            &s.model,
+            &s.bounds,
+            &(*a.state()).into(),
+            crate::command::DEFAULT_BRAKE_GAIN_PER_S,
+        ))
+    };
+    a.advance(DEFAULT_WATCHDOG_TIMEOUT_NS - 1_000_000, |_| {});
+    assert!(!a.watchdog_hover());
+    a.advance(1_000_000, |_| {});
+    assert!(a.watchdog_hover());
+    assert_eq!(a.effective_input(), &brake(&a), "the law from the state when it fired");
+    // Recomputed on the 20 ms grid of plant time, held in between.
+    let held = *a.effective_input();
+    a.advance(WATCHDOG_BRAKE_PERIOD_NS - 1_000_000, |_| {});
+    assert_eq!(a.effective_input(), &held);
+    a.advance(1_000_000, |_| {});
+    assert!(a.time_ns().is_multiple_of(WATCHDOG_BRAKE_PERIOD_NS));
+    assert_eq!(a.effective_input(), &brake(&a));
+    // From 1.58 m/s the law stops the vehicle: after 15 s it stands still.
+    a.advance(15_000_000_000, |_| {});
+    let speed = (a.state()[3].powi(2) + a.state()[4].powi(2) + a.state()[5].powi(2)).sqrt();
+    assert!(speed < 0.01, "speed {speed} m/s");
+    assert!(!a.collided());
 }
 
 #[test]
@@ -125,7 +162,9 @@ fn a_collision_records_its_deepest_penetration_while_inside() {
 #[test]
 fn path_length_integrates_speed() {
     let s = Scenario::paper_1();
-    let mut a = sim(&s);
+    // Without a watchdog: the vehicle coasts at hover (drag alone slows it).
+    let mut a =
+        PlantSim::new(&s, SimSettings { watchdog_timeout_ns: None, ..Default::default() }).expect("valid");
     a.reset(State::from([0.0, -5.0, 1.0, 0.0, 2.0, 0.0, 0.0, 0.0])).expect("finite");
     a.advance(1_000_000_000, |_| {});
     // vy(t) = 2 e^{-0.1 t}  =>  distance = 20 (1 - e^{-0.1})

@@ -77,7 +77,7 @@ impl Default for SafetySettings {
             accept_deadline: true,
             required_clearance_m: 0.0,
             max_plan_shifts: 10,
-            brake_gain_per_s: 1.0,
+            brake_gain_per_s: crate::command::DEFAULT_BRAKE_GAIN_PER_S,
             best_effort: true,
             braking_check: None,
         }
@@ -96,6 +96,15 @@ impl SafetySettings {
     pub fn with_fail_safe(mut self, scenario: &Scenario, on: bool) -> Self {
         if on && self.braking_check.is_none() {
             self.braking_check = Some(BrakingCheck::for_scenario(scenario));
+        }
+        self
+    }
+
+    /// These settings with the fail-safe check (if any) counting on the plant's braking
+    /// watchdog `plant_watchdog_s` (see [`BrakingCheck::plant_watchdog_s`]).
+    pub fn with_plant_watchdog(mut self, plant_watchdog_s: Option<f64>) -> Self {
+        if let Some(check) = self.braking_check.as_mut() {
+            check.plant_watchdog_s = plant_watchdog_s;
         }
         self
     }

@@ -1,9 +1,10 @@
 use super::*;
+use crate::command::braking_command;
 use crate::fail_safe::BrakingCheck;
 use crate::problem::{ControllerMode, ObstacleFormulation};
 use crate::qp::{QpSettings, QpStatus};
 use crate::solver::{MpcSettings, SolveBudget};
-use mav::Scenario;
+use mav::{CommandMeta, Input, PlantSim, Scenario, SimSettings, State, WatchdogAction};
 use proptest::prelude::*;
 
 const W5: [f64; 5] = [0.05, 0.15, 0.45, 0.30, 0.05];
@@ -92,11 +93,12 @@ fn a_colliding_converged_plan_is_rejected() {
     }
 }
 
-/// paper-2's standard NMPC definition, a layer with the default fail-safe check, the check
+/// paper-2's standard NMPC definition, a layer with the default fail-safe check for a plant
+/// without a watchdog (commands held until the next lands, delays up to 0.33 s), the check
 /// alone, and a plan that hovers throughout.
 fn fail_safe_fixture() -> (OcpDefinition, SafetyLayer, FailSafe, Vec<f64>) {
     let def = def_of(&Scenario::paper_2(), ControllerMode::Nmpc);
-    let check = BrakingCheck::default();
+    let check = BrakingCheck { plant_watchdog_s: None, ..BrakingCheck::default() };
     let settings = SafetySettings { braking_check: Some(check), ..Default::default() };
     let layer = SafetyLayer::new(&def, settings).expect("valid");
     let gain = settings.brake_gain_per_s;
@@ -319,4 +321,67 @@ proptest! {
             u_prev = sel.command;
         }
     }
+}
+
+/// The truth of one cycle on paper-2's plant: `u_prev` on at the sample, `command` landing
+/// `d_s` later, and from the next sample on the controller's braking landing `d_next_s` after
+/// each sample (every `max(0.05, d_next_s)`), for 15 s; the smallest clearance to a cylinder.
+fn flown_clearance_m(
+    x0: [f64; 8],
+    command: [f64; 3],
+    d_s: f64,
+    d_next_s: f64,
+    action: WatchdogAction,
+) -> f64 {
+    let scenario = Scenario::paper_2();
+    let settings = SimSettings { watchdog_action: action, ..SimSettings::default() };
+    let mut sim = PlantSim::new(&scenario, settings).expect("valid");
+    sim.reset(State::from(x0)).expect("finite");
+    sim.apply(Input::from(HOVER), CommandMeta::default()).expect("finite");
+    let ns = |s: f64| (s * 1e9).round() as u64;
+    let mut landings = vec![(ns(d_s), command)];
+    let period_s = 0.05f64.max(d_next_s);
+    let mut sample_s = 0.05f64.max(d_s);
+    let mut next = 0;
+    while sim.time_ns() < ns(15.0) {
+        // The next event: a landing, or a sample that computes a brake.
+        let landing = landings.get(next).map(|(t, _)| *t).filter(|t| *t <= ns(sample_s));
+        match landing {
+            Some(t) => {
+                sim.advance_to(t, |_| {});
+                sim.apply(Input::from(landings[next].1), CommandMeta::default()).expect("finite");
+                next += 1;
+            }
+            None => {
+                sim.advance_to(ns(sample_s), |_| {});
+                let brake = braking_command(&scenario.model, &scenario.bounds, &(*sim.state()).into(), 1.0);
+                landings.push((ns(sample_s + d_next_s), brake));
+                sample_s += period_s;
+            }
+        }
+    }
+    sim.min_clearance_m()
+}
+
+#[test]
+fn with_the_plants_braking_watchdog_a_command_that_passes_stays_clear_however_late_the_next_lands() {
+    let def = def_of(&Scenario::paper_2(), ControllerMode::Nmpc);
+    let check = BrakingCheck::default();
+    assert_eq!(check.plant_watchdog_s, Some(0.5), "the bench's plants brake after 500 ms");
+    let fail_safe = FailSafe::new(check, def.model, def.bounds, def.obstacles.clone(), 1.0);
+    // Towards the 0.4 m cylinder from 1.2 m at 0.6 m/s, hovering: passes the check.
+    let x0 = [2.8, 1.4, 1.0, 0.0, 0.6, 0.0, 0.0, 0.0];
+    let envelope = fail_safe.envelope(&x0, &HOVER, &HOVER);
+    assert!(envelope.min_clearance_m > 0.0, "{envelope:?}");
+    // The truth: whatever the delays, up to 10 s, the plant's watchdog brakes once a command
+    // is 0.5 s old, and the vehicle stays clear.
+    for d_s in [0.0, 0.2, 0.5, 1.0] {
+        for d_next_s in [0.0, 0.33, 0.5, 0.7, 1.5, 3.0, 10.0] {
+            let clearance = flown_clearance_m(x0, HOVER, d_s, d_next_s, WatchdogAction::Brake);
+            assert!(clearance > 0.0, "d {d_s} s, d' {d_next_s} s: clearance {clearance} m");
+        }
+    }
+    // A plant whose watchdog only levels the vehicle lets it coast into the cylinder when the
+    // next command is late enough: the check's promise rests on the braking watchdog.
+    assert!(flown_clearance_m(x0, HOVER, 0.0, 10.0, WatchdogAction::Hover) < 0.0);
 }

@@ -321,7 +321,19 @@ pub fn plant_description(
         ground_z_m: scenario.ground_z_m,
         implementation: implementation.to_string(),
         definition: Some(scenario.into()),
+        watchdog_action: match settings.watchdog_action {
+            mav::WatchdogAction::Brake => pb::WatchdogAction::Brake,
+            mav::WatchdogAction::Hover => pb::WatchdogAction::Hover,
+        } as i32,
     }
+}
+
+/// The braking watchdog a plant describes, s: its timeout when the watchdog brakes, `None`
+/// when it is off, only levels the vehicle, or is not described (what a controller's
+/// fail-safe check may count on: `mpc::fail_safe::BrakingCheck::plant_watchdog_s`).
+pub fn braking_watchdog_s(description: &pb::PlantDescription) -> Option<f64> {
+    (description.watchdog_timeout_ns > 0 && description.watchdog_action == pb::WatchdogAction::Brake as i32)
+        .then(|| mav::ns_to_s(description.watchdog_timeout_ns))
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -1,8 +1,14 @@
-//! The commands every part of the controller falls back on: the one sanitiser that every
-//! command leaving the controller goes through, and braking. Both the safety layer and the
-//! fail-safe check use them, so they live apart from either.
+//! The commands the vehicle and its controller fall back on: the one sanitiser that every
+//! command leaving the controller goes through, and braking. The controller's safety layer and
+//! fail-safe check brake with [`braking_command`], and the plant's watchdog brakes with the
+//! same law ([`crate::sim::WatchdogAction::Brake`]), so the check's model of a lost link is the
+//! plant's own behaviour.
 
-use mav::{InputBounds, ModelParams};
+use crate::model::{InputBounds, ModelParams};
+
+/// The braking law's default gain, 1/s: desired acceleration `-v` per second (the safety
+/// layer's `brake_gain_per_s` and the plant watchdog's).
+pub const DEFAULT_BRAKE_GAIN_PER_S: f64 = 1.0;
 
 /// The one command sanitiser, every command that leaves the controller goes through it:
 /// finite and inside the bounds (non-finite components become hover's, then everything is
