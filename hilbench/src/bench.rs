@@ -670,10 +670,12 @@ mod tests {
 
     #[test]
     fn the_fail_safe_check_of_a_scenario_file_reaches_the_controller_over_grpc() {
-        // The standard NMPC on slalom-4: its plans ignore the delay, so the check rejects some
-        // of them and the flight differs from the one without the check; over gRPC it is the
-        // in-process flight, bit for bit.
+        // The standard NMPC on slalom-4: its plans ignore the delay, so the check (a file's
+        // default) rejects some of them and the flight differs from the one with the plan
+        // check; over gRPC it is the in-process flight, bit for bit.
         let mut file = load("slalom-4.toml");
+        assert!(file.scenario.fail_safe, "a file's default");
+        file.scenario.fail_safe = false;
         let without = run_all(&file_jobs(&file, Some(&[Mode::Nmpc])), &Transport::InProcess, false)
             .expect("in process");
         file.scenario.fail_safe = true;
