@@ -461,6 +461,26 @@ impl TryFrom<&pb::InputLimits> for InputBounds {
 mod tests {
     use super::*;
 
+    #[test]
+    fn a_controller_counts_on_the_watchdog_only_when_the_plant_describes_a_braking_one() {
+        let scenario = Scenario::paper_2();
+        let describe =
+            |settings: SimSettings| plant_description(&scenario, &settings, pb::TimeMode::Lockstep, "test");
+        let brake = describe(SimSettings::default());
+        assert_eq!(brake.watchdog_action, pb::WatchdogAction::Brake as i32);
+        assert_eq!(braking_watchdog_s(&brake), Some(0.5));
+        let hover =
+            describe(SimSettings { watchdog_action: mav::WatchdogAction::Hover, ..Default::default() });
+        assert_eq!(hover.watchdog_action, pb::WatchdogAction::Hover as i32);
+        assert_eq!(braking_watchdog_s(&hover), None);
+        assert_eq!(
+            braking_watchdog_s(&describe(SimSettings { watchdog_timeout_ns: None, ..Default::default() })),
+            None
+        );
+        let unsaid = pb::PlantDescription { watchdog_action: 0, ..brake };
+        assert_eq!(braking_watchdog_s(&unsaid), None, "a plant that does not say brakes not");
+    }
+
     fn field<T: std::fmt::Debug>(r: Result<T, FieldError>) -> String {
         match r {
             Ok(v) => panic!("expected an error, got {v:?}"),

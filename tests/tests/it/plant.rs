@@ -346,6 +346,8 @@ async fn real_time_plant_runs_on_its_own_refuses_advance_and_holds_hover_after_t
     let description = client.describe(pb::DescribeRequest {}).await.expect("describe").into_inner();
     assert_eq!(description.time_mode, pb::TimeMode::RealTime as i32);
     assert_eq!(description.watchdog_timeout_ns, 200_000_000);
+    assert_eq!(description.watchdog_action, pb::WatchdogAction::Brake as i32, "brakes by default");
+    assert_eq!(hilbench_proto::convert::plant::braking_watchdog_s(&description), Some(0.2));
 
     // Time moves without being asked, and the stream follows it.
     let mut stream =
