@@ -66,9 +66,12 @@ pub struct MpcFlags {
     /// Whose PANOC: `open` (OpEn 0.12's) or `own` (mpc's `solver/panoc.rs`).
     #[arg(long, env = "MPC_SOLVER", value_parser = panoc_solver)]
     pub solver: Option<mpc::PanocSolver>,
-    /// Our PANOC's scale-free stopping test (`MpcSettings::cost_gap_tolerance`).
+    /// Our PANOC's scale-free stopping test (`MpcSettings::cost_gap_tolerance`), multi-stage.
     #[arg(long, env = "MPC_GAP_TOL")]
     pub cost_gap_tolerance: Option<f64>,
+    /// The same, standard NMPC.
+    #[arg(long, env = "MPC_NMPC_GAP_TOL")]
+    pub nmpc_cost_gap_tolerance: Option<f64>,
     /// Multi-stage inactive-set tolerances: `measured` or `TOL,AKKT,GRAD`.
     #[arg(long, env = "MPC_INACTIVE", value_parser = inactive_set)]
     pub inactive_set: Option<InactiveSetTolerances>,
@@ -106,6 +109,9 @@ impl MpcFlags {
             inactive_set: self.inactive_set.or(d.inactive_set),
             solver: self.solver.unwrap_or(d.solver),
             cost_gap_tolerance: self.cost_gap_tolerance.unwrap_or(d.cost_gap_tolerance),
+            single_scenario_cost_gap_tolerance: self
+                .nmpc_cost_gap_tolerance
+                .unwrap_or(d.single_scenario_cost_gap_tolerance),
             ..d
         }
     }

@@ -262,7 +262,7 @@ impl Mpc {
                 &mut self.z,
                 &self.lo,
                 &self.hi,
-                s.cost_gap_tolerance,
+                s.cost_gap_tolerance_for(self.def.num_scenarios()),
                 max_inner,
                 deadline,
             )
