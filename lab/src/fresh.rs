@@ -35,6 +35,16 @@ pub struct Args {
     mpc: MpcFlags,
 }
 
+/// One solver's sample: relative gaps to the reference, solve times (ms), iterations, and the
+/// solves at the iteration limit.
+#[derive(Default)]
+struct Stats {
+    gaps: Vec<f64>,
+    times: Vec<f64>,
+    iterations: Vec<f64>,
+    limits: usize,
+}
+
 fn solver(value: &str) -> Result<PanocSolver, String> {
     PanocSolver::parse(value).ok_or_else(|| format!("`{value}`: open or own"))
 }
@@ -49,8 +59,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         }
         // Per solver: gaps, times (ms), iterations, solves at the iteration limit.
         let solvers = [PanocSolver::OpEn, PanocSolver::Own];
-        let mut stats: Vec<(Vec<f64>, Vec<f64>, Vec<f64>, usize)> =
-            solvers.iter().map(|_| (Vec::new(), Vec::new(), Vec::new(), 0)).collect();
+        let mut stats: Vec<Stats> = solvers.iter().map(|_| Stats::default()).collect();
         for name in mav::Scenario::BUILT_IN {
             let scenario = mav::Scenario::by_name(name)?;
             let def = OcpDefinition::from_scenario(&scenario, mode, base.obstacle_margin_m, base.formulation);
@@ -74,10 +83,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                     m.reset_warm_start();
                     m.set_warm_start(&i.warm_start)?;
                     let r = m.solve(&i.x0, &i.u_prev, &i.weights, &SolveBudget::default())?;
-                    stats[si].1.push(r.solve_time.as_secs_f64() * 1e3);
-                    stats[si].2.push(r.iterations as f64);
+                    stats[si].times.push(r.solve_time.as_secs_f64() * 1e3);
+                    stats[si].iterations.push(r.iterations as f64);
                     if r.status == SolveStatus::IterationLimit {
-                        stats[si].3 += 1;
+                        stats[si].limits += 1;
                     }
                     costs.push(r.cost);
                     plans.push(m.solution().to_vec());
@@ -87,14 +96,14 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 let reference = accuracy::reference_cost(&def, &base, i, &starts)?;
                 for (si, cost) in costs.iter().enumerate() {
                     let gap = (cost - reference) / reference.abs().max(1e-12);
-                    stats[si].0.push(gap);
+                    stats[si].gaps.push(gap);
                     if gap > 0.01 {
                         println!("  {name} {} cycle {k} {}: gap {gap:.3}", mode.name(), solvers[si].name());
                     }
                 }
             }
         }
-        for (si, (gaps, times, iters, limits)) in stats.iter_mut().enumerate() {
+        for (si, Stats { gaps, times, iterations: iters, limits }) in stats.iter_mut().enumerate() {
             let within = gaps.iter().filter(|g| **g <= 0.01).count();
             println!(
                 "{} fresh, {}: {within}/{} within 1%; ms median {:.3} p99 {:.3} max {:.3}; iterations median {} p99 {} total {}; at the iteration limit {limits}",

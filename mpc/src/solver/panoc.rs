@@ -133,6 +133,7 @@ impl Panoc {
     /// Minimises `problem` over the box `[lo, hi]` from `z` (projected first), with at most
     /// `max_iterations` iterations, until `|R|² / 2 <= tolerance |ψ|`. On return `z` holds the
     /// converged (or, at a limit, the best seen: smallest `|R|`) projected point `zbar`.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn solve(
         &mut self,
         problem: &mut impl SmoothCost,
@@ -309,7 +310,7 @@ impl Panoc {
         }
         // Skip pairs of (near) zero or negative curvature: the inverse Hessian stays positive
         // definite.
-        if !(sy > 1e-12 * (ss * yy).sqrt()) || !sy.is_finite() {
+        if !sy.is_finite() || sy <= 1e-12 * (ss * yy).sqrt() {
             // The slot held the oldest pair when the memory was full: it is gone.
             if self.pairs == self.memory {
                 self.pairs -= 1;
