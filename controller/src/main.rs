@@ -228,6 +228,12 @@ mod tests {
         assert_eq!(cli.mpc_settings().obstacle_margin_m, 0.3);
         let cli = Cli::try_parse_from(["controller", "--inactive-set"]).expect("valid flags");
         assert_eq!(cli.mpc_settings().inactive_set, Some(InactiveSetTolerances::MEASURED));
+        let cli = Cli::try_parse_from(["controller", "--solver", "own"]).expect("valid flags");
+        assert_eq!(cli.mpc_settings().solver, PanocSolver::Own);
+        let cli = Cli::try_parse_from(["controller"]).expect("valid flags");
+        assert_eq!(cli.mpc_settings().solver, MpcSettings::default().solver);
+        let e = Cli::try_parse_from(["controller", "--solver", "fast"]).expect_err("refused");
+        assert!(e.to_string().contains("--solver") && e.to_string().contains("open or own"), "{e}");
     }
 
     #[test]
