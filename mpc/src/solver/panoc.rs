@@ -33,6 +33,12 @@ const MIN_LIPSCHITZ: f64 = 1e-6;
 /// Factor on the carried estimate at the start of a call: lets `L` fall where the penalty
 /// relaxed, at the price of one more cost evaluation where it did not.
 const LIPSCHITZ_CARRY_FACTOR: f64 = 0.5;
+/// Added to every variable at the start of a call: a mirror-symmetric problem (paper-1's
+/// cylinder on the start-goal line) has a symmetric stationary point in front of the cylinder,
+/// and an iteration that keeps the symmetry exactly converges to it. OpEn's PANOC leaves its
+/// iterate moved by its finite-difference step (`max(1e-6 u, 1e-12)`) at every call, which is
+/// what takes its runs around the cylinder; this does the same on purpose.
+const SYMMETRY_NUDGE: f64 = 1e-12;
 /// Halvings of `τ` before the line search takes the projected gradient step (`τ = 0`, which
 /// always decreases the FBE).
 const MAX_LINE_SEARCH_HALVINGS: usize = 5;
@@ -146,7 +152,7 @@ impl Panoc {
     ) -> PanocExit {
         let n = z.len();
         for k in 0..n {
-            z[k] = z[k].clamp(lo[k], hi[k]);
+            z[k] = (z[k] + SYMMETRY_NUDGE).clamp(lo[k], hi[k]);
         }
         self.pairs = 0;
         let mut f = problem.cost_and_gradient(z, &mut self.grad);
