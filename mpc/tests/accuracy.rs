@@ -117,9 +117,9 @@ fn at_least_95_percent_of_nmpc_solves_are_within_one_percent_of_the_reference() 
 /// (measured: within 0.1 % on all 16). Multi-stage: on at least 10 of the 16 (measured 10;
 /// the others 1.4-52 % above, paper-2's cycles 8 and 15 the worst, where OpEn's loop solves
 /// also stop at the budget; against the careful reference see `lab fresh`, BENCHMARKS.md "The
-/// solver"). paper-1 is left out: its cylinder sits on the line from start to goal and our
-/// iteration keeps the problem's mirror symmetry exactly, so from its states in front of the
-/// cylinder it can stop at the symmetric stationary point where OpEn's goes around.
+/// solver"). paper-1 is left out: its cylinder sits on the line from start to goal, and in
+/// front of it the problem is near a symmetric stationary point where which way round a solve
+/// goes is decided by rounding-level differences between the two iterations.
 #[test]
 fn our_panoc_reaches_opens_costs_on_the_paper_2_and_3_states() {
     let open = MpcSettings::default();
