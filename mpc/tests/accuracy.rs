@@ -114,9 +114,9 @@ fn at_least_95_percent_of_nmpc_solves_are_within_one_percent_of_the_reference() 
 /// Our PANOC (`PanocSolver::Own`) against OpEn's on the same states: OpEn's paper-2 and paper-3
 /// loop states, each solved fresh from its logged warm start by both (as `controller solve`
 /// does, zero multipliers). Standard NMPC: our cost within 1 % of OpEn's on every state
-/// (measured: within 0.1 % on all 16). Multi-stage: on at least 10 of the 16 (measured 10;
-/// the others 1.4-52 % above, paper-2's cycles 8 and 15 the worst, where OpEn's loop solves
-/// also stop at the budget; against the careful reference see `lab fresh`, BENCHMARKS.md "The
+/// (measured: within 0.1 % on all 16). Multi-stage: on at least 13 of the 16 (measured 13 at
+/// the default `cost_gap_tolerance` 1e-3, 10 at 1e-2; the others up to 41 % above, paper-2's
+/// cycles 8 and 15 the worst, where OpEn's loop solves also stop at the budget; against the careful reference see `lab fresh`, BENCHMARKS.md "The
 /// solver"). paper-1 is left out: its cylinder sits on the line from start to goal, and in
 /// front of it the problem is near a symmetric stationary point where which way round a solve
 /// goes is decided by rounding-level differences between the two iterations.
@@ -124,7 +124,7 @@ fn at_least_95_percent_of_nmpc_solves_are_within_one_percent_of_the_reference() 
 fn our_panoc_reaches_opens_costs_on_the_paper_2_and_3_states() {
     let open = MpcSettings::default();
     let own = MpcSettings { solver: PanocSolver::Own, ..open };
-    for (mode, required) in [(ControllerMode::Nmpc, 16), (ControllerMode::Multistage, 10)] {
+    for (mode, required) in [(ControllerMode::Nmpc, 16), (ControllerMode::Multistage, 13)] {
         let mut rows = Vec::new();
         for name in ["paper-2", "paper-3"] {
             let scenario = mav::Scenario::by_name(name).expect("built in");
