@@ -7,7 +7,7 @@
 //! (paper-1/2/3) flown with `--log-solver` (OpEn by default): every `stride`-th cycle's state,
 //! last command, weights and warm start (the previous plan shifted by one step). `--lines FILE`
 //! writes them as `controller solve` JSON lines, so that the same sample can be solved through
-//! the controller (`controller solve --solver own FILE`).
+//! the controller (`controller --solver own solve FILE`).
 use std::io::Write;
 
 use mpc::{
