@@ -8,7 +8,9 @@ use anyhow::Context;
 use clap::{Parser, Subcommand, ValueEnum};
 use controller::solve_lines::LineSolver;
 use controller::{ControllerConfig, TimeModeSetting};
-use mpc::{ControllerMode, InactiveSetTolerances, MpcSettings, QpSchedule, QpSettings, SafetySettings};
+use mpc::{
+    ControllerMode, InactiveSetTolerances, MpcSettings, PanocSolver, QpSchedule, QpSettings, SafetySettings,
+};
 
 #[derive(Parser, Debug)]
 #[command(name = "controller", version, about = "The multi-stage NMPC controller of hilbench")]
@@ -78,6 +80,11 @@ struct Cli {
     /// docs/reproduction.md, "Options that change the result").
     #[arg(long)]
     inactive_set: bool,
+    /// Whose PANOC solves the NMPC problems: `open` (OpEn 0.12's, the paper's toolchain) or
+    /// `own` (mpc's, with the Lipschitz estimate carried across cycles and a scale-free
+    /// stopping test; `MpcSettings::solver`, BENCHMARKS.md "The solver" compares them).
+    #[arg(long, default_value = MpcSettings::default().solver.name(), value_parser = panoc_solver)]
+    solver: PanocSolver,
     /// Longest wait for one plant RPC in real time, s (lockstep calls get at least 60 s): a
     /// link that stops answering without closing is then reported and retried like a closed
     /// one.
@@ -98,9 +105,14 @@ impl Cli {
         MpcSettings {
             obstacle_margin_m: self.obstacle_margin_m,
             inactive_set: self.inactive_set.then_some(InactiveSetTolerances::MEASURED),
+            solver: self.solver,
             ..MpcSettings::default()
         }
     }
+}
+
+fn panoc_solver(value: &str) -> Result<PanocSolver, String> {
+    PanocSolver::parse(value).ok_or_else(|| format!("`{value}`: open or own"))
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug)]
@@ -216,6 +228,12 @@ mod tests {
         assert_eq!(cli.mpc_settings().obstacle_margin_m, 0.3);
         let cli = Cli::try_parse_from(["controller", "--inactive-set"]).expect("valid flags");
         assert_eq!(cli.mpc_settings().inactive_set, Some(InactiveSetTolerances::MEASURED));
+        let cli = Cli::try_parse_from(["controller", "--solver", "own"]).expect("valid flags");
+        assert_eq!(cli.mpc_settings().solver, PanocSolver::Own);
+        let cli = Cli::try_parse_from(["controller"]).expect("valid flags");
+        assert_eq!(cli.mpc_settings().solver, MpcSettings::default().solver);
+        let e = Cli::try_parse_from(["controller", "--solver", "fast"]).expect_err("refused");
+        assert!(e.to_string().contains("--solver") && e.to_string().contains("open or own"), "{e}");
     }
 
     #[test]

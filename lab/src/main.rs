@@ -13,6 +13,7 @@ mod delay_robustness;
 mod eval_bits;
 mod fixed_instances;
 mod fmt;
+mod fresh;
 mod inner_trace;
 mod iter_profile;
 mod load;
@@ -49,6 +50,9 @@ enum Aid {
     BudgetSweep(budget_sweep::Args),
     /// Per-cycle solver statistics of one paper run and what the safety layer chose.
     Cycles(cycles::Args),
+    /// Logged loop states solved fresh from their warm start by both PANOCs, against the
+    /// careful reference (`controller solve`'s sample).
+    Fresh(fresh::Args),
     /// Solver settings compared on the same problems (the paper loops' instances).
     FixedInstances(fixed_instances::Args),
     /// PANOC's progress on one inner problem of a loop solve.
@@ -96,6 +100,7 @@ fn main() -> anyhow::Result<()> {
         Aid::Accuracy(a) => accuracy::run(&a),
         Aid::BudgetSweep(a) => budget_sweep::run(&a),
         Aid::Cycles(a) => cycles::run(&a),
+        Aid::Fresh(a) => fresh::run(&a),
         Aid::FixedInstances(a) => fixed_instances::run(&a),
         Aid::InnerTrace(a) => inner_trace::run(&a),
         Aid::IterProfile => iter_profile::run(),

@@ -63,6 +63,15 @@ pub struct MpcFlags {
     /// Standard NMPC warm start shifted by the elapsed time (only where a closed loop runs).
     #[arg(long, env = "MPC_ELAPSED", value_parser = BoolishValueParser::new())]
     pub elapsed_warm_start: bool,
+    /// Whose PANOC: `open` (OpEn 0.12's) or `own` (mpc's `solver/panoc.rs`).
+    #[arg(long, env = "MPC_SOLVER", value_parser = panoc_solver)]
+    pub solver: Option<mpc::PanocSolver>,
+    /// Our PANOC's scale-free stopping test (`MpcSettings::cost_gap_tolerance`), multi-stage.
+    #[arg(long, env = "MPC_GAP_TOL")]
+    pub cost_gap_tolerance: Option<f64>,
+    /// The same, standard NMPC.
+    #[arg(long, env = "MPC_NMPC_GAP_TOL")]
+    pub nmpc_cost_gap_tolerance: Option<f64>,
     /// Multi-stage inactive-set tolerances: `measured` or `TOL,AKKT,GRAD`.
     #[arg(long, env = "MPC_INACTIVE", value_parser = inactive_set)]
     pub inactive_set: Option<InactiveSetTolerances>,
@@ -98,9 +107,18 @@ impl MpcFlags {
             max_multiplier: self.max_multiplier.unwrap_or(d.max_multiplier),
             warm_start_by_elapsed_time: self.elapsed_warm_start,
             inactive_set: self.inactive_set.or(d.inactive_set),
+            solver: self.solver.unwrap_or(d.solver),
+            cost_gap_tolerance: self.cost_gap_tolerance.unwrap_or(d.cost_gap_tolerance),
+            single_scenario_cost_gap_tolerance: self
+                .nmpc_cost_gap_tolerance
+                .unwrap_or(d.single_scenario_cost_gap_tolerance),
             ..d
         }
     }
+}
+
+fn panoc_solver(value: &str) -> Result<mpc::PanocSolver, String> {
+    mpc::PanocSolver::parse(value).ok_or_else(|| format!("`{value}`: open or own"))
 }
 
 fn inactive_set(value: &str) -> Result<InactiveSetTolerances, String> {

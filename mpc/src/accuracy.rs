@@ -21,9 +21,13 @@ pub struct Instance {
     pub warm_start: Vec<f64>,
 }
 
-/// Settings of the reference solve.
+/// Settings of the reference solve: OpEn's PANOC whichever solver the fast path uses, so that
+/// both solvers are measured against the same reference.
 pub fn reference_settings(fast: &MpcSettings) -> MpcSettings {
     MpcSettings {
+        solver: crate::solver::PanocSolver::OpEn,
+        cost_gap_tolerance: 1e-12,
+        single_scenario_cost_gap_tolerance: 1e-12,
         tolerance: 1e-9,
         akkt_tolerance: 1e-7,
         single_scenario_tolerance: 1e-9,

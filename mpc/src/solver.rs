@@ -7,6 +7,7 @@
 //! steps (`alm.rs`). This file holds the workspace [`Mpc`] and [`Mpc::solve`].
 
 mod alm;
+mod panoc;
 mod report;
 mod settings;
 #[cfg(test)]
@@ -23,7 +24,7 @@ use crate::problem::{Evaluator, ObstacleFormulation, OcpDefinition, validate_ins
 
 use alm::AlmRun;
 pub use report::{SolveReport, SolveStatus};
-pub use settings::{InactiveSetTolerances, MAX_MULTIPLIER, MpcSettings, SolveBudget};
+pub use settings::{InactiveSetTolerances, MAX_MULTIPLIER, MpcSettings, PanocSolver, SolveBudget};
 pub use warm_start::{shift_plan_into, shifted_plan};
 
 /// The controller workspace: problem, solver memory, warm start. Allocated once, solved every
@@ -57,6 +58,9 @@ pub struct Mpc {
     c_set_hi: Vec<f64>,
     has_solution: bool,
     penalty: f64,
+    /// Our PANOC's workspace ([`PanocSolver::Own`]); its Lipschitz estimate carries across
+    /// outer iterations and cycles.
+    panoc: panoc::Panoc,
 }
 
 impl Mpc {
@@ -105,6 +109,7 @@ impl Mpc {
             c_set_hi: vec![0.0; n1],
             has_solution: false,
             penalty: settings.initial_penalty,
+            panoc: panoc::Panoc::new(n, lbfgs_memory),
             def,
         })
     }

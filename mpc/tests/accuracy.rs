@@ -3,7 +3,7 @@
 //! cost within 1 % of the reference on at least 95 % of at least 20 states, with non-negative
 //! predicted clearance.
 
-use mpc::{ControllerMode, InactiveSetTolerances, MpcSettings, OcpDefinition, accuracy};
+use mpc::{ControllerMode, InactiveSetTolerances, MpcSettings, OcpDefinition, PanocSolver, accuracy};
 
 /// Fraction of multi-stage solves within 1 % of the reference that this test requires.
 const MULTISTAGE_WITHIN_ONE_PERCENT: f64 = 0.85;
@@ -109,4 +109,36 @@ fn at_least_95_percent_of_nmpc_solves_are_within_one_percent_of_the_reference() 
     }
     let within = gaps.iter().filter(|g| **g <= 0.01).count();
     assert!(within as f64 >= 0.95 * gaps.len() as f64, "{within}/{} within 1 %: {gaps:?}", gaps.len());
+}
+
+/// Our PANOC (`PanocSolver::Own`) against OpEn's on the same states: OpEn's paper-2 and paper-3
+/// loop states, each solved fresh from its logged warm start by both (as `controller solve`
+/// does, zero multipliers). Standard NMPC: our cost within 1 % of OpEn's on every state
+/// (measured: within 0.1 % on all 16). Multi-stage: on at least 13 of the 16 (measured 13 at
+/// the default `cost_gap_tolerance` 1e-3, 10 at 1e-2; the others up to 41 % above, paper-2's
+/// cycles 8 and 15 the worst, where OpEn's loop solves also stop at the budget; against the careful reference see `lab fresh`, BENCHMARKS.md "The
+/// solver"). paper-1 is left out: its cylinder sits on the line from start to goal, and in
+/// front of it the problem is near a symmetric stationary point where which way round a solve
+/// goes is decided by rounding-level differences between the two iterations.
+#[test]
+fn our_panoc_reaches_opens_costs_on_the_paper_2_and_3_states() {
+    let open = MpcSettings::default();
+    let own = MpcSettings { solver: PanocSolver::Own, ..open };
+    for (mode, required) in [(ControllerMode::Nmpc, 16), (ControllerMode::Multistage, 13)] {
+        let mut rows = Vec::new();
+        for name in ["paper-2", "paper-3"] {
+            let scenario = mav::Scenario::by_name(name).expect("built in");
+            let def = OcpDefinition::from_scenario(&scenario, mode, open.obstacle_margin_m, open.formulation);
+            let solves = accuracy::loop_solves(&scenario, mode, &open).expect("closed loop runs");
+            for k in spread(solves.len(), 8) {
+                let instance = &solves[k].instance;
+                let (a, _) = accuracy::fast_solve(&def, &open, instance).expect("OpEn solve");
+                let (b, _) = accuracy::fast_solve(&def, &own, instance).expect("own solve");
+                rows.push((format!("{name} cycle {k}"), a.cost, b.cost));
+            }
+        }
+        let close = rows.iter().filter(|(_, a, b)| *b <= a * 1.01).count();
+        eprintln!("{}: own within 1 % of OpEn (or below) on {close}/{}", mode.name(), rows.len());
+        assert!(close >= required, "{}: {close}/{}: {rows:?}", mode.name(), rows.len());
+    }
 }

@@ -3,15 +3,35 @@
 //! the penalty without bound when the violation stalls. Each step is a named function; the
 //! loop in [`Mpc::solve_scaled`] only adds up the work and decides whether to go on.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use optimization_engine::alm::{AlmOptimizer, AlmOptimizerStatus, AlmProblem};
 use optimization_engine::constraints::Rectangle;
 use optimization_engine::core::ExitStatus;
 use optimization_engine::{FunctionCallResult, SolverError};
 
-use super::{InactiveSetTolerances, Mpc, SolveBudget, SolveStatus};
+use super::panoc::{PanocStatus, SmoothCost};
+use super::{InactiveSetTolerances, Mpc, PanocSolver, SolveBudget, SolveStatus};
 use crate::problem::{Evaluator, ObstacleFormulation};
+
+/// The inner problem of our ALM/PM: `ψ(z; c, y)` of the evaluator (see [`Evaluator::cost`]).
+struct AugmentedLagrangian<'a> {
+    evaluator: &'a mut Evaluator,
+    penalty: f64,
+    multipliers: &'a [f64],
+}
+
+impl SmoothCost for AugmentedLagrangian<'_> {
+    fn cost(&mut self, z: &[f64]) -> f64 {
+        self.evaluator.cost(z, self.penalty, self.multipliers)
+    }
+
+    fn cost_and_gradient(&mut self, z: &[f64], grad: &mut [f64]) -> f64 {
+        let f = self.evaluator.cost(z, self.penalty, self.multipliers);
+        self.evaluator.gradient(z, self.penalty, self.multipliers, grad);
+        f
+    }
+}
 
 /// Least time left before a deadline for another OpEn call: below it the solve stops with
 /// `Deadline` (an OpEn call whose time is up before its first PANOC iteration does no work).
@@ -158,7 +178,11 @@ impl Mpc {
     /// the start point (the constraint values come from the forward pass PANOC's first
     /// evaluation reuses).
     fn inactive_set_applies(&self, c: f64) -> Option<InactiveSetTolerances> {
-        let t = self.settings.inactive_set.filter(|_| self.inactive_cache.is_some())?;
+        // Our PANOC's stopping test does not depend on the Lipschitz estimate: no second set.
+        let t = self
+            .settings
+            .inactive_set
+            .filter(|_| self.inactive_cache.is_some() && self.settings.solver == PanocSolver::OpEn)?;
         let alm_multipliers = self.def.formulation == ObstacleFormulation::DistanceAlm;
         let y: &[f64] = if alm_multipliers { &self.warm_multipliers } else { &[] };
         (!self.evaluator.borrow_mut().has_penalty_terms(&self.z, c, y)).then_some(t)
@@ -173,6 +197,9 @@ impl Mpc {
         max_inner: usize,
         remaining: Option<Duration>,
     ) -> Result<OuterStep, SolveStatus> {
+        if self.settings.solver == PanocSolver::Own {
+            return self.own_outer_step(c, max_inner, remaining);
+        }
         let s = self.settings;
         let (_, akkt_tolerance, _) = s.panoc_for(self.def.num_scenarios());
         let nc = self.def.num_constraints();
@@ -207,6 +234,71 @@ impl Mpc {
             violation,
             inner_converged,
             accepted,
+        })
+    }
+
+    /// One outer step with our PANOC ([`PanocSolver::Own`]): the inner problem at penalty `c`
+    /// and the warm multipliers, then OpEn's multiplier update `y+ = P_Y(y + c g(z))` (the
+    /// projection on the multiplier box `[0, max_multiplier]`) and its violation `|y+ - y| / c`,
+    /// or the penalty method's `|F2|`: the same outer step as OpEn's, so that only the inner
+    /// solver differs between the two.
+    fn own_outer_step(
+        &mut self,
+        c: f64,
+        max_inner: usize,
+        remaining: Option<Duration>,
+    ) -> Result<OuterStep, SolveStatus> {
+        let start = Instant::now();
+        let s = self.settings;
+        let nc = self.def.num_constraints();
+        let alm = self.def.formulation == ObstacleFormulation::DistanceAlm && nc > 0;
+        let mut ev = self.evaluator.borrow_mut();
+        let exit = {
+            let y: &[f64] = if alm { &self.warm_multipliers } else { &[] };
+            let mut problem = AugmentedLagrangian { evaluator: &mut ev, penalty: c, multipliers: y };
+            let deadline = remaining.map(|r| start + r);
+            self.panoc.solve(
+                &mut problem,
+                &mut self.z,
+                &self.lo,
+                &self.hi,
+                s.cost_gap_tolerance_for(self.def.num_scenarios()),
+                max_inner,
+                deadline,
+            )
+        };
+        match exit.status {
+            PanocStatus::NotFinite => return Err(SolveStatus::NumericalFailure),
+            PanocStatus::Deadline if exit.iterations == 0 => return Err(SolveStatus::Deadline),
+            _ => {}
+        }
+        ev.objective(&self.z);
+        let g = ev.constraint_values();
+        let violation = if alm {
+            let mut dy2 = 0.0;
+            for ((y, y_plus), g) in self.warm_multipliers.iter_mut().zip(self.multipliers.iter_mut()).zip(g) {
+                let next = (*y + c * g).clamp(0.0, s.max_multiplier);
+                dy2 += (next - *y) * (next - *y);
+                *y = next;
+                *y_plus = next;
+            }
+            dy2.sqrt() / c
+        } else {
+            g.iter().map(|v| v.max(0.0).powi(2)).sum::<f64>().sqrt()
+        };
+        let inner_converged = exit.status == PanocStatus::Converged;
+        let exit_status = match exit.status {
+            PanocStatus::Converged if violation <= s.constraint_tolerance => ExitStatus::Converged,
+            PanocStatus::Deadline => ExitStatus::NotConvergedOutOfTime,
+            _ => ExitStatus::NotConvergedIterations,
+        };
+        Ok(OuterStep {
+            inner_iterations: exit.iterations,
+            solve_time: start.elapsed(),
+            exit_status,
+            violation,
+            inner_converged,
+            accepted: true,
         })
     }
 

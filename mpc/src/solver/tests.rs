@@ -368,3 +368,39 @@ fn a_numerical_failure_returns_the_warm_start_inside_the_bounds() {
     assert_eq!(r.status, SolveStatus::NumericalFailure);
     assert_eq!(mpc.first_input(), [9.81, 0.0, 0.0]);
 }
+
+#[test]
+fn our_panoc_solves_the_paper_start_safely_and_deterministically_with_its_estimate_carried() {
+    let s = Scenario::paper_2();
+    let own = MpcSettings { solver: PanocSolver::Own, ..MpcSettings::default() };
+    let run = || {
+        let mut mpc = mpc_for(&s, ControllerMode::Multistage, own);
+        let first = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid");
+        assert!(mpc.panoc.lipschitz() > 0.0, "the estimate is kept for the next solve");
+        let u = mpc.first_input();
+        let second = mpc.solve(&s.start, &u, &W5, &SolveBudget::default()).expect("valid");
+        for r in [&first, &second] {
+            assert_ne!(r.status, SolveStatus::NumericalFailure);
+            assert!(r.min_clearance_m >= 0.0, "predicted clearance {}", r.min_clearance_m);
+        }
+        assert!(s.bounds.contains(&mav::Input::from(u)));
+        assert!(u[0] > 9.81, "climbs towards the goal 1 m up: {u:?}");
+        (
+            second.cost.to_bits(),
+            second.iterations,
+            mpc.solution().iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+        )
+    };
+    assert_eq!(run(), run());
+}
+
+#[test]
+fn a_reset_forgets_our_panocs_lipschitz_estimate() {
+    let s = Scenario::paper_3();
+    let own = MpcSettings { solver: PanocSolver::Own, ..MpcSettings::default() };
+    let mut mpc = mpc_for(&s, ControllerMode::Nmpc, own);
+    mpc.solve(&s.start, &[9.81, 0.0, 0.0], &[1.0], &SolveBudget::default()).expect("valid");
+    assert!(mpc.panoc.lipschitz() > 0.0);
+    mpc.reset_warm_start();
+    assert_eq!(mpc.panoc.lipschitz(), 0.0);
+}

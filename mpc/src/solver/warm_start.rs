@@ -81,6 +81,7 @@ impl Mpc {
         self.has_solution = false;
         self.penalty = self.settings.initial_penalty;
         self.warm_multipliers.iter_mut().for_each(|y| *y = 0.0);
+        self.panoc.forget_lipschitz();
     }
 
     /// Shifts the last solution by one step into the warm start (last input repeated).
