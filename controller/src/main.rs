@@ -90,6 +90,10 @@ struct Cli {
     /// StreamTelemetry streams served at once; one more is refused with RESOURCE_EXHAUSTED.
     #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
     max_streams: usize,
+    #[command(flatten)]
+    tls: hilbench_svc::tls::ServeTlsArgs,
+    #[command(flatten)]
+    trust: hilbench_svc::tls::TrustArgs,
 }
 
 impl Cli {
@@ -186,6 +190,7 @@ fn main() -> anyhow::Result<()> {
         .context("--rpc-timeout-s: must be a positive number of seconds")?;
     config.stall_timeout = std::time::Duration::from_millis(cli.stall_timeout_ms);
     config.max_streams = cli.max_streams;
+    config.tls = hilbench_svc::tls::TlsFiles::server_and_client(&cli.tls, &cli.trust).load()?;
     config.reset_plant = !cli.no_reset;
     config.autostart = !cli.no_autostart;
     config.time_mode = match cli.time_mode {
@@ -195,9 +200,7 @@ fn main() -> anyhow::Result<()> {
     };
     let runtime = tokio::runtime::Runtime::new()?;
     runtime.block_on(async move {
-        let listener = tokio::net::TcpListener::bind(&cli.listen)
-            .await
-            .with_context(|| format!("cannot listen on {}", cli.listen))?;
+        let listener = hilbench_svc::bind(&cli.listen).await?;
         controller::serve(listener, config, hilbench_svc::shutdown_signal()).await?;
         anyhow::Ok(())
     })

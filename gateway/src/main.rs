@@ -1,7 +1,6 @@
 //! `gateway`: the Plant API for a MAVLink vehicle. Glue only: flags, logging, signals; the
 //! service is the `gateway` library.
 
-use anyhow::Context;
 use clap::Parser;
 use gateway::GatewayConfig;
 
@@ -45,6 +44,8 @@ struct Args {
     /// StreamState streams served at once; one more is refused with RESOURCE_EXHAUSTED.
     #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
     max_streams: usize,
+    #[command(flatten)]
+    tls: hilbench_svc::tls::ServeTlsArgs,
 }
 
 fn config(args: &Args) -> anyhow::Result<GatewayConfig> {
@@ -59,6 +60,7 @@ fn config(args: &Args) -> anyhow::Result<GatewayConfig> {
     config.system_id = args.system_id;
     config.component_id = args.component_id;
     config.max_streams = args.max_streams;
+    config.tls = hilbench_svc::tls::TlsFiles::server(&args.tls).load()?;
     config.bridge.validate().map_err(|e| match e {
         mavbridge::BridgeError::Thrust(t) => anyhow::anyhow!("--hover-thrust: {t}"),
         mavbridge::BridgeError::Setting("start_tolerance_m", r) => {
@@ -75,9 +77,7 @@ async fn main() -> anyhow::Result<()> {
     hilbench_svc::exit_on_panic();
     let args = Args::parse();
     let config = config(&args)?;
-    let listener = tokio::net::TcpListener::bind(&args.listen)
-        .await
-        .with_context(|| format!("cannot listen on {}", args.listen))?;
+    let listener = hilbench_svc::bind(&args.listen).await?;
     gateway::serve(listener, config, hilbench_svc::shutdown_signal()).await?;
     Ok(())
 }

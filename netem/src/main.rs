@@ -48,6 +48,10 @@ struct Args {
     /// refused with RESOURCE_EXHAUSTED.
     #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = at_least_one())]
     max_streams: usize,
+    #[command(flatten)]
+    tls: hilbench_svc::tls::ServeTlsArgs,
+    #[command(flatten)]
+    trust: hilbench_svc::tls::TrustArgs,
 }
 
 #[tokio::main]
@@ -67,9 +71,8 @@ async fn main() -> anyhow::Result<()> {
         TimeModeArg::Lockstep => TimeModeSetting::Lockstep,
     };
     config.max_streams = args.max_streams;
-    let listener = tokio::net::TcpListener::bind(&args.listen)
-        .await
-        .with_context(|| format!("cannot listen on {}", args.listen))?;
+    config.tls = hilbench_svc::tls::TlsFiles::server_and_client(&args.tls, &args.trust).load()?;
+    let listener = hilbench_svc::bind(&args.listen).await?;
     netem::serve(listener, config, hilbench_svc::shutdown_signal()).await?;
     Ok(())
 }

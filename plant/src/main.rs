@@ -41,6 +41,8 @@ struct Args {
     /// StreamState streams served at once; one more is refused with RESOURCE_EXHAUSTED.
     #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = at_least_one())]
     max_streams: usize,
+    #[command(flatten)]
+    tls: hilbench_svc::tls::ServeTlsArgs,
 }
 
 fn config(args: &Args) -> anyhow::Result<PlantConfig> {
@@ -52,6 +54,7 @@ fn config(args: &Args) -> anyhow::Result<PlantConfig> {
     };
     config.rate_hz = args.rate_hz;
     config.max_streams = args.max_streams;
+    config.tls = hilbench_svc::tls::TlsFiles::server(&args.tls).load()?;
     if let Some(ms) = args.watchdog_ms {
         config.watchdog_timeout_ns = match ms {
             0 => None,
@@ -69,9 +72,7 @@ async fn main() -> anyhow::Result<()> {
     hilbench_svc::exit_on_panic();
     let args = Args::parse();
     let config = config(&args)?;
-    let listener = tokio::net::TcpListener::bind(&args.listen)
-        .await
-        .with_context(|| format!("cannot listen on {}", args.listen))?;
+    let listener = hilbench_svc::bind(&args.listen).await?;
     plant::serve(listener, config, hilbench_svc::shutdown_signal()).await?;
     Ok(())
 }
