@@ -591,7 +591,7 @@ pub async fn connect_with(addr: &str, tls: &Tls, deadline: Instant) -> anyhow::R
     loop {
         match endpoint.connect().await {
             Ok(c) => return Ok(c),
-            Err(e) if Instant::now() >= deadline => {
+            Err(e) if Instant::now() >= deadline || hilbench_svc::tls::is_tls_refusal(&e) => {
                 // The chain: tonic's "transport error" keeps the reason (refused, a failed
                 // handshake, a certificate for another name) in its sources.
                 return Err(anyhow!("cannot connect to {addr}: {}", hilbench_svc::tls::error_chain(&e)));

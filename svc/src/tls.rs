@@ -275,6 +275,20 @@ pub fn error_chain(e: &dyn std::error::Error) -> String {
     text
 }
 
+/// Whether `e` is a TLS refusal (a certificate not trusted or for another name, a handshake
+/// the peer refused) rather than a server not listening yet: retrying the connection does not
+/// help. tokio-rustls reports these as `InvalidData` I/O errors, somewhere in tonic's chain.
+pub fn is_tls_refusal(e: &(dyn std::error::Error + 'static)) -> bool {
+    let mut source = Some(e);
+    while let Some(s) = source {
+        if s.downcast_ref::<std::io::Error>().is_some_and(|io| io.kind() == std::io::ErrorKind::InvalidData) {
+            return true;
+        }
+        source = s.source();
+    }
+    false
+}
+
 fn read(flag: &'static str, path: &Path) -> Result<Vec<u8>, TlsError> {
     std::fs::read(path).map_err(|error| TlsError::Read { flag, path: path.to_path_buf(), error })
 }
@@ -301,4 +315,82 @@ fn key_pem(flag: &'static str, path: &Path) -> Result<Vec<u8>, TlsError> {
         what: format!("no PEM private key (PKCS#8, PKCS#1 or SEC1) in it: {e}"),
     })?;
     Ok(bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A temporary directory with two unrelated self-signed identities (`a`, `b`) and a file
+    /// that is not PEM.
+    fn files(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("svc-tls-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        for id in ["a", "b"] {
+            let made = rcgen::generate_simple_self_signed(vec!["localhost".to_string()]).expect("rcgen");
+            std::fs::write(dir.join(format!("{id}.pem")), made.cert.pem()).expect("write");
+            std::fs::write(dir.join(format!("{id}-key.pem")), made.signing_key.serialize_pem())
+                .expect("write");
+        }
+        std::fs::write(dir.join("garbage.pem"), "not a certificate\n").expect("write");
+        dir
+    }
+
+    fn error(files: TlsFiles) -> String {
+        Tls::load(&files).map(|_| ()).expect_err("refused").to_string()
+    }
+
+    #[test]
+    fn load_refuses_bad_files_naming_the_flag_at_fault() {
+        let dir = files("load");
+        let at = |name: &str| Some(dir.join(name));
+        let identity = TlsFiles { cert: at("a.pem"), key: at("a-key.pem"), ..TlsFiles::default() };
+        assert!(Tls::load(&identity).is_ok_and(|tls| tls.serves_tls() && !tls.connects_with_tls()));
+        let cases = [
+            (TlsFiles { cert: at("a.pem"), ..TlsFiles::default() }, "--tls-cert needs --tls-key"),
+            (TlsFiles { key: at("a-key.pem"), ..TlsFiles::default() }, "--tls-key needs --tls-cert"),
+            (TlsFiles { client_ca: at("a.pem"), ..TlsFiles::default() }, "--tls-client-ca needs --tls-cert"),
+            (TlsFiles { cert: at("missing.pem"), ..identity.clone() }, "--tls-cert"),
+            (TlsFiles { cert: at("garbage.pem"), ..identity.clone() }, "no PEM certificate"),
+            (TlsFiles { key: at("a.pem"), ..identity.clone() }, "--tls-key"),
+            (TlsFiles { key: at("b-key.pem"), ..identity.clone() }, "with --tls-key"),
+            (TlsFiles { client_ca: at("garbage.pem"), ..identity.clone() }, "--tls-client-ca"),
+            (TlsFiles { ca: at("a-key.pem"), ..TlsFiles::default() }, "--tls-ca"),
+        ];
+        for (files, expected) in cases {
+            let why = error(files.clone());
+            assert!(why.contains(expected), "{files:?}: {why}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn the_uri_follows_the_set_up_and_a_contradicting_scheme_is_refused() {
+        let dir = files("uri");
+        let tls = TlsFiles { ca: Some(dir.join("a.pem")), ..TlsFiles::default() }.load().expect("loads");
+        let plain = Tls::plaintext();
+        assert_eq!(plain.uri("127.0.0.1:1").ok(), Some("http://127.0.0.1:1".into()));
+        assert_eq!(tls.uri("plant:1").ok(), Some("https://plant:1".into()));
+        assert_eq!(tls.uri("https://plant:1").ok(), Some("https://plant:1".into()));
+        assert!(tls.uri("http://plant:1").is_err_and(|e| e.to_string().contains("--tls-ca")));
+        assert!(plain.uri("https://plant:1").is_err_and(|e| e.to_string().contains("--tls-ca")));
+        assert!(plain.uri("ftp://plant:1").is_err());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn debug_never_shows_the_key() {
+        let dir = files("debug");
+        let tls = TlsFiles {
+            cert: Some(dir.join("a.pem")),
+            key: Some(dir.join("a-key.pem")),
+            ..TlsFiles::default()
+        }
+        .load()
+        .expect("loads");
+        let key = std::fs::read_to_string(dir.join("a-key.pem")).expect("key");
+        let shown = format!("{tls:?}");
+        assert!(!shown.contains("PRIVATE") && !key.lines().skip(1).any(|l| shown.contains(l)), "{shown}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }
