@@ -1,6 +1,9 @@
 //! `hilbench certs` and runs over mutual TLS, as a user gives them on the command line:
 //! certificates made at test time (no key committed).
 
+mod common;
+
+use common::csv_without_solve_times;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -24,24 +27,6 @@ fn certs(name: &str) -> PathBuf {
     let made = hilbench(&["certs", "--out", path(&dir)]);
     assert!(made.status.success(), "{made:?}");
     dir
-}
-
-/// The per-cycle CSV without its solve_ms column (a wall-clock time).
-fn csv_without_solve_times(path: &Path) -> String {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let column =
-        text.lines().next().and_then(|h| h.split(',').position(|c| c == "solve_ms")).expect("solve_ms");
-    text.lines()
-        .map(|l| {
-            l.split(',')
-                .enumerate()
-                .filter(|(i, _)| *i != column)
-                .map(|(_, c)| c)
-                .collect::<Vec<_>>()
-                .join(",")
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
 }
 
 /// summary.json's runs without their solve times (wall clock).
