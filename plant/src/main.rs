@@ -17,10 +17,10 @@ enum Mode {
 /// health checking and server reflection).
 #[derive(Debug, Parser)]
 #[command(name = "plant", version)]
+#[command(mut_arg("listen", |a| a.default_value("127.0.0.1:50051").value_name("HOST:PORT").required(false).help("Address of the Plant API, HOST:PORT.")))]
 struct Args {
-    /// Address to listen on, HOST:PORT.
-    #[arg(long, default_value = "127.0.0.1:50051")]
-    listen: String,
+    #[command(flatten)]
+    server: hilbench_svc::tls::ServerArgs,
     /// Scenario loaded at start: a built-in name (paper-1, paper-2, paper-3) or a scenario file
     /// (as `hilbench run` takes). A controller resets the plant to its own scenario when an
     /// episode starts (unless it runs with `--no-reset`).
@@ -41,8 +41,6 @@ struct Args {
     /// StreamState streams served at once; one more is refused with RESOURCE_EXHAUSTED.
     #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = at_least_one())]
     max_streams: usize,
-    #[command(flatten)]
-    tls: hilbench_svc::tls::ServeTlsArgs,
 }
 
 fn config(args: &Args) -> anyhow::Result<PlantConfig> {
@@ -54,7 +52,7 @@ fn config(args: &Args) -> anyhow::Result<PlantConfig> {
     };
     config.rate_hz = args.rate_hz;
     config.max_streams = args.max_streams;
-    config.tls = hilbench_svc::tls::TlsFiles::server(&args.tls).load()?;
+    config.tls = hilbench_svc::tls::TlsFiles::server(&args.server.tls).load()?;
     if let Some(ms) = args.watchdog_ms {
         config.watchdog_timeout_ns = match ms {
             0 => None,
@@ -72,7 +70,7 @@ async fn main() -> anyhow::Result<()> {
     hilbench_svc::exit_on_panic();
     let args = Args::parse();
     let config = config(&args)?;
-    let listener = hilbench_svc::bind(&args.listen).await?;
+    let listener = args.server.bind().await?;
     plant::serve(listener, config, hilbench_svc::shutdown_signal()).await?;
     Ok(())
 }

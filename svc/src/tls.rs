@@ -43,6 +43,24 @@ pub struct ServeTlsArgs {
     pub tls_client_ca: Option<PathBuf>,
 }
 
+/// A server's address and TLS flags, flattened into each service's `main` (its default
+/// address and help set there with `mut_arg("listen", ..)`).
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct ServerArgs {
+    /// Address to listen on, HOST:PORT.
+    #[arg(long)]
+    pub listen: String,
+    #[command(flatten)]
+    pub tls: ServeTlsArgs,
+}
+
+impl ServerArgs {
+    /// Binds `--listen` ([`crate::bind`]).
+    pub async fn bind(&self) -> Result<tokio::net::TcpListener, crate::BindError> {
+        crate::bind(&self.listen).await
+    }
+}
+
 /// A client's trust: the CA the servers' certificates must chain to.
 #[derive(Debug, Clone, Default, clap::Args)]
 pub struct TrustArgs {
@@ -376,6 +394,30 @@ mod tests {
         assert!(plain.uri("https://plant:1").is_err_and(|e| e.to_string().contains("--tls-ca")));
         assert!(plain.uri("ftp://plant:1").is_err());
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn server_args_take_the_services_default_address_and_the_tls_flags() {
+        use clap::Parser;
+        // As each service's main sets it: the default and `required(false)` (a `String` field
+        // is otherwise required, default or not).
+        #[derive(Debug, clap::Parser)]
+        #[command(mut_arg("listen", |a| a.default_value("127.0.0.1:50051").required(false)))]
+        struct Cli {
+            #[command(flatten)]
+            server: ServerArgs,
+        }
+        let plain = Cli::try_parse_from(["plant"]).expect("parses");
+        assert_eq!(plain.server.listen, "127.0.0.1:50051");
+        assert_eq!(TlsFiles::server(&plain.server.tls), TlsFiles::default());
+        let args =
+            ["plant", "--listen", "0.0.0.0:1", "--tls-cert", "c", "--tls-key", "k", "--tls-client-ca", "ca"];
+        let tls = Cli::try_parse_from(args).expect("parses");
+        assert_eq!(tls.server.listen, "0.0.0.0:1");
+        let files = TlsFiles::server(&tls.server.tls);
+        assert_eq!(files.cert.as_deref(), Some(Path::new("c")));
+        assert_eq!(files.key.as_deref(), Some(Path::new("k")));
+        assert_eq!(files.client_ca.as_deref(), Some(Path::new("ca")));
     }
 
     #[test]
