@@ -59,6 +59,8 @@ pub struct ControllerConfig {
     /// `StreamTelemetry` streams open at once; one more is refused with `RESOURCE_EXHAUSTED`
     /// (`--max-streams`, default 64).
     pub max_streams: usize,
+    /// TLS of the Controller API and of the link to the plant (default: plaintext both ways).
+    pub tls: hilbench_svc::tls::Tls,
 }
 
 impl ControllerConfig {
@@ -87,6 +89,7 @@ impl ControllerConfig {
             stall_timeout: Duration::from_millis(500),
             telemetry_buffer: 4096,
             max_streams: hilbench_svc::streams::DEFAULT_MAX_STREAMS,
+            tls: hilbench_svc::tls::Tls::plaintext(),
         }
     }
 
@@ -95,7 +98,7 @@ impl ControllerConfig {
         if self.plant.trim().is_empty() {
             return Err("`plant`: an address is required".into());
         }
-        if let Err(e) = tonic::transport::Endpoint::from_shared(self.plant_uri()) {
+        if let Err(e) = self.plant_endpoint() {
             return Err(format!("`plant`: `{}` is not a valid address ({e})", self.plant));
         }
         self.adapt(self.scenario.clone()).validate().map_err(|e| e.to_string())?;
@@ -132,9 +135,10 @@ impl ControllerConfig {
         with_floor(scenario, self.min_altitude_m)
     }
 
-    /// `http://` URI of the plant endpoint.
-    pub fn plant_uri(&self) -> String {
-        if self.plant.contains("://") { self.plant.clone() } else { format!("http://{}", self.plant) }
+    /// The plant's endpoint: `https` with this controller's client TLS config when it has
+    /// one, `http` otherwise.
+    pub fn plant_endpoint(&self) -> Result<tonic::transport::Endpoint, hilbench_svc::tls::TlsError> {
+        self.tls.endpoint(&self.plant)
     }
 }
 

@@ -52,7 +52,8 @@ pub async fn serve(
     let mut loop_task = tokio::spawn(runner::run(config.clone(), shared.clone(), stop_rx));
     let service = ControllerService::new(shared.clone(), config.max_streams);
 
-    let server = GrpcServer::new(listener, false, &[ControllerServer::<ControllerService>::NAME]).await?;
+    let server =
+        GrpcServer::new(listener, false, &config.tls, &[ControllerServer::<ControllerService>::NAME]).await?;
     let addr = server.addr;
     tracing::info!(%addr, plant = %config.plant, scenario = %config.scenario.name, mode = config.mode.name(), "controller serving");
     let mut loop_failure = None;

@@ -14,12 +14,12 @@ use mpc::{
 
 #[derive(Parser, Debug)]
 #[command(name = "controller", version, about = "The multi-stage NMPC controller of hilbench")]
+#[command(mut_arg("listen", |a| a.default_value("127.0.0.1:50053").value_name("HOST:PORT").required(false).help("Address of the Controller API, HOST:PORT.")))]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
-    /// Address of the Controller API, HOST:PORT.
-    #[arg(long, default_value = "127.0.0.1:50053")]
-    listen: String,
+    #[command(flatten)]
+    server: hilbench_svc::tls::ServerArgs,
     /// Plant API endpoint, HOST:PORT: a plant, netem, or a vehicle gateway (netem's `--plant`
     /// names the same kind of endpoint).
     #[arg(long, default_value = "127.0.0.1:50052")]
@@ -97,6 +97,8 @@ struct Cli {
     /// StreamTelemetry streams served at once; one more is refused with RESOURCE_EXHAUSTED.
     #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
     max_streams: usize,
+    #[command(flatten)]
+    trust: hilbench_svc::tls::TrustArgs,
 }
 
 impl Cli {
@@ -198,6 +200,7 @@ fn main() -> anyhow::Result<()> {
         .context("--rpc-timeout-s: must be a positive number of seconds")?;
     config.stall_timeout = std::time::Duration::from_millis(cli.stall_timeout_ms);
     config.max_streams = cli.max_streams;
+    config.tls = hilbench_svc::tls::TlsFiles::server_and_client(&cli.server.tls, &cli.trust).load()?;
     config.reset_plant = !cli.no_reset;
     config.autostart = !cli.no_autostart;
     config.time_mode = match cli.time_mode {
@@ -207,9 +210,7 @@ fn main() -> anyhow::Result<()> {
     };
     let runtime = tokio::runtime::Runtime::new()?;
     runtime.block_on(async move {
-        let listener = tokio::net::TcpListener::bind(&cli.listen)
-            .await
-            .with_context(|| format!("cannot listen on {}", cli.listen))?;
+        let listener = cli.server.bind().await?;
         controller::serve(listener, config, hilbench_svc::shutdown_signal()).await?;
         anyhow::Ok(())
     })

@@ -23,7 +23,7 @@ use hilbench_proto::pb::plant_client::PlantClient;
 use mav::{PlantSample, Scenario, ScenarioError};
 use mpc::{ControllerMode, CycleOutput, CycleTiming, Episode, EpisodeSettings, Finish};
 use tokio::sync::{Notify, broadcast, watch};
-use tonic::transport::{Channel, Endpoint};
+use tonic::transport::Channel;
 
 use crate::config::{ControllerConfig, TimeModeSetting};
 
@@ -300,7 +300,9 @@ enum LoopError {
     Rpc(#[from] tonic::Status),
     #[error("plant: no answer to {call} within {after:?}")]
     Timeout { call: &'static str, after: Duration },
-    #[error("connect: {0}")]
+    // The chain: tonic's transport error says only "transport error"; its sources say why
+    // (refused, a TLS handshake failure, a certificate for another name).
+    #[error("connect: {}", hilbench_svc::tls::error_chain(.0))]
     Connect(#[from] tonic::transport::Error),
     #[error("{0}")]
     Bad(String),
@@ -377,8 +379,9 @@ pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch:
         let mut stop_during_call = stop.clone();
         let outcome = tokio::select! {
             outcome = async {
-                let channel = Endpoint::from_shared(config.plant_uri())
-                    .map_err(LoopError::Connect)?
+                let channel = config
+                    .plant_endpoint()
+                    .map_err(|e| LoopError::Bad(e.to_string()))?
                     .connect_timeout(Duration::from_secs(2))
                     .tcp_nodelay(true)
                     .connect()

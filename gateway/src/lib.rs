@@ -38,6 +38,8 @@ pub struct GatewayConfig {
     pub component_id: u8,
     pub max_streams: usize,
     pub stream_buffer: usize,
+    /// TLS of the Plant and VehicleControl APIs (default: plaintext).
+    pub tls: hilbench_svc::tls::Tls,
 }
 
 impl GatewayConfig {
@@ -51,6 +53,7 @@ impl GatewayConfig {
             component_id: 191,
             max_streams: hilbench_svc::streams::DEFAULT_MAX_STREAMS,
             stream_buffer: 256,
+            tls: hilbench_svc::tls::Tls::plaintext(),
         }
     }
 }
@@ -105,7 +108,7 @@ pub async fn serve_with_link(
     let service = GatewayService::new(bridge, link.clone(), config.max_streams, config.stream_buffer);
     const NAMES: [&str; 2] =
         [PlantServer::<GatewayService>::NAME, VehicleControlServer::<GatewayService>::NAME];
-    let server = GrpcServer::new(listener, true, &NAMES).await?;
+    let server = GrpcServer::new(listener, true, &config.tls, &NAMES).await?;
     let (addr, health) = (server.addr, server.health.clone());
     // Not serving until the vehicle's heartbeat arrives.
     set_health(&health, &NAMES, false).await;

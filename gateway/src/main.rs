@@ -1,7 +1,6 @@
 //! `gateway`: the Plant API for a MAVLink vehicle. Glue only: flags, logging, signals; the
 //! service is the `gateway` library.
 
-use anyhow::Context;
 use clap::Parser;
 use gateway::GatewayConfig;
 
@@ -10,10 +9,10 @@ use gateway::GatewayConfig;
 /// changes the vehicle's mode on its own: VehicleControl's Arm, Disarm and SetMode do.
 #[derive(Debug, Parser)]
 #[command(name = "gateway", version)]
+#[command(mut_arg("listen", |a| a.default_value("127.0.0.1:50054").value_name("HOST:PORT").required(false).help("Address of the Plant and VehicleControl APIs, HOST:PORT.")))]
 struct Args {
-    /// Address of the Plant and VehicleControl APIs, HOST:PORT.
-    #[arg(long, default_value = "127.0.0.1:50054")]
-    listen: String,
+    #[command(flatten)]
+    server: hilbench_svc::tls::ServerArgs,
     /// The vehicle's link: udpin:HOST:PORT (listen; PX4 SITL's offboard link is
     /// udpin:0.0.0.0:14540), udpout:HOST:PORT, or serial:DEVICE:BAUD.
     #[arg(long, default_value = "udpin:0.0.0.0:14540")]
@@ -59,6 +58,7 @@ fn config(args: &Args) -> anyhow::Result<GatewayConfig> {
     config.system_id = args.system_id;
     config.component_id = args.component_id;
     config.max_streams = args.max_streams;
+    config.tls = hilbench_svc::tls::TlsFiles::server(&args.server.tls).load()?;
     config.bridge.validate().map_err(|e| match e {
         mavbridge::BridgeError::Thrust(t) => anyhow::anyhow!("--hover-thrust: {t}"),
         mavbridge::BridgeError::Setting("start_tolerance_m", r) => {
@@ -75,9 +75,7 @@ async fn main() -> anyhow::Result<()> {
     hilbench_svc::exit_on_panic();
     let args = Args::parse();
     let config = config(&args)?;
-    let listener = tokio::net::TcpListener::bind(&args.listen)
-        .await
-        .with_context(|| format!("cannot listen on {}", args.listen))?;
+    let listener = args.server.bind().await?;
     gateway::serve(listener, config, hilbench_svc::shutdown_signal()).await?;
     Ok(())
 }

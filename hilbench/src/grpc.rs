@@ -34,11 +34,12 @@ use hilbench_proto::pb;
 use hilbench_proto::pb::controller_client::ControllerClient;
 use hilbench_proto::pb::netem_control_client::NetemControlClient;
 use hilbench_proto::pb::plant_client::PlantClient;
+use hilbench_svc::tls::{Tls, TlsFiles};
 use mav::{PlantSample, Scenario};
 use mpc::{ControllerMode, CycleRecord, RunSummary};
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
-use tonic::transport::{Channel, Endpoint};
+use tonic::transport::Channel;
 
 pub use crate::scenario_file::TimeMode;
 
@@ -319,6 +320,89 @@ pub struct Endpoints {
     pub keep_netem_profile: bool,
     /// Where every cycle also goes as it arrives: the live Foxglove view (`--foxglove-ws`).
     pub live: Option<crate::foxglove_out::Live>,
+    /// TLS of the run's links (default: plaintext); shared, as the endpoints are cloned per run.
+    pub tls: std::sync::Arc<BenchTls>,
+}
+
+/// TLS of a run's links: how this process connects to every service (its trust and client
+/// certificate), and what each service started here serves with and trusts. [`Default`]:
+/// plaintext everywhere.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct BenchTls {
+    /// hilbench's own connections (to the controller, netem and plant, started here or not).
+    pub client: Tls,
+    pub plant: Tls,
+    pub netem: Tls,
+    pub controller: Tls,
+}
+
+impl BenchTls {
+    /// The layout of `hilbench certs --out DIR`: `ca.pem` trusted everywhere (servers require
+    /// client certificates it signed), each started service serves with `<service>.pem` and
+    /// `<service>-key.pem` (and presents them as a client), hilbench presents `hilbench.pem`.
+    pub fn from_dir(dir: &std::path::Path) -> Result<Self, hilbench_svc::tls::TlsError> {
+        let client = TlsFiles { client_ca: None, ..TlsFiles::in_dir(dir, "hilbench") }.load()?;
+        let plant = TlsFiles { ca: None, ..TlsFiles::in_dir(dir, "plant") }.load()?;
+        let netem = TlsFiles::in_dir(dir, "netem").load()?;
+        let controller = TlsFiles::in_dir(dir, "controller").load()?;
+        Ok(Self { client, plant, netem, controller })
+    }
+
+    /// Every service started here with the client's identity, requiring client certificates
+    /// from the client's CA (one CA for the deployment); plaintext when the client has no TLS.
+    /// A client that trusts a CA without an identity of its own cannot start TLS services.
+    pub fn shared(files: &TlsFiles) -> anyhow::Result<Self> {
+        let client = files.load()?;
+        if files.cert.is_none() || files.ca.is_none() {
+            return Ok(Self { client, ..Self::default() });
+        }
+        let served = TlsFiles { client_ca: files.ca.clone(), ..files.clone() }.load()?;
+        Ok(Self { client, plant: served.clone(), netem: served.clone(), controller: served })
+    }
+
+    /// Whether services started here serve what the client expects: TLS on both sides, or on
+    /// neither.
+    fn check_started(&self, service: &str, served: &Tls) -> anyhow::Result<()> {
+        match (self.client.connects_with_tls(), served.serves_tls()) {
+            (true, false) => bail!(
+                "--tls-ca without --tls-cert and --tls-key: the {service} started here cannot serve TLS (give a certificate, or --tls-dir)"
+            ),
+            (false, true) => bail!("the {service} started here serves TLS but hilbench has no --tls-ca"),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// `hilbench`'s TLS flags: a directory made by `hilbench certs`, or the files one by one.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct TlsArgs {
+    /// Run every link over mutual TLS with the certificates in DIR (`hilbench certs --out
+    /// DIR`): ca.pem, and <service>.pem / <service>-key.pem for plant, netem, controller and
+    /// hilbench itself (docs/tls.md).
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["tls_ca", "tls_cert", "tls_key"])]
+    pub tls_dir: Option<std::path::PathBuf>,
+    #[command(flatten)]
+    pub identity: hilbench_svc::tls::IdentityArgs,
+    #[command(flatten)]
+    pub trust: hilbench_svc::tls::TrustArgs,
+}
+
+impl TlsArgs {
+    /// Whether any TLS flag was given.
+    pub fn given(&self) -> bool {
+        self.tls_dir.is_some()
+            || self.identity.tls_cert.is_some()
+            || self.identity.tls_key.is_some()
+            || self.trust.tls_ca.is_some()
+    }
+
+    /// Reads and checks the files (errors name the flag).
+    pub fn load(&self) -> anyhow::Result<BenchTls> {
+        match &self.tls_dir {
+            Some(dir) => BenchTls::from_dir(dir).with_context(|| format!("--tls-dir {}", dir.display())),
+            None => BenchTls::shared(&TlsFiles::client(&self.identity, &self.trust)),
+        }
+    }
 }
 
 /// `--plant`, `--netem`, `--controller` of the CLI: services already running.
@@ -351,6 +435,7 @@ impl EndpointArgs {
             time_mode,
             keep_netem_profile: self.keep_netem_profile,
             live: None,
+            tls: Default::default(),
         }
     }
 }
@@ -374,6 +459,8 @@ pub struct Services {
     /// ...unless told to leave its profile alone.
     keep_netem_profile: bool,
     time_mode: TimeMode,
+    /// How this process connects to them.
+    client_tls: Tls,
 }
 
 impl Services {
@@ -404,19 +491,28 @@ impl Services {
                 configure_netem: endpoints.netem.is_some(),
                 keep_netem_profile: endpoints.keep_netem_profile,
                 time_mode: endpoints.time_mode,
+                client_tls: endpoints.tls.client.clone(),
             });
         }
+        let tls = &endpoints.tls;
         let (plant, plant_addr) = match &endpoints.plant {
             Some(addr) => (None, addr.clone()),
             None => {
-                let (running, addr) = start_plant(plant_config(scenario, endpoints.time_mode)).await?;
+                tls.check_started("plant", &tls.plant)?;
+                let config = plant::PlantConfig {
+                    tls: tls.plant.clone(),
+                    ..plant_config(scenario, endpoints.time_mode)
+                };
+                let (running, addr) = start_plant(config).await?;
                 (Some(running), addr)
             }
         };
         let (netem, netem_addr) = match &endpoints.netem {
             Some(addr) => (None, addr.clone()),
             None => {
-                let config = netem_config(&plant_addr, scenario, endpoints.time_mode)?;
+                tls.check_started("netem", &tls.netem)?;
+                let mut config = netem_config(&plant_addr, scenario, endpoints.time_mode)?;
+                config.tls = tls.netem.clone();
                 let (running, addr) = start_netem(config).await?;
                 (Some(running), addr)
             }
@@ -429,6 +525,8 @@ impl Services {
             TimeMode::RealTime => controller::TimeModeSetting::RealTime,
         };
         config.autostart = false;
+        tls.check_started("controller", &tls.controller)?;
+        config.tls = tls.controller.clone();
         let task = tokio::spawn(async move {
             controller::serve(listener, config, async {
                 let _ = stopped.await;
@@ -447,6 +545,7 @@ impl Services {
             netem_addr: Some(netem_addr),
             controller_addr: controller_addr.to_string(),
             time_mode: endpoints.time_mode,
+            client_tls: tls.client.clone(),
         })
     }
 
@@ -476,22 +575,26 @@ impl Services {
     }
 }
 
-fn uri(addr: &str) -> String {
-    if addr.contains("://") { addr.to_string() } else { format!("http://{addr}") }
+/// A plaintext channel to `addr`, retried until `deadline` (the listener is bound before the
+/// server task runs, so this normally succeeds at once).
+pub async fn connect(addr: &str, deadline: Instant) -> anyhow::Result<Channel> {
+    connect_with(addr, &Tls::plaintext(), deadline).await
 }
 
-/// A channel to `addr`, retried until `deadline` (the listener is bound before the server
-/// task runs, so this normally succeeds at once).
-pub async fn connect(addr: &str, deadline: Instant) -> anyhow::Result<Channel> {
-    let endpoint = Endpoint::from_shared(uri(addr))
+/// As [`connect`], with `tls`'s client side (https with a CA, plaintext without).
+pub async fn connect_with(addr: &str, tls: &Tls, deadline: Instant) -> anyhow::Result<Channel> {
+    let endpoint = tls
+        .endpoint(addr)
         .with_context(|| format!("bad address {addr:?}"))?
         .connect_timeout(Duration::from_secs(2))
         .tcp_nodelay(true);
     loop {
         match endpoint.connect().await {
             Ok(c) => return Ok(c),
-            Err(e) if Instant::now() >= deadline => {
-                return Err(anyhow!("cannot connect to {addr}: {e}"));
+            Err(e) if Instant::now() >= deadline || hilbench_svc::tls::is_tls_refusal(&e) => {
+                // The chain: tonic's "transport error" keeps the reason (refused, a failed
+                // handshake, a certificate for another name) in its sources.
+                return Err(anyhow!("cannot connect to {addr}: {}", hilbench_svc::tls::error_chain(&e)));
             }
             Err(_) => tokio::time::sleep(Duration::from_millis(10)).await,
         }
@@ -562,7 +665,8 @@ async fn partial_run(
     let (episode, records) = progress.episodes.pop_last()?;
     let last = PlantSample::try_from(&progress.last_sample.take()?).ok()?;
     let ask = async {
-        let channel = connect(services.controller_addr(), Instant::now()).await.ok()?;
+        let channel =
+            connect_with(services.controller_addr(), &services.client_tls, Instant::now()).await.ok()?;
         let status = ControllerClient::new(channel).get_status(pb::GetStatusRequest {}).await.ok()?;
         Some(status.into_inner())
     };
@@ -589,12 +693,13 @@ async fn partial_run(
 /// Gives a netem running elsewhere the scenario's profiles.
 async fn configure_netem(
     addr: &str,
+    tls: &Tls,
     scenario: &Scenario,
     time_mode: TimeMode,
     deadline: Instant,
 ) -> anyhow::Result<()> {
     let config = netem_config(addr, scenario, time_mode)?;
-    let mut control = NetemControlClient::new(connect(addr, deadline).await?);
+    let mut control = NetemControlClient::new(connect_with(addr, tls, deadline).await?);
     for (direction, profile) in [
         (pb::Direction::PlantToController, &config.plant_to_controller),
         (pb::Direction::ControllerToPlant, &config.controller_to_plant),
@@ -612,8 +717,8 @@ async fn configure_netem(
 }
 
 /// The profile netem has in force, both directions.
-async fn netem_profile(addr: &str, deadline: Instant) -> anyhow::Result<delay::NetworkProfile> {
-    let mut control = NetemControlClient::new(connect(addr, deadline).await?);
+async fn netem_profile(addr: &str, tls: &Tls, deadline: Instant) -> anyhow::Result<delay::NetworkProfile> {
+    let mut control = NetemControlClient::new(connect_with(addr, tls, deadline).await?);
     let mut get = async |direction: pb::Direction| -> anyhow::Result<delay::DirectionProfile> {
         let p = control
             .get_profile(pb::GetProfileRequest { direction: direction as i32 })
@@ -646,11 +751,11 @@ async fn drive(
         && !keep
         && let Some(addr) = services.netem_addr()
     {
-        configure_netem(addr, scenario, services.time_mode, deadline).await?;
+        configure_netem(addr, &services.client_tls, scenario, services.time_mode, deadline).await?;
     }
     let delay_profile = match services.netem_addr() {
         Some(addr) => {
-            let network = netem_profile(addr, deadline).await?;
+            let network = netem_profile(addr, &services.client_tls, deadline).await?;
             DelayProfileInForce::of(
                 if services.configure_netem && keep { "netem" } else { "scenario" },
                 &network,
@@ -659,13 +764,15 @@ async fn drive(
         None => DelayProfileInForce { source: "none", delays: None },
     };
     progress.delay_profile = Some(delay_profile.clone());
-    let mut controller = ControllerClient::new(connect(services.controller_addr(), deadline).await?);
+    let tls = &services.client_tls;
+    let mut controller =
+        ControllerClient::new(connect_with(services.controller_addr(), tls, deadline).await?);
     // The final state: from the plant, else through netem (an undelayed read).
     let state_addr = services
         .plant_addr()
         .or(services.netem_addr())
         .ok_or_else(|| anyhow!("no plant or netem address to read the final state from"))?;
-    let mut plant = PlantClient::new(connect(state_addr, deadline).await?);
+    let mut plant = PlantClient::new(connect_with(state_addr, tls, deadline).await?);
     let real_time = services.time_mode == TimeMode::RealTime;
     let described = plant.describe(pb::DescribeRequest {}).await.context("plant Describe")?.into_inner();
     let wanted = if real_time { pb::TimeMode::RealTime } else { pb::TimeMode::Lockstep };

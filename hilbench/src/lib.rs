@@ -3,9 +3,10 @@
 //! controller under test ([`external`]), per-cycle CSV logs ([`cycle_log`]), MCAP files and the
 //! live Foxglove view ([`foxglove_out`]), sweeps ([`sweep`]), the paper's
 //! tables beside the measured values ([`report`]), plots ([`plots`]), progress bars ([`progress`])
-//! and `report.md` ([`report_md`]).
+//! and `report.md` ([`report_md`]); certificates for mutual TLS ([`certs`]).
 
 pub mod bench;
+pub mod certs;
 pub mod cycle_log;
 pub mod external;
 pub mod foxglove_out;

@@ -13,7 +13,7 @@ use hilbench::bench::{
     Outcome, Transport, default_out_dir, file_jobs, paper_jobs, run_all, run_table, write_cycle_logs,
     write_summary,
 };
-use hilbench::grpc::{EndpointArgs, Endpoints, TimeMode};
+use hilbench::grpc::{EndpointArgs, Endpoints, TimeMode, TlsArgs};
 use hilbench::report;
 use hilbench::report_md::{self, ReportText};
 use hilbench::scenario_file::{Mode, ScenarioFile};
@@ -82,6 +82,8 @@ enum Command {
         /// fly; needs --plant or --netem to read the final state.
         #[arg(long)]
         controller: Option<String>,
+        #[command(flatten)]
+        tls: TlsArgs,
     },
     /// Run one scenario file (TOML, see scenarios/) over gRPC, in lockstep or real time.
     Run {
@@ -138,6 +140,8 @@ enum Command {
         stall_timeout_s: Option<f64>,
         #[command(flatten)]
         services: EndpointArgs,
+        #[command(flatten)]
+        tls: TlsArgs,
         /// Serve the run live to Foxglove over its WebSocket protocol (the channels of the
         /// MCAP files) while it flies in real time; ADDR defaults to 127.0.0.1:8765.
         #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
@@ -146,6 +150,18 @@ enum Command {
     /// N lockstep runs of a scenario file, each under a delay process drawn from the file's
     /// [sweep] table; outcomes as distributions (sweep.json, runs.csv, report.md, plots).
     Sweep(SweepArgs),
+    /// Make a CA and a certificate for each service (plant, netem, controller, gateway) and
+    /// for hilbench, for mutual TLS (docs/tls.md); keys are written readable by their owner.
+    Certs {
+        /// Directory to write ca.pem, ca-key.pem, <name>.pem and <name>-key.pem into (files
+        /// already there are never overwritten).
+        #[arg(long)]
+        out: PathBuf,
+        /// A host name or IP address every certificate also names (repeat the flag); each names
+        /// its service (plant, netem, ...), localhost, 127.0.0.1 and ::1 anyway.
+        #[arg(long, value_name = "NAME")]
+        san: Vec<String>,
+    },
     /// Merge the output directories of a sweep's shards into the sweep.json of the whole.
     SweepMerge {
         /// The shards' output directories.
@@ -187,6 +203,9 @@ struct SweepArgs {
     /// process: the same numbers, slower.
     #[arg(long, conflicts_with = "controller_cmd")]
     grpc: bool,
+    /// With --grpc: the services' links over mutual TLS (as `hilbench run`'s).
+    #[command(flatten)]
+    tls: TlsArgs,
     /// Sweep your own controller instead of the bench's: a command line that speaks the Plant
     /// API as a client at $HILBENCH_PLANT_ADDR (as `hilbench run --controller-cmd`), started
     /// for each run, judged from the plant's truth (docs/external-controller.md).
@@ -263,11 +282,19 @@ fn main() -> anyhow::Result<()> {
             plant,
             netem,
             controller,
+            tls,
         } => {
             let transport = if in_process {
+                anyhow::ensure!(!tls.given(), "--in-process has no links: the TLS flags need the services");
                 Transport::InProcess
             } else {
-                Transport::Grpc(Endpoints { plant, netem, controller, ..Endpoints::default() })
+                Transport::Grpc(Endpoints {
+                    plant,
+                    netem,
+                    controller,
+                    tls: tls.load()?.into(),
+                    ..Endpoints::default()
+                })
             };
             let overrides = Overrides {
                 seed,
@@ -292,17 +319,30 @@ fn main() -> anyhow::Result<()> {
             controller_cmd,
             stall_timeout_s,
             services,
+            tls,
             foxglove_ws,
         } => {
+            anyhow::ensure!(
+                !tls.given() || (controller_cmd.is_none() && !in_process),
+                "the TLS flags need the bench's services (not --in-process or --controller-cmd, whose links stay plaintext on loopback)"
+            );
             let transport = match controller_cmd {
                 Some(command) => RunTransport::External { command, time_mode, stall_timeout_s },
                 None if in_process => RunTransport::InProcess,
-                None => RunTransport::Services { endpoints: services, time_mode },
+                None => RunTransport::Services { endpoints: services, tls: tls.load()?.into(), time_mode },
             };
             let overrides = Overrides { seed, delay_trace, continue_after_collision, sweep_run, foxglove_ws };
             run(&file, mode, out, json, &opts, &overrides, transport)?
         }
         Command::Sweep(args) => sweep(args, &opts)?,
+        Command::Certs { out, san } => {
+            for path in hilbench::certs::write_dir(&out, &san)? {
+                if !opts.quiet {
+                    println!("{}", path.display());
+                }
+            }
+            return Ok(());
+        }
         Command::SweepMerge { dirs, out, json } => {
             let summary = hilbench::sweep::output::merge(&dirs, &out, opts.plots)?;
             if json {
@@ -491,6 +531,7 @@ enum RunTransport {
     InProcess,
     Services {
         endpoints: EndpointArgs,
+        tls: std::sync::Arc<hilbench::grpc::BenchTls>,
         time_mode: Option<TimeMode>,
     },
     /// `--controller-cmd` (and `--stall-timeout-s`).
@@ -539,8 +580,9 @@ fn run(
         );
     }
     let transport = &match transport {
-        RunTransport::Services { endpoints: args, time_mode } => {
+        RunTransport::Services { endpoints: args, tls, time_mode } => {
             let mut endpoints = args.endpoints(time_mode.unwrap_or(spec.run.time_mode));
+            endpoints.tls = tls;
             if let Some(addr) = overrides.foxglove_ws {
                 if endpoints.time_mode != TimeMode::RealTime {
                     anyhow::bail!(
@@ -676,7 +718,12 @@ fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Outcome> {
                 time_mode: TimeMode::Lockstep,
                 settings: hilbench::external::ExternalSettings::default(),
             }),
-            None if args.grpc => Transport::Grpc(Endpoints::default()),
+            None if args.tls.given() && !args.grpc => {
+                anyhow::bail!("the TLS flags need --grpc (a sweep flies in process otherwise)")
+            }
+            None if args.grpc => {
+                Transport::Grpc(Endpoints { tls: args.tls.load()?.into(), ..Endpoints::default() })
+            }
             None => Transport::InProcess,
         },
         run_timeout: std::time::Duration::from_secs_f64(

@@ -1,6 +1,9 @@
 //! `hilbench run --delay-trace`: a recorded trace replayed as a file's round trip, as a user
 //! gives it on the command line.
 
+mod common;
+
+use common::csv_without_solve_times;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -108,24 +111,6 @@ fn a_run_that_fails_still_writes_summary_json_with_the_error_and_exits_1() {
             .expect("JSON");
     let error = summary["error"].as_str().expect("an error key");
     assert!(error.contains("short.csv") && error.contains("message 3"), "{error}");
-}
-
-/// The per-cycle CSV without its solve_ms column (a wall-clock time).
-fn csv_without_solve_times(path: &Path) -> String {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let column =
-        text.lines().next().and_then(|h| h.split(',').position(|c| c == "solve_ms")).expect("solve_ms");
-    text.lines()
-        .map(|l| {
-            l.split(',')
-                .enumerate()
-                .filter(|(i, _)| *i != column)
-                .map(|(_, c)| c)
-                .collect::<Vec<_>>()
-                .join(",")
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
 }
 
 #[test]

@@ -31,7 +31,6 @@ use hilbench_proto::pb::netem_control_server::NetemControlServer;
 use hilbench_proto::pb::plant_server::PlantServer;
 use hilbench_svc::{GrpcServer, ServeError};
 use tonic::server::NamedService;
-use tonic::transport::Endpoint;
 
 pub use control::Control;
 pub use proxy::Proxy;
@@ -89,6 +88,8 @@ pub struct Config {
     /// Server streams open at once (`StreamState` and `StreamDeliveries` together); one more
     /// is refused with `RESOURCE_EXHAUSTED` (`--max-streams`, default 64).
     pub max_streams: usize,
+    /// TLS of netem's server and of its upstream connection (default: plaintext both ways).
+    pub tls: hilbench_svc::tls::Tls,
 }
 
 impl Config {
@@ -104,6 +105,7 @@ impl Config {
             max_streams: hilbench_svc::streams::DEFAULT_MAX_STREAMS,
             stream_buffer: DEFAULT_STREAM_BUFFER,
             deliveries_buffer: DEFAULT_DELIVERIES_BUFFER,
+            tls: hilbench_svc::tls::Tls::plaintext(),
         }
     }
 
@@ -138,14 +140,6 @@ impl Config {
         }
         Ok(())
     }
-
-    fn upstream_uri(&self) -> String {
-        if self.upstream.contains("://") {
-            self.upstream.clone()
-        } else {
-            format!("http://{}", self.upstream)
-        }
-    }
 }
 
 /// Why netem could not serve.
@@ -155,8 +149,8 @@ pub enum NetemError {
     Profile(ProfileError),
     #[error("config: {0}")]
     Config(String),
-    #[error("upstream address: {0}")]
-    Upstream(tonic::transport::Error),
+    #[error("upstream: {0}")]
+    Upstream(hilbench_svc::tls::TlsError),
     #[error("io: {0}")]
     Io(#[from] std::io::Error),
     #[error(transparent)]
@@ -170,7 +164,9 @@ pub async fn serve(
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), NetemError> {
     config.validate()?;
-    let endpoint = Endpoint::from_shared(config.upstream_uri())
+    let endpoint = config
+        .tls
+        .endpoint(&config.upstream)
         .map_err(NetemError::Upstream)?
         .connect_timeout(Duration::from_secs(1))
         .tcp_nodelay(true);
@@ -181,9 +177,13 @@ pub async fn serve(
     let probe =
         tokio::spawn(core::run_probe(shared.clone(), Duration::from_millis(config.probe_interval_ms)));
 
-    let server =
-        GrpcServer::new(listener, true, &[PlantServer::<Proxy>::NAME, NetemControlServer::<Control>::NAME])
-            .await?;
+    let server = GrpcServer::new(
+        listener,
+        true,
+        &config.tls,
+        &[PlantServer::<Proxy>::NAME, NetemControlServer::<Control>::NAME],
+    )
+    .await?;
     let (addr, not_serving) = (server.addr, server.not_serving());
 
     tracing::info!(

@@ -19,10 +19,10 @@ enum TimeModeArg {
 /// every message to the plant behind it after a delay drawn per message and direction.
 #[derive(Debug, Parser)]
 #[command(name = "netem", version)]
+#[command(mut_arg("listen", |a| a.default_value("127.0.0.1:50052").value_name("HOST:PORT").required(false).help("Address to listen on, HOST:PORT.")))]
 struct Args {
-    /// Address to listen on, HOST:PORT.
-    #[arg(long, default_value = "127.0.0.1:50052")]
-    listen: String,
+    #[command(flatten)]
+    server: hilbench_svc::tls::ServerArgs,
     /// The Plant API behind netem, HOST:PORT: a plant or a vehicle gateway (the controller's
     /// `--plant` names the same kind of endpoint; `--upstream` is an alias).
     #[arg(long, visible_alias = "upstream", default_value = "127.0.0.1:50051")]
@@ -48,6 +48,8 @@ struct Args {
     /// refused with RESOURCE_EXHAUSTED.
     #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = at_least_one())]
     max_streams: usize,
+    #[command(flatten)]
+    trust: hilbench_svc::tls::TrustArgs,
 }
 
 #[tokio::main]
@@ -67,9 +69,8 @@ async fn main() -> anyhow::Result<()> {
         TimeModeArg::Lockstep => TimeModeSetting::Lockstep,
     };
     config.max_streams = args.max_streams;
-    let listener = tokio::net::TcpListener::bind(&args.listen)
-        .await
-        .with_context(|| format!("cannot listen on {}", args.listen))?;
+    config.tls = hilbench_svc::tls::TlsFiles::server_and_client(&args.server.tls, &args.trust).load()?;
+    let listener = args.server.bind().await?;
     netem::serve(listener, config, hilbench_svc::shutdown_signal()).await?;
     Ok(())
 }

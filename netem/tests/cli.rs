@@ -62,7 +62,7 @@ fn a_valid_profile_file_gets_as_far_as_listening() {
     );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!stderr.contains("--profile-file"), "{stderr}");
-    assert!(stderr.contains("cannot listen on"), "{stderr}");
+    assert!(stderr.contains("--listen") && stderr.contains("cannot listen"), "{stderr}");
 }
 
 #[test]

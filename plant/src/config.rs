@@ -93,6 +93,8 @@ pub struct PlantConfig {
     /// `StreamState` streams open at once; one more is refused with `RESOURCE_EXHAUSTED`
     /// (`--max-streams`, default 64).
     pub max_streams: usize,
+    /// TLS of the Plant API (default: plaintext).
+    pub tls: hilbench_svc::tls::Tls,
 }
 
 impl Default for PlantConfig {
@@ -112,6 +114,7 @@ impl PlantConfig {
             watchdog_action: WatchdogAction::Brake,
             stream_buffer: DEFAULT_STREAM_BUFFER,
             max_streams: DEFAULT_MAX_STREAMS,
+            tls: hilbench_svc::tls::Tls::plaintext(),
         }
     }
 

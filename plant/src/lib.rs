@@ -55,9 +55,10 @@ pub async fn serve_with_clock(
 ) -> Result<(), PlantError> {
     let scenario = config.scenario.name.clone();
     let rate_hz = config.rate_hz;
+    let tls = config.tls.clone();
     let service = PlantService::new(config, clock)?;
 
-    let server = GrpcServer::new(listener, true, &[PlantServer::<PlantService>::NAME]).await?;
+    let server = GrpcServer::new(listener, true, &tls, &[PlantServer::<PlantService>::NAME]).await?;
     let (addr, not_serving) = (server.addr, server.not_serving());
 
     let ticker = match service.time_mode() {

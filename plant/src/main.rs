@@ -23,10 +23,10 @@ enum WatchdogArg {
 /// health checking and server reflection).
 #[derive(Debug, Parser)]
 #[command(name = "plant", version)]
+#[command(mut_arg("listen", |a| a.default_value("127.0.0.1:50051").value_name("HOST:PORT").required(false).help("Address of the Plant API, HOST:PORT.")))]
 struct Args {
-    /// Address to listen on, HOST:PORT.
-    #[arg(long, default_value = "127.0.0.1:50051")]
-    listen: String,
+    #[command(flatten)]
+    server: hilbench_svc::tls::ServerArgs,
     /// Scenario loaded at start: a built-in name (paper-1, paper-2, paper-3) or a scenario file
     /// (as `hilbench run` takes). A controller resets the plant to its own scenario when an
     /// episode starts (unless it runs with `--no-reset`).
@@ -66,6 +66,7 @@ fn config(args: &Args) -> anyhow::Result<PlantConfig> {
         WatchdogArg::Brake => mav::WatchdogAction::Brake,
         WatchdogArg::Hover => mav::WatchdogAction::Hover,
     };
+    config.tls = hilbench_svc::tls::TlsFiles::server(&args.server.tls).load()?;
     if let Some(ms) = args.watchdog_ms {
         config.watchdog_timeout_ns = match ms {
             0 => None,
@@ -83,9 +84,7 @@ async fn main() -> anyhow::Result<()> {
     hilbench_svc::exit_on_panic();
     let args = Args::parse();
     let config = config(&args)?;
-    let listener = tokio::net::TcpListener::bind(&args.listen)
-        .await
-        .with_context(|| format!("cannot listen on {}", args.listen))?;
+    let listener = args.server.bind().await?;
     plant::serve(listener, config, hilbench_svc::shutdown_signal()).await?;
     Ok(())
 }

@@ -3,11 +3,13 @@
 //! their `main`s, structured logs with `tracing` and the shutdown signal passed to `serve`;
 //! server streams that cannot exhaust a service ([`streams`]: a cap on open streams, and a
 //! bounded drop-oldest buffer per subscriber); and the scenario file loader
-//! ([`scenario_file`]) behind `--scenario FILE`.
+//! ([`scenario_file`]) behind `--scenario FILE`; and mutual TLS for servers and clients
+//! ([`tls`]: the flags, the checked files, the server's config and the client's endpoint).
 
 pub mod scenario_file;
 pub mod streams;
 pub mod sweep_table;
+pub mod tls;
 
 use std::future::Future;
 use std::net::SocketAddr;
@@ -50,14 +52,28 @@ pub struct GrpcServer {
 }
 
 impl GrpcServer {
-    /// Takes `listener` (with `TCP_NODELAY` on accepted connections when `nodelay`) and
-    /// reports every one of `services` (their `NamedService::NAME`s) SERVING.
+    /// Takes `listener` (with `TCP_NODELAY` on accepted connections when `nodelay`), serves
+    /// TLS when `tls` has an identity (and requires client certificates when it has a client
+    /// CA), and reports every one of `services` (their `NamedService::NAME`s) SERVING.
+    /// Plaintext on an address other than loopback is served, with a warning.
     pub async fn new(
         listener: tokio::net::TcpListener,
         nodelay: bool,
+        tls: &tls::Tls,
         services: &[&str],
     ) -> Result<Self, ServeError> {
         let addr = listener.local_addr()?;
+        if !tls.serves_tls() && !addr.ip().is_loopback() {
+            tracing::warn!(
+                %addr,
+                "serving plaintext gRPC on an address other than loopback: anyone who reaches it can \
+                 drive the bench; give --tls-cert, --tls-key and --tls-client-ca (docs/tls.md)"
+            );
+        }
+        let mut server = match tls.server_config() {
+            Some(config) => Server::builder().tls_config(config)?,
+            None => Server::builder(),
+        };
         let (health, health_service) = tonic_health::server::health_reporter();
         for name in services {
             health.set_service_status(*name, ServingStatus::Serving).await;
@@ -75,7 +91,7 @@ impl GrpcServer {
                 |b, name| b.with_service_name(name.clone()),
             )
         };
-        let router = Server::builder()
+        let router = server
             .add_service(health_service)
             .add_service(builder().build_v1()?)
             .add_service(builder().build_v1alpha()?);
@@ -106,6 +122,21 @@ impl GrpcServer {
         add(self.router).serve_with_incoming_shutdown(self.incoming, shutdown).await?;
         Ok(())
     }
+}
+
+/// Why a service's `--listen` address could not be bound.
+#[derive(Debug, thiserror::Error)]
+#[error("--listen {address}: cannot listen: {source}")]
+pub struct BindError {
+    address: String,
+    source: std::io::Error,
+}
+
+/// Binds a service's `--listen` address (`HOST:PORT`); the error names the flag.
+pub async fn bind(address: &str) -> Result<tokio::net::TcpListener, BindError> {
+    tokio::net::TcpListener::bind(address)
+        .await
+        .map_err(|source| BindError { address: address.to_string(), source })
 }
 
 /// What a panic said (its `&str` or `String` payload).
@@ -206,7 +237,7 @@ mod tests {
     async fn not_serving_reports_every_listed_service_and_only_when_awaited()
     -> Result<(), Box<dyn std::error::Error>> {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-        let server = GrpcServer::new(listener, false, &["a.A", "b.B"]).await?;
+        let server = GrpcServer::new(listener, false, &tls::Tls::plaintext(), &["a.A", "b.B"]).await?;
         let addr = server.addr;
         let not_serving = server.not_serving();
         let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
@@ -239,7 +270,7 @@ mod tests {
         use tonic_reflection::pb::v1alpha::server_reflection_response::MessageResponse;
 
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-        let server = GrpcServer::new(listener, false, &["hilbench.v1.Plant"]).await?;
+        let server = GrpcServer::new(listener, false, &tls::Tls::plaintext(), &["hilbench.v1.Plant"]).await?;
         let addr = server.addr;
         let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
         let task = tokio::spawn(server.serve(|router| router, async {

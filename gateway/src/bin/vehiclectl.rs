@@ -19,6 +19,10 @@ struct Args {
     /// the first call, s.
     #[arg(long, default_value_t = 0)]
     wait_s: u64,
+    #[command(flatten)]
+    identity: hilbench_svc::tls::IdentityArgs,
+    #[command(flatten)]
+    trust: hilbench_svc::tls::TrustArgs,
     #[command(subcommand)]
     action: Action,
 }
@@ -42,12 +46,15 @@ enum Action {
 #[tokio::main(flavor = "current_thread")]
 async fn main() -> anyhow::Result<()> {
     let args = Args::parse();
+    let tls = hilbench_svc::tls::TlsFiles::client(&args.identity, &args.trust).load()?;
+    let endpoint = tls.endpoint(&args.gateway).map_err(|e| anyhow::anyhow!("--gateway: {e}"))?;
     let deadline = tokio::time::Instant::now() + Duration::from_secs(args.wait_s);
     let mut client = loop {
-        match VehicleControlClient::connect(format!("http://{}", args.gateway)).await {
-            Ok(c) => break c,
+        match endpoint.connect().await {
+            Ok(channel) => break VehicleControlClient::new(channel),
             Err(e) if tokio::time::Instant::now() >= deadline => {
-                anyhow::bail!("cannot reach the gateway at {}: {e}", args.gateway)
+                let why = hilbench_svc::tls::error_chain(&e);
+                anyhow::bail!("cannot reach the gateway at {}: {why}", args.gateway)
             }
             Err(_) => tokio::time::sleep(Duration::from_millis(200)).await,
         }

@@ -1,4 +1,8 @@
-//! What the CLI tests share: a variant of a shipped scenario file.
+//! What the CLI tests share: a variant of a shipped scenario file, a CSV without its wall-clock
+//! column.
+
+// Each test binary that includes this module uses some of it.
+#![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
 
@@ -16,4 +20,23 @@ pub fn paper_2_variant(dir: &Path, name: &str, replacements: &[(&str, &str)]) ->
     let path = dir.join(format!("{name}.toml"));
     std::fs::write(&path, text).expect("write the scenario");
     path
+}
+
+/// The per-cycle CSV without its solve_ms column (a wall-clock time): what two runs of the
+/// same flight must share.
+pub fn csv_without_solve_times(path: &Path) -> String {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let column =
+        text.lines().next().and_then(|h| h.split(',').position(|c| c == "solve_ms")).expect("solve_ms");
+    text.lines()
+        .map(|l| {
+            l.split(',')
+                .enumerate()
+                .filter(|(i, _)| *i != column)
+                .map(|(_, c)| c)
+                .collect::<Vec<_>>()
+                .join(",")
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
 }

@@ -140,6 +140,7 @@ async fn paper_2_in_real_time_through_netem_and_the_gateway_reaches_the_goal_of_
         time_mode: TimeMode::RealTime,
         keep_netem_profile: false,
         live: None,
+        tls: Default::default(),
     };
     let settings = GrpcSettings { timeout: Duration::from_secs(240), ..GrpcSettings::default() };
     let run =

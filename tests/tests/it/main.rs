@@ -10,3 +10,4 @@ mod gateway;
 mod netem;
 mod plant;
 mod python;
+mod tls;
