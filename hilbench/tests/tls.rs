@@ -105,8 +105,12 @@ fn a_run_whose_client_certificate_another_ca_signed_fails_at_once_naming_the_ref
     assert_eq!(run.status.code(), Some(1), "{run:?}");
     let stderr = String::from_utf8_lossy(&run.stderr);
     // The server's alert, passed on (both CAs are named "hilbench CA": the server finds the
-    // signature wrong, DecryptError).
-    assert!(stderr.contains("received fatal alert"), "{stderr}");
+    // signature wrong, DecryptError). In TLS 1.3 the client checks nothing more after its
+    // Finished, so the server's alert can lose the race with the close it is followed by: then
+    // the call fails on the connection the server closed. Either way it fails at once, naming
+    // the service it could not talk to.
+    assert!(stderr.contains("received fatal alert") || stderr.contains("connection closed"), "{stderr}");
+    assert!(stderr.contains("127.0.0.1:"), "names the address: {stderr}");
 }
 
 #[test]
