@@ -235,7 +235,9 @@ impl FailSafe {
     /// landing, and goes through the same steps in the same order; the prefix's states were
     /// observed into the running minimum when they were first flown, and observing them again
     /// (as the pair-by-pair flight did for every further `d'`) leaves a minimum that already
-    /// holds them unchanged. The first non-finite state ends the check where it ended the
+    /// holds them unchanged (by value; `f64::min` may return either of two equal zeros, so
+    /// only an altitude of exactly -0 against +0 could differ in sign, and the property test
+    /// flies both). The first non-finite state ends the check where it ended the
     /// pair-by-pair loop: after the prefix (whose flight did nothing more once a state was
     /// non-finite) or after the branch. `mpc/src/fail_safe/tests.rs` keeps the pair-by-pair
     /// flight and compares the two bit for bit.
