@@ -213,20 +213,50 @@ impl FailSafe {
     /// Flies `u_prev` for the delay `d`, then `command` until the next command lands at
     /// `max(T, d) + d'`, then the braking law sampled every `max(T, d')` and landing `d'`
     /// after its sample, for every sampled pair `(d, d')`; returns the worst clearance and
-    /// altitude over all of them.
+    /// altitude over all of them. The flight up to the next sample, `max(T, d)`, is flown once
+    /// per `d` ([`FailSafe::worst_over_delays`]).
     pub fn envelope(&self, x0: &[f64; 8], u_prev: &[f64; 3], command: &[f64; 3]) -> Envelope {
-        self.worst_over_delays(x0, |d, d_next, out| self.fly(x0, u_prev, command, d, d_next, out))
+        self.worst_over_delays(
+            x0,
+            |d_s, out| self.lockstep_prefix(x0, u_prev, command, d_s, out),
+            |fork, d_next_s, out| self.brake_lockstep(fork, d_next_s, out),
+        )
     }
 
-    /// The worst of `fly(d, d', out)` over every sampled pair of delays, from `x0` on (the
-    /// first non-finite state ends it).
-    fn worst_over_delays(&self, x0: &[f64; 8], mut fly: impl FnMut(f64, f64, &mut Envelope)) -> Envelope {
+    /// The worst flight over every sampled pair of delays `(d, d')`, from `x0` on: `prefix(d)`
+    /// flies up to where the flights of one `d` part (the next sample: the first braking
+    /// command is computed there and `d'` only says when it lands) and returns that point,
+    /// `branch(point, d')` flies each `d'` on from it.
+    ///
+    /// Why the prefix is shared: the check used to fly every pair whole, the prefix again for
+    /// every `d'`, and with the plant's watchdog the long delay's prefix alone is 150 RK4
+    /// steps (3 s at 20 ms), flown for each of the four `d'`. Flown once, the result is the
+    /// pair-by-pair flight's to the bit: each branch starts from the same state, time and
+    /// landing, and goes through the same steps in the same order; the prefix's states were
+    /// observed into the running minimum when they were first flown, and observing them again
+    /// (as the pair-by-pair flight did for every further `d'`) leaves a minimum that already
+    /// holds them unchanged (by value; `f64::min` may return either of two equal zeros, so
+    /// only an altitude of exactly -0 against +0 could differ in sign, and the property test
+    /// flies both). The first non-finite state ends the check where it ended the
+    /// pair-by-pair loop: after the prefix (whose flight did nothing more once a state was
+    /// non-finite) or after the branch. `mpc/src/fail_safe/tests.rs` keeps the pair-by-pair
+    /// flight and compares the two bit for bit.
+    fn worst_over_delays<P>(
+        &self,
+        x0: &[f64; 8],
+        mut prefix: impl FnMut(f64, &mut Envelope) -> P,
+        mut branch: impl FnMut(&P, f64, &mut Envelope),
+    ) -> Envelope {
         let mut out =
             Envelope { min_clearance_m: f64::INFINITY, min_altitude_m: f64::INFINITY, finite: true };
         self.observe(&State::from(*x0), &mut out);
-        for d in self.check.delays() {
-            for d_next in self.check.delays() {
-                fly(d, d_next, &mut out);
+        for d_s in self.check.delays() {
+            let fork = prefix(d_s, &mut out);
+            if !out.finite {
+                return out;
+            }
+            for d_next_s in self.check.delays() {
+                branch(&fork, d_next_s, &mut out);
                 if !out.finite {
                     return out;
                 }
@@ -239,7 +269,8 @@ impl FailSafe {
     /// lands (`d` after it was sent, not before now), each in turn until the next lands, then
     /// `command` from `d`, and from the next sample on (every `T`) the braking law computed
     /// from the state at each sample, landing `d'` later and never before the command sent
-    /// before it. `in_flight` oldest first.
+    /// before it. `in_flight` oldest first. The flight up to the first sample after the
+    /// command has landed is flown once per `d` ([`FailSafe::worst_over_delays`]).
     pub fn envelope_real_time(
         &self,
         x0: &[f64; 8],
@@ -248,47 +279,70 @@ impl FailSafe {
         command: &[f64; 3],
     ) -> Envelope {
         let mut brakes = self.brakes.borrow_mut();
-        self.worst_over_delays(x0, |d, d_next, out| {
-            self.fly_real_time(x0, u_prev, in_flight, command, d, d_next, &mut brakes, out)
-        })
+        self.worst_over_delays(
+            x0,
+            |d_s, out| self.real_time_prefix(x0, u_prev, in_flight, command, d_s, out),
+            |fork, d_next_s, out| self.brake_real_time(fork, d_next_s, &mut brakes, out),
+        )
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn fly_real_time(
+    /// Real time up to where the flights of one `d` part: the commands in flight and this
+    /// cycle's land, then on to the first sample `T` (no braking command is on its way
+    /// before it). Later the flights differ: the brake computed at the first sample lands `d'`
+    /// after it (and, the link being first in, first out, no earlier than this cycle's
+    /// command), and until it has, the next brakes only queue behind it.
+    fn real_time_prefix(
         &self,
         x0: &[f64; 8],
         u_prev: &[f64; 3],
         in_flight: &[InFlight],
         command: &[f64; 3],
-        d: f64,
-        d_next: f64,
+        d_s: f64,
+        out: &mut Envelope,
+    ) -> RealTimeFork {
+        let period_s = self.check.min_cycle_s;
+        let mut link = Link { x: State::from(*x0), t: 0.0, applied: *u_prev, landed_at: 0.0 };
+        let mut landed_at_s = 0.0f64;
+        // What was sent up to this cycle lands in order.
+        // (`sent_ago_s` at least 0, so every one lands within `[0, d]`.)
+        let sent = in_flight.iter().map(|f| ((d_s - f.sent_ago_s.max(0.0)).max(0.0), f.command));
+        for (at, u) in sent.chain(std::iter::once((d_s, *command))) {
+            landed_at_s = landed_at_s.max(at);
+            self.run_until(&mut link, landed_at_s, out);
+            link.land(u);
+        }
+        // The first event of every branch: the first sample (nothing is queued before it).
+        // A non-finite state ends the check before it (see `worst_over_delays`).
+        if out.finite {
+            self.run_until(&mut link, period_s, out);
+        }
+        RealTimeFork { link, landed_at_s, end_s: period_s.max(d_s) + self.check.horizon_s }
+    }
+
+    /// Real time from the first sample on, every braking command `d_next_s` late (a brake can
+    /// be computed at a sample before the command lands). At the fork the vehicle is already
+    /// at the first sample or later, so the first event, that sample, flies nothing more and
+    /// its brake comes from the fork's state, as in the pair-by-pair flight.
+    fn brake_real_time(
+        &self,
+        fork: &RealTimeFork,
+        d_next_s: f64,
         brakes: &mut VecDeque<(f64, [f64; 3])>,
         out: &mut Envelope,
     ) {
-        let period = self.check.min_cycle_s;
-        let mut link = Link { x: State::from(*x0), t: 0.0, applied: *u_prev, landed_at: 0.0 };
-        let mut landed_at = 0.0f64;
-        // What was sent up to this cycle lands in order.
-        // (`sent_ago_s` at least 0, so every one lands within `[0, d]`.)
-        let sent = in_flight.iter().map(|f| ((d - f.sent_ago_s.max(0.0)).max(0.0), f.command));
-        for (at, u) in sent.chain(std::iter::once((d, *command))) {
-            landed_at = landed_at.max(at);
-            self.run_until(&mut link, landed_at, out);
-            link.land(u);
-        }
-        // Braking from the next sample on; a brake can be computed before the command lands.
+        let period_s = self.check.min_cycle_s;
+        let (mut link, mut landed_at_s, end_s) = (fork.link, fork.landed_at_s, fork.end_s);
         brakes.clear();
-        let end = period.max(d) + self.check.horizon_s;
-        let mut next_sample = period;
+        let mut next_sample_s = period_s;
         while out.finite {
-            let landing = brakes.front().map(|(at, _)| *at).filter(|at| *at <= next_sample);
-            let event = landing.unwrap_or(next_sample);
-            if event > end {
-                self.run_until(&mut link, end, out);
+            let landing_s = brakes.front().map(|(at, _)| *at).filter(|at| *at <= next_sample_s);
+            let event_s = landing_s.unwrap_or(next_sample_s);
+            if event_s > end_s {
+                self.run_until(&mut link, end_s, out);
                 return;
             }
-            self.run_until(&mut link, event, out);
-            if landing.is_some() {
+            self.run_until(&mut link, event_s, out);
+            if landing_s.is_some() {
                 if let Some((_, u)) = brakes.pop_front() {
                     link.land(u);
                 }
@@ -298,40 +352,47 @@ impl FailSafe {
             } else {
                 let brake =
                     braking_command(&self.model.params, &self.bounds, &link.x.into(), self.brake_gain_per_s);
-                landed_at = landed_at.max(link.t + d_next);
-                brakes.push_back((landed_at, brake));
-                next_sample += period;
+                landed_at_s = landed_at_s.max(link.t + d_next_s);
+                brakes.push_back((landed_at_s, brake));
+                next_sample_s += period_s;
             }
         }
     }
 
-    fn fly(
+    /// Lockstep up to where the flights of one `d` part: `u_prev` until the command lands at
+    /// `d`, then the command until the next sample at `max(T, d)`. Returns the vehicle there
+    /// and the sample's time, s.
+    fn lockstep_prefix(
         &self,
         x0: &[f64; 8],
         u_prev: &[f64; 3],
         command: &[f64; 3],
-        d: f64,
-        d_next: f64,
+        d_s: f64,
         out: &mut Envelope,
-    ) {
-        let t_min = self.check.min_cycle_s;
+    ) -> (Link, f64) {
         // The previous command landed at the sample at the latest (the lockstep protocol
         // samples when it lands): the latest landing holds it longest before a watchdog.
         let mut link = Link { x: State::from(*x0), t: 0.0, applied: *u_prev, landed_at: 0.0 };
         // Until the command lands, the previous one; then the command until the next sample.
-        self.run_until(&mut link, d, out);
+        self.run_until(&mut link, d_s, out);
         link.land(*command);
-        let mut sample = t_min.max(d);
-        self.run_until(&mut link, sample, out);
-        // From the next sample on, the controller brakes, every command `d_next` late.
-        let end = sample + self.check.horizon_s;
-        while sample < end && out.finite {
+        let sample_s = self.check.min_cycle_s.max(d_s);
+        self.run_until(&mut link, sample_s, out);
+        (link, sample_s)
+    }
+
+    /// Lockstep from the next sample on: the controller brakes, every command `d_next_s` late.
+    fn brake_lockstep(&self, fork: &(Link, f64), d_next_s: f64, out: &mut Envelope) {
+        let t_min_s = self.check.min_cycle_s;
+        let (mut link, mut sample_s) = *fork;
+        let end_s = sample_s + self.check.horizon_s;
+        while sample_s < end_s && out.finite {
             let brake =
                 braking_command(&self.model.params, &self.bounds, &link.x.into(), self.brake_gain_per_s);
-            self.run_until(&mut link, sample + d_next, out);
+            self.run_until(&mut link, sample_s + d_next_s, out);
             link.land(brake);
-            sample += t_min.max(d_next);
-            self.run_until(&mut link, sample, out);
+            sample_s += t_min_s.max(d_next_s);
+            self.run_until(&mut link, sample_s, out);
             if speed_mps(&link.x) < self.check.stop_speed_mps {
                 break;
             }
@@ -393,7 +454,8 @@ impl FailSafe {
 }
 
 /// The vehicle in one flight of the check: its state at time `t` (s after the sample), the
-/// command applied and when it landed.
+/// command applied and when it landed. `Copy`: the flights of one `d` part from one `Link`.
+#[derive(Clone, Copy)]
 struct Link {
     x: State,
     t: f64,
@@ -406,6 +468,14 @@ impl Link {
     fn land(&mut self, u: [f64; 3]) {
         (self.applied, self.landed_at) = (u, self.t);
     }
+}
+
+/// Where the real-time flights of one `d` part: the vehicle at the first sample, when the
+/// last command sent so far lands, s, and when the flights end, s.
+struct RealTimeFork {
+    link: Link,
+    landed_at_s: f64,
+    end_s: f64,
 }
 
 /// The speed of state `x`, m/s.

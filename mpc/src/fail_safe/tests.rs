@@ -1,5 +1,6 @@
 use super::*;
 use mav::Scenario;
+use proptest::prelude::*;
 
 fn fail_safe(cylinders: Vec<Cylinder>) -> FailSafe {
     let p = ModelParams::default();
@@ -100,4 +101,245 @@ fn the_check_widens_to_the_longest_delay_measured_never_narrows_below_the_tree_a
     // Widening and narrowing again: the range follows the window, down to the tree's.
     let wide = base.covering(0.33, Some(1.2));
     assert_eq!(wide.covering(0.33, Some(0.2)).max_delay_s, 0.33);
+}
+
+/// The pair-by-pair flights the check made before it shared the prefix of each `d`
+/// (`FailSafe::worst_over_delays`): every pair `(d, d')` flown whole from `x0`. The
+/// yardstick of the shared flights, bit for bit.
+mod pair_by_pair {
+    use super::*;
+
+    fn worst_over_delays(
+        fs: &FailSafe,
+        x0: &[f64; 8],
+        mut fly: impl FnMut(f64, f64, &mut Envelope),
+    ) -> Envelope {
+        let mut out =
+            Envelope { min_clearance_m: f64::INFINITY, min_altitude_m: f64::INFINITY, finite: true };
+        fs.observe(&State::from(*x0), &mut out);
+        for d in fs.check.delays() {
+            for d_next in fs.check.delays() {
+                fly(d, d_next, &mut out);
+                if !out.finite {
+                    return out;
+                }
+            }
+        }
+        out
+    }
+
+    pub(super) fn envelope(fs: &FailSafe, x0: &[f64; 8], u_prev: &[f64; 3], command: &[f64; 3]) -> Envelope {
+        worst_over_delays(fs, x0, |d, d_next, out| fly(fs, x0, u_prev, command, d, d_next, out))
+    }
+
+    pub(super) fn envelope_real_time(
+        fs: &FailSafe,
+        x0: &[f64; 8],
+        u_prev: &[f64; 3],
+        in_flight: &[InFlight],
+        command: &[f64; 3],
+    ) -> Envelope {
+        let mut brakes = VecDeque::new();
+        worst_over_delays(fs, x0, |d, d_next, out| {
+            fly_real_time(fs, x0, u_prev, in_flight, command, d, d_next, &mut brakes, out)
+        })
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn fly_real_time(
+        fs: &FailSafe,
+        x0: &[f64; 8],
+        u_prev: &[f64; 3],
+        in_flight: &[InFlight],
+        command: &[f64; 3],
+        d: f64,
+        d_next: f64,
+        brakes: &mut VecDeque<(f64, [f64; 3])>,
+        out: &mut Envelope,
+    ) {
+        let period = fs.check.min_cycle_s;
+        let mut link = Link { x: State::from(*x0), t: 0.0, applied: *u_prev, landed_at: 0.0 };
+        let mut landed_at = 0.0f64;
+        let sent = in_flight.iter().map(|f| ((d - f.sent_ago_s.max(0.0)).max(0.0), f.command));
+        for (at, u) in sent.chain(std::iter::once((d, *command))) {
+            landed_at = landed_at.max(at);
+            fs.run_until(&mut link, landed_at, out);
+            link.land(u);
+        }
+        brakes.clear();
+        let end = period.max(d) + fs.check.horizon_s;
+        let mut next_sample = period;
+        while out.finite {
+            let landing = brakes.front().map(|(at, _)| *at).filter(|at| *at <= next_sample);
+            let event = landing.unwrap_or(next_sample);
+            if event > end {
+                fs.run_until(&mut link, end, out);
+                return;
+            }
+            fs.run_until(&mut link, event, out);
+            if landing.is_some() {
+                if let Some((_, u)) = brakes.pop_front() {
+                    link.land(u);
+                }
+                if speed_mps(&link.x) < fs.check.stop_speed_mps {
+                    return;
+                }
+            } else {
+                let brake =
+                    braking_command(&fs.model.params, &fs.bounds, &link.x.into(), fs.brake_gain_per_s);
+                landed_at = landed_at.max(link.t + d_next);
+                brakes.push_back((landed_at, brake));
+                next_sample += period;
+            }
+        }
+    }
+
+    fn fly(
+        fs: &FailSafe,
+        x0: &[f64; 8],
+        u_prev: &[f64; 3],
+        command: &[f64; 3],
+        d: f64,
+        d_next: f64,
+        out: &mut Envelope,
+    ) {
+        let t_min = fs.check.min_cycle_s;
+        let mut link = Link { x: State::from(*x0), t: 0.0, applied: *u_prev, landed_at: 0.0 };
+        fs.run_until(&mut link, d, out);
+        link.land(*command);
+        let mut sample = t_min.max(d);
+        fs.run_until(&mut link, sample, out);
+        let end = sample + fs.check.horizon_s;
+        while sample < end && out.finite {
+            let brake = braking_command(&fs.model.params, &fs.bounds, &link.x.into(), fs.brake_gain_per_s);
+            fs.run_until(&mut link, sample + d_next, out);
+            link.land(brake);
+            sample += t_min.max(d_next);
+            fs.run_until(&mut link, sample, out);
+            if speed_mps(&link.x) < fs.check.stop_speed_mps {
+                break;
+            }
+        }
+    }
+}
+
+/// Bit for bit, NaN and the sign of zero included.
+fn bits(e: &Envelope) -> (u64, u64, bool) {
+    (e.min_clearance_m.to_bits(), e.min_altitude_m.to_bits(), e.finite)
+}
+
+/// Mostly ordinary values; sometimes a zero of either sign (a vehicle at rest on the ground:
+/// altitudes of +0 and -0 tie in the running minimum), or one that makes the flight non-finite
+/// (at the start, at a landing in the middle of the prefix), so the early exit is compared too.
+fn value(ordinary: std::ops::Range<f64>) -> impl Strategy<Value = f64> {
+    prop_oneof![
+        30 => ordinary,
+        2 => Just(0.0),
+        2 => Just(-0.0),
+        1 => Just(f64::NAN),
+        1 => Just(f64::INFINITY),
+        1 => Just(-1e300),
+    ]
+}
+
+fn arb_state() -> impl Strategy<Value = [f64; 8]> {
+    (
+        (value(0.0..7.0), value(-1.0..6.0), value(-0.5..3.0)),
+        (value(-3.0..3.0), value(-3.0..3.0), value(-2.0..2.0)),
+        (value(-0.3..0.3), value(-0.3..0.3)),
+    )
+        .prop_map(|((px, py, pz), (vx, vy, vz), (phi, theta))| [px, py, pz, vx, vy, vz, phi, theta])
+}
+
+fn arb_input() -> impl Strategy<Value = [f64; 3]> {
+    (value(0.0..20.0), value(-0.3..0.3), value(-0.3..0.3)).prop_map(|(t, phi, theta)| [t, phi, theta])
+}
+
+fn arb_check() -> impl Strategy<Value = BrakingCheck> {
+    (
+        prop_oneof![1 => Just(0.0), 4 => 0.0f64..3.5],
+        0.01f64..0.3,
+        2usize..=4,
+        (0.05f64..3.0, 0.01f64..0.05),
+        prop_oneof![1 => Just(0.0), 4 => 0.0f64..0.3],
+        prop::option::of(0.03f64..1.0),
+    )
+        .prop_map(
+            |(
+                max_delay_s,
+                min_cycle_s,
+                delay_samples,
+                (horizon_s, step_s),
+                stop_speed_mps,
+                plant_watchdog_s,
+            )| {
+                BrakingCheck {
+                    max_delay_s,
+                    min_cycle_s,
+                    delay_samples,
+                    horizon_s,
+                    step_s,
+                    stop_speed_mps,
+                    plant_watchdog_s,
+                    ..BrakingCheck::default()
+                }
+            },
+        )
+}
+
+fn arb_in_flight() -> impl Strategy<Value = Vec<InFlight>> {
+    prop::collection::vec(
+        (prop_oneof![20 => -0.1f64..1.0, 1 => Just(f64::NAN)], arb_input())
+            .prop_map(|(sent_ago_s, command)| InFlight { sent_ago_s, command }),
+        0..5,
+    )
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(200))]
+
+    /// Sharing each `d`'s prefix changes no bit of either envelope, whatever the state, the
+    /// inputs, the commands in flight and the check's settings (watchdog firing in the prefix,
+    /// delays past the first sample or not, early stops, non-finite flights).
+    #[test]
+    fn the_shared_prefix_gives_the_pair_by_pair_envelopes_bit_for_bit(
+        check in arb_check(),
+        x0 in arb_state(),
+        (u_prev, command) in (arb_input(), arb_input()),
+        in_flight in arb_in_flight(),
+        gain_per_s in 0.5f64..3.0,
+        cylinders in prop::collection::vec((0.0f64..7.0, -1.0f64..6.0, 0.1f64..0.8), 0..4),
+    ) {
+        prop_assert!(check.validate().is_ok());
+        let p = ModelParams::default();
+        let cylinders = cylinders.into_iter().map(|(x, y, r)| Cylinder::new(x, y, r)).collect();
+        let fs = FailSafe::new(check, p, InputBounds::paper(p.gravity_mps2), cylinders, gain_per_s);
+        let shared = fs.envelope(&x0, &u_prev, &command);
+        let reference = pair_by_pair::envelope(&fs, &x0, &u_prev, &command);
+        prop_assert_eq!(bits(&shared), bits(&reference), "lockstep {:?} {:?}", shared, reference);
+        let shared = fs.envelope_real_time(&x0, &u_prev, &in_flight, &command);
+        let reference = pair_by_pair::envelope_real_time(&fs, &x0, &u_prev, &in_flight, &command);
+        prop_assert_eq!(bits(&shared), bits(&reference), "real time {:?} {:?}", shared, reference);
+    }
+}
+
+#[test]
+fn the_benchmark_checks_are_the_pair_by_pair_ones_bit_for_bit() {
+    // `benches/cycle.rs`'s instance, and the same with the range widened to the longest
+    // covered delay (a heavy tail seen), where the long prefixes are.
+    let s = Scenario::paper_2();
+    let x0 = [3.1, 1.2, 0.6, 0.1, 1.5, 0.2, 0.05, -0.02];
+    let (u_prev, u) = ([10.5, 0.05, -0.02], [10.0, 0.1, 0.0]);
+    let in_flight: Vec<InFlight> =
+        [0.15, 0.1, 0.05].iter().map(|&sent_ago_s| InFlight { sent_ago_s, command: u_prev }).collect();
+    for check in [BrakingCheck::default(), BrakingCheck::default().covering(0.33, Some(MAX_COVERED_DELAY_S))]
+    {
+        let fs = FailSafe::new(check, s.model, s.bounds, s.obstacles.clone(), 1.0);
+        let (shared, reference) =
+            (fs.envelope(&x0, &u_prev, &u), pair_by_pair::envelope(&fs, &x0, &u_prev, &u));
+        assert_eq!(bits(&shared), bits(&reference), "{check:?}");
+        let shared = fs.envelope_real_time(&x0, &u_prev, &in_flight, &u);
+        let reference = pair_by_pair::envelope_real_time(&fs, &x0, &u_prev, &in_flight, &u);
+        assert_eq!(bits(&shared), bits(&reference), "{check:?}");
+    }
 }
