@@ -139,7 +139,7 @@ pub async fn serve_with_link(
         (Err(e), _) | (_, Err(e)) => return Err(GatewayError::Serve(ServeError::Io(e))),
     };
     let health_task = {
-        let (service, health) = (service.clone(), health.clone());
+        let (service, health, link) = (service.clone(), health.clone(), link.clone());
         tokio::spawn(async move {
             let mut serving = false;
             loop {
@@ -149,8 +149,9 @@ pub async fn serve_with_link(
                     if alive {
                         tracing::info!("vehicle heartbeat: serving");
                     } else {
+                        let why = link.status().down.map(|d| format!(" ({d})")).unwrap_or_default();
                         tracing::warn!(
-                            "vehicle heartbeat lost for 2 s: NOT_SERVING, calls answer UNAVAILABLE"
+                            "vehicle heartbeat lost for 2 s{why}: NOT_SERVING, calls answer UNAVAILABLE"
                         );
                     }
                     serving = alive;

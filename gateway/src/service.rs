@@ -10,6 +10,7 @@ use hilbench_proto::pb;
 use hilbench_svc::streams::{Guarded, Pushed, StreamSlots, Writer, drop_oldest};
 use mav::{PlantSample, Scenario, SimSettings};
 use mavbridge::mavlink::dialects::common::{MavCmd, MavMessage, MavResult};
+use mavbridge::mavlink::error::MessageWriteError;
 use mavbridge::{Bridge, ModeRequest};
 use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
@@ -69,7 +70,10 @@ impl Shared {
         if let Err(e) = self.link.send(msg) {
             let mut inner = self.lock();
             inner.send_errors += 1;
-            if inner.send_errors.is_power_of_two() {
+            // While a serial device is lost every message fails; the link logged the loss once.
+            let link_down =
+                matches!(&e, MessageWriteError::Io(io) if io.kind() == std::io::ErrorKind::NotConnected);
+            if !link_down && inner.send_errors.is_power_of_two() {
                 tracing::warn!(errors = inner.send_errors, "cannot send a MAVLink message: {e}");
             }
         }
@@ -184,8 +188,9 @@ impl GatewayService {
         if inner.bridge.link_alive(now) {
             Ok(())
         } else {
+            let why = self.shared.link.status().down.map(|d| format!(" ({d})")).unwrap_or_default();
             Err(Status::unavailable(format!(
-                "no heartbeat from the vehicle for {} s on {}: the vehicle link is lost",
+                "no heartbeat from the vehicle for {} s on {}: the vehicle link is lost{why}",
                 mav::ns_to_s(inner.bridge.settings().heartbeat_timeout_ns),
                 self.shared.link.address
             )))
@@ -408,6 +413,13 @@ impl pb::vehicle_control_server::VehicleControl for GatewayService {
         let now = self.shared.now_ns();
         let inner = self.shared.lock();
         let status = inner.bridge.status(now);
-        Ok(Response::new(vconv::vehicle_status(&status, inner.bridge.settings().hover_thrust)))
+        let mut status = vconv::vehicle_status(&status, inner.bridge.settings().hover_thrust);
+        // The transport's part is the shell's: the core knows messages, not devices.
+        let link = self.shared.link.status();
+        status.link_losses = link.losses;
+        status.link_reopens = link.reopens;
+        status.link_error = link.down.unwrap_or_default();
+        status.link_read_errors = link.read_errors;
+        Ok(Response::new(status))
     }
 }

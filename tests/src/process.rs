@@ -44,6 +44,40 @@ impl Service {
         Self(child)
     }
 
+    /// Starts `name` with `args`, its output (the log, on stdout) and errors written to `log`,
+    /// for a test that asserts on what the service said.
+    pub fn start_logged(name: &str, args: &[&str], log: &std::path::Path) -> Self {
+        let file =
+            std::fs::File::create(log).unwrap_or_else(|e| panic!("cannot create {}: {e}", log.display()));
+        let errors = file.try_clone().unwrap_or_else(|e| panic!("{}: {e}", log.display()));
+        let child = Command::new(service_binary(name))
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(file)
+            .stderr(errors)
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
+        Self(child)
+    }
+
+    /// CPU time the process has used so far, user and system, all threads (`/proc/PID/stat`).
+    pub fn cpu_time(&self) -> std::time::Duration {
+        let pid = self.0.id();
+        let stat = std::fs::read_to_string(format!("/proc/{pid}/stat"))
+            .unwrap_or_else(|e| panic!("/proc/{pid}/stat: {e}"));
+        // Fields after the command name (which may hold spaces) in parentheses: utime and stime
+        // are the 14th and 15th of the line, the 12th and 13th after the name.
+        let after_name = stat.rsplit_once(')').map_or("", |(_, rest)| rest);
+        let ticks: u64 = after_name
+            .split_whitespace()
+            .skip(11)
+            .take(2)
+            .map(|f| f.parse::<u64>().unwrap_or_else(|e| panic!("/proc/{pid}/stat field {f:?}: {e}")))
+            .sum();
+        // The kernel reports them in USER_HZ ticks, 100 a second on every Linux ABI.
+        std::time::Duration::from_millis(ticks * 10)
+    }
+
     /// Sends `signal` (`STOP`, `CONT`, `KILL`, ...) with `kill(1)`.
     pub fn signal(&self, signal: &str) {
         let status = Command::new("kill")

@@ -38,6 +38,11 @@ pub fn vehicle_status(s: &VehicleStatus, hover_thrust: f64) -> pb::VehicleStatus
         stale_messages: s.counters.stale_messages,
         bad_messages: s.counters.bad_messages,
         hover_thrust,
+        // The transport's counters are the gateway's (`gateway::link`), which fills them in.
+        link_losses: 0,
+        link_reopens: 0,
+        link_error: String::new(),
+        link_read_errors: 0,
     }
 }
 

@@ -4,9 +4,11 @@
 //!   reaches the goal without a collision (judged by the gateway's samples and by the
 //!   simulator's own truth);
 //! - the vehicle going silent: the Plant API answers UNAVAILABLE, health goes NOT_SERVING;
-//! - refusals: a Reset far from the vehicle, a mode the vehicle does not know.
+//! - refusals: a Reset far from the vehicle, a mode the vehicle does not know;
+//! - a serial autopilot (pymavlink behind a pty, the `gateway` binary) unplugged and plugged
+//!   back in: UNAVAILABLE and NOT_SERVING without burning CPU, served again, stopped by SIGTERM.
 //!
-//! Every wait is bounded; no wall-clock duration is asserted.
+//! Every wait is bounded; no wall-clock duration is asserted (CPU time is, in the serial test).
 
 use std::net::SocketAddr;
 use std::time::Duration;
@@ -356,4 +358,206 @@ async fn reflected_services(addr: SocketAddr) -> Vec<String> {
         }
         other => panic!("not a service list: {other:?}"),
     }
+}
+
+/// pymavlink playing a serial autopilot behind a pty (`tests/python/autopilot_serial.py`),
+/// driven by lines on its stdin; its JSON events arrive on a channel.
+struct SerialAutopilot {
+    child: std::process::Child,
+    events: std::sync::mpsc::Receiver<serde_json::Value>,
+    /// The symbolic link the gateway opens: the pty behind it changes when replugged.
+    link: std::path::PathBuf,
+}
+
+impl SerialAutopilot {
+    fn start(dir: &std::path::Path) -> Self {
+        use std::io::BufRead;
+        let link = dir.join("autopilot");
+        let script = hilbench_tests::python::scripts_dir().join("autopilot_serial.py");
+        let mut child = std::process::Command::new(hilbench_tests::python::python())
+            .arg(script)
+            .arg(&link)
+            .arg(PATIENCE.as_secs().to_string())
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .expect("autopilot_serial.py starts");
+        let stdout = child.stdout.take().expect("piped");
+        let (tx, events) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for line in std::io::BufReader::new(stdout).lines().map_while(Result::ok) {
+                let event = serde_json::from_str(&line).unwrap_or_else(|e| panic!("{line:?}: {e}"));
+                if tx.send(event).is_err() {
+                    return;
+                }
+            }
+        });
+        Self { child, events, link }
+    }
+
+    /// Waits (at most PATIENCE) for the event named `name`; panics on another one, but for
+    /// `heard` (the gateway's heartbeat heard on a device), which may come at any time.
+    fn expect(&self, name: &str) -> serde_json::Value {
+        loop {
+            let event =
+                self.events.recv_timeout(PATIENCE).unwrap_or_else(|e| panic!("no {name:?} event: {e}"));
+            if event["event"] == "heard" && name != "heard" {
+                continue;
+            }
+            assert_eq!(event["event"], name, "{event}");
+            return event;
+        }
+    }
+
+    fn tell(&mut self, command: &str) {
+        use std::io::Write;
+        let stdin = self.child.stdin.as_mut().expect("piped");
+        writeln!(stdin, "{command}").and_then(|()| stdin.flush()).expect("the script reads its stdin");
+    }
+}
+
+impl Drop for SerialAutopilot {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Polls `GetState` until it answers `code` (`Ok` as `Code::Ok`); panics after PATIENCE.
+async fn wait_get_state(
+    p: &mut PlantClient<Channel>,
+    code: tonic::Code,
+) -> Result<pb::StateSample, tonic::Status> {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    loop {
+        let r = p.get_state(pb::GetStateRequest {}).await.map(tonic::Response::into_inner);
+        if r.as_ref().map_or_else(tonic::Status::code, |_| tonic::Code::Ok) == code {
+            return r;
+        }
+        assert!(tokio::time::Instant::now() < deadline, "GetState never answered {code:?}: last {r:?}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+/// Polls the health of `service` until it is `status`; panics after PATIENCE.
+async fn wait_health(addr: SocketAddr, service: &str, status: ServingStatus) {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    while health(addr, service).await != status as i32 {
+        assert!(tokio::time::Instant::now() < deadline, "{service} never {status:?}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+/// The regression test of a serial autopilot unplugged under the gateway (its reads then fail
+/// at once, for ever; the gateway used to spin a core on them and never stop). The real
+/// `gateway` binary on a pty, pymavlink on the other end.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_unplugged_serial_autopilot_makes_the_gateway_unavailable_without_spinning_and_is_served_again_when_plugged_back()
+ {
+    let dir = std::env::temp_dir().join(format!("hilbench-gateway-serial-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("a temporary directory");
+    let mut autopilot = SerialAutopilot::start(&dir);
+    autopilot.expect("plugged");
+
+    let addr = hilbench_tests::free_loopback_address();
+    let log = dir.join("gateway.log");
+    let mavlink = format!("serial:{}:921600", autopilot.link.display());
+    let mut gateway = hilbench_tests::Service::start_logged(
+        "gateway",
+        &["--listen", &addr, "--mavlink", &mavlink, "--scenario", "paper-2"],
+        &log,
+    );
+    let addr: SocketAddr = addr.parse().expect("an address");
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    let mut p = loop {
+        match PlantClient::connect(format!("http://{addr}")).await {
+            Ok(p) => break p,
+            Err(e) => assert!(tokio::time::Instant::now() < deadline, "the gateway never listened: {e}"),
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
+
+    // Served over the serial line: the state, and a command that leaves as SET_ATTITUDE_TARGET.
+    let sample = wait_get_state(&mut p, tonic::Code::Ok).await.expect("a state");
+    let x = sample.state.as_ref().map(|s| s.x.clone()).unwrap_or_default();
+    assert!(
+        x.first().is_some_and(|x0| (x0 - 3.2).abs() < 1e-6),
+        "paper-2's start, as the autopilot reports it: {x:?}"
+    );
+    wait_health(addr, "hilbench.v1.Plant", ServingStatus::Serving).await;
+    let commanded = {
+        let command = pb::Command {
+            input: Some(pb::ControlInput { thrust_mps2: 12.0, roll_rad: 0.1, pitch_rad: 0.0 }),
+            command_seq: 1,
+            ..Default::default()
+        };
+        // Within the command timeout, until pymavlink has seen it (bounded by `expect`).
+        let commanding = {
+            let mut p = p.clone();
+            tokio::spawn(async move {
+                loop {
+                    p.apply_command(command).await.expect("applied");
+                    tokio::time::sleep(Duration::from_millis(50)).await;
+                }
+            })
+        };
+        let event = tokio::task::block_in_place(|| autopilot.expect("commanded"));
+        commanding.abort();
+        event
+    };
+    assert!((commanded["thrust"].as_f64().expect("thrust") - 0.5 * 12.0 / 9.81).abs() < 1e-6, "{commanded}");
+    assert_eq!(commanded["type_mask"], 7, "{commanded}");
+    assert_eq!(commanded["target"], serde_json::json!([1, 1]), "{commanded}");
+
+    // Unplugged: the pty's master closes under the gateway.
+    autopilot.tell("unplug");
+    tokio::task::block_in_place(|| autopilot.expect("unplugged"));
+    // The heartbeat is lost (2 s), as it would be over UDP.
+    let lost = wait_get_state(&mut p, tonic::Code::Unavailable).await.expect_err("UNAVAILABLE");
+    assert!(lost.message().contains("heartbeat") && lost.message().contains("lost"), "{lost}");
+    wait_health(addr, "hilbench.v1.Plant", ServingStatus::NotServing).await;
+    wait_health(addr, "hilbench.v1.VehicleControl", ServingStatus::NotServing).await;
+    // ... and the gateway waits on it rather than spinning: a spin is a whole core (100 %), an
+    // idle gateway a few per cent. CPU time, not wall-clock time, is what is bounded.
+    let (cpu_before, wall) = (gateway.cpu_time(), std::time::Instant::now());
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let (cpu, wall) = (gateway.cpu_time() - cpu_before, wall.elapsed());
+    assert!(
+        cpu.as_secs_f64() < 0.3 * wall.as_secs_f64(),
+        "the gateway used {cpu:?} of CPU in {wall:?} with its serial device unplugged"
+    );
+    let mut vc = vehicle_control(addr).await;
+    let status = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+    assert!(!status.link_alive && status.link_losses == 1 && status.link_reopens == 0, "{status:?}");
+    assert!(status.link_error.contains("lost"), "{status:?}");
+
+    // Plugged back in (a new pty behind the same path, as a USB autopilot re-enumerates): the
+    // gateway opens it again and serves again.
+    autopilot.tell("plug");
+    tokio::task::block_in_place(|| autopilot.expect("plugged"));
+    tokio::task::block_in_place(|| autopilot.expect("heard"));
+    wait_get_state(&mut p, tonic::Code::Ok).await.expect("served again");
+    wait_health(addr, "hilbench.v1.Plant", ServingStatus::Serving).await;
+    let status = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+    assert!(status.link_alive && status.link_losses == 1 && status.link_reopens == 1, "{status:?}");
+    assert!(status.link_error.is_empty(), "{status:?}");
+
+    // SIGTERM stops it cleanly, and the log said why the link was lost once, not per retry.
+    gateway.signal("TERM");
+    let deadline = std::time::Instant::now() + PATIENCE;
+    let exit = loop {
+        if let Some(exit) = gateway.0.try_wait().expect("the gateway's status") {
+            break exit;
+        }
+        assert!(std::time::Instant::now() < deadline, "the gateway ignored SIGTERM");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
+    let log = std::fs::read_to_string(&log).expect("the gateway's log");
+    assert!(exit.success(), "{exit}:\n{log}");
+    assert_eq!(log.matches("lost: ").count(), 1, "{log}");
+    assert_eq!(log.matches("open again").count(), 1, "{log}");
+    autopilot.tell("quit");
+    drop(autopilot);
+    let _ = std::fs::remove_dir_all(&dir);
 }
