@@ -5,14 +5,15 @@
 //! The decisions are [`mavbridge`]'s (frames, thrust, setpoints, the command timeout, resets);
 //! this crate is the shell: a thread reads the MAVLink link and feeds the core, a thread sends
 //! what the core schedules (setpoints at 50 Hz, heartbeats, `TIMESYNC`), the gRPC services
-//! decode, call the core, send and encode, and health follows the vehicle's heartbeat.
+//! decode, call the core, send and encode, and health follows the vehicle's heartbeat (and
+//! goes NOT_SERVING from a reboot of the vehicle until the next `Reset`).
 
 pub mod link;
 pub mod mavsim;
 pub mod service;
 
 pub use link::{Link, LinkError};
-pub use service::GatewayService;
+pub use service::{GatewayService, NotServing};
 
 use hilbench_proto::pb::plant_server::PlantServer;
 use hilbench_proto::pb::vehicle_control_server::VehicleControlServer;
@@ -143,18 +144,21 @@ pub async fn serve_with_link(
         tokio::spawn(async move {
             let mut serving = false;
             loop {
-                let alive = service.link_alive();
-                if alive != serving {
-                    set_health(&health, &NAMES, alive).await;
-                    if alive {
-                        tracing::info!("vehicle heartbeat: serving");
-                    } else {
-                        let why = link.status().down.map(|d| format!(" ({d})")).unwrap_or_default();
-                        tracing::warn!(
-                            "vehicle heartbeat lost for 2 s{why}: NOT_SERVING, calls answer UNAVAILABLE"
-                        );
+                let not_serving = service.not_serving();
+                if not_serving.is_none() != serving {
+                    serving = not_serving.is_none();
+                    set_health(&health, &NAMES, serving).await;
+                    match not_serving {
+                        None => tracing::info!("vehicle heartbeat, no reboot since the last reset: serving"),
+                        Some(NotServing::HeartbeatLost) => {
+                            let why = link.status().down.map(|d| format!(" ({d})")).unwrap_or_default();
+                            tracing::warn!(
+                                "vehicle heartbeat lost for 2 s{why}: NOT_SERVING, calls answer UNAVAILABLE"
+                            );
+                        }
+                        // The reading thread logged the reboot once, naming the Reset it needs.
+                        Some(NotServing::Rebooted) => {}
                     }
-                    serving = alive;
                 }
                 tokio::time::sleep(Duration::from_millis(50)).await;
             }

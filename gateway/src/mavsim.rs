@@ -1,12 +1,13 @@
 //! `mavsim`: the MAV model in real time behind the autopilot's side of MAVLink
 //! ([`mavbridge::SimAutopilot`]: PX4's arming, OFFBOARD and offboard-loss failsafe, the same
 //! frame and thrust conversions as the gateway's). A thread reads the link and a thread
-//! integrates and sends the streams; the vehicle's boot clock is the time since start.
+//! integrates and sends the streams; the vehicle's boot clock is the time since start (or since
+//! the last [`Mavsim::reboot`]).
 
 use crate::link::{Link, LinkError};
 use mav::Scenario;
 use mavbridge::{AutopilotSettings, SimAutopilot};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -20,8 +21,29 @@ pub struct MavsimConfig {
     pub autopilot: AutopilotSettings,
 }
 
+/// The vehicle's boot clock: the time since start, less the time of the last reboot.
+#[derive(Clone)]
+struct BootClock {
+    origin: Instant,
+    /// Time since start of the last reboot, ns.
+    booted_ns: Arc<AtomicU64>,
+}
+
+impl BootClock {
+    fn since_start_ns(&self) -> u64 {
+        u64::try_from(self.origin.elapsed().as_nanos()).unwrap_or(u64::MAX)
+    }
+
+    /// The vehicle's clock (`time_boot_ms` in ns).
+    fn now_ns(&self) -> u64 {
+        self.since_start_ns().saturating_sub(self.booted_ns.load(Ordering::Relaxed))
+    }
+}
+
 /// A running simulated vehicle; stopped when dropped.
 pub struct Mavsim {
+    config: MavsimConfig,
+    clock: BootClock,
     autopilot: Arc<Mutex<SimAutopilot>>,
     stop: Arc<AtomicBool>,
     silent: Arc<AtomicBool>,
@@ -37,8 +59,7 @@ impl Mavsim {
         let link = Link::open(&config.mavlink, 1, 1)?;
         let autopilot = Arc::new(Mutex::new(autopilot));
         let (stop, silent) = (Arc::new(AtomicBool::new(false)), Arc::new(AtomicBool::new(false)));
-        let origin = Instant::now();
-        let now_ns = move || u64::try_from(origin.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        let clock = BootClock { origin: Instant::now(), booted_ns: Arc::new(AtomicU64::new(0)) };
         let send_all = |link: &Link, out: &[mavbridge::mavlink::dialects::common::MavMessage]| {
             for m in out {
                 if let Err(e) = link.send(m) {
@@ -47,8 +68,8 @@ impl Mavsim {
             }
         };
         let reader = {
-            let (autopilot, stop, silent, link) =
-                (autopilot.clone(), stop.clone(), silent.clone(), link.clone());
+            let (autopilot, stop, silent, link, clock) =
+                (autopilot.clone(), stop.clone(), silent.clone(), link.clone(), clock.clone());
             std::thread::Builder::new().name("mavsim-recv".into()).spawn(move || {
                 while !stop.load(Ordering::Relaxed) {
                     let Some((_, msg)) = link.recv() else { continue };
@@ -56,31 +77,32 @@ impl Mavsim {
                         continue;
                     }
                     let mut out = Vec::new();
-                    autopilot.lock().unwrap_or_else(PoisonError::into_inner).on_message(
-                        &msg,
-                        now_ns(),
-                        &mut out,
-                    );
+                    // The clock is read under the lock, so that a reboot is never half seen.
+                    let mut a = autopilot.lock().unwrap_or_else(PoisonError::into_inner);
+                    a.on_message(&msg, clock.now_ns(), &mut out);
+                    drop(a);
                     send_all(&link, &out);
                 }
             })
         };
         let ticker = {
-            let (autopilot, stop, silent) = (autopilot.clone(), stop.clone(), silent.clone());
+            let (autopilot, stop, silent, clock) =
+                (autopilot.clone(), stop.clone(), silent.clone(), clock.clone());
             std::thread::Builder::new().name("mavsim-tick".into()).spawn(move || {
                 while !stop.load(Ordering::Relaxed) {
-                    let now = now_ns();
                     let mut out = Vec::new();
                     let next = {
                         let mut a = autopilot.lock().unwrap_or_else(PoisonError::into_inner);
-                        a.poll(now, &mut out);
+                        a.poll(clock.now_ns(), &mut out);
                         a.next_due_ns()
                     };
                     if !silent.load(Ordering::Relaxed) {
                         send_all(&link, &out);
                     }
                     // At least every millisecond: the model integrates at 1 kHz in real time.
-                    std::thread::sleep(Duration::from_nanos(next.saturating_sub(now_ns()).min(1_000_000)));
+                    std::thread::sleep(Duration::from_nanos(
+                        next.saturating_sub(clock.now_ns()).min(1_000_000),
+                    ));
                 }
             })
         };
@@ -89,7 +111,19 @@ impl Mavsim {
             .collect::<Result<Vec<_>, _>>()
             .map_err(|e| LinkError::Open { address: config.mavlink.clone(), source: e })?;
         tracing::info!(mavlink = %config.mavlink, scenario = %config.scenario.name, "mavsim running (PX4's side of MAVLink)");
-        Ok(Self { autopilot, stop, silent, threads })
+        Ok(Self { config: config.clone(), clock, autopilot, stop, silent, threads })
+    }
+
+    /// The vehicle reboots, at once: its boot clock starts again at 0, and it is a fresh
+    /// autopilot (disarmed, POSCTL) at the scenario's start. The link stays up (a real reboot
+    /// also silences it for a few seconds; [`Mavsim::set_silent`] plays that part).
+    pub fn reboot(&self) -> Result<(), mavbridge::thrust::ThrustError> {
+        let fresh = SimAutopilot::new(&self.config.scenario, self.config.autopilot)?;
+        let mut a = self.autopilot();
+        self.clock.booted_ns.store(self.clock.since_start_ns(), Ordering::Relaxed);
+        *a = fresh;
+        tracing::info!("mavsim rebooted: boot clock at 0, disarmed in POSCTL");
+        Ok(())
     }
 
     /// The simulated autopilot and its model (the truth, for tests).

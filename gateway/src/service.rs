@@ -100,6 +100,15 @@ fn publish(inner: &mut Inner, sample: &PlantSample) {
     });
 }
 
+/// Why the Plant API does not serve (health NOT_SERVING, calls `UNAVAILABLE`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NotServing {
+    /// No vehicle heartbeat for the timeout (2 s).
+    HeartbeatLost,
+    /// The vehicle rebooted since the last `Reset` (its boot clock went back).
+    Rebooted,
+}
+
 /// The gateway: a small handle around the shared core and link (cheap to clone).
 #[derive(Clone)]
 pub struct GatewayService {
@@ -134,10 +143,22 @@ impl GatewayService {
         }
     }
 
-    /// Whether the vehicle's heartbeat is fresh (health follows it).
+    /// Whether the vehicle's heartbeat is fresh.
     pub fn link_alive(&self) -> bool {
         let now = self.shared.now_ns();
         self.shared.lock().bridge.link_alive(now)
+    }
+
+    /// Why the Plant API does not serve now (`None`: it does; health follows this): the
+    /// heartbeat is lost, or the vehicle rebooted since the last `Reset`.
+    pub fn not_serving(&self) -> Option<NotServing> {
+        let now = self.shared.now_ns();
+        let inner = self.shared.lock();
+        if !inner.bridge.link_alive(now) {
+            Some(NotServing::HeartbeatLost)
+        } else {
+            inner.bridge.awaiting_reset().map(|_| NotServing::Rebooted)
+        }
     }
 
     /// Ends every state stream and refuses new ones (at shutdown).
@@ -153,6 +174,12 @@ impl GatewayService {
         let reply = {
             let mut inner = self.shared.lock();
             let event = inner.bridge.on_message(header, msg, now);
+            if let Some(reboot) = &event.reboot {
+                tracing::warn!(
+                    reboots = inner.bridge.counters().reboots,
+                    "{reboot}; until then the Plant API answers UNAVAILABLE and health is NOT_SERVING"
+                );
+            }
             if let Some(sample) = &event.sample {
                 publish(&mut inner, sample);
             }
@@ -182,6 +209,16 @@ impl GatewayService {
             self.shared.send(m);
         }
         next
+    }
+
+    /// [`GatewayService::alive`], and the vehicle has not rebooted since the last `Reset`:
+    /// what every Plant call but `Reset` and `Describe` needs.
+    fn serving(&self, inner: &Inner, now: u64) -> Result<(), Status> {
+        self.alive(inner, now)?;
+        match inner.bridge.awaiting_reset() {
+            Some(reboot) => Err(Status::unavailable(reboot.to_string())),
+            None => Ok(()),
+        }
     }
 
     fn alive(&self, inner: &Inner, now: u64) -> Result<(), Status> {
@@ -303,7 +340,7 @@ impl pb::plant_server::Plant for GatewayService {
         if inner.closed {
             return Err(Status::unavailable("the gateway is shutting down"));
         }
-        self.alive(&inner, now)?;
+        self.serving(&inner, now)?;
         let period_ns = req.period_ns.max(1);
         let mut sub = Subscriber { period_ns, last_slot: None, tx };
         if let Some(first) = inner.bridge.sample() {
@@ -321,7 +358,7 @@ impl pb::plant_server::Plant for GatewayService {
     ) -> Result<Response<pb::StateSample>, Status> {
         let now = self.shared.now_ns();
         let inner = self.shared.lock();
-        self.alive(&inner, now)?;
+        self.serving(&inner, now)?;
         match inner.bridge.sample() {
             Some(s) => Ok(Response::new(s.into())),
             None => Err(Status::unavailable(
@@ -338,7 +375,7 @@ impl pb::plant_server::Plant for GatewayService {
         let now = self.shared.now_ns();
         let (applied, msg) = {
             let mut inner = self.shared.lock();
-            self.alive(&inner, now)?;
+            self.serving(&inner, now)?;
             inner.bridge.apply(command.input, command.meta, now)
         };
         if let Some(msg) = msg {

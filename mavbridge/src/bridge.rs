@@ -15,6 +15,13 @@ use mavlink::dialects::common::{
     MavModeFlag, MavResult, MavState, MavType, TIMESYNC_DATA,
 };
 
+/// A state message stamped this much earlier than the last one of its kind means the vehicle
+/// rebooted, ms. Reordered or duplicated UDP datagrams go back by milliseconds (a few state
+/// periods); a reboot goes back by the whole uptime. One second separates the two with room on
+/// both sides; a vehicle that reboots less than a second after its last message is not seen to
+/// reboot (its next messages are stale until its clock passes the old one, under a second).
+pub const REBOOT_CLOCK_JUMP_MS: u32 = 1_000;
+
 /// Settings of the bridge, with units.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BridgeSettings {
@@ -133,6 +140,29 @@ pub struct Counters {
     pub stale_messages: u64,
     /// State messages with non-finite values, not used.
     pub bad_messages: u64,
+    /// Times the vehicle's boot clock went back by more than [`REBOOT_CLOCK_JUMP_MS`]: it
+    /// rebooted.
+    pub reboots: u64,
+}
+
+/// A reboot of the vehicle, seen as its boot clock (`time_boot_ms`) going back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Reboot {
+    /// The newest stamp of the messages of that kind before the reboot, ms.
+    pub before_ms: u32,
+    /// The stamp of the message that showed the reboot, ms.
+    pub after_ms: u32,
+}
+
+impl std::fmt::Display for Reboot {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "the autopilot rebooted (its boot clock went back from {:.3} s to {:.3} s): plant time is no longer continuous; call Reset to start a new episode",
+            f64::from(self.before_ms) / 1e3,
+            f64::from(self.after_ms) / 1e3
+        )
+    }
 }
 
 /// What one incoming message produced.
@@ -144,6 +174,8 @@ pub struct Event {
     pub ack: Option<(MavCmd, MavResult)>,
     /// A message to send back (an answer to the vehicle's `TIMESYNC` request).
     pub reply: Option<MavMessage>,
+    /// This message showed that the vehicle rebooted (once per reboot).
+    pub reboot: Option<Reboot>,
 }
 
 #[derive(Debug, Clone)]
@@ -182,6 +214,8 @@ pub struct Bridge {
     contacts: Contacts,
     path_length_m: f64,
     flight_id: u64,
+    /// The vehicle rebooted since the last reset: no samples until the next one.
+    rebooted: Option<Reboot>,
     /// The input streamed as setpoints.
     setpoint: Input,
     next_setpoint_ns: u64,
@@ -236,6 +270,7 @@ impl Bridge {
             contacts: Contacts::new(scenario.obstacles.clone(), scenario.ground_z_m),
             path_length_m: 0.0,
             flight_id,
+            rebooted: None,
             setpoint: hover(&scenario),
             next_setpoint_ns: now_ns,
             next_heartbeat_ns: now_ns,
@@ -264,6 +299,12 @@ impl Bridge {
     }
     pub fn yaw_hold_rad(&self) -> f64 {
         self.yaw_hold_rad
+    }
+
+    /// The vehicle rebooted since the last reset (`Some`): its samples are refused until the
+    /// next [`Bridge::reset`], since plant time is no longer continuous.
+    pub fn awaiting_reset(&self) -> Option<Reboot> {
+        self.rebooted
     }
 
     /// The vehicle's heartbeat is fresh.
@@ -316,18 +357,25 @@ impl Bridge {
             }
             MavMessage::COMMAND_ACK(a) => event.ack = Some((a.command, a.result)),
             MavMessage::ATTITUDE(a) => match Attitude::from_euler(a) {
-                Some(att) => event.sample = self.on_attitude(att, now_ns),
+                Some(att) => self.on_attitude(att, now_ns, &mut event),
                 None => self.counters.bad_messages += 1,
             },
             MavMessage::ATTITUDE_QUATERNION(a) => match Attitude::from_quaternion(a) {
-                Some(att) => event.sample = self.on_attitude(att, now_ns),
+                Some(att) => self.on_attitude(att, now_ns, &mut event),
                 None => self.counters.bad_messages += 1,
             },
             MavMessage::LOCAL_POSITION_NED(p) => {
                 let t = p.time_boot_ms;
                 if [p.x, p.y, p.z, p.vx, p.vy, p.vz].iter().any(|v| !v.is_finite()) {
                     self.counters.bad_messages += 1;
-                } else if self.position.as_ref().is_some_and(|old| old.time_boot_ms > t) {
+                    return event;
+                }
+                if let Some(old) = &self.position
+                    && old.time_boot_ms.saturating_sub(t) > REBOOT_CLOCK_JUMP_MS
+                {
+                    event.reboot = Some(self.on_reboot(old.time_boot_ms, t, now_ns));
+                }
+                if self.position.as_ref().is_some_and(|old| old.time_boot_ms > t) {
                     self.counters.stale_messages += 1;
                 } else {
                     self.position = Some(p.clone());
@@ -339,21 +387,53 @@ impl Bridge {
         event
     }
 
-    fn on_attitude(&mut self, att: Attitude, now_ns: u64) -> Option<PlantSample> {
+    fn on_attitude(&mut self, att: Attitude, now_ns: u64, event: &mut Event) {
+        if let Some(old) = &self.attitude
+            && old.time_boot_ms.saturating_sub(att.time_boot_ms) > REBOOT_CLOCK_JUMP_MS
+        {
+            event.reboot = Some(self.on_reboot(old.time_boot_ms, att.time_boot_ms, now_ns));
+        }
         if self.attitude.as_ref().is_some_and(|old| old.time_boot_ms > att.time_boot_ms) {
             self.counters.stale_messages += 1;
-            return None;
+            return;
         }
         if !self.heard.as_ref().is_some_and(|h| h.armed) {
             self.yaw_hold_rad = att.yaw_rad;
         }
         self.attitude = Some(att);
-        self.produce(u64::from(att.time_boot_ms) * 1_000_000, now_ns)
+        event.sample = self.produce(u64::from(att.time_boot_ms) * 1_000_000, now_ns);
+    }
+
+    /// The vehicle's boot clock went back from `before_ms` to `after_ms`: it rebooted. What
+    /// was measured on its old clock is forgotten (the clock offset, the last state and its
+    /// stamps, the plant-time epoch, the last command's stamps), as is its armed state (a
+    /// rebooted autopilot is disarmed; the next heartbeat says so, and an arming after it
+    /// takes the yaw to hold again). The setpoint goes back to level hover, and no sample is
+    /// made until the next [`Bridge::reset`]. Nothing is sent to the vehicle.
+    fn on_reboot(&mut self, before_ms: u32, after_ms: u32, now_ns: u64) -> Reboot {
+        let reboot = Reboot { before_ms, after_ms };
+        self.counters.reboots += 1;
+        self.rebooted = Some(reboot);
+        self.timesync.restart(now_ns);
+        self.position = None;
+        self.attitude = None;
+        self.epoch_vehicle_ns = None;
+        self.current = None;
+        self.last_command = initial_command(&self.scenario);
+        if let Some(h) = &mut self.heard {
+            h.armed = false;
+        }
+        self.setpoint = hover(&self.scenario);
+        self.watchdog_hover = true;
+        reboot
     }
 
     /// A new sample at vehicle time `vehicle_ns`, once both a position and an attitude exist.
     fn produce(&mut self, vehicle_ns: u64, now_ns: u64) -> Option<PlantSample> {
         self.timesync.on_arrival(vehicle_ns, now_ns);
+        if self.rebooted.is_some() {
+            return None;
+        }
         let (p, a) = (self.position.as_ref()?, self.attitude.as_ref()?);
         let ned = messages::ned_of(p, a)?;
         let state = frame::model_state(&ned);
@@ -475,7 +555,8 @@ impl Bridge {
 
     /// A `Reset`: the scenario (obstacles, goal) changes, plant time restarts at the vehicle's
     /// newest state, a new flight begins, and the setpoint goes back to level hover; the
-    /// vehicle is not moved. Refused when the requested start (or the scenario's) is farther
+    /// vehicle is not moved. After a reboot, this is what serves samples again (on the new
+    /// clock). Refused when the requested start (or the scenario's) is farther
     /// from the vehicle than the tolerance.
     pub fn reset(
         &mut self,
@@ -518,6 +599,7 @@ impl Bridge {
         self.watchdog_hover_ns = 0;
         self.path_length_m = 0.0;
         self.flight_id = flight_id;
+        self.rebooted = None;
         self.contacts.observe(0, &state);
         Ok(self.emit(0, state))
     }

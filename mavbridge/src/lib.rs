@@ -6,7 +6,8 @@
 //! - [`timesync`]: the vehicle's clock from `TIMESYNC`.
 //! - [`messages`]: MAVLink messages to and from model values (both sides use it).
 //! - [`modes`]: PX4 and ArduPilot modes.
-//! - [`bridge`]: the gateway's core (samples, setpoints, the command timeout, resets).
+//! - [`bridge`]: the gateway's core (samples, setpoints, the command timeout, resets, the
+//!   vehicle's reboots).
 //! - [`autopilot`]: the simulator's autopilot around `mav::PlantSim`.
 
 pub mod autopilot;
@@ -18,7 +19,10 @@ pub mod thrust;
 pub mod timesync;
 
 pub use autopilot::{AutopilotError, AutopilotSettings, SimAutopilot, SimMode};
-pub use bridge::{Bridge, BridgeError, BridgeSettings, Counters, Event, ResetRefusal, VehicleStatus};
+pub use bridge::{
+    Bridge, BridgeError, BridgeSettings, Counters, Event, REBOOT_CLOCK_JUMP_MS, Reboot, ResetRefusal,
+    VehicleStatus,
+};
 pub use mavlink;
 pub use modes::ModeRequest;
 pub use thrust::ThrustMap;

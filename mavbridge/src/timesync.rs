@@ -15,6 +15,8 @@ pub struct TimeSync {
     /// Vehicle time minus local arrival time of the latest state message: a bound used before
     /// the first exchange (it ignores the transport's latency).
     arrival_offset_ns: Option<i64>,
+    /// Local time of the last [`TimeSync::restart`]: answers to earlier requests are ignored.
+    since_ns: i64,
 }
 
 impl TimeSync {
@@ -27,7 +29,7 @@ impl TimeSync {
     /// when it is an answer to one of ours (`ts1` in the past), `None` otherwise.
     pub fn on_answer(&mut self, tc1: i64, ts1: i64, now_ns: u64) -> Option<u64> {
         let now = now_ns as i64;
-        if tc1 <= 0 || ts1 < 0 || ts1 > now {
+        if tc1 <= 0 || ts1 < self.since_ns || ts1 > now {
             return None;
         }
         let rtt = (now - ts1) as u64;
@@ -39,6 +41,13 @@ impl TimeSync {
         }
         self.next = (self.next + 1) % WINDOW;
         Some(rtt)
+    }
+
+    /// The vehicle's clock restarted (it rebooted), noticed at local time `now_ns`: every
+    /// estimate is forgotten, and answers to requests sent before now (which the vehicle may
+    /// have stamped with its old clock) are ignored.
+    pub fn restart(&mut self, now_ns: u64) {
+        *self = Self { since_ns: now_ns as i64, ..Self::default() };
     }
 
     /// A state message stamped `vehicle_ns` arrived at local time `now_ns`.
@@ -89,5 +98,22 @@ mod tests {
         // A request from the vehicle (tc1 = 0) or a stamp from the future is not an answer.
         assert_eq!(t.on_answer(0, 5, 20_300_000), None);
         assert_eq!(t.on_answer(7, 30_000_000, 20_300_000), None);
+    }
+
+    #[test]
+    fn a_restart_forgets_the_offset_and_ignores_answers_to_requests_sent_before_it() {
+        let mut t = TimeSync::default();
+        let (_, ts1) = TimeSync::request(10_000_000);
+        t.on_answer(600_000_000_000, ts1, 10_200_000);
+        t.on_arrival(600_000_000_000, 10_000_000);
+        t.restart(20_000_000);
+        assert_eq!(t.offset_ns(), None);
+        // Sent before the restart, answered late with the old clock: not used.
+        assert_eq!(t.on_answer(600_010_000_000, ts1, 20_100_000), None);
+        assert_eq!(t.offset_ns(), None);
+        // Sent after it: the new clock (booted 1 s ago).
+        let (_, ts1) = TimeSync::request(20_000_000);
+        t.on_answer(1_000_100_000, ts1, 20_200_000);
+        assert_eq!(t.offset_ns(), Some((1_000_000_000 - 20_000_000, true)));
     }
 }

@@ -6,7 +6,7 @@ use mav::{CommandMeta, Input, Scenario};
 use mavbridge::mavlink::dialects::common::{MavCmd, MavMessage, MavResult};
 use mavbridge::mavlink::{self, MavHeader, MavlinkVersion};
 use mavbridge::{
-    AutopilotSettings, Bridge, BridgeSettings, ModeRequest, ResetRefusal, SimAutopilot, SimMode,
+    AutopilotSettings, Bridge, BridgeSettings, ModeRequest, Reboot, ResetRefusal, SimAutopilot, SimMode,
 };
 
 const MS: u64 = 1_000_000;
@@ -20,37 +20,66 @@ fn wire(msg: &MavMessage, system_id: u8) -> (MavHeader, MavMessage) {
 }
 
 /// A gateway core and a simulated vehicle on one clock (the vehicle booted 3 s before the
-/// gateway started: its clock is the gateway's + 3 s).
+/// gateway started: its clock is the gateway's + 3 s, until it reboots).
 struct Pair {
     bridge: Bridge,
     vehicle: SimAutopilot,
     now_ns: u64,
+    /// The vehicle's clock minus the gateway's, ns.
+    vehicle_ahead_ns: i64,
     acks: Vec<(MavCmd, MavResult)>,
     samples: Vec<mav::PlantSample>,
+    /// The reboots the bridge reported, one event each.
+    reboots: Vec<Reboot>,
+    /// `COMMAND_LONG`s the bridge scheduled on its own (it must never).
+    unasked_commands: usize,
     /// The vehicle does not hear the gateway, nor the gateway the vehicle.
     silent_vehicle: bool,
 }
 
 const VEHICLE_AHEAD_NS: u64 = 3_000 * MS;
 
+fn sim_autopilot(scenario: &Scenario) -> SimAutopilot {
+    SimAutopilot::new(scenario, AutopilotSettings { yaw_rad: 0.7, ..Default::default() }).expect("valid")
+}
+
 impl Pair {
     fn new(scenario: &Scenario) -> Self {
+        Self::booted_before(scenario, VEHICLE_AHEAD_NS)
+    }
+
+    /// The vehicle booted `ahead_ns` before the gateway started.
+    fn booted_before(scenario: &Scenario, ahead_ns: u64) -> Self {
         Self {
             bridge: Bridge::new(scenario.clone(), BridgeSettings::default(), 0, 1).expect("valid"),
-            vehicle: SimAutopilot::new(scenario, AutopilotSettings { yaw_rad: 0.7, ..Default::default() })
-                .expect("valid"),
+            vehicle: sim_autopilot(scenario),
             now_ns: 0,
+            vehicle_ahead_ns: ahead_ns as i64,
             acks: Vec::new(),
             samples: Vec::new(),
+            reboots: Vec::new(),
+            unasked_commands: 0,
             silent_vehicle: false,
         }
+    }
+
+    /// The vehicle's clock now, ns.
+    fn vehicle_ns(&self) -> u64 {
+        u64::try_from(self.now_ns as i64 + self.vehicle_ahead_ns).expect("the vehicle has booted")
+    }
+
+    /// The vehicle reboots now: a fresh autopilot (disarmed, POSCTL, at the scenario's start)
+    /// whose boot clock starts at 0.
+    fn reboot_vehicle(&mut self, scenario: &Scenario) {
+        self.vehicle = sim_autopilot(scenario);
+        self.vehicle_ahead_ns = -(self.now_ns as i64);
     }
 
     fn send_to_vehicle(&mut self, msgs: Vec<MavMessage>) {
         for m in msgs {
             let (_, m) = wire(&m, 255);
             let mut answers = Vec::new();
-            self.vehicle.on_message(&m, self.now_ns + VEHICLE_AHEAD_NS, &mut answers);
+            self.vehicle.on_message(&m, self.vehicle_ns(), &mut answers);
             self.send_to_gateway(answers);
         }
     }
@@ -64,6 +93,7 @@ impl Pair {
             let event = self.bridge.on_message(&h, &m, self.now_ns);
             self.samples.extend(event.sample);
             self.acks.extend(event.ack);
+            self.reboots.extend(event.reboot);
             if let Some(reply) = event.reply {
                 self.send_to_vehicle(vec![reply]);
             }
@@ -76,11 +106,12 @@ impl Pair {
             self.now_ns += MS;
             let mut out = Vec::new();
             self.bridge.poll(self.now_ns, &mut out);
+            self.unasked_commands += out.iter().filter(|m| matches!(m, MavMessage::COMMAND_LONG(_))).count();
             if !self.silent_vehicle {
                 self.send_to_vehicle(out);
             }
             let mut out = Vec::new();
-            self.vehicle.poll(self.now_ns + VEHICLE_AHEAD_NS, &mut out);
+            self.vehicle.poll(self.vehicle_ns(), &mut out);
             self.send_to_gateway(out);
         }
     }
@@ -213,4 +244,86 @@ fn a_reset_never_teleports_the_vehicle() {
     near[1] += 0.2;
     let s = p.bridge.reset(scenario, Some(near), p.now_ns, 3).expect("within 0.5 m");
     assert!((s.state[1] - 0.0).abs() < 1e-6 && s.flight_id == 3);
+}
+
+/// The vehicle's state messages (ATTITUDE, LOCAL_POSITION_NED) stamped `vehicle_ms`, at rest at
+/// the scenario's start.
+fn state_at(scenario: &Scenario, vehicle_ms: u64) -> Vec<MavMessage> {
+    let (attitude, position) =
+        mavbridge::messages::state_messages(&scenario.start_state(), 0.7, vehicle_ms * MS);
+    vec![MavMessage::ATTITUDE(attitude), MavMessage::LOCAL_POSITION_NED(position)]
+}
+
+#[test]
+fn a_state_30_ms_older_than_the_last_is_a_reordered_datagram_dropped_as_stale_not_a_reboot() {
+    let scenario = Scenario::paper_2();
+    let mut p = Pair::new(&scenario);
+    p.run(1_000);
+    let newest = p.bridge.sample().expect("served").clone();
+    let stale = p.bridge.counters().stale_messages;
+    let n = p.samples.len();
+    p.send_to_gateway(state_at(&scenario, p.vehicle_ns() / MS - 30));
+    assert_eq!(p.samples.len(), n, "no sample of an older state");
+    assert_eq!(p.bridge.counters().stale_messages, stale + 2);
+    assert_eq!(p.bridge.counters().reboots, 0);
+    assert!(p.reboots.is_empty());
+    assert_eq!(p.bridge.awaiting_reset(), None);
+    assert_eq!(p.bridge.sample(), Some(&newest), "the newest sample is still served");
+    p.run(20);
+    assert!(p.samples.len() > n, "the stream goes on");
+}
+
+#[test]
+fn a_clock_gone_back_by_minutes_is_a_reboot_refused_until_reset_counted_once_then_served_on_the_new_clock() {
+    let scenario = Scenario::paper_2();
+    // The vehicle has been up for ten minutes.
+    let mut p = Pair::booted_before(&scenario, 600_000 * MS);
+    p.run(1_000);
+    p.command(p.bridge.arm_message(true));
+    p.command(p.bridge.mode_message(ModeRequest::Px4Offboard));
+    p.bridge.reset(scenario.clone(), None, p.now_ns, 2).expect("at the start");
+    let (_, msg) = p.bridge.apply(Input::new(10.0, 0.0, 0.0), CommandMeta::default(), p.now_ns);
+    p.send_to_vehicle(msg.into_iter().collect());
+    p.run(200);
+    let before_ms = u32::try_from(p.vehicle_ns() / MS).expect("ms");
+    assert_eq!(p.bridge.status(p.now_ns).clock_offset_ns, Some((600_000 * MS as i64, true)));
+
+    p.reboot_vehicle(&scenario);
+    let n = p.samples.len();
+    let acks = p.acks.len();
+    p.run(1_200);
+    assert_eq!(p.samples.len(), n, "no sample between the reboot and the reset");
+    assert_eq!(p.bridge.counters().reboots, 1, "counted once");
+    assert_eq!(p.reboots.len(), 1, "reported once");
+    let reboot = p.reboots[0];
+    assert_eq!(p.bridge.awaiting_reset(), Some(reboot));
+    assert!(reboot.before_ms + 10 >= before_ms && reboot.after_ms <= 10, "{reboot:?}");
+    assert_eq!(p.bridge.sample(), None, "the frozen sample is not served");
+    assert!(reboot.to_string().contains("rebooted") && reboot.to_string().contains("Reset"), "{reboot}");
+    // The gateway neither armed nor switched the rebooted vehicle; it streams level hover.
+    assert_eq!((p.unasked_commands, p.acks.len()), (0, acks));
+    assert!(!p.vehicle.armed());
+    assert_eq!(p.vehicle.mode(), SimMode::Posctl);
+    let status = p.bridge.status(p.now_ns);
+    assert!(status.link_alive && !status.armed && status.mode == "POSCTL", "{status:?}");
+    assert_eq!(p.bridge.setpoint_input(), scenario.model.hover_input());
+    // TIMESYNC measured the new clock (it booted at the gateway's now - 1.2 s).
+    let rebooted_at_ns = -p.vehicle_ahead_ns;
+    assert_eq!(status.clock_offset_ns, Some((-rebooted_at_ns, true)));
+
+    let s = p.bridge.reset(scenario.clone(), None, p.now_ns, 3).expect("at the start");
+    assert_eq!((s.seq, s.time_ns, s.flight_id), (0, 0, 3));
+    assert!(s.last_command.initial);
+    assert_eq!(p.bridge.awaiting_reset(), None);
+    let meta = CommandMeta { command_seq: 7, based_on_sample_seq: 0, based_on_sample_time_ns: 0 };
+    let (applied, msg) = p.bridge.apply(Input::new(10.0, 0.0, 0.0), meta, p.now_ns);
+    assert!(applied.applied_time_ns <= 11 * MS, "stamped on the new clock: {applied:?}");
+    p.send_to_vehicle(msg.into_iter().collect());
+    p.samples.clear();
+    p.run(100);
+    assert!(p.samples.len() >= 9, "served again: {}", p.samples.len());
+    assert!(p.samples.windows(2).all(|w| w[1].seq == w[0].seq + 1 && w[1].time_ns >= w[0].time_ns));
+    assert!(p.samples.iter().all(|s| s.time_ns <= 111 * MS && s.flight_id == 3), "{:?}", p.samples.last());
+    assert_eq!(p.samples.last().expect("samples").last_command.meta.command_seq, 7);
+    assert_eq!(p.bridge.counters().reboots, 1);
 }

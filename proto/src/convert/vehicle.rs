@@ -37,6 +37,7 @@ pub fn vehicle_status(s: &VehicleStatus, hover_thrust: f64) -> pb::VehicleStatus
         watchdog_holds: s.counters.watchdog_holds,
         stale_messages: s.counters.stale_messages,
         bad_messages: s.counters.bad_messages,
+        autopilot_reboots: s.counters.reboots,
         hover_thrust,
         // The transport's counters are the gateway's (`gateway::link`), which fills them in.
         link_losses: 0,

@@ -4,6 +4,7 @@
 //!   reaches the goal without a collision (judged by the gateway's samples and by the
 //!   simulator's own truth);
 //! - the vehicle going silent: the Plant API answers UNAVAILABLE, health goes NOT_SERVING;
+//! - the vehicle rebooting (its clock restarts): UNAVAILABLE and NOT_SERVING until a Reset;
 //! - refusals: a Reset far from the vehicle, a mode the vehicle does not know;
 //! - a serial autopilot (pymavlink behind a pty, the `gateway` binary) unplugged and plugged
 //!   back in: UNAVAILABLE and NOT_SERVING without burning CPU, served again, stopped by SIGTERM.
@@ -169,6 +170,57 @@ async fn paper_2_in_real_time_through_netem_and_the_gateway_reaches_the_goal_of_
     }
     let _ = stop_netem.send(());
     let _ = tokio::time::timeout(PATIENCE, netem).await;
+    bench.gateway.stop().await.expect("gateway stops cleanly");
+    bench.vehicle.stop();
+}
+
+/// The regression test of an autopilot that reboots under the gateway: its clock restarts,
+/// and the gateway used to count every new state as stale and serve the last one, frozen,
+/// while the heartbeat said SERVING.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_autopilot_whose_clock_restarts_makes_the_plant_api_unavailable_and_not_serving_until_a_reset() {
+    let scenario = Scenario::paper_2();
+    let bench = start(&scenario).await;
+    let addr = bench.gateway.addr;
+    let mut vc = vehicle_control(addr).await;
+    let mut p = plant(addr).await;
+    wait_for_state(&mut p).await;
+    // Let the vehicle's clock pass 2 s, so that restarting it goes back by more than 1 s.
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    while p.get_state(pb::GetStateRequest {}).await.expect("served").into_inner().time_ns < 2_000_000_000 {
+        assert!(tokio::time::Instant::now() < deadline, "the vehicle's clock never passed 2 s");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    wait_health(addr, "hilbench.v1.Plant", ServingStatus::Serving).await;
+
+    bench.vehicle.reboot().expect("reboots");
+    wait_status(&mut vc, "the reboot to be counted", |s| s.autopilot_reboots == 1).await;
+    let err = p.get_state(pb::GetStateRequest {}).await.expect_err("UNAVAILABLE");
+    assert_eq!(err.code(), tonic::Code::Unavailable, "{err}");
+    assert!(err.message().contains("rebooted") && err.message().contains("Reset"), "{err}");
+    let cmd = pb::Command {
+        input: Some(pb::ControlInput { thrust_mps2: 9.81, roll_rad: 0.0, pitch_rad: 0.0 }),
+        ..Default::default()
+    };
+    assert_eq!(p.apply_command(cmd).await.map_err(|e| e.code()).err(), Some(tonic::Code::Unavailable));
+    for service in ["hilbench.v1.Plant", "hilbench.v1.VehicleControl"] {
+        wait_health(addr, service, ServingStatus::NotServing).await;
+    }
+    // The link itself is alive, and the gateway did not arm the rebooted vehicle.
+    let status = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+    assert!(status.link_alive && !status.armed, "{status:?}");
+    assert!(!bench.vehicle.autopilot().armed());
+
+    // A Reset starts a new episode on the new clock: served again.
+    let reset = p.reset(pb::ResetRequest::default()).await.expect("reset after the reboot").into_inner();
+    let first = reset.sample.expect("the vehicle's state");
+    assert_eq!((first.seq, first.time_ns), (0, 0));
+    wait_health(addr, "hilbench.v1.Plant", ServingStatus::Serving).await;
+    let s = wait_get_state(&mut p, tonic::Code::Ok).await.expect("served again");
+    assert_eq!(s.flight_id, first.flight_id);
+    assert!(s.time_ns < 2_000_000_000, "plant time restarted at the reset: {s:?}");
+    let status = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+    assert_eq!(status.autopilot_reboots, 1);
     bench.gateway.stop().await.expect("gateway stops cleanly");
     bench.vehicle.stop();
 }
