@@ -112,6 +112,43 @@ pub struct Scenario {
     /// does.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub continue_after_collision: bool,
+    /// Whose PANOC the controller solves this scenario's problems with. `None`: the
+    /// controller's own setting (`controller --solver`, OpEn's by default). The paper files pin
+    /// OpEn's (the paper's toolchain); other scenario files take ours by default.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub solver: Option<PanocSolver>,
+}
+
+/// Whose PANOC solves the controller's problems (`mpc::MpcSettings::solver`, and a scenario's
+/// `solver`). Here rather than in `mpc` because a scenario names it and travels to the
+/// controller with it; `mpc` re-exports it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize)]
+pub enum PanocSolver {
+    /// OpEn 0.12's ALM/PM and PANOC (the paper's toolchain).
+    #[default]
+    #[serde(rename = "open")]
+    OpEn,
+    /// The bench's own PANOC (`mpc/src/solver/panoc.rs`): the Lipschitz estimate carried
+    /// across calls, a scale-free stopping test; the same ALM/PM outer loop and budgets.
+    #[serde(rename = "own")]
+    Own,
+}
+
+impl PanocSolver {
+    pub fn name(self) -> &'static str {
+        match self {
+            PanocSolver::OpEn => "open",
+            PanocSolver::Own => "own",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "open" => Some(PanocSolver::OpEn),
+            "own" => Some(PanocSolver::Own),
+            _ => None,
+        }
+    }
 }
 
 impl Scenario {
@@ -158,6 +195,7 @@ impl Scenario {
             obstacle_margin_m: None,
             fail_safe: false,
             continue_after_collision: false,
+            solver: None,
         }
     }
 

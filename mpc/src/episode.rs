@@ -371,8 +371,8 @@ impl Episode {
     }
 }
 
-/// The controller of `scenario`: its optimal control problem and the safety layer adapted to
-/// it (the scenario's margin, floor and fail-safe check).
+/// The controller of `scenario`: its optimal control problem, its solver, and the safety layer
+/// adapted to it (the scenario's margin, floor, fail-safe check and PANOC).
 fn build_controller(scenario: &Scenario, settings: &EpisodeSettings) -> Result<CycleController, MpcError> {
     let def = OcpDefinition::from_scenario(
         scenario,
@@ -384,7 +384,9 @@ fn build_controller(scenario: &Scenario, settings: &EpisodeSettings) -> Result<C
         s.with_fail_safe(scenario, settings.fail_safe || scenario.fail_safe)
             .with_plant_watchdog(settings.plant_watchdog_s)
     });
-    let controller = CycleController::new(def, settings.mpc, safety)?;
+    // The scenario may pin whose PANOC solves it; otherwise the controller's own setting.
+    let mpc = MpcSettings { solver: scenario.solver.unwrap_or(settings.mpc.solver), ..settings.mpc };
+    let controller = CycleController::new(def, mpc, safety)?;
     #[cfg(feature = "fault-injection")]
     let controller = controller.with_fault(settings.fault);
     Ok(controller)

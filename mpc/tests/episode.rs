@@ -134,3 +134,23 @@ fn a_sample_of_another_plant_flight_ends_the_episode_with_a_plant_reset_and_chan
     let mut unnumbered = PlantSim::new(&scenario, SimSettings::default()).expect("valid");
     anonymous.on_sample(&unnumbered.sample(), &CycleTiming::Lockstep).expect("not checked");
 }
+
+#[test]
+fn a_scenario_that_names_a_solver_is_solved_by_it_whatever_the_controllers_setting() {
+    let run = |scenario: &Scenario, solver: mpc::PanocSolver| {
+        let mut settings = mpc::ClosedLoopSettings::paper(ControllerMode::Multistage);
+        settings.mpc.solver = solver;
+        let (summary, records) = mpc::run_closed_loop(scenario, &settings).expect("a paper run");
+        let iterations: Vec<usize> = records.iter().map(|r| r.report.iterations).collect();
+        (summary.path_length_m.to_bits(), iterations)
+    };
+    let paper = Scenario::paper_2();
+    let own = run(&paper, mpc::PanocSolver::Own);
+    let open = run(&paper, mpc::PanocSolver::OpEn);
+    assert_ne!(own, open, "the two solvers take different iterations on paper-2");
+    // The scenario's choice wins over the controller's setting, both ways, to the bit.
+    let pinned_own = Scenario { solver: Some(mpc::PanocSolver::Own), ..paper.clone() };
+    assert_eq!(run(&pinned_own, mpc::PanocSolver::OpEn), own);
+    let pinned_open = Scenario { solver: Some(mpc::PanocSolver::OpEn), ..paper };
+    assert_eq!(run(&pinned_open, mpc::PanocSolver::Own), open);
+}

@@ -23,7 +23,7 @@ use std::fmt;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
-use mav::{Scenario, ScenarioError};
+use mav::{PanocSolver, Scenario, ScenarioError};
 use toml::Spanned;
 use toml::de::{DeTable, DeValue};
 
@@ -114,7 +114,19 @@ pub struct RunSection {
     /// collision, as a real flight does.
     #[serde(default)]
     pub continue_after_collision: bool,
+    /// Whose PANOC the controller solves with: `"own"` (the bench's) or `"open"` (OpEn's, the
+    /// paper's toolchain). Absent: [`FILE_SOLVER`], but for a file that holds a built-in (paper)
+    /// scenario, which keeps the controller's own setting (`controller --solver`, OpEn's by
+    /// default), as paper mode does.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub solver: Option<PanocSolver>,
 }
+
+/// The solver of a scenario file that names none (and holds no built-in scenario). Ours: along
+/// the paper loops its multi-stage solves take half OpEn's iterations (BENCHMARKS.md "The
+/// solver"), and the robustness campaigns with it reach every goal without a collision
+/// (docs/robustness.md).
+pub const FILE_SOLVER: PanocSolver = PanocSolver::Own;
 
 /// The margin of the bench's controller (with dead-time compensation), m.
 pub const BENCH_MARGIN_M: f64 = 0.2;
@@ -133,6 +145,7 @@ impl Default for RunSection {
             obstacle_margin_m: None,
             fail_safe: default_floor(),
             continue_after_collision: false,
+            solver: None,
         }
     }
 }
@@ -199,6 +212,7 @@ impl ScenarioFile {
             obstacle_margin_m: scenario.obstacle_margin_m,
             fail_safe: scenario.fail_safe,
             continue_after_collision: scenario.continue_after_collision,
+            solver: scenario.solver,
         };
         let mut scenario = scenario.clone();
         // Written in [run]; the loader puts them back.
@@ -206,6 +220,7 @@ impl ScenarioFile {
         scenario.obstacle_margin_m = None;
         scenario.fail_safe = false;
         scenario.continue_after_collision = false;
+        scenario.solver = None;
         let file = ScenarioFile { run, scenario, sweep: None };
         let text = toml::to_string(&file).map_err(|e| format!("cannot write the scenario as TOML: {e}"))?;
         Ok(format!("# The scenario as flown (overrides applied, traces inline).\n{text}"))
@@ -250,6 +265,8 @@ impl ScenarioFile {
             file.run.obstacle_margin_m.or(file.run.delay_compensation.then_some(BENCH_MARGIN_M));
         file.scenario.fail_safe = file.run.fail_safe;
         file.scenario.continue_after_collision = file.run.continue_after_collision;
+        let built_in = Scenario::BUILT_IN.contains(&file.scenario.name.as_str());
+        file.scenario.solver = file.run.solver.or((!built_in).then_some(FILE_SOLVER));
         if !file.run.floor {
             file.scenario.min_altitude_m = None;
         } else if file.scenario.min_altitude_m.is_none() {
@@ -281,6 +298,7 @@ impl ScenarioFile {
             ("obstacle_margin_m", s.obstacle_margin_m.is_some()),
             ("fail_safe", s.fail_safe),
             ("continue_after_collision", s.continue_after_collision),
+            ("solver", s.solver.is_some()),
         ];
         if let Some((key, _)) = from_run.iter().find(|(_, set)| *set) {
             return Err((format!("scenario.{key}"), format!("belongs in [run] (run.{key})")));
@@ -451,6 +469,44 @@ mod tests {
                 }
             );
         }
+    }
+
+    #[test]
+    fn a_file_is_solved_by_our_panoc_unless_it_names_opens_and_a_paper_file_keeps_the_controllers() {
+        let path = repo_root().join("scenarios").join("slalom-4.toml");
+        let text = std::fs::read_to_string(&path).expect("slalom-4.toml");
+        let file = ScenarioFile::parse(&path, &text).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(file.run.solver, None, "slalom-4.toml names none");
+        assert_eq!(file.scenario.solver, Some(PanocSolver::Own), "a file's default");
+        let open =
+            text.replacen("time_mode = \"lockstep\"", "time_mode = \"lockstep\"\nsolver = \"open\"", 1);
+        let file = ScenarioFile::parse(&path, &open).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(file.scenario.solver, Some(PanocSolver::OpEn));
+        let bad = text.replacen("time_mode = \"lockstep\"", "time_mode = \"lockstep\"\nsolver = \"OpEn\"", 1);
+        let e = error_of(&bad);
+        assert_eq!(e.field.as_deref(), Some("run.solver"), "{e}");
+        let misplaced = text.replacen("ground_z_m = 0.0", "ground_z_m = 0.0\nsolver = \"own\"", 1);
+        let e = error_of(&misplaced);
+        assert_eq!(e.field.as_deref(), Some("scenario.solver"), "{e}");
+        assert!(e.to_string().contains("run.solver"), "{e}");
+        // The paper files hold built-in scenarios: the controller's own solver, as paper mode.
+        for name in Scenario::BUILT_IN {
+            let file = ScenarioFile::load(&repo_root().join("scenarios").join(format!("{name}.toml")))
+                .unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(file.scenario.solver, None, "{name}");
+        }
+        // ...unless it names one, which is how paper-2 is flown with ours from a file.
+        let (own, _) = edited("[run]", "[run]\nsolver = \"own\"");
+        let file = ScenarioFile::parse(Path::new("x.toml"), &own).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(file.scenario.solver, Some(PanocSolver::Own));
+        // A user scenario flown by ours is written as flown with it, and loads back.
+        let mut flown = Scenario::paper_2();
+        flown.name = "mine".into();
+        flown.solver = Some(PanocSolver::Own);
+        let text = ScenarioFile::as_flown(&flown, vec![Mode::Multistage]).expect("TOML");
+        assert!(text.contains("solver = \"own\""), "{text}");
+        let back = ScenarioFile::parse(Path::new("as-flown.toml"), &text).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(back.scenario, flown);
     }
 
     #[test]

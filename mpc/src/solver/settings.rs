@@ -135,36 +135,10 @@ impl InactiveSetTolerances {
     pub const MEASURED: Self = Self { tolerance: 1e-2, akkt_tolerance: 3e-2, gradient_tolerance: 0.5 };
 }
 
-/// Whose PANOC runs the solve (`MpcSettings::solver`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum PanocSolver {
-    /// OpEn 0.12's ALM/PM and PANOC (the paper's toolchain): `tolerance`, `akkt_tolerance` and
-    /// the single-scenario ones apply.
-    #[default]
-    #[serde(rename = "open")]
-    OpEn,
-    /// Ours (`solver/panoc.rs`): the Lipschitz estimate carried across calls, the scale-free
-    /// `cost_gap_tolerance`; the same ALM/PM outer loop, budgets and multiplier update.
-    Own,
-}
-
-impl PanocSolver {
-    pub fn name(self) -> &'static str {
-        match self {
-            PanocSolver::OpEn => "open",
-            PanocSolver::Own => "own",
-        }
-    }
-
-    pub fn parse(s: &str) -> Option<Self> {
-        match s {
-            "open" => Some(PanocSolver::OpEn),
-            "own" => Some(PanocSolver::Own),
-            _ => None,
-        }
-    }
-}
+/// Whose PANOC runs the solve (`MpcSettings::solver`): `OpEn` applies `tolerance`,
+/// `akkt_tolerance` and the single-scenario ones; `Own` its `cost_gap_tolerance`s, with the same
+/// ALM/PM outer loop, budgets and multiplier update. Defined with the scenario, which can name it.
+pub use mav::PanocSolver;
 
 impl Default for MpcSettings {
     fn default() -> Self {

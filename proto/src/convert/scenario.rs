@@ -50,6 +50,7 @@ impl From<&Scenario> for pb::Scenario {
             obstacle_margin_m: s.obstacle_margin_m,
             fail_safe: s.fail_safe,
             continue_after_collision: s.continue_after_collision,
+            solver: s.solver.map(|v| v.name().to_string()).unwrap_or_default(),
         }
     }
 }
@@ -141,6 +142,12 @@ impl TryFrom<&pb::Scenario> for Scenario {
             obstacle_margin_m: m.obstacle_margin_m,
             fail_safe: m.fail_safe,
             continue_after_collision: m.continue_after_collision,
+            solver: match m.solver.as_str() {
+                "" => None,
+                name => Some(mav::PanocSolver::parse(name).ok_or_else(|| {
+                    FieldError::new("solver", format!("must be empty, \"open\" or \"own\", got {name:?}"))
+                })?),
+            },
         };
         scenario.validate().map_err(|e| match e {
             ScenarioError::Invalid { field, reason } => FieldError::new(wire_field(&field), reason),
@@ -191,6 +198,7 @@ mod tests {
         custom.delay_compensation = true;
         custom.fail_safe = true;
         custom.continue_after_collision = true;
+        custom.solver = Some(mav::PanocSolver::Own);
         custom.delays = Some(DelaysTable::none());
         let mut measured = custom.clone();
         measured.delays = None;
@@ -249,6 +257,9 @@ mod tests {
         let mut m = good.clone();
         m.name = String::new();
         assert_eq!(field(&m), Err("definition.name".into()));
+        let mut m = good.clone();
+        m.solver = "OpEn".into();
+        assert_eq!(field(&m), Err("definition.solver".into()));
         // A name beside a definition must agree with it.
         let r = scenario_choice("scenario", "paper-1", "definition", Some(&good));
         assert_eq!(r.map(|_| ()).map_err(|e| e.field), Err("scenario".into()));
