@@ -97,7 +97,7 @@ impl Mpc {
         let nc = self.def.num_constraints();
         self.start_instance(x0, u_prev, weights, c);
         // A budget of zero runs no iteration: the warm start comes back with `IterationLimit`.
-        let max_total = budget.max_inner_iterations.unwrap_or(s.max_inner_iterations);
+        let max_total = budget.max_inner_iterations.unwrap_or(s.inner_budget());
         let mut iterations = 0;
         let mut elapsed = Duration::ZERO;
         let mut previous_violation = f64::INFINITY;

@@ -404,3 +404,24 @@ fn a_reset_forgets_our_panocs_lipschitz_estimate() {
     mpc.reset_warm_start();
     assert_eq!(mpc.panoc.lipschitz(), 0.0);
 }
+
+#[test]
+fn each_panoc_stops_at_its_own_default_budget_on_a_state_that_needs_more() {
+    // paper-2's start under the paper's prior weights is one of the states no budget from 100
+    // to 5,000 iterations converges on (BENCHMARKS.md "The solver"): both solvers spend their
+    // whole budget, which is what bounds the solve time.
+    let s = Scenario::paper_2();
+    let weights = [0.0, 0.003, 0.036, 0.640, 0.313];
+    for (solver, budget) in [(PanocSolver::Own, 100), (PanocSolver::OpEn, 200)] {
+        let settings = MpcSettings { solver, ..MpcSettings::default() };
+        assert_eq!(settings.inner_budget(), budget, "{solver:?}");
+        let mut mpc = mpc_for(&s, ControllerMode::Multistage, settings);
+        let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &weights, &SolveBudget::default()).expect("valid");
+        assert_eq!((r.status, r.iterations), (SolveStatus::IterationLimit, budget), "{solver:?}");
+        // A budget given with the solve overrides the default.
+        let mut mpc = mpc_for(&s, ControllerMode::Multistage, settings);
+        let given = SolveBudget { max_inner_iterations: Some(7), deadline: None };
+        let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &weights, &given).expect("valid");
+        assert!(r.iterations <= 7, "{solver:?}: {r:?}");
+    }
+}
