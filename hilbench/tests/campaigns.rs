@@ -3,7 +3,7 @@
 //! the bench's defaults), under every delay process of their `[sweep]` table (Gamma with shapes
 //! 2-30, lognormal with 6-19 % of delays beyond the largest sampling time, Pareto tails, a
 //! regime switching between about 0.05 and 0.3 s, uniform over [0, 0.33] s), ten runs each, the
-//! multi-stage controller with a scenario file's defaults (the fail-safe check, the plant's
+//! multi-stage controller with a scenario file's defaults (our PANOC, the fail-safe check, the plant's
 //! braking watchdog) reaches the goal without touching a cylinder or the ground. The recorded
 //! campaigns (50 runs per field and process) are in docs/robustness.md.
 
