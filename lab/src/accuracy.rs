@@ -26,6 +26,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         }
         let (mut times, mut iters, mut gaps, mut unsafe_count) = (Vec::new(), Vec::new(), Vec::new(), 0);
         let (mut passes, mut limits, mut outers) = ((0u64, 0u64), 0, 0);
+        // Forward plus adjoint passes per solve: the work that sets a solve's time, counted.
+        let mut work = Vec::new();
         for name in mav::Scenario::BUILT_IN {
             let scenario = mav::Scenario::by_name(name)?;
             let def = OcpDefinition::from_scenario(&scenario, mode, s.obstacle_margin_m, s.formulation);
@@ -36,6 +38,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             outers += solves.iter().map(|l| l.report.outer_iterations).sum::<usize>();
             for (k, ls) in solves.iter().enumerate() {
                 times.push(ls.report.solve_time.as_secs_f64() * 1e3);
+                work.push((ls.report.passes.forward + ls.report.passes.adjoint) as f64);
                 iters.push(ls.report.iterations as f64);
                 if ls.report.min_clearance_m < 0.0 {
                     unsafe_count += 1;
@@ -77,6 +80,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             outers as f64 / solves,
             passes.0 as f64 / solves,
             passes.1 as f64 / solves
+        );
+        println!(
+            "  forward + adjoint passes per solve: median {} p99 {} max {}",
+            percentile(&mut work.clone(), 50.0),
+            percentile(&mut work.clone(), 99.0),
+            percentile(&mut work, 100.0)
         );
     }
     Ok(())

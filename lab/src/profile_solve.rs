@@ -1,6 +1,6 @@
 //! Profiling target: the in-process closed loop of paper-2 (run under callgrind, e.g. with
 //! `--toggle-collect='*Mpc::solve*'` for the solver's instructions alone). Prints the cycles,
-//! solves and PANOC iterations, to divide the instruction count by.
+//! solves, PANOC iterations and the evaluator's passes, to divide the instruction count by.
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
 
 use crate::settings::MpcFlags;
@@ -22,6 +22,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     settings.mpc = args.mpc.settings();
     let (s, records) = run_closed_loop(&args.scenario, &settings)?;
     let iterations: usize = records.iter().map(|r| r.report.iterations).sum();
-    println!("{} cycles, {} solves, {iterations} PANOC iterations", s.cycles, records.len());
+    let forward: u64 = records.iter().map(|r| r.report.passes.forward).sum();
+    let adjoint: u64 = records.iter().map(|r| r.report.passes.adjoint).sum();
+    println!(
+        "{} cycles, {} solves, {iterations} PANOC iterations, {forward} forward and {adjoint} adjoint passes",
+        s.cycles,
+        records.len()
+    );
     Ok(())
 }
