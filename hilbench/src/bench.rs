@@ -264,6 +264,14 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
     let mut failed_run_kept = false;
     let mut interrupted = false;
     let bar = crate::progress::bar(jobs.len() as u64, "runs", progress);
+    // One Ctrl-C listener for all the runs: a listener made per run would miss a Ctrl-C that
+    // lands between two runs (tokio's handler, once installed, swallows it).
+    let (ctrl_c_tx, ctrl_c_rx) = tokio::sync::watch::channel(false);
+    runtime.spawn(async move {
+        if tokio::signal::ctrl_c().await.is_ok() {
+            let _ = ctrl_c_tx.send(true);
+        }
+    });
     let real_time = match transport {
         Transport::Grpc(e) => e.time_mode == crate::grpc::TimeMode::RealTime,
         Transport::External(c) => c.time_mode == crate::grpc::TimeMode::RealTime,
@@ -277,6 +285,11 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
             _ => mode.name(),
         };
         bar.set_message(format!("{name} with {controller}"));
+        let mut ctrl_c = ctrl_c_rx.clone();
+        if *ctrl_c.borrow_and_update() {
+            interrupted = true;
+            break;
+        }
         let run_started = Instant::now();
         let ran = runtime.block_on(async {
             let job = async {
@@ -332,7 +345,7 @@ pub fn run_all(jobs: &[Job], transport: &Transport, progress: bool) -> anyhow::R
             };
             tokio::select! {
                 ran = job => Some(ran),
-                _ = tokio::signal::ctrl_c() => None,
+                Ok(()) = ctrl_c.changed() => None,
                 () = heartbeat, if real_time && bar.is_hidden() => None,
             }
         });
