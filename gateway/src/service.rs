@@ -105,7 +105,7 @@ fn publish(inner: &mut Inner, sample: &PlantSample) {
 pub enum NotServing {
     /// No vehicle heartbeat for the timeout (2 s).
     HeartbeatLost,
-    /// The vehicle rebooted since the last `Reset` (its boot clock went back).
+    /// The vehicle rebooted since the last `Reset` (its boot clock went back, or restarted during a silence).
     Rebooted,
 }
 
