@@ -30,8 +30,8 @@ pub const REBOOT_CLOCK_JUMP_MS: u32 = 1_000;
 /// went ahead but both
 /// - counted more than [`REBOOT_CLOCK_JUMP_MS`] less than the silence lasted: a clock that kept
 ///   running counts what the gateway's did, give or take the network's jitter (milliseconds);
-/// - and reads no more than the silence: a clock restarted at 0 during the silence cannot have
-///   counted more. This keeps a link that held messages back and delivers them late (stamps a
+/// - and reads no more than the silence (give or take the same margin, for the network's
+///   jitter): a clock restarted at 0 during the silence cannot have counted more. This keeps a link that held messages back and delivers them late (stamps a
 ///   little ahead of the last after a long wait) from looking like a reboot: that clock still
 ///   reads the vehicle's whole uptime. A vehicle rebooted less than a second after its last
 ///   message, or silent for less than a second, is not seen this way (it is the case above).
@@ -43,7 +43,7 @@ pub fn shows_reboot(before_ms: u32, after_ms: u32, silence_ns: u64) -> bool {
     let counted_ms = u64::from(after_ms.saturating_sub(before_ms));
     after_ms >= before_ms
         && silence_ms.saturating_sub(counted_ms) > u64::from(REBOOT_CLOCK_JUMP_MS)
-        && u64::from(after_ms) <= silence_ms
+        && u64::from(after_ms) <= silence_ms + u64::from(REBOOT_CLOCK_JUMP_MS)
 }
 
 /// Settings of the bridge, with units.

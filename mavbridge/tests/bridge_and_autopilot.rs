@@ -347,6 +347,8 @@ fn shows_reboot_by_the_clock_gone_back_or_restarted_in_a_silence() {
     assert!(!shows_reboot(3_000, 12_100, 10_000 * MS));
     // Ahead by little after a long wait, but reading more than the silence: a late message.
     assert!(!shows_reboot(600_000, 600_010, 1_500 * MS));
+    // Rebooted as the silence began, the new clock reads the silence, give or take jitter.
+    assert!(shows_reboot(3_000, 5_003, 5_000 * MS));
 }
 
 #[test]
