@@ -506,14 +506,13 @@ async fn wait_health(addr: SocketAddr, service: &str, status: ServingStatus) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_unplugged_serial_autopilot_makes_the_gateway_unavailable_without_spinning_and_is_served_again_when_plugged_back()
  {
-    let dir = std::env::temp_dir().join(format!("hilbench-gateway-serial-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("a temporary directory");
-    let mut autopilot = SerialAutopilot::start(&dir);
+    // Removed on drop, also when an assertion below fails (dropped after the processes).
+    let dir = hilbench_tests::TempDir::new("gateway-serial");
+    let mut autopilot = SerialAutopilot::start(dir.path());
     autopilot.expect("plugged");
 
     let addr = hilbench_tests::free_loopback_address();
-    let log = dir.join("gateway.log");
+    let log = dir.path().join("gateway.log");
     let mavlink = format!("serial:{}:921600", autopilot.link.display());
     let mut gateway = hilbench_tests::Service::start_logged(
         "gateway",
@@ -611,6 +610,19 @@ async fn an_unplugged_serial_autopilot_makes_the_gateway_unavailable_without_spi
     assert_eq!(log.matches("; closed, opening it again").count(), 1, "{log}");
     assert_eq!(log.matches("open again").count(), 1, "{log}");
     autopilot.tell("quit");
-    drop(autopilot);
-    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The serial test's temporary directory is removed when the test fails (it was left behind).
+#[test]
+fn a_gateway_tests_temporary_directory_is_removed_when_the_test_panics() {
+    let path = std::sync::Mutex::new(None);
+    let failed = std::panic::catch_unwind(|| {
+        let dir = hilbench_tests::TempDir::new("gateway-temp-guard");
+        std::fs::write(dir.path().join("gateway.log"), "a log").expect("written");
+        *path.lock().unwrap_or_else(std::sync::PoisonError::into_inner) = Some(dir.path().to_owned());
+        panic!("a failing test");
+    });
+    assert!(failed.is_err());
+    let path = path.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner).expect("made");
+    assert!(!path.exists(), "{} left behind", path.display());
 }
