@@ -105,7 +105,8 @@ fn publish(inner: &mut Inner, sample: &PlantSample) {
 pub enum NotServing {
     /// No vehicle heartbeat for the timeout (2 s).
     HeartbeatLost,
-    /// The vehicle rebooted since the last `Reset` (its boot clock went back).
+    /// The vehicle rebooted since the last `Reset` (its boot clock went back, or restarted
+    /// during a silence).
     Rebooted,
 }
 
@@ -141,12 +142,6 @@ impl GatewayService {
                 config_scenario,
             }),
         }
-    }
-
-    /// Whether the vehicle's heartbeat is fresh.
-    pub fn link_alive(&self) -> bool {
-        let now = self.shared.now_ns();
-        self.shared.lock().bridge.link_alive(now)
     }
 
     /// Why the Plant API does not serve now (`None`: it does; health follows this): the

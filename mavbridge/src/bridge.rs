@@ -20,7 +20,31 @@ use mavlink::dialects::common::{
 /// periods); a reboot goes back by the whole uptime. One second separates the two with room on
 /// both sides; a vehicle that reboots less than a second after its last message is not seen to
 /// reboot (its next messages are stale until its clock passes the old one, under a second).
+/// The same margin serves a clock that comes back *ahead* after a silence but counted this much
+/// less than the gateway's clock did meanwhile (see [`shows_reboot`]).
 pub const REBOOT_CLOCK_JUMP_MS: u32 = 1_000;
+
+/// Whether a state message stamped `after_ms` on the vehicle's boot clock, arriving `silence_ns`
+/// of gateway time after the last one of its kind (stamped `before_ms`), shows that the vehicle
+/// rebooted in between. Either its clock went back by more than [`REBOOT_CLOCK_JUMP_MS`], or it
+/// went ahead but both
+/// - counted more than [`REBOOT_CLOCK_JUMP_MS`] less than the silence lasted: a clock that kept
+///   running counts what the gateway's did, give or take the network's jitter (milliseconds);
+/// - and reads no more than the silence (give or take the same margin, for the network's
+///   jitter): a clock restarted at 0 during the silence cannot have counted more. This keeps a link that held messages back and delivers them late (stamps a
+///   little ahead of the last after a long wait) from looking like a reboot: that clock still
+///   reads the vehicle's whole uptime. A vehicle rebooted less than a second after its last
+///   message, or silent for less than a second, is not seen this way (it is the case above).
+pub fn shows_reboot(before_ms: u32, after_ms: u32, silence_ns: u64) -> bool {
+    if before_ms.saturating_sub(after_ms) > REBOOT_CLOCK_JUMP_MS {
+        return true;
+    }
+    let silence_ms = silence_ns / 1_000_000;
+    let counted_ms = u64::from(after_ms.saturating_sub(before_ms));
+    after_ms >= before_ms
+        && silence_ms.saturating_sub(counted_ms) > u64::from(REBOOT_CLOCK_JUMP_MS)
+        && u64::from(after_ms) <= silence_ms + u64::from(REBOOT_CLOCK_JUMP_MS)
+}
 
 /// Settings of the bridge, with units.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -140,28 +164,39 @@ pub struct Counters {
     pub stale_messages: u64,
     /// State messages with non-finite values, not used.
     pub bad_messages: u64,
-    /// Times the vehicle's boot clock went back by more than [`REBOOT_CLOCK_JUMP_MS`]: it
-    /// rebooted.
+    /// Times the vehicle's boot clock showed a reboot ([`shows_reboot`]: it went back by more
+    /// than [`REBOOT_CLOCK_JUMP_MS`], or restarted during a silence).
     pub reboots: u64,
 }
 
-/// A reboot of the vehicle, seen as its boot clock (`time_boot_ms`) going back.
+/// A reboot of the vehicle, seen in its boot clock (`time_boot_ms`): gone back, or restarted
+/// during a silence ([`shows_reboot`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Reboot {
     /// The newest stamp of the messages of that kind before the reboot, ms.
     pub before_ms: u32,
     /// The stamp of the message that showed the reboot, ms.
     pub after_ms: u32,
+    /// Gateway time between the two messages' arrivals, ns.
+    pub silence_ns: u64,
 }
 
 impl std::fmt::Display for Reboot {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "the autopilot rebooted (its boot clock went back from {:.3} s to {:.3} s): plant time is no longer continuous; call Reset to start a new episode",
-            f64::from(self.before_ms) / 1e3,
-            f64::from(self.after_ms) / 1e3
-        )
+        let (before_s, after_s) = (f64::from(self.before_ms) / 1e3, f64::from(self.after_ms) / 1e3);
+        if self.after_ms < self.before_ms {
+            write!(
+                f,
+                "the autopilot rebooted (its boot clock went back from {before_s:.3} s to {after_s:.3} s)"
+            )?;
+        } else {
+            write!(
+                f,
+                "the autopilot rebooted (its boot clock reads {after_s:.3} s after a silence of {:.3} s; it read {before_s:.3} s before: it restarted during the silence)",
+                mav::ns_to_s(self.silence_ns)
+            )?;
+        }
+        write!(f, ": plant time is no longer continuous; call Reset to start a new episode")
     }
 }
 
@@ -200,6 +235,9 @@ pub struct Bridge {
     timesync: TimeSync,
     position: Option<LOCAL_POSITION_NED_DATA>,
     attitude: Option<Attitude>,
+    /// Gateway time the stored position and attitude arrived, ns (a silence is measured from it).
+    position_heard_ns: u64,
+    attitude_heard_ns: u64,
     /// The yaw the setpoints hold: the vehicle's at arming (its current one while disarmed).
     yaw_hold_rad: f64,
     /// Vehicle time of plant time 0 (the last reset, or the first state heard), ns.
@@ -259,6 +297,8 @@ impl Bridge {
             timesync: TimeSync::default(),
             position: None,
             attitude: None,
+            position_heard_ns: now_ns,
+            attitude_heard_ns: now_ns,
             yaw_hold_rad: 0.0,
             epoch_vehicle_ns: None,
             next_seq: 0,
@@ -370,15 +410,17 @@ impl Bridge {
                     self.counters.bad_messages += 1;
                     return event;
                 }
+                let silence_ns = now_ns.saturating_sub(self.position_heard_ns);
                 if let Some(old) = &self.position
-                    && old.time_boot_ms.saturating_sub(t) > REBOOT_CLOCK_JUMP_MS
+                    && shows_reboot(old.time_boot_ms, t, silence_ns)
                 {
-                    event.reboot = Some(self.on_reboot(old.time_boot_ms, t, now_ns));
+                    event.reboot = Some(self.on_reboot(old.time_boot_ms, t, silence_ns, now_ns));
                 }
                 if self.position.as_ref().is_some_and(|old| old.time_boot_ms > t) {
                     self.counters.stale_messages += 1;
                 } else {
                     self.position = Some(p.clone());
+                    self.position_heard_ns = now_ns;
                     event.sample = self.produce(u64::from(t) * 1_000_000, now_ns);
                 }
             }
@@ -388,10 +430,11 @@ impl Bridge {
     }
 
     fn on_attitude(&mut self, att: Attitude, now_ns: u64, event: &mut Event) {
+        let silence_ns = now_ns.saturating_sub(self.attitude_heard_ns);
         if let Some(old) = &self.attitude
-            && old.time_boot_ms.saturating_sub(att.time_boot_ms) > REBOOT_CLOCK_JUMP_MS
+            && shows_reboot(old.time_boot_ms, att.time_boot_ms, silence_ns)
         {
-            event.reboot = Some(self.on_reboot(old.time_boot_ms, att.time_boot_ms, now_ns));
+            event.reboot = Some(self.on_reboot(old.time_boot_ms, att.time_boot_ms, silence_ns, now_ns));
         }
         if self.attitude.as_ref().is_some_and(|old| old.time_boot_ms > att.time_boot_ms) {
             self.counters.stale_messages += 1;
@@ -401,17 +444,19 @@ impl Bridge {
             self.yaw_hold_rad = att.yaw_rad;
         }
         self.attitude = Some(att);
+        self.attitude_heard_ns = now_ns;
         event.sample = self.produce(u64::from(att.time_boot_ms) * 1_000_000, now_ns);
     }
 
-    /// The vehicle's boot clock went back from `before_ms` to `after_ms`: it rebooted. What
+    /// The vehicle's boot clock went from `before_ms` to `after_ms` in a way that shows a reboot
+    /// ([`shows_reboot`]), `silence_ns` apart. What
     /// was measured on its old clock is forgotten (the clock offset, the last state and its
     /// stamps, the plant-time epoch, the last command's stamps), as is its armed state (a
     /// rebooted autopilot is disarmed; the next heartbeat says so, and an arming after it
     /// takes the yaw to hold again). The setpoint goes back to level hover, and no sample is
     /// made until the next [`Bridge::reset`]. Nothing is sent to the vehicle.
-    fn on_reboot(&mut self, before_ms: u32, after_ms: u32, now_ns: u64) -> Reboot {
-        let reboot = Reboot { before_ms, after_ms };
+    fn on_reboot(&mut self, before_ms: u32, after_ms: u32, silence_ns: u64, now_ns: u64) -> Reboot {
+        let reboot = Reboot { before_ms, after_ms, silence_ns };
         self.counters.reboots += 1;
         self.rebooted = Some(reboot);
         self.timesync.restart(now_ns);

@@ -21,7 +21,7 @@ pub mod timesync;
 pub use autopilot::{AutopilotError, AutopilotSettings, SimAutopilot, SimMode};
 pub use bridge::{
     Bridge, BridgeError, BridgeSettings, Counters, Event, REBOOT_CLOCK_JUMP_MS, Reboot, ResetRefusal,
-    VehicleStatus,
+    VehicleStatus, shows_reboot,
 };
 pub use mavlink;
 pub use modes::ModeRequest;

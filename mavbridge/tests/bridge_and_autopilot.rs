@@ -273,6 +273,84 @@ fn a_state_30_ms_older_than_the_last_is_a_reordered_datagram_dropped_as_stale_no
     assert!(p.samples.len() > n, "the stream goes on");
 }
 
+/// The vehicle was up for 3 s, went silent, rebooted, and came back 10 s later: its new boot
+/// clock (about 10 s) is ahead of the last stamp (3 s), so it never goes back; but it counted
+/// 7 s less than the silence lasted, and no more than the silence: it restarted.
+#[test]
+fn a_vehicle_silent_longer_than_its_new_uptime_is_a_reboot_though_its_clock_came_back_ahead() {
+    let scenario = Scenario::paper_2();
+    let mut p = Pair::booted_before(&scenario, 2_000 * MS);
+    p.run(1_000);
+    let before_ms = u32::try_from(p.vehicle_ns() / MS).expect("ms");
+    let n = p.samples.len();
+    p.silent_vehicle = true;
+    p.run(500);
+    p.reboot_vehicle(&scenario);
+    p.run(9_500);
+    p.silent_vehicle = false;
+    p.run(100);
+    assert_eq!(p.bridge.counters().reboots, 1, "counted once");
+    assert_eq!(p.reboots.len(), 1, "reported once");
+    let reboot = p.reboots[0];
+    assert!(reboot.after_ms > reboot.before_ms, "the clock came back ahead: {reboot:?}");
+    assert!(reboot.before_ms + 10 >= before_ms && reboot.silence_ns >= 10_000 * MS, "{reboot:?}");
+    assert_eq!(p.bridge.awaiting_reset(), Some(reboot));
+    assert_eq!(p.samples.len(), n, "no sample on the new clock before a reset");
+    let text = reboot.to_string();
+    assert!(text.contains("restarted during the silence") && text.contains("Reset"), "{text}");
+
+    p.bridge.reset(scenario.clone(), None, p.now_ns, 2).expect("at the start");
+    p.run(100);
+    assert!(p.samples.len() >= n + 9, "served again: {}", p.samples.len() - n);
+    assert_eq!(p.bridge.counters().reboots, 1);
+}
+
+/// A link that holds the vehicle's messages back for 1.5 s, then delivers one: its stamp is a
+/// little ahead of the last after a long wait, as a restarted clock's would be, but it reads
+/// the vehicle's ten minutes of uptime, which a clock restarted in the silence cannot. Nor is a
+/// plain silence (the vehicle's clock counted what the gateway's did) a reboot.
+#[test]
+fn a_late_message_after_a_stalled_link_and_a_plain_silence_are_not_reboots() {
+    let scenario = Scenario::paper_2();
+    let mut p = Pair::booted_before(&scenario, 600_000 * MS);
+    p.run(1_000);
+    let last_ms = p.vehicle_ns() / MS;
+    p.silent_vehicle = true;
+    p.run(1_500);
+    p.silent_vehicle = false;
+    let n = p.samples.len();
+    p.send_to_gateway(state_at(&scenario, last_ms + 10));
+    assert_eq!(p.samples.len(), n + 2, "the late state is served");
+    p.run(100);
+    let m = p.samples.len();
+    assert!(m >= n + 2 + 9, "served after it: {}", m - n);
+    p.silent_vehicle = true;
+    p.run(5_000);
+    p.silent_vehicle = false;
+    p.run(100);
+    assert_eq!(p.bridge.counters().reboots, 0);
+    assert!(p.reboots.is_empty(), "{:?}", p.reboots);
+    assert_eq!(p.bridge.awaiting_reset(), None);
+    assert!(p.samples.len() >= m + 9, "served after the silence: {}", p.samples.len() - m);
+}
+
+#[test]
+fn shows_reboot_by_the_clock_gone_back_or_restarted_in_a_silence() {
+    use mavbridge::shows_reboot;
+    // Back by the whole uptime; back by a reordered datagram's few ms.
+    assert!(shows_reboot(600_000, 5, 20 * MS));
+    assert!(!shows_reboot(600_000, 599_970, 0));
+    // Ahead: 4 s after a 10 s silence, having read 3 s: restarted.
+    assert!(shows_reboot(3_000, 4_000, 10_000 * MS));
+    // Ahead by what the silence lasted, give or take: a clock that kept running.
+    assert!(!shows_reboot(3_000, 13_000, 10_000 * MS));
+    assert!(!shows_reboot(3_000, 12_100, 10_000 * MS));
+    // Ahead by little after a long wait, but reading more than the silence: a late message.
+    assert!(!shows_reboot(600_000, 600_010, 1_500 * MS));
+    // Rebooted as the silence began, the new clock reads the silence, give or take jitter.
+    assert!(shows_reboot(3_000, 5_003, 5_000 * MS));
+}
+
 #[test]
 fn a_clock_gone_back_by_minutes_is_a_reboot_refused_until_reset_counted_once_then_served_on_the_new_clock() {
     let scenario = Scenario::paper_2();

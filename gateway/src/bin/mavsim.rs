@@ -31,6 +31,21 @@ struct Args {
     /// Setpoints older than this end OFFBOARD (failsafe to a hold), ms.
     #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..=60_000))]
     offboard_loss_ms: u64,
+    /// Reboot once, this long after start, s: the boot clock restarts at 0, disarmed in POSCTL
+    /// (to try the gateway's reboot handling; see also --reboot-silence-s).
+    #[arg(long, value_name = "S")]
+    reboot_after_s: Option<f64>,
+    /// With --reboot-after-s: say nothing and hear nothing for this long from the reboot, s, as
+    /// an autopilot booting (its clock then comes back ahead of the last stamp, by less than the
+    /// silence lasted).
+    #[arg(long, default_value_t = 0.0, value_name = "S", requires = "reboot_after_s")]
+    reboot_silence_s: f64,
+}
+
+/// A duration flag in seconds: finite and not negative.
+fn seconds(flag: &str, s: f64) -> anyhow::Result<std::time::Duration> {
+    std::time::Duration::try_from_secs_f64(s)
+        .map_err(|_| anyhow::anyhow!("{flag}: must be a finite number of seconds >= 0, got {s}"))
 }
 
 fn main() -> anyhow::Result<()> {
@@ -51,9 +66,34 @@ fn main() -> anyhow::Result<()> {
     };
     mavbridge::ThrustMap::new(args.hover_thrust, scenario.model.gravity_mps2)
         .map_err(|e| anyhow::anyhow!("--hover-thrust: {e}"))?;
+    let reboot = match args.reboot_after_s {
+        Some(after) => {
+            Some((seconds("--reboot-after-s", after)?, seconds("--reboot-silence-s", args.reboot_silence_s)?))
+        }
+        None => None,
+    };
     let sim = Mavsim::start(&MavsimConfig { mavlink: args.mavlink, scenario, autopilot })?;
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
-    runtime.block_on(hilbench_svc::shutdown_signal());
+    runtime.block_on(async {
+        let shutdown = hilbench_svc::shutdown_signal();
+        tokio::pin!(shutdown);
+        if let Some((after, silence)) = reboot {
+            tokio::select! {
+                () = &mut shutdown => return Ok(()),
+                () = tokio::time::sleep(after) => {}
+            }
+            // As a real autopilot: the clock restarts when it goes quiet, and it talks once booted.
+            sim.set_silent(true);
+            sim.reboot()?;
+            tokio::select! {
+                () = &mut shutdown => return Ok(()),
+                () = tokio::time::sleep(silence) => {}
+            }
+            sim.set_silent(false);
+        }
+        shutdown.await;
+        anyhow::Ok(())
+    })?;
     sim.stop();
     Ok(())
 }

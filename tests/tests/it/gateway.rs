@@ -5,6 +5,7 @@
 //!   simulator's own truth);
 //! - the vehicle going silent: the Plant API answers UNAVAILABLE, health goes NOT_SERVING;
 //! - the vehicle rebooting (its clock restarts): UNAVAILABLE and NOT_SERVING until a Reset;
+//!   also the `mavsim` binary rebooting from its command line after a silence;
 //! - refusals: a Reset far from the vehicle, a mode the vehicle does not know;
 //! - a serial autopilot (pymavlink behind a pty, the `gateway` binary) unplugged and plugged
 //!   back in: UNAVAILABLE and NOT_SERVING without burning CPU, served again, stopped by SIGTERM.
@@ -223,6 +224,45 @@ async fn an_autopilot_whose_clock_restarts_makes_the_plant_api_unavailable_and_n
     assert_eq!(status.autopilot_reboots, 1);
     bench.gateway.stop().await.expect("gateway stops cleanly");
     bench.vehicle.stop();
+}
+
+/// The `mavsim` binary told to reboot from its command line, silent for 5 s from the reboot as
+/// an autopilot booting: its clock comes back ahead of its last stamp (about 5 s against 3 s),
+/// never going back, and the gateway still sees the reboot (it counted less than the silence).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mavsim_rebooting_from_its_command_line_silent_longer_than_its_uptime_is_seen_as_a_reboot() {
+    let scenario = Scenario::paper_2();
+    let (gateway, port) = start_gateway(&scenario).await;
+    let mavlink = format!("udpout:127.0.0.1:{port}");
+    let args =
+        ["--mavlink", &mavlink, "--scenario", "paper-2", "--reboot-after-s", "3", "--reboot-silence-s", "5"];
+    let vehicle = hilbench_tests::Service::start("mavsim", &args);
+    let addr = gateway.addr;
+    let mut vc = vehicle_control(addr).await;
+    let mut p = plant(addr).await;
+    wait_for_state(&mut p).await;
+    wait_status(&mut vc, "the reboot to be counted", |s| s.autopilot_reboots == 1).await;
+    // The first state after the silence shows the reboot; the heartbeat may follow it by up to
+    // its 1 s period, and until then the call names the lost heartbeat instead.
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    let err = loop {
+        let err = p.get_state(pb::GetStateRequest {}).await.expect_err("UNAVAILABLE after the reboot");
+        assert_eq!(err.code(), tonic::Code::Unavailable, "{err}");
+        if err.message().contains("rebooted") {
+            break err;
+        }
+        assert!(tokio::time::Instant::now() < deadline, "the reboot never named: {err}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    assert!(
+        err.message().contains("restarted during the silence") && err.message().contains("Reset"),
+        "{err}"
+    );
+    let reset = p.reset(pb::ResetRequest::default()).await.expect("reset after the reboot").into_inner();
+    assert_eq!(reset.sample.map(|s| (s.seq, s.time_ns)), Some((0, 0)));
+    wait_get_state(&mut p, tonic::Code::Ok).await.expect("served again");
+    drop(vehicle);
+    gateway.stop().await.expect("gateway stops cleanly");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -506,14 +546,13 @@ async fn wait_health(addr: SocketAddr, service: &str, status: ServingStatus) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_unplugged_serial_autopilot_makes_the_gateway_unavailable_without_spinning_and_is_served_again_when_plugged_back()
  {
-    let dir = std::env::temp_dir().join(format!("hilbench-gateway-serial-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("a temporary directory");
-    let mut autopilot = SerialAutopilot::start(&dir);
+    // Removed on drop, also when an assertion below fails (dropped after the processes).
+    let dir = hilbench_tests::TempDir::new("gateway-serial");
+    let mut autopilot = SerialAutopilot::start(dir.path());
     autopilot.expect("plugged");
 
     let addr = hilbench_tests::free_loopback_address();
-    let log = dir.join("gateway.log");
+    let log = dir.path().join("gateway.log");
     let mavlink = format!("serial:{}:921600", autopilot.link.display());
     let mut gateway = hilbench_tests::Service::start_logged(
         "gateway",
@@ -611,6 +650,19 @@ async fn an_unplugged_serial_autopilot_makes_the_gateway_unavailable_without_spi
     assert_eq!(log.matches("; closed, opening it again").count(), 1, "{log}");
     assert_eq!(log.matches("open again").count(), 1, "{log}");
     autopilot.tell("quit");
-    drop(autopilot);
-    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The serial test's temporary directory is removed when the test fails (it was left behind).
+#[test]
+fn a_gateway_tests_temporary_directory_is_removed_when_the_test_panics() {
+    let path = std::sync::Mutex::new(None);
+    let failed = std::panic::catch_unwind(|| {
+        let dir = hilbench_tests::TempDir::new("gateway-temp-guard");
+        std::fs::write(dir.path().join("gateway.log"), "a log").expect("written");
+        *path.lock().unwrap_or_else(std::sync::PoisonError::into_inner) = Some(dir.path().to_owned());
+        panic!("a failing test");
+    });
+    assert!(failed.is_err());
+    let path = path.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner).expect("made");
+    assert!(!path.exists(), "{} left behind", path.display());
 }
