@@ -1,7 +1,7 @@
 //! Hot paths of the controller: cost + gradient, and warm-started solves from states along the
 //! paper closed loops (targets in BENCHMARKS.md).
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use mpc::{ControllerMode, Mpc, MpcSettings, OcpDefinition, SolveBudget, accuracy};
+use mpc::{ControllerMode, Mpc, MpcSettings, OcpDefinition, PanocSolver, SolveBudget, accuracy};
 use std::hint::black_box;
 
 use mpc::fixtures::eval_case;
@@ -28,10 +28,15 @@ fn cost_and_gradient(c: &mut Criterion) {
 fn warm_started_solves(c: &mut Criterion) {
     let mut group = c.benchmark_group("solve_warm");
     group.sample_size(10);
-    for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
+    // OpEn's PANOC (the paper's, `reproduce`'s) and ours (scenario files'), each along its
+    // own loops.
+    for (mode, solver) in [ControllerMode::Nmpc, ControllerMode::Multistage]
+        .into_iter()
+        .flat_map(|m| [PanocSolver::OpEn, PanocSolver::Own].map(|s| (m, s)))
+    {
         for name in mav::Scenario::BUILT_IN {
             let scenario = mav::Scenario::by_name(name).expect("built in");
-            let settings = MpcSettings::default();
+            let settings = MpcSettings { solver, ..MpcSettings::default() };
             // The loop's own warm-started solves; cycle 0 is a cold start.
             let solves = accuracy::loop_solves(&scenario, mode, &settings).expect("runs");
             let instances: Vec<accuracy::Instance> = solves.into_iter().skip(1).map(|s| s.instance).collect();
@@ -42,7 +47,8 @@ fn warm_started_solves(c: &mut Criterion) {
                 settings.formulation,
             );
             let mut mpc = Mpc::new(def, settings).expect("valid");
-            group.bench_with_input(BenchmarkId::new(mode.name(), &scenario.name), &instances, |b, inst| {
+            let id = BenchmarkId::new(format!("{}/{}", mode.name(), solver.name()), &scenario.name);
+            group.bench_with_input(id, &instances, |b, inst| {
                 b.iter(|| {
                     for i in inst {
                         mpc.set_warm_start(&i.warm_start).expect("valid");
