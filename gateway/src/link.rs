@@ -62,6 +62,8 @@ pub struct LinkStatus {
 pub struct Link {
     shared: Arc<Shared>,
     header: MavHeader,
+    /// The address as given, a `udpin` one with the port it bound (when it was 0), as the logs
+    /// and `Describe` name it.
     pub address: String,
     /// The local address of a `udpin` link (its port when it was 0).
     pub local_addr: Option<std::net::SocketAddr>,
@@ -187,7 +189,7 @@ impl Link {
         Ok(Self {
             shared: Arc::new(Shared { transport, status: Mutex::new(LinkStatus::default()) }),
             header: MavHeader { system_id: u32::from(system_id), component_id, sequence: 0 },
-            address: address.into(),
+            address: local_addr.map_or_else(|| address.into(), |at| format!("udpin:{at}")),
             local_addr,
         })
     }
@@ -352,6 +354,7 @@ mod tests {
     fn an_ephemeral_udpin_port_is_known_after_opening() {
         let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("opens");
         assert!(link.local_addr.is_some_and(|a| a.port() != 0));
+        assert_eq!(link.address, format!("udpin:{}", link.local_addr.expect("bound")), "named with its port");
         assert!(link.recv().is_none(), "nothing arrived: the read times out");
     }
 
