@@ -10,7 +10,7 @@
 //! inputs), `multipliers` (the ALM multipliers to start from, as an answer's `multipliers`
 //! gives them), `obstacle_margin_m` (0 allowed: the paper's exact problem), `floor_m` (a
 //! number, or `null` for none), `delay_compensation` (bool), `max_iterations` (PANOC's
-//! budget: iterations with OpEn's, gradients with ours); what is not given comes from the scenario, then from the command's flags. `x0` must lie in the plant's reset envelope and
+//! budget); what is not given comes from the scenario, then from the command's flags. `x0` must lie in the plant's reset envelope and
 //! `u_prev` within the scenario's input bounds. Every line is solved on its own: from its
 //! `warm_start` (or hover) and `multipliers` (or zeros) with a fresh penalty, so that an answer
 //! does not depend on the lines before it.

@@ -28,7 +28,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             accuracy::reference_cost(&def, &s, &ls.instance, &[&ls.instance.warm_start, &ls.plan])?;
         println!("cycle {k}: reference {reference:.4}");
         for budget in [5, 10, 20, 40, 80, 160, 320, 640, 2000] {
-            let budgeted = MpcSettings { max_inner_iterations: budget, own_max_gradients: budget, ..s };
+            let budgeted =
+                MpcSettings { max_inner_iterations: budget, own_max_inner_iterations: budget, ..s };
             let (r, _) = accuracy::fast_solve(&def, &budgeted, &ls.instance)?;
             println!(
                 "  budget {budget:5}: it={:4} outer={} c={:.0e} cost={:.4} gap={:+.4} viol={:.2e} clear={:.3} {:?}",

@@ -51,9 +51,9 @@ pub struct MpcFlags {
     /// PANOC iterations per solve (OpEn's PANOC).
     #[arg(long, env = "MPC_INNER")]
     pub max_inner_iterations: Option<usize>,
-    /// Gradients per solve (our PANOC, `--solver own`: iterations and rejected line-search trials).
-    #[arg(long, env = "MPC_OWN_GRADIENTS")]
-    pub own_max_gradients: Option<usize>,
+    /// PANOC iterations per solve (our PANOC, `--solver own`).
+    #[arg(long, env = "MPC_OWN_INNER")]
+    pub own_max_inner_iterations: Option<usize>,
     /// Penalty preconditioner slack (m); negative: no preconditioner.
     #[arg(long, env = "MPC_PSLACK", allow_hyphen_values = true)]
     pub penalty_slack_m: Option<f64>,
@@ -97,7 +97,7 @@ impl MpcFlags {
             max_penalty: self.max_penalty.unwrap_or(d.max_penalty),
             max_outer_iterations: self.max_outer_iterations.unwrap_or(d.max_outer_iterations),
             max_inner_iterations: self.max_inner_iterations.unwrap_or(d.max_inner_iterations),
-            own_max_gradients: self.own_max_gradients.unwrap_or(d.own_max_gradients),
+            own_max_inner_iterations: self.own_max_inner_iterations.unwrap_or(d.own_max_inner_iterations),
             penalty_preconditioner_slack_m: match self.penalty_slack_m {
                 Some(v) if v < 0.0 => None,
                 Some(v) => Some(v),

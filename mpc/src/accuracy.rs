@@ -35,7 +35,7 @@ pub fn reference_settings(fast: &MpcSettings) -> MpcSettings {
         constraint_tolerance: 1e-6,
         max_outer_iterations: 30,
         max_inner_iterations: 100_000,
-        own_max_gradients: 100_000,
+        own_max_inner_iterations: 100_000,
         max_penalty: 1e9,
         lbfgs_memory: 30,
         single_scenario_lbfgs_memory: 30,

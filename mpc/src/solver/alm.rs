@@ -52,9 +52,6 @@ pub(super) struct AlmRun {
 /// One OpEn outer step that ran, with what the loop needs from it.
 struct OuterStep {
     inner_iterations: usize,
-    /// What the step spent of the solve's budget: PANOC iterations with OpEn's, gradients
-    /// with ours (see `panoc.rs`).
-    budget_spent: usize,
     solve_time: Duration,
     exit_status: ExitStatus,
     /// The constraint violation after the step, m (ALM) or `|F2|` (PM).
@@ -101,14 +98,15 @@ impl Mpc {
         self.start_instance(x0, u_prev, weights, c);
         // A budget of zero runs no iteration: the warm start comes back with `IterationLimit`.
         let max_total = budget.max_inner_iterations.unwrap_or(s.inner_budget());
-        let (mut iterations, mut spent) = (0, 0);
+        let mut iterations = 0;
         let mut elapsed = Duration::ZERO;
         let mut previous_violation = f64::INFINITY;
         let mut status = SolveStatus::IterationLimit;
         let mut outer = 0;
-        while outer < s.max_outer_iterations && spent < max_total {
+        while outer < s.max_outer_iterations && iterations < max_total {
             outer += 1;
-            let max_inner = (max_total - spent).min(s.max_inner_iterations_per_outer.unwrap_or(usize::MAX));
+            let max_inner =
+                (max_total - iterations).min(s.max_inner_iterations_per_outer.unwrap_or(usize::MAX));
             let step = match time_left(budget, elapsed)
                 .and_then(|remaining| self.outer_step(c, max_inner, remaining))
             {
@@ -119,7 +117,6 @@ impl Mpc {
                 }
             };
             iterations += step.inner_iterations;
-            spent += step.budget_spent;
             elapsed += step.solve_time;
             if let Some(end) = step.verdict(s.constraint_tolerance) {
                 status = end;
@@ -232,7 +229,6 @@ impl Mpc {
         }
         Ok(OuterStep {
             inner_iterations: report.num_inner_iterations(),
-            budget_spent: report.num_inner_iterations(),
             solve_time: report.solve_time(),
             exit_status: report.exit_status(),
             violation,
@@ -298,7 +294,6 @@ impl Mpc {
         };
         Ok(OuterStep {
             inner_iterations: exit.iterations,
-            budget_spent: exit.gradients,
             solve_time: start.elapsed(),
             exit_status,
             violation,

@@ -409,27 +409,15 @@ fn a_reset_forgets_our_panocs_lipschitz_estimate() {
 fn each_panoc_stops_at_its_own_default_budget_on_a_state_that_needs_more() {
     // paper-2's start under the paper's prior weights is one of the states no budget from 100
     // to 5,000 iterations converges on (BENCHMARKS.md "The solver"): both solvers spend their
-    // whole budget, which is what bounds the solve time. OpEn's counts iterations; ours
-    // counts gradients, so its adjoint passes are bounded by the budget (plus the one each
-    // outer iteration's PANOC call starts with, and the final evaluation's) and its
-    // iterations by the same number.
+    // whole budget, which is what bounds the solve time.
     let s = Scenario::paper_2();
     let weights = [0.0, 0.003, 0.036, 0.640, 0.313];
-    for (solver, budget) in [(PanocSolver::Own, 150), (PanocSolver::OpEn, 200)] {
+    for (solver, budget) in [(PanocSolver::Own, 100), (PanocSolver::OpEn, 200)] {
         let settings = MpcSettings { solver, ..MpcSettings::default() };
         assert_eq!(settings.inner_budget(), budget, "{solver:?}");
         let mut mpc = mpc_for(&s, ControllerMode::Multistage, settings);
         let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &weights, &SolveBudget::default()).expect("valid");
-        assert_eq!(r.status, SolveStatus::IterationLimit, "{solver:?}");
-        match solver {
-            PanocSolver::OpEn => assert_eq!(r.iterations, budget),
-            PanocSolver::Own => {
-                assert!(r.iterations <= budget, "{r:?}");
-                let adjoint_bound = (budget + r.outer_iterations + 1) as u64;
-                assert!(r.passes.adjoint <= adjoint_bound, "{r:?}");
-                assert!(r.passes.adjoint >= budget as u64, "the whole budget is spent: {r:?}");
-            }
-        }
+        assert_eq!((r.status, r.iterations), (SolveStatus::IterationLimit, budget), "{solver:?}");
         // A budget given with the solve overrides the default.
         let mut mpc = mpc_for(&s, ControllerMode::Multistage, settings);
         let given = SolveBudget { max_inner_iterations: Some(7), deadline: None };

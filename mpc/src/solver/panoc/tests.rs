@@ -142,10 +142,7 @@ fn a_large_carried_lipschitz_estimate_does_not_loosen_the_stopping_test() {
     let mut panoc = Panoc::new(z_star.len(), 5);
     panoc.lipschitz = 1e6;
     let mut z = vec![0.0; z_star.len()];
-    // `L` never falls within a call, and with `γ` 1e5 times too small the line search rejects
-    // every L-BFGS step (a step that leaves the box pays `|rr|² / 2γ` in the envelope): the
-    // call converges on projected gradient steps, seven gradients each, 37,821 in all.
-    let exit = panoc.solve(&mut qp, &mut z, &lo, &hi, tolerance, 100_000, None);
+    let exit = panoc.solve(&mut qp, &mut z, &lo, &hi, tolerance, 10_000, None);
     assert_eq!(exit.status, PanocStatus::Converged, "{exit:?}");
     assert!(0.5 * exit.residual * exit.residual <= tolerance * exit.cost.abs());
     let gap = z.iter().zip(&z_star).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
@@ -168,45 +165,7 @@ fn the_iteration_limit_returns_the_best_half_step_inside_the_box() {
     let mut panoc = Panoc::new(6, 4);
     let mut z = vec![-1.2, 1.0, -1.2, 1.0, -1.2, 1.0];
     let exit = panoc.solve(&mut Rosenbrock, &mut z, &[-2.0; 6], &[0.9; 6], 1e-30, 3, None);
-    assert_eq!((exit.status, exit.gradients), (PanocStatus::IterationLimit, 3));
-    assert!((1..=3).contains(&exit.iterations), "{exit:?}");
+    assert_eq!((exit.status, exit.iterations), (PanocStatus::IterationLimit, 3));
     assert!(z.iter().all(|v| (-2.0..=0.9).contains(v)), "{z:?}");
     assert_eq!(Rosenbrock.cost(&z), exit.cost);
-}
-
-/// [`Rosenbrock`] with its gradients counted.
-struct CountedRosenbrock {
-    gradients: usize,
-}
-
-impl SmoothCost for CountedRosenbrock {
-    fn cost(&mut self, z: &[f64]) -> f64 {
-        Rosenbrock.cost(z)
-    }
-
-    fn cost_and_gradient(&mut self, z: &[f64], grad: &mut [f64]) -> f64 {
-        self.gradients += 1;
-        Rosenbrock.cost_and_gradient(z, grad)
-    }
-}
-
-#[test]
-fn the_budget_bounds_the_gradients_line_search_trials_included() {
-    // From the classic start the valley's curvature rejects L-BFGS steps: some iterations try
-    // several step sizes, each a gradient, and all of them count against the budget.
-    let mut some_trial_rejected = false;
-    for budget in [1, 2, 5, 10, 20, 40, 80] {
-        let mut panoc = Panoc::new(6, 8);
-        let mut problem = CountedRosenbrock { gradients: 0 };
-        let mut z = vec![-1.2, 1.0, -1.2, 1.0, -1.2, 1.0];
-        let exit = panoc.solve(&mut problem, &mut z, &[-2.0; 6], &[2.0; 6], 1e-30, budget, None);
-        assert_eq!(exit.status, PanocStatus::IterationLimit, "budget {budget}: {exit:?}");
-        // The call's first gradient (at the start) and the Lipschitz estimate's finite
-        // difference are not an iteration's.
-        assert_eq!(problem.gradients, exit.gradients + 2, "budget {budget}: {exit:?}");
-        assert_eq!(exit.gradients, budget, "budget {budget}: {exit:?}");
-        assert!(exit.iterations <= budget, "budget {budget}: {exit:?}");
-        some_trial_rejected |= exit.iterations < exit.gradients;
-    }
-    assert!(some_trial_rejected, "no line-search trial was rejected: the test shows nothing");
 }
