@@ -573,19 +573,22 @@ pub fn run_table(runs: &[RunSummary]) -> String {
         "solve ms",
         "collided"
     );
+    // A number that does not exist prints as "-": no goal reached (time), no obstacle
+    // (clearance +inf), no solver the bench can see (an external controller's solve time).
+    let finite = |v: f64, text: String| if v.is_finite() { text } else { "-".to_string() };
     for r in runs {
         let time = r.time_to_goal_s.map_or_else(|| "-".to_string(), |t| format!("{t:.2}"));
         let _ = writeln!(
             out,
-            "{:<16} {:<11} {:>8} {:>9} {:>9.2} {:>+10.3} {:>7} {:>9.2} {:>9}",
+            "{:<16} {:<11} {:>8} {:>9} {:>9.2} {:>10} {:>7} {:>9} {:>9}",
             r.scenario,
             r.controller,
             if r.reached { "yes" } else { "no" },
             time,
             r.path_length_m,
-            r.min_clearance_m,
+            finite(r.min_clearance_m, format!("{:+.3}", r.min_clearance_m)),
             r.cycles,
-            r.solve_ms_median,
+            finite(r.solve_ms_median, format!("{:.2}", r.solve_ms_median)),
             if r.collided { "YES" } else { "no" },
         );
     }
@@ -679,6 +682,23 @@ mod tests {
             assert_eq!(csv.lines().count(), rows.len() + 1);
             assert!(csv.starts_with("cycle,t_s,px_m"));
         }
+    }
+
+    #[test]
+    fn the_run_table_prints_a_dash_for_a_clearance_or_solve_time_that_does_not_exist() {
+        let file = load("slalom-4.toml");
+        let flown = run_all(&file_jobs(&file, Some(&[Mode::Multistage])), &Transport::InProcess, false)
+            .expect("in process");
+        let mut run = flown.runs[0].clone();
+        let row = |table: &str| table.lines().nth(1).expect("a row").to_string();
+        let numbers = row(&run_table(std::slice::from_ref(&run)));
+        assert!(numbers.contains(&format!("{:+.3}", run.min_clearance_m)), "{numbers}");
+        // No obstacle in the field, and an external controller (no solve times).
+        run.min_clearance_m = f64::INFINITY;
+        run.solve_ms_median = f64::NAN;
+        let dashes = row(&run_table(&[run]));
+        assert!(!dashes.contains("inf") && !dashes.contains("NaN"), "{dashes}");
+        assert_eq!(dashes.split_whitespace().filter(|w| *w == "-").count(), 2, "{dashes}");
     }
 
     #[test]
