@@ -150,6 +150,20 @@ impl Default for RunSection {
     }
 }
 
+/// The keys of [`Scenario`] that a file gives in `[run]` (see [`ScenarioFile::validate`]).
+const RUN_KEYS: [&str; 5] =
+    ["delay_compensation", "obstacle_margin_m", "fail_safe", "continue_after_collision", "solver"];
+
+/// serde's "unknown field `k`, expected one of ..." for `[scenario]`, without the keys that
+/// belong in `[run]` (`Scenario` holds them, but a file that gives them in `[scenario]` is
+/// refused): the list a user reads is the table's own.
+fn without_run_keys(message: &str) -> String {
+    let Some((head, list)) = message.split_once("expected one of ") else { return message.to_string() };
+    let keys: Vec<&str> =
+        list.split(", ").filter(|k| !RUN_KEYS.iter().any(|r| k.trim_matches('`') == *r)).collect();
+    format!("{head}expected one of {} (the controller's options go in [run])", keys.join(", "))
+}
+
 /// A whole scenario file.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -239,7 +253,13 @@ impl ScenarioFile {
             .map_err(|e| {
                 let field = e.span().and_then(|s| field_at(&root, &s));
                 let span = e.span();
-                error(span, field, e.message().to_string())
+                let message = match field.as_deref() {
+                    Some(f) if f.strip_prefix("scenario.").is_some_and(|k| !k.contains(['.', '['])) => {
+                        without_run_keys(e.message())
+                    }
+                    _ => e.message().to_string(),
+                };
+                error(span, field, message)
             })?;
         // Trace files, relative to the scenario file, are read into the scenario (inline), so
         // that it travels whole to the services and replays without the file.
@@ -598,6 +618,17 @@ mod tests {
         assert!(
             e.to_string().starts_with(&format!("scenarios/x.toml:{}: field `scenario.horizn`", line + 1))
         );
+    }
+
+    #[test]
+    fn an_unknown_scenario_key_lists_the_tables_own_keys() {
+        let (text, _) = edited("horizon = 40", "horizon = 40\ncolour = \"red\"");
+        let e = error_of(&text);
+        assert_eq!(e.field.as_deref(), Some("scenario.colour"), "{e}");
+        assert!(e.message.contains("`horizon`") && e.message.contains("go in [run]"), "{e}");
+        for key in RUN_KEYS {
+            assert!(!e.message.contains(&format!("`{key}`")), "{key} listed: {e}");
+        }
     }
 
     #[test]
