@@ -18,25 +18,18 @@ import time
 
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402  (the environment variable must come first)
+from px4_stream import Px4Stream  # noqa: E402
 
 mavutil.set_dialect("common")
-m = mavutil.mavlink
 
 port, yaw, seconds = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
 conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
 start = time.monotonic()
-
-
-def boot_ms():
-    return int((time.monotonic() - start) * 1000) + 1
-
-
-PX4_POSCTL = 3 << 16
+px4 = Px4Stream(start)
 setpoints = []  # (t, q, thrust, type_mask, target_system, target_component)
 heartbeats = []
 command_longs = []
 timesync_requests = 0
-next_state = next_heartbeat = 0.0
 hover_since = None
 commanded_seen = False
 
@@ -50,15 +43,7 @@ def tilt_and_yaw(q):
 
 while time.monotonic() - start < seconds:
     now = time.monotonic() - start
-    if now >= next_heartbeat:
-        next_heartbeat = now + 1.0
-        conn.mav.heartbeat_send(
-            m.MAV_TYPE_QUADROTOR, m.MAV_AUTOPILOT_PX4, m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, PX4_POSCTL, m.MAV_STATE_STANDBY
-        )
-    if now >= next_state:
-        next_state = now + 0.02
-        conn.mav.attitude_send(boot_ms(), 0.0, 0.0, yaw, 0.0, 0.0, 0.0)
-        conn.mav.local_position_ned_send(boot_ms(), 3.2, 0.0, 0.0, 0.0, 0.0, 0.0)
+    px4.send_due(conn.mav, now, yaw)
     msg = conn.recv_match(blocking=True, timeout=0.005)
     if msg is None:
         continue
@@ -82,7 +67,7 @@ while time.monotonic() - start < seconds:
         command_longs.append(msg.command)
     elif kind == "TIMESYNC" and msg.tc1 == 0:
         timesync_requests += 1
-        conn.mav.timesync_send(int((time.monotonic() - start) * 1e9) + 1, msg.ts1)
+        px4.answer_timesync(conn.mav, msg)
 
 times = [s[0] for s in setpoints]
 # Setpoints per whole second of the observation (the rate PX4 sees).

@@ -28,21 +28,18 @@ import tty
 
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402  (the environment variable must come first)
+from px4_stream import Px4Stream  # noqa: E402
 
 mavutil.set_dialect("common")
 m = mavutil.mavlink
 
 link, seconds = sys.argv[1], float(sys.argv[2])
 start = time.monotonic()
-PX4_POSCTL = 3 << 16
+px4 = Px4Stream(start)
 
 
 def say(**event):
     print(json.dumps(event), flush=True)
-
-
-def boot_ms():
-    return int((time.monotonic() - start) * 1000) + 1
 
 
 class Pty:
@@ -75,22 +72,13 @@ class Pty:
 
 autopilot = Pty()
 say(event="plugged", device=autopilot.device)
-next_state = next_heartbeat = 0.0
 commanded = False
 stdin_open = True
 
 while time.monotonic() - start < seconds:
     now = time.monotonic() - start
     if autopilot is not None:
-        if now >= next_heartbeat:
-            next_heartbeat = now + 1.0
-            autopilot.mav.heartbeat_send(
-                m.MAV_TYPE_QUADROTOR, m.MAV_AUTOPILOT_PX4, m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, PX4_POSCTL, m.MAV_STATE_STANDBY
-            )
-        if now >= next_state:
-            next_state = now + 0.02
-            autopilot.mav.attitude_send(boot_ms(), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-            autopilot.mav.local_position_ned_send(boot_ms(), 3.2, 0.0, 0.0, 0.0, 0.0, 0.0)
+        px4.send_due(autopilot.mav, now)
     fds = ([sys.stdin] if stdin_open else []) + ([autopilot.master] if autopilot is not None else [])
     readable, _, _ = select.select(fds, [], [], 0.005)
     if sys.stdin in readable:
@@ -104,7 +92,7 @@ while time.monotonic() - start < seconds:
             say(event="unplugged")
         elif command == "plug" and autopilot is None:
             autopilot = Pty()
-            next_state = next_heartbeat = 0.0
+            px4.restart()
             say(event="plugged", device=autopilot.device)
         continue
     if autopilot is None or autopilot.master not in readable:
@@ -122,7 +110,7 @@ while time.monotonic() - start < seconds:
             autopilot.heard = True
             say(event="heard", type=msg.type)
         elif kind == "TIMESYNC" and msg.tc1 == 0:
-            autopilot.mav.timesync_send(int((time.monotonic() - start) * 1e9) + 1, msg.ts1)
+            px4.answer_timesync(autopilot.mav, msg)
 
 if autopilot is not None:
     autopilot.close()
