@@ -313,14 +313,15 @@ impl ScenarioFile {
         }
         let s = &self.scenario;
         // The controller's options beyond the paper come from `[run]`, which overwrites them.
-        let from_run = [
-            ("delay_compensation", s.delay_compensation),
-            ("obstacle_margin_m", s.obstacle_margin_m.is_some()),
-            ("fail_safe", s.fail_safe),
-            ("continue_after_collision", s.continue_after_collision),
-            ("solver", s.solver.is_some()),
+        // Whether each of `RUN_KEYS` is set, in its order.
+        let set = [
+            s.delay_compensation,
+            s.obstacle_margin_m.is_some(),
+            s.fail_safe,
+            s.continue_after_collision,
+            s.solver.is_some(),
         ];
-        if let Some((key, _)) = from_run.iter().find(|(_, set)| *set) {
+        if let Some((key, _)) = RUN_KEYS.iter().zip(set).find(|(_, set)| *set) {
             return Err((format!("scenario.{key}"), format!("belongs in [run] (run.{key})")));
         }
         if s.name.is_empty() || s.name.len() > 64 || s.name.chars().any(|c| c.is_control()) {
