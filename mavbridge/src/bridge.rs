@@ -31,9 +31,10 @@ pub const REBOOT_CLOCK_JUMP_MS: u32 = 1_000;
 /// - counted more than [`REBOOT_CLOCK_JUMP_MS`] less than the silence lasted: a clock that kept
 ///   running counts what the gateway's did, give or take the network's jitter (milliseconds);
 /// - and reads no more than the silence (give or take the same margin, for the network's
-///   jitter): a clock restarted at 0 during the silence cannot have counted more. This keeps a link that held messages back and delivers them late (stamps a
-///   little ahead of the last after a long wait) from looking like a reboot: that clock still
-///   reads the vehicle's whole uptime. A vehicle rebooted less than a second after its last
+///   jitter): a clock restarted at 0 during the silence cannot have counted more. This keeps a
+///   link that held messages back and delivers them late (stamps a little ahead of the last
+///   after a long wait) from looking like a reboot: that clock still reads the vehicle's whole
+///   uptime. A vehicle rebooted less than a second after its last
 ///   message, or silent for less than a second, is not seen this way (it is the case above).
 pub fn shows_reboot(before_ms: u32, after_ms: u32, silence_ns: u64) -> bool {
     if before_ms.saturating_sub(after_ms) > REBOOT_CLOCK_JUMP_MS {
@@ -410,15 +411,8 @@ impl Bridge {
                     self.counters.bad_messages += 1;
                     return event;
                 }
-                let silence_ns = now_ns.saturating_sub(self.position_heard_ns);
-                if let Some(old) = &self.position
-                    && shows_reboot(old.time_boot_ms, t, silence_ns)
-                {
-                    event.reboot = Some(self.on_reboot(old.time_boot_ms, t, silence_ns, now_ns));
-                }
-                if self.position.as_ref().is_some_and(|old| old.time_boot_ms > t) {
-                    self.counters.stale_messages += 1;
-                } else {
+                let old_ms = self.position.as_ref().map(|old| old.time_boot_ms);
+                if self.is_new_stamp(old_ms, self.position_heard_ns, t, now_ns, &mut event) {
                     self.position = Some(p.clone());
                     self.position_heard_ns = now_ns;
                     event.sample = self.produce(u64::from(t) * 1_000_000, now_ns);
@@ -430,14 +424,8 @@ impl Bridge {
     }
 
     fn on_attitude(&mut self, att: Attitude, now_ns: u64, event: &mut Event) {
-        let silence_ns = now_ns.saturating_sub(self.attitude_heard_ns);
-        if let Some(old) = &self.attitude
-            && shows_reboot(old.time_boot_ms, att.time_boot_ms, silence_ns)
-        {
-            event.reboot = Some(self.on_reboot(old.time_boot_ms, att.time_boot_ms, silence_ns, now_ns));
-        }
-        if self.attitude.as_ref().is_some_and(|old| old.time_boot_ms > att.time_boot_ms) {
-            self.counters.stale_messages += 1;
+        let old_ms = self.attitude.as_ref().map(|old| old.time_boot_ms);
+        if !self.is_new_stamp(old_ms, self.attitude_heard_ns, att.time_boot_ms, now_ns, event) {
             return;
         }
         if !self.heard.as_ref().is_some_and(|h| h.armed) {
@@ -448,10 +436,34 @@ impl Bridge {
         event.sample = self.produce(u64::from(att.time_boot_ms) * 1_000_000, now_ns);
     }
 
+    /// A state message of one kind stamped `t_ms`, after the last of its kind stamped `old_ms`
+    /// and heard at `heard_ns`: whether it is newer (else it is counted stale). A stamp that
+    /// shows a reboot ([`shows_reboot`]) is recorded in `event` and starts afresh (newer).
+    fn is_new_stamp(
+        &mut self,
+        old_ms: Option<u32>,
+        heard_ns: u64,
+        t_ms: u32,
+        now_ns: u64,
+        event: &mut Event,
+    ) -> bool {
+        let Some(old_ms) = old_ms else { return true };
+        let silence_ns = now_ns.saturating_sub(heard_ns);
+        if shows_reboot(old_ms, t_ms, silence_ns) {
+            event.reboot = Some(self.on_reboot(old_ms, t_ms, silence_ns, now_ns));
+            return true;
+        }
+        if old_ms > t_ms {
+            self.counters.stale_messages += 1;
+            return false;
+        }
+        true
+    }
+
     /// The vehicle's boot clock went from `before_ms` to `after_ms` in a way that shows a reboot
-    /// ([`shows_reboot`]), `silence_ns` apart. What
-    /// was measured on its old clock is forgotten (the clock offset, the last state and its
-    /// stamps, the plant-time epoch, the last command's stamps), as is its armed state (a
+    /// ([`shows_reboot`]), `silence_ns` apart. What was measured on its old clock is forgotten
+    /// (the clock offset, the last state and its stamps, the plant-time epoch, the last
+    /// command's stamps), as is its armed state (a
     /// rebooted autopilot is disarmed; the next heartbeat says so, and an arming after it
     /// takes the yaw to hold again). The setpoint goes back to level hover, and no sample is
     /// made until the next [`Bridge::reset`]. Nothing is sent to the vehicle.
