@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 use hilbench::external::{ExternalController, ExternalFailure, ExternalRun, ExternalSettings, run_external};
 use hilbench::grpc::TimeMode;
 use hilbench::scenario_file::ScenarioFile;
+use hilbench_tests::TempDir;
 use hilbench_tests::python::python;
 
 /// Longer than any run here takes: a hang is the failure these tests catch.
@@ -27,12 +28,6 @@ fn python_controller() -> String {
 
 fn open_field() -> mav::Scenario {
     ScenarioFile::load(&repo("examples/python-controller/open-field.toml")).expect("open-field.toml").scenario
-}
-
-fn temp_dir(what: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("hilbench-external-test-{what}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
 }
 
 /// `hilbench ARGS` to its end: exit code, stderr, and `OUT/summary.json`.
@@ -91,7 +86,7 @@ fn fly_in(
 
 #[test]
 fn the_python_pd_controller_reaches_the_open_field_goal_in_lockstep_judged_from_the_plants_samples() {
-    let out = temp_dir("reach");
+    let out = TempDir::new("external-test-reach");
     let file = repo("examples/python-controller/open-field.toml").display().to_string();
     let (code, stderr, summary) = hilbench(&["run", &file, "--controller-cmd", &python_controller()], &out);
     assert_eq!(code, Some(0), "{stderr}");
@@ -123,12 +118,11 @@ fn the_python_pd_controller_reaches_the_open_field_goal_in_lockstep_judged_from_
     assert!((100.0..300.0).contains(&latency_ms), "{latency_ms}");
     let csv = std::fs::read_to_string(out.join("open-field-external.csv")).expect("the CSV");
     assert_eq!(csv.lines().count() as u64, cycles + 1);
-    let _ = std::fs::remove_dir_all(out);
 }
 
 #[test]
 fn a_controller_that_exits_with_an_error_fails_the_run_naming_its_status_and_last_output() {
-    let out = temp_dir("exit");
+    let out = TempDir::new("external-test-exit");
     let file = repo("examples/python-controller/open-field.toml").display().to_string();
     let command = "echo starting; echo 'no route to the moon' >&2; exit 4";
     let (code, stderr, summary) = hilbench(&["run", &file, "--controller-cmd", command], &out);
@@ -141,12 +135,12 @@ fn a_controller_that_exits_with_an_error_fails_the_run_naming_its_status_and_las
     // The failed run is kept as far as the plant flew it: not at all.
     assert_eq!(summary["runs"][0]["end_reason"], "error");
     assert_eq!(summary["runs"][0]["external_controller"]["commands_applied"], 0);
-    let _ = std::fs::remove_dir_all(out);
 }
 
 #[test]
 fn a_controller_that_stops_stepping_fails_the_run_at_the_stall_timeout_and_is_killed() {
-    let pid_file = temp_dir("hang").with_extension("pid");
+    let dir = TempDir::new("external-test-hang");
+    let pid_file = dir.join("controller.pid");
     // It writes its pid and sleeps without ever calling Step: plant time stands still.
     let command = format!("echo $$ > '{}'; exec sleep 60", pid_file.display());
     let settings = ExternalSettings { stall_timeout: Duration::from_secs(2), ..ExternalSettings::default() };
@@ -165,12 +159,11 @@ fn a_controller_that_stops_stepping_fails_the_run_at_the_stall_timeout_and_is_ki
         assert!(started.elapsed() < Duration::from_secs(10), "pid {} still runs", pid.trim());
         std::thread::sleep(Duration::from_millis(50));
     }
-    let _ = std::fs::remove_file(pid_file);
 }
 
 #[test]
 fn the_python_controller_flying_straight_into_a_paper_1_cylinder_is_reported_collided_with_exit_3() {
-    let out = temp_dir("collide");
+    let out = TempDir::new("external-test-collide");
     let file = repo("scenarios/paper-1.toml").display().to_string();
     let (code, stderr, summary) = hilbench(&["run", &file, "--controller-cmd", &python_controller()], &out);
     assert_eq!(code, Some(3), "{stderr}");
@@ -179,20 +172,19 @@ fn the_python_controller_flying_straight_into_a_paper_1_cylinder_is_reported_col
     assert_eq!(run["reached"], false);
     assert_eq!(run["collisions"][0]["kind"], "cylinder");
     assert!(run["min_clearance_m"].as_f64().is_some_and(|c| c < 0.0), "{}", run["min_clearance_m"]);
-    let _ = std::fs::remove_dir_all(out);
 }
 
 /// Twenty delay seeds: the sweep of issue 21's example (a loop here; `hilbench sweep
 /// --controller-cmd` once the sweep exists).
 #[test]
 fn a_sweep_of_the_python_controller_under_twenty_delay_processes_reaches_every_goal() {
-    let out = temp_dir("sweep");
+    let out = TempDir::new("external-test-sweep");
     let file = repo("examples/python-controller/open-field.toml");
     let controller = python_controller();
     let run = Command::new(hilbench_tests::service_binary("hilbench"))
         .args(["sweep", file.to_str().expect("utf-8"), "--controller-cmd", &controller, "--jobs", "2"])
         .args(["--quiet", "--no-plots", "--out"])
-        .arg(&out)
+        .arg(out.path())
         .stdin(Stdio::null())
         .output()
         .expect("hilbench runs");
@@ -208,7 +200,6 @@ fn a_sweep_of_the_python_controller_under_twenty_delay_processes_reaches_every_g
     // The runs drew different delays, so the flights differ.
     let path_m = &sweep["path_length_m"];
     assert_ne!(path_m["p50"], path_m["p95"], "{path_m}");
-    let _ = std::fs::remove_dir_all(&out);
 }
 
 #[test]

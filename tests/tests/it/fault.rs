@@ -18,7 +18,7 @@ use std::time::Duration;
 use hilbench::grpc::{Endpoints, GrpcRun, GrpcSettings, RunFailure, TimeMode, netem_config, run_against};
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
-use hilbench_tests::{Service, free_loopback_address, start_plant, wait_for_state};
+use hilbench_tests::{Service, TempDir, free_loopback_address, start_plant, wait_for_state};
 use mav::Scenario;
 use mpc::ControllerMode;
 use plant::PlantConfig;
@@ -301,13 +301,6 @@ fn scenario_file(name: &str) -> String {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios").join(name).display().to_string()
 }
 
-fn temp_dir(what: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("hilbench-{what}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("a temporary directory");
-    dir
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_controller_killed_mid_run_leaves_the_cycles_so_far_and_the_error_and_hilbench_exits_1() {
     let (plant, netem, controller) =
@@ -319,7 +312,7 @@ async fn a_controller_killed_mid_run_leaves_the_cycles_so_far_and_the_error_and_
         "controller",
         &["--listen", &controller, "--plant", &netem, "--time-mode", "real-time", "--no-autostart"],
     );
-    let out = temp_dir("controller-killed");
+    let out = TempDir::new("controller-killed");
     let out_arg = out.display().to_string();
     let file = scenario_file("paper-2.toml");
     let run = hilbench(
@@ -358,14 +351,13 @@ async fn a_controller_killed_mid_run_leaves_the_cycles_so_far_and_the_error_and_
     assert!(cycles >= 10, "{cycles} cycles");
     let csv = std::fs::read_to_string(out.join("paper-2-nmpc.csv")).expect("the per-cycle log");
     assert_eq!(csv.lines().count() as u64, cycles + 1, "a header and a row per cycle");
-    let _ = std::fs::remove_dir_all(&out);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_panic_in_any_task_of_a_run_ends_it_with_exit_1_and_a_message_naming_it() {
     let file = scenario_file("paper-2.toml");
     for point in ["plant-command", "netem-command", "controller-cycle", "hilbench-run"] {
-        let out = temp_dir(&format!("panic-{point}"));
+        let out = TempDir::new(&format!("panic-{point}"));
         let out_arg = out.display().to_string();
         let run = hilbench(
             &["run", &file, "--mode", "nmpc", "--no-plots", "--quiet", "--out", &out_arg],
@@ -375,7 +367,6 @@ async fn a_panic_in_any_task_of_a_run_ends_it_with_exit_1_and_a_message_naming_i
         assert_eq!(code, Some(1), "{point}: {stderr}");
         assert!(stderr.contains(&format!("injected panic at {point}")), "{point}: {stderr}");
         assert!(out.join("summary.json").is_file(), "{point}: no summary.json");
-        let _ = std::fs::remove_dir_all(&out);
     }
     // A service binary whose task panics exits 1 (its clients see the link drop).
     let plant = start_plant(PlantConfig::lockstep(Scenario::paper_2())).await;

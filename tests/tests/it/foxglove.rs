@@ -2,19 +2,12 @@
 //! wrote it: a run's MCAP file through the Python `mcap` package, and the live WebSocket view
 //! through a Python client of the protocol (tests/python/).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 
 use hilbench_tests::python::run_script;
-use hilbench_tests::{free_loopback_address, service_binary};
+use hilbench_tests::{TempDir, free_loopback_address, service_binary};
 use mav::Scenario;
-
-fn temp_dir(what: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("hilbench-{what}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("a temporary directory");
-    dir
-}
 
 fn hilbench(args: &[&str]) -> std::process::Output {
     Command::new(service_binary("hilbench")).args(args).output().expect("hilbench runs")
@@ -38,7 +31,7 @@ const CHANNELS: [(&str, &str, &str); 8] = [
 #[test]
 fn the_mcap_file_of_a_paper_2_run_reads_back_in_python_with_a_pose_and_a_plan_per_cycle_ending_at_the_final_position()
  {
-    let out = temp_dir("mcap-paper-2");
+    let out = TempDir::new("mcap-paper-2");
     let ran = hilbench(&["reproduce", "--scenario", "paper-2", "--out", utf8(&out), "--no-plots", "--quiet"]);
     assert!(ran.status.success(), "{ran:?}");
     let summary: serde_json::Value =
@@ -104,7 +97,7 @@ fn the_mcap_file_of_a_paper_2_run_reads_back_in_python_with_a_pose_and_a_plan_pe
         }
     }
     // --no-mcap writes none.
-    let bare = temp_dir("mcap-none");
+    let bare = TempDir::new("mcap-none");
     let args = ["reproduce", "--scenario", "paper-2", "--in-process", "--no-plots", "--no-mcap", "--quiet"];
     let ran = hilbench(&[&args[..], &["--out", utf8(&bare)]].concat());
     assert!(ran.status.success(), "{ran:?}");
@@ -115,14 +108,12 @@ fn the_mcap_file_of_a_paper_2_run_reads_back_in_python_with_a_pose_and_a_plan_pe
         .filter(|e| e.path().extension().is_some_and(|x| x == "mcap"))
         .count();
     assert_eq!(mcaps, 0);
-    let _ = std::fs::remove_dir_all(&out);
-    let _ = std::fs::remove_dir_all(&bare);
 }
 
 #[test]
 fn a_websocket_client_subscribed_during_a_real_time_run_receives_the_scene_and_poses() {
     // paper-2 for 4 s of plant time (a real-time run lasts as long).
-    let dir = temp_dir("foxglove-ws");
+    let dir = TempDir::new("foxglove-ws");
     let paper_2 =
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/paper-2.toml"))
             .expect("scenarios/paper-2.toml");
@@ -183,7 +174,6 @@ fn a_websocket_client_subscribed_during_a_real_time_run_receives_the_scene_and_p
     }
     // The file of the same run is written as well.
     assert!(out.join("paper-2-short-nmpc.mcap").exists());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
