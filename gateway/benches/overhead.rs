@@ -1,12 +1,14 @@
 //! The gateway's overhead on loopback at 50 Hz (BENCHMARKS.md):
 //! - command: from just before a Plant API `ApplyCommand` call to the `SET_ATTITUDE_TARGET`
-//!   carrying it arriving at the vehicle's UDP socket;
+//!   carrying it arriving at the vehicle's UDP socket, stamped by the kernel on arrival
+//!   (`SO_TIMESTAMPNS`), and, beside it, to the vehicle's thread woken by it (which adds that
+//!   thread's wake-up, the vehicle's business, not the gateway's);
 //! - state: from a `LOCAL_POSITION_NED` leaving the vehicle's UDP socket to the Plant API
 //!   sample made of it arriving on a `StreamState` stream.
 //!
 //! Both include the loopback sockets and the gRPC client's side (an upper bound on the
 //! gateway's own share). The "vehicle" is a plain UDP socket with the `mavlink` crate's
-//! encoder, nothing of the gateway's. Run: `cargo bench -p gateway --bench overhead [TICKS]`.
+//! encoder, nothing of the gateway's. Run: `cargo bench -p gateway --bench overhead -- [TICKS] [--multi-thread-client]`.
 
 use gateway::{GatewayConfig, Link};
 use hilbench_proto::pb;
@@ -16,9 +18,14 @@ use mavbridge::mavlink::dialects::common::{
     MavType,
 };
 use mavbridge::mavlink::{self, MavHeader, MavlinkVersion};
+use nix::sys::socket::sockopt::ReceiveTimestampns;
+use nix::sys::socket::{ControlMessageOwned, MsgFlags, SockaddrStorage, recvmsg, setsockopt};
+use nix::sys::time::TimeSpec;
+use std::io::IoSliceMut;
 use std::net::UdpSocket;
+use std::os::fd::AsRawFd;
 use std::sync::mpsc;
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime};
 use tokio_stream::StreamExt;
 
 fn encode(msg: &MavMessage, seq: u8) -> Vec<u8> {
@@ -26,6 +33,11 @@ fn encode(msg: &MavMessage, seq: u8) -> Vec<u8> {
     let header = MavHeader { system_id: 1, component_id: 1, sequence: seq };
     mavlink::write_v2_msg(&mut bytes, header, msg).expect("encodes");
     bytes
+}
+
+/// The realtime clock in ns, the clock of the kernel's `SO_TIMESTAMPNS` stamps.
+fn realtime_ns() -> u128 {
+    SystemTime::now().duration_since(SystemTime::UNIX_EPOCH).expect("after 1970").as_nanos()
 }
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {
@@ -72,19 +84,44 @@ fn core_share_ms(ticks: usize) -> Vec<f64> {
     ms
 }
 
-#[tokio::main(flavor = "multi_thread", worker_threads = 2)]
-async fn main() {
-    let ticks: usize = std::env::args().skip(1).find_map(|a| a.parse().ok()).unwrap_or(1000);
+/// `overhead [TICKS] [--multi-thread-client]`: the client on a current-thread runtime (one
+/// thread, no hand-over between the caller and the HTTP/2 connection's task), or on a
+/// multi-thread one (2 workers, tokio's default here).
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let ticks: usize = args.iter().find_map(|a| a.parse().ok()).unwrap_or(1000);
+    let multi_thread = args.iter().any(|a| a == "--multi-thread-client");
+    let mut builder = if multi_thread {
+        let mut b = tokio::runtime::Builder::new_multi_thread();
+        b.worker_threads(2);
+        b
+    } else {
+        tokio::runtime::Builder::new_current_thread()
+    };
+    let client_runtime = builder.enable_all().build().expect("the client's runtime");
+    println!("client runtime: {}", if multi_thread { "multi-thread, 2 workers" } else { "current-thread" });
+    client_runtime.block_on(run(ticks));
+}
+
+async fn run(ticks: usize) {
     let scenario = mav::Scenario::paper_2();
     let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("a loopback UDP port");
     let gateway_udp = link.local_addr.expect("bound");
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("port");
+    // The gateway on a runtime of its own, as its binary's (`#[tokio::main]`), apart from the
+    // client's (this one), as in two processes.
+    let gateway_runtime = tokio::runtime::Runtime::new().expect("the gateway's runtime");
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("port");
+    listener.set_nonblocking(true).expect("nonblocking");
     let addr = listener.local_addr().expect("address");
     let config = GatewayConfig::new(format!("udpin:{gateway_udp}"), scenario);
     let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
-    let server = tokio::spawn(gateway::serve_with_link(listener, config, link, async {
-        let _ = stopped.await;
-    }));
+    let server = gateway_runtime.spawn(async move {
+        let listener = tokio::net::TcpListener::from_std(listener).expect("a tokio listener");
+        gateway::serve_with_link(listener, config, link, async {
+            let _ = stopped.await;
+        })
+        .await
+    });
 
     let vehicle = UdpSocket::bind("127.0.0.1:0").expect("vehicle socket");
     vehicle.connect(gateway_udp).expect("connect");
@@ -100,17 +137,38 @@ async fn main() {
     vehicle.send(&encode(&heartbeat, 0)).expect("send");
     vehicle.send(&encode(&attitude, 1)).expect("send");
 
-    // The vehicle's receiving side: every SET_ATTITUDE_TARGET's thrust and arrival.
-    let (tx, rx) = mpsc::channel::<(f32, Instant)>();
+    // The vehicle's receiving side: every SET_ATTITUDE_TARGET's thrust, the kernel's arrival
+    // stamp (realtime clock, ns) and the instant the thread woke with it.
+    let (tx, rx) = mpsc::channel::<(f32, u128, Instant)>();
     let receiver = vehicle.try_clone().expect("clone");
+    setsockopt(receiver.as_raw_fd(), ReceiveTimestampns, &true).expect("SO_TIMESTAMPNS");
     std::thread::spawn(move || {
         let mut buf = [0u8; 512];
-        while let Ok(n) = receiver.recv(&mut buf) {
-            let at = Instant::now();
+        let mut control = nix::cmsg_space!(TimeSpec);
+        loop {
+            let (n, arrived_ns) = {
+                let mut iov = [IoSliceMut::new(&mut buf)];
+                let Ok(msg) = recvmsg::<SockaddrStorage>(
+                    receiver.as_raw_fd(),
+                    &mut iov,
+                    Some(&mut control),
+                    MsgFlags::empty(),
+                ) else {
+                    return;
+                };
+                let stamp = msg.cmsgs().find_map(|c| match c {
+                    ControlMessageOwned::ScmTimestampns(t) => {
+                        Some(t.tv_sec() as u128 * 1_000_000_000 + t.tv_nsec() as u128)
+                    }
+                    _ => None,
+                });
+                (msg.bytes, stamp.expect("a kernel arrival stamp"))
+            };
+            let woke = Instant::now();
             let mut reader = mavlink::MavlinkReader::new(&buf[..n]);
             if let Ok((_, MavMessage::SET_ATTITUDE_TARGET(d))) =
                 reader.read_message::<MavMessage>(MavlinkVersion::V2)
-                && tx.send((d.thrust, at)).is_err()
+                && tx.send((d.thrust, arrived_ns, woke)).is_err()
             {
                 return;
             }
@@ -140,6 +198,7 @@ async fn main() {
     let _first = stream.next().await;
 
     let mut command_ms = Vec::with_capacity(ticks);
+    let mut command_woken_ms = Vec::with_capacity(ticks);
     let mut state_ms = Vec::with_capacity(ticks);
     let mut tick = tokio::time::interval(Duration::from_millis(20));
     for k in 1..=ticks {
@@ -163,18 +222,22 @@ async fn main() {
             ..Default::default()
         };
         let start = Instant::now();
+        let start_ns = realtime_ns();
         plant.apply_command(cmd).await.expect("applied");
         loop {
-            let (thrust, at) = rx.recv_timeout(Duration::from_secs(5)).expect("a setpoint");
+            let (thrust, arrived_ns, woke) = rx.recv_timeout(Duration::from_secs(5)).expect("a setpoint");
             if thrust == expect {
-                command_ms.push(at.duration_since(start).as_secs_f64() * 1e3);
+                command_ms.push(arrived_ns.saturating_sub(start_ns) as f64 / 1e6);
+                command_woken_ms.push(woke.duration_since(start).as_secs_f64() * 1e3);
                 break;
             }
         }
     }
-    report("command: ApplyCommand -> SET_ATTITUDE_TARGET on the vehicle's socket", command_ms);
+    report("command: ApplyCommand -> SET_ATTITUDE_TARGET in the vehicle's socket (kernel stamp)", command_ms);
+    report("command: ApplyCommand -> the vehicle's thread woken by it", command_woken_ms);
     report("command, the gateway's share: Bridge::apply + Link::send -> on the socket", core_share_ms(ticks));
     report("state: LOCAL_POSITION_NED sent -> StreamState sample received", state_ms);
     let _ = stop.send(());
     let _ = server.await;
+    gateway_runtime.shutdown_background();
 }
