@@ -405,3 +405,63 @@ fn a_clock_gone_back_by_minutes_is_a_reboot_refused_until_reset_counted_once_the
     assert_eq!(p.samples.last().expect("samples").last_command.meta.command_seq, 7);
     assert_eq!(p.bridge.counters().reboots, 1);
 }
+
+/// The yaw of the setpoints the bridge sends next (decoded from their quaternion).
+fn next_setpoint_yaw(p: &mut Pair) -> f64 {
+    let mut out = Vec::new();
+    for _ in 0..100 {
+        p.now_ns += MS;
+        p.bridge.poll(p.now_ns, &mut out);
+        if let Some(d) = out.iter().find_map(|m| match m {
+            MavMessage::SET_ATTITUDE_TARGET(d) => Some(d.clone()),
+            _ => None,
+        }) {
+            let thrust = mavbridge::ThrustMap::new(0.5, 9.81).expect("valid");
+            return mavbridge::messages::setpoint_input(&d, &thrust).expect("a setpoint").1;
+        }
+    }
+    panic!("no setpoint in 100 ms");
+}
+
+/// An `ATTITUDE` from the vehicle at `yaw_rad`, 1 ms after its clock's now.
+fn attitude_at_yaw(p: &Pair, yaw_rad: f32) -> MavMessage {
+    MavMessage::ATTITUDE(mavbridge::mavlink::dialects::common::ATTITUDE_DATA {
+        time_boot_ms: mavbridge::messages::boot_ms(p.vehicle_ns()) + 1,
+        yaw: yaw_rad,
+        ..Default::default()
+    })
+}
+
+#[test]
+fn setpoints_hold_the_yaw_of_arming_while_the_vehicle_turns_and_follow_it_again_after_disarm() {
+    let scenario = Scenario::paper_2();
+    let mut p = Pair::new(&scenario);
+    p.run(1_500);
+    assert_eq!(
+        p.command(p.bridge.arm_message(true)),
+        (MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, MavResult::MAV_RESULT_ACCEPTED)
+    );
+    p.run(1_100);
+    assert!(p.bridge.status(p.now_ns).armed);
+    // Armed, the vehicle reports another yaw: the setpoints keep the yaw of arming.
+    let turned = attitude_at_yaw(&p, 1.2);
+    p.send_to_gateway(vec![turned]);
+    assert!((p.bridge.yaw_hold_rad() - 0.7).abs() < 1e-6, "{}", p.bridge.yaw_hold_rad());
+    assert!((next_setpoint_yaw(&mut p) - 0.7).abs() < 1e-6);
+    // Disarm (asked, as the gateway's Disarm does): accepted, the heartbeat says so within its
+    // period, and the heartbeat's age stays under it.
+    assert_eq!(
+        p.command(p.bridge.arm_message(false)),
+        (MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, MavResult::MAV_RESULT_ACCEPTED)
+    );
+    p.run(1_100);
+    assert!(!p.vehicle.armed());
+    let status = p.bridge.status(p.now_ns);
+    assert!(!status.armed, "{status:?}");
+    assert!(status.heartbeat_age_ns.is_some_and(|age| age <= 1_000 * MS), "{status:?}");
+    // Disarmed, the setpoints follow the vehicle's yaw again.
+    let turned = attitude_at_yaw(&p, 1.2);
+    p.send_to_gateway(vec![turned]);
+    assert!((p.bridge.yaw_hold_rad() - 1.2).abs() < 1e-6, "{}", p.bridge.yaw_hold_rad());
+    assert!((next_setpoint_yaw(&mut p) - 1.2).abs() < 1e-6);
+}

@@ -6,8 +6,9 @@ Sends to the gateway's `udpin` port, as PX4 does: HEARTBEAT (PX4, disarmed, POSC
 ATTITUDE (level, at YAW_RAD) and LOCAL_POSITION_NED (paper-2's start) at 50 Hz, and answers
 TIMESYNC. Records everything the gateway sends until it has seen a commanded phase followed by
 one second of hover (or SECONDS pass), and prints one JSON line of what it saw; the Rust test
-asserts on it (the rate, the type mask, the quaternions, the thrust range, the heartbeats, that
-no COMMAND_LONG came unasked, and the hover hold after the controller fell silent).
+asserts on it (the rate, the type mask, the quaternions and the direction they tilt the thrust
+in, the thrust range, the heartbeats, that no command or mode change came unasked: no
+COMMAND_LONG, COMMAND_INT or SET_MODE, and the hover hold after the controller fell silent).
 """
 
 import json
@@ -28,10 +29,16 @@ start = time.monotonic()
 px4 = Px4Stream(start)
 setpoints = []  # (t, q, thrust, type_mask, target_system, target_component)
 heartbeats = []
-command_longs = []
+unasked = []  # COMMAND_LONG / COMMAND_INT commands and SET_MODE modes, as sent
 timesync_requests = 0
 hover_since = None
 commanded_seen = False
+
+
+def thrust_axis_ned(q):
+    """The thrust's direction in NED (the body's -z axis rotated by q): north, east, down."""
+    w, x, y, z = q
+    return (-2.0 * (x * z + w * y), 2.0 * (w * x - y * z), -(1.0 - 2.0 * (x * x + y * y)))
 
 
 def tilt_and_yaw(q):
@@ -63,8 +70,10 @@ while time.monotonic() - start < seconds:
             break
     elif kind == "HEARTBEAT":
         heartbeats.append((t, msg.type, msg.autopilot))
-    elif kind == "COMMAND_LONG":
-        command_longs.append(msg.command)
+    elif kind in ("COMMAND_LONG", "COMMAND_INT"):
+        unasked.append(f"{kind} {msg.command}")
+    elif kind == "SET_MODE":
+        unasked.append(f"SET_MODE {msg.base_mode} {msg.custom_mode}")
     elif kind == "TIMESYNC" and msg.tc1 == 0:
         timesync_requests += 1
         px4.answer_timesync(conn.mav, msg)
@@ -94,12 +103,16 @@ report = {
     "commanded": len(commanded),
     "commanded_thrust": sorted({round(s[2], 6) for s in commanded}),
     "commanded_tilt_min": min((tilt_and_yaw(s[1])[0] for s in commanded), default=None),
+    # Where the commanded setpoints point the thrust, whatever the yaw: north and east.
+    "commanded_thrust_north_abs_max": max((abs(thrust_axis_ned(s[1])[0]) for s in commanded), default=None),
+    "commanded_thrust_east_min": min((thrust_axis_ned(s[1])[1] for s in commanded), default=None),
+    "commanded_thrust_east_max": max((thrust_axis_ned(s[1])[1] for s in commanded), default=None),
     "after_commanded": len(after),
     "after_commanded_all_level_hover": all(abs(s[2] - 0.5) < 1e-6 and tilt_and_yaw(s[1])[0] < 1e-6 for s in after),
     "hover_held_s": (times[-1] - hover_since) if hover_since is not None else 0.0,
     "gateway_heartbeats": len(heartbeats),
     "gateway_heartbeat_types": sorted({h[1] for h in heartbeats}),
-    "command_longs": command_longs,
+    "unasked": unasked,
     "timesync_requests": timesync_requests,
 }
 print(json.dumps(report))

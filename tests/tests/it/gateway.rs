@@ -413,13 +413,19 @@ async fn pymavlink_as_the_autopilot_sees_setpoints_at_50_hz_heartbeats_no_unaske
     assert_eq!(thrust.len(), 1, "{r}");
     assert!((thrust[0].as_f64().expect("thrust") - 0.5 * 12.0 / 9.81).abs() < 1e-6, "{r}");
     assert!(f("commanded_tilt_min") > 0.09, "{r}");
+    // Roll 0.1 rad in the model's frame (z up, y = -east) tilts the thrust east by sin 0.1 and
+    // not north, at the vehicle's yaw (ARCHITECTURE.md, "The frames").
+    let east = 0.1f64.sin();
+    assert!((f("commanded_thrust_east_min") - east).abs() < 1e-5, "{r}");
+    assert!((f("commanded_thrust_east_max") - east).abs() < 1e-5, "{r}");
+    assert!(f("commanded_thrust_north_abs_max") < 1e-5, "{r}");
     // After the controller fell silent: level hover at hover thrust, held, and still streamed.
     assert_eq!(r["after_commanded_all_level_hover"], serde_json::json!(true), "{r}");
     assert!(f("hover_held_s") >= 1.0 && f("after_commanded") >= 20.0, "{r}");
     // The gateway's own heartbeat (an onboard controller) and TIMESYNC requests; no command.
     assert!(f("gateway_heartbeats") >= 2.0, "{r}");
     assert_eq!(r["gateway_heartbeat_types"], serde_json::json!([18]), "MAV_TYPE_ONBOARD_CONTROLLER: {r}");
-    assert_eq!(r["command_longs"], serde_json::json!([]), "the gateway never arms or switches unasked: {r}");
+    assert_eq!(r["unasked"], serde_json::json!([]), "the gateway never arms or switches unasked: {r}");
     assert!(f("timesync_requests") >= 1.0, "{r}");
     let status = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
     assert!(status.clock_offset_from_timesync, "{status:?}");

@@ -177,3 +177,50 @@ async fn every_server_refuses_a_plaintext_client_and_a_client_refuses_a_server_o
         );
     }
 }
+
+/// Waits up to 15 s for `log` to hold `text`.
+fn log_says(log: &Path, text: &str) -> bool {
+    let deadline = std::time::Instant::now() + Duration::from_secs(15);
+    while std::time::Instant::now() < deadline {
+        if std::fs::read_to_string(log).is_ok_and(|l| l.contains(text)) {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    false
+}
+
+const PLAINTEXT_WARNING: &str = "serving plaintext gRPC on an address other than loopback";
+
+/// Plaintext stays the default, with a warning when the address is reachable from elsewhere:
+/// every server binary (plant, netem, controller, gateway) started on 0.0.0.0 without TLS says
+/// so in its log; on loopback it does not.
+#[test]
+fn every_server_warns_when_it_serves_plaintext_beyond_loopback_and_not_on_loopback() {
+    let dir = hilbench_tests::TempDir::new("plaintext-warning");
+    let any = |loopback: &str| loopback.replace("127.0.0.1", "0.0.0.0");
+    // The plant on loopback: served (the others reach it), no warning.
+    let plant_addr = hilbench_tests::free_loopback_address();
+    let plant_log = dir.join("plant-loopback.log");
+    let _plant = hilbench_tests::Service::start_logged("plant", &["--listen", &plant_addr], &plant_log);
+    assert!(log_says(&plant_log, "plant serving"), "{:?}", std::fs::read_to_string(&plant_log));
+    let servers: [(&str, Vec<String>); 4] = [
+        ("plant", vec![]),
+        ("netem", vec!["--plant".into(), plant_addr.clone()]),
+        ("controller", vec!["--plant".into(), plant_addr.clone()]),
+        ("gateway", vec!["--mavlink".into(), "udpin:127.0.0.1:0".into()]),
+    ];
+    let mut running = Vec::new();
+    for (name, extra) in servers {
+        let log = dir.join(format!("{name}-any.log"));
+        let listen = any(&hilbench_tests::free_loopback_address());
+        let mut args = vec!["--listen".to_string(), listen];
+        args.extend(extra);
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        running.push(hilbench_tests::Service::start_logged(name, &args, &log));
+        assert!(log_says(&log, PLAINTEXT_WARNING), "{name} on 0.0.0.0: {:?}", std::fs::read_to_string(&log));
+    }
+    // The warning comes before the plant serves.
+    let said = std::fs::read_to_string(&plant_log).expect("the plant's log");
+    assert!(!said.contains(PLAINTEXT_WARNING), "{said}");
+}
