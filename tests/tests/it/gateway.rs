@@ -152,9 +152,15 @@ async fn paper_2_in_real_time_through_netem_and_the_gateway_reaches_the_goal_of_
     let s = &run.summary;
     assert!(s.reached && !s.collided, "{s:?}");
     assert!(s.min_clearance_m >= 0.0, "{s:?}");
-    // Delays were measured from the gateway's stamps: every applied command came after the
-    // sample it was based on.
+    // Delays were measured from the gateway's stamps (the last command applied and when, in
+    // the vehicle's clock): after the first cycles every cycle knows one, positive and finite.
     assert!(run.records.len() > 20, "{} cycles", run.records.len());
+    let first_known = run.records.iter().position(|r| r.known_delay_s.is_some()).expect("a delay known");
+    let unknown: Vec<u64> =
+        run.records.iter().filter(|r| r.known_delay_s.is_none()).map(|r| r.cycle).collect();
+    assert!(first_known <= 10 && unknown.len() == first_known, "cycles without a delay: {unknown:?}");
+    let known: Vec<f64> = run.records.iter().filter_map(|r| r.known_delay_s).collect();
+    assert!(known.iter().all(|d| d.is_finite() && *d > 0.0 && *d < 1.0), "{known:?}");
 
     // The simulator's own truth: no collision, at the goal, still in OFFBOARD.
     {
@@ -266,7 +272,8 @@ async fn mavsim_rebooting_from_its_command_line_silent_longer_than_its_uptime_is
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_silent_vehicle_makes_the_plant_api_unavailable_and_health_not_serving_until_it_talks_again() {
+async fn a_silent_vehicle_makes_the_plant_api_and_new_streams_unavailable_and_health_not_serving_until_it_talks_again_and_open_streams_resume()
+ {
     let scenario = Scenario::paper_2();
     let bench = start(&scenario).await;
     let addr = bench.gateway.addr;
@@ -279,12 +286,17 @@ async fn a_silent_vehicle_makes_the_plant_api_unavailable_and_health_not_serving
         assert!(tokio::time::Instant::now() < deadline, "never SERVING");
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
+    // A stream opened before the silence stays open through it.
+    let mut open_stream =
+        p.stream_state(pb::StreamStateRequest { period_ns: 0 }).await.expect("a stream").into_inner();
 
     bench.vehicle.set_silent(true);
     wait_status(&mut vc, "the link to be lost", |s| !s.link_alive).await;
     let err = p.get_state(pb::GetStateRequest {}).await.expect_err("UNAVAILABLE");
     assert_eq!(err.code(), tonic::Code::Unavailable, "{err}");
     assert!(err.message().contains("heartbeat"), "{err}");
+    let err = p.stream_state(pb::StreamStateRequest { period_ns: 0 }).await.expect_err("UNAVAILABLE");
+    assert_eq!(err.code(), tonic::Code::Unavailable, "a new StreamState: {err}");
     let cmd = pb::Command {
         input: Some(pb::ControlInput { thrust_mps2: 9.81, roll_rad: 0.0, pitch_rad: 0.0 }),
         ..Default::default()
@@ -300,7 +312,17 @@ async fn a_silent_vehicle_makes_the_plant_api_unavailable_and_health_not_serving
     // The vehicle talks again: served again.
     bench.vehicle.set_silent(false);
     wait_status(&mut vc, "the link to come back", |s| s.link_alive).await;
-    p.get_state(pb::GetStateRequest {}).await.expect("served again");
+    let again = p.get_state(pb::GetStateRequest {}).await.expect("served again").into_inner();
+    // The stream opened before the silence carries the samples after it.
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    loop {
+        use tokio_stream::StreamExt;
+        let next = tokio::time::timeout_at(deadline, open_stream.next()).await;
+        let sample = next.expect("a sample after the silence").expect("open").expect("a sample");
+        if sample.time_ns >= again.time_ns {
+            break;
+        }
+    }
     bench.gateway.stop().await.expect("gateway stops cleanly");
 }
 
