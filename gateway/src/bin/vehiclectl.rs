@@ -60,31 +60,42 @@ async fn main() -> anyhow::Result<()> {
         }
     };
     loop {
-        let status = client.get_status(pb::GetVehicleStatusRequest {}).await?.into_inner();
+        let status = answer("status", client.get_status(pb::GetVehicleStatusRequest {}).await)?;
         // PX4 takes OFFBOARD only once setpoints stream: a tenth of a second of them.
         if (status.link_alive && status.setpoints_sent >= 5) || tokio::time::Instant::now() >= deadline {
             break;
         }
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
-    let offboard = pb::SetModeRequest { mode: pb::FlightMode::Px4Offboard as i32 };
+    let offboard = || pb::SetModeRequest { mode: pb::FlightMode::Px4Offboard as i32 };
     match args.action {
         Action::Status => {
-            println!("{:#?}", client.get_status(pb::GetVehicleStatusRequest {}).await?.into_inner())
+            let status = answer("status", client.get_status(pb::GetVehicleStatusRequest {}).await)?;
+            println!("{status:#?}")
         }
-        Action::Arm => println!("arm: {}", client.arm(pb::ArmRequest {}).await?.into_inner().result),
+        Action::Arm => println!("arm: {}", answer("arm", client.arm(pb::ArmRequest {}).await)?.result),
         Action::Disarm => {
-            println!("disarm: {}", client.disarm(pb::DisarmRequest {}).await?.into_inner().result)
+            println!("disarm: {}", answer("disarm", client.disarm(pb::DisarmRequest {}).await)?.result)
         }
-        Action::Offboard => println!("offboard: {}", client.set_mode(offboard).await?.into_inner().result),
+        Action::Offboard => {
+            println!("offboard: {}", answer("offboard", client.set_mode(offboard()).await)?.result)
+        }
         Action::GuidedNogps => {
             let r = pb::SetModeRequest { mode: pb::FlightMode::ArdupilotGuidedNogps as i32 };
-            println!("guided_nogps: {}", client.set_mode(r).await?.into_inner().result)
+            println!("guided_nogps: {}", answer("guided-nogps", client.set_mode(r).await)?.result)
         }
         Action::ArmOffboard => {
-            println!("arm: {}", client.arm(pb::ArmRequest {}).await?.into_inner().result);
-            println!("offboard: {}", client.set_mode(offboard).await?.into_inner().result);
+            println!("arm: {}", answer("arm", client.arm(pb::ArmRequest {}).await)?.result);
+            println!("offboard: {}", answer("offboard", client.set_mode(offboard()).await)?.result);
         }
     }
     Ok(())
+}
+
+/// The answer of the call `what`, or an error naming the call, the gRPC code and the gateway's
+/// message (for a refusal by the vehicle: FailedPrecondition and the `COMMAND_ACK` result).
+fn answer<T>(what: &str, reply: Result<tonic::Response<T>, tonic::Status>) -> anyhow::Result<T> {
+    reply
+        .map(tonic::Response::into_inner)
+        .map_err(|s| anyhow::anyhow!("{what}: {:?}: {}", s.code(), s.message()))
 }

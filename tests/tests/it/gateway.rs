@@ -694,3 +694,50 @@ fn a_gateway_tests_temporary_directory_is_removed_when_the_test_panics() {
     let path = path.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner).expect("made");
     assert!(!path.exists(), "{} left behind", path.display());
 }
+
+/// `vehiclectl ARGS` against the gateway at `addr`: exit success, stdout, stderr.
+async fn vehiclectl(addr: SocketAddr, args: &[&str]) -> (bool, String, String) {
+    let mut command = std::process::Command::new(hilbench_tests::service_binary("vehiclectl"));
+    command.args(["--gateway", &addr.to_string(), "--wait-s", "10"]).args(args);
+    let out = tokio::task::spawn_blocking(move || command.output().expect("vehiclectl runs"))
+        .await
+        .expect("joined");
+    let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
+    (out.status.success(), text(&out.stdout), text(&out.stderr))
+}
+
+/// The shell's side of VehicleControl: the `vehiclectl` binary arms the simulated PX4 and
+/// switches it to OFFBOARD, reads the status back, and a mode the vehicle refuses fails the
+/// command (non-zero exit) naming the `COMMAND_ACK` result.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn vehiclectl_arms_and_switches_to_offboard_reads_the_status_and_fails_naming_a_refusal() {
+    let scenario = Scenario::paper_2();
+    let bench = start(&scenario).await;
+    let addr = bench.gateway.addr;
+    let (ok, out, err) = vehiclectl(addr, &["arm-offboard"]).await;
+    assert!(ok, "{out}{err}");
+    assert!(
+        out.contains("arm: MAV_RESULT_ACCEPTED") && out.contains("offboard: MAV_RESULT_ACCEPTED"),
+        "{out}"
+    );
+    // The status follows the vehicle's heartbeat (1 Hz): read it until it shows the change.
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    loop {
+        let (ok, out, err) = vehiclectl(addr, &["status"]).await;
+        assert!(ok, "{out}{err}");
+        if out.contains("armed: true") && out.contains("\"OFFBOARD\"") {
+            break;
+        }
+        assert!(tokio::time::Instant::now() < deadline, "never armed in OFFBOARD: {out}");
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    // The simulated PX4 has no GUIDED_NOGPS.
+    let (ok, out, err) = vehiclectl(addr, &["guided-nogps"]).await;
+    assert!(!ok, "{out}{err}");
+    assert!(err.contains("FailedPrecondition") && err.contains("MAV_RESULT_"), "{err}");
+    {
+        let a = bench.vehicle.autopilot();
+        assert!(a.armed() && a.mode() == mavbridge::SimMode::Offboard);
+    }
+    bench.gateway.stop().await.expect("gateway stops cleanly");
+}
