@@ -34,8 +34,8 @@ pub const REBOOT_CLOCK_JUMP_MS: u32 = 1_000;
 ///   jitter): a clock restarted at 0 during the silence cannot have counted more. This keeps a
 ///   link that held messages back and delivers them late (stamps a little ahead of the last
 ///   after a long wait) from looking like a reboot: that clock still reads the vehicle's whole
-///   uptime. A vehicle rebooted less than a second after its last
-///   message, or silent for less than a second, is not seen this way (it is the case above).
+///   uptime. A vehicle rebooted less than a second after its last message, or silent for less
+///   than a second, is not seen this way (it is the case above).
 pub fn shows_reboot(before_ms: u32, after_ms: u32, silence_ns: u64) -> bool {
     if before_ms.saturating_sub(after_ms) > REBOOT_CLOCK_JUMP_MS {
         return true;
@@ -463,9 +463,8 @@ impl Bridge {
     /// The vehicle's boot clock went from `before_ms` to `after_ms` in a way that shows a reboot
     /// ([`shows_reboot`]), `silence_ns` apart. What was measured on its old clock is forgotten
     /// (the clock offset, the last state and its stamps, the plant-time epoch, the last
-    /// command's stamps), as is its armed state (a
-    /// rebooted autopilot is disarmed; the next heartbeat says so, and an arming after it
-    /// takes the yaw to hold again). The setpoint goes back to level hover, and no sample is
+    /// command's stamps), as is its armed state (a rebooted autopilot is disarmed; the next
+    /// heartbeat says so, and an arming after it takes the yaw to hold again). The setpoint goes back to level hover, and no sample is
     /// made until the next [`Bridge::reset`]. Nothing is sent to the vehicle.
     fn on_reboot(&mut self, before_ms: u32, after_ms: u32, silence_ns: u64, now_ns: u64) -> Reboot {
         let reboot = Reboot { before_ms, after_ms, silence_ns };

@@ -270,8 +270,9 @@ impl FailSafe {
     /// `command` from `d`, and from the next sample on (every `T`) the braking law computed
     /// from the state at each sample (at a sample before `command` has landed, from the state
     /// where it lands: the flight is not stopped at a sample it has passed), landing `d'`
-    /// later and never before the command sent before it. `in_flight` oldest first. The flight up to the first sample after the
-    /// command has landed is flown once per `d` ([`FailSafe::worst_over_delays`]).
+    /// later and never before the command sent before it. `in_flight` oldest first. The flight
+    /// up to the first sample after the command has landed is flown once per `d`
+    /// ([`FailSafe::worst_over_delays`]).
     pub fn envelope_real_time(
         &self,
         x0: &[f64; 8],
