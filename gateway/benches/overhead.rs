@@ -8,7 +8,8 @@
 //!
 //! Both include the loopback sockets and the gRPC client's side (an upper bound on the
 //! gateway's own share). The "vehicle" is a plain UDP socket with the `mavlink` crate's
-//! encoder, nothing of the gateway's. Run: `cargo bench -p gateway --bench overhead -- [TICKS] [--multi-thread-client]`.
+//! encoder, nothing of the gateway's. Run:
+//! `cargo bench -p gateway --bench overhead -- [TICKS] [--multi-thread-client]`.
 
 use gateway::{GatewayConfig, Link};
 use hilbench_proto::pb;
