@@ -1,14 +1,19 @@
-//! The gateway's overhead on loopback at 50 Hz (BENCHMARKS.md):
-//! - command: from just before a Plant API `ApplyCommand` call to the `SET_ATTITUDE_TARGET`
-//!   carrying it arriving at the vehicle's UDP socket, stamped by the kernel on arrival
-//!   (`SO_TIMESTAMPNS`), and, beside it, to the vehicle's thread woken by it (which adds that
-//!   thread's wake-up, the vehicle's business, not the gateway's);
-//! - state: from a `LOCAL_POSITION_NED` leaving the vehicle's UDP socket to the Plant API
-//!   sample made of it arriving on a `StreamState` stream.
+//! The gateway's overhead on loopback at 50 Hz (BENCHMARKS.md), each path twice: with the
+//! gRPC client's side (its runtime's hand-overs, the same for any server it calls) and without
+//! it (the gateway's own: from bytes into its sockets to bytes out of them).
+//! - command: from just before a Plant API `ApplyCommand` call, and from the client's last write
+//!   of that request to its TCP socket, to the `SET_ATTITUDE_TARGET` carrying it arriving at the
+//!   vehicle's UDP socket, stamped by the kernel on arrival (`SO_TIMESTAMPNS`); beside them, to
+//!   the vehicle's thread woken by it (which adds that thread's wake-up, the vehicle's business);
+//! - state: from a `LOCAL_POSITION_NED` leaving the vehicle's UDP socket to the Plant API sample
+//!   made of it arriving in the client's TCP socket (the kernel's stamp) and in the client's
+//!   `StreamState` stream.
 //!
-//! Both include the loopback sockets and the gRPC client's side (an upper bound on the
-//! gateway's own share). The "vehicle" is a plain UDP socket with the `mavlink` crate's
-//! encoder, nothing of the gateway's. Run:
+//! On loopback a write's bytes are in the receiving socket when the write returns, so the
+//! client's write stamps and the kernel's read stamps bound the gateway's share. The client
+//! stamps its traffic through a connector of its own ([`StampedStream`]), commands and state on
+//! two connections so that each stamp belongs to one path. The "vehicle" is a plain UDP socket
+//! with the `mavlink` crate's encoder, nothing of the gateway's. Run:
 //! `cargo bench -p gateway --bench overhead -- [TICKS] [--multi-thread-client]`.
 
 use gateway::{GatewayConfig, Link};
@@ -23,11 +28,15 @@ use nix::sys::socket::sockopt::ReceiveTimestampns;
 use nix::sys::socket::{ControlMessageOwned, MsgFlags, SockaddrStorage, recvmsg, setsockopt};
 use nix::sys::time::TimeSpec;
 use std::io::IoSliceMut;
-use std::net::UdpSocket;
+use std::net::{SocketAddr, UdpSocket};
 use std::os::fd::AsRawFd;
-use std::sync::mpsc;
+use std::pin::Pin;
+use std::sync::{Arc, Mutex, mpsc};
+use std::task::{Context, Poll, ready};
 use std::time::{Duration, Instant, SystemTime};
+use tokio::io::{AsyncRead, AsyncWrite, Interest, ReadBuf};
 use tokio_stream::StreamExt;
+use tonic::transport::{Channel, Endpoint, Uri};
 
 fn encode(msg: &MavMessage, seq: u8) -> Vec<u8> {
     let mut bytes = Vec::new();
@@ -39,6 +48,126 @@ fn encode(msg: &MavMessage, seq: u8) -> Vec<u8> {
 /// The realtime clock in ns, the clock of the kernel's `SO_TIMESTAMPNS` stamps.
 fn realtime_ns() -> u128 {
     SystemTime::now().duration_since(SystemTime::UNIX_EPOCH).expect("after 1970").as_nanos()
+}
+
+/// The kernel's arrival stamp (realtime, ns) in a `recvmsg`'s control messages.
+fn arrival_ns(cmsgs: impl Iterator<Item = ControlMessageOwned>) -> Option<u128> {
+    cmsgs.into_iter().find_map(|c| match c {
+        ControlMessageOwned::ScmTimestampns(t) => {
+            Some(t.tv_sec() as u128 * 1_000_000_000 + t.tv_nsec() as u128)
+        }
+        _ => None,
+    })
+}
+
+/// What passed a [`StampedStream`], in the realtime clock's ns.
+#[derive(Default)]
+struct Stamps {
+    /// Just before each write that wrote something.
+    writes_ns: Vec<u128>,
+    /// The kernel's arrival stamp of the last segment each read took (`SO_TIMESTAMPNS` on TCP).
+    reads_ns: Vec<u128>,
+}
+
+/// A client's TCP connection that stamps its traffic into a shared [`Stamps`].
+struct StampedStream {
+    tcp: tokio::net::TcpStream,
+    stamps: Arc<Mutex<Stamps>>,
+}
+
+impl AsyncRead for StampedStream {
+    fn poll_read(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<std::io::Result<()>> {
+        let this = self.get_mut();
+        loop {
+            ready!(this.tcp.poll_read_ready(cx))?;
+            let unfilled = buf.initialize_unfilled();
+            let fd = this.tcp.as_raw_fd();
+            let read = this.tcp.try_io(Interest::READABLE, || {
+                let mut iov = [IoSliceMut::new(unfilled)];
+                let mut control = nix::cmsg_space!(TimeSpec);
+                let msg = recvmsg::<()>(fd, &mut iov, Some(&mut control), MsgFlags::empty())?;
+                Ok((msg.bytes, arrival_ns(msg.cmsgs())))
+            });
+            match read {
+                Ok((n, stamp)) => {
+                    buf.advance(n);
+                    if let Some(ns) = stamp {
+                        this.stamps.lock().expect("not poisoned").reads_ns.push(ns);
+                    }
+                    return Poll::Ready(Ok(()));
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => continue,
+                Err(e) => return Poll::Ready(Err(e)),
+            }
+        }
+    }
+}
+
+impl StampedStream {
+    fn stamp_write(&self, before_ns: u128, written: &Poll<std::io::Result<usize>>) {
+        if matches!(written, Poll::Ready(Ok(n)) if *n > 0) {
+            self.stamps.lock().expect("not poisoned").writes_ns.push(before_ns);
+        }
+    }
+}
+
+impl AsyncWrite for StampedStream {
+    fn poll_write(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &[u8]) -> Poll<std::io::Result<usize>> {
+        let this = self.get_mut();
+        let before_ns = realtime_ns();
+        let written = Pin::new(&mut this.tcp).poll_write(cx, buf);
+        this.stamp_write(before_ns, &written);
+        written
+    }
+
+    fn poll_write_vectored(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        bufs: &[std::io::IoSlice<'_>],
+    ) -> Poll<std::io::Result<usize>> {
+        let this = self.get_mut();
+        let before_ns = realtime_ns();
+        let written = Pin::new(&mut this.tcp).poll_write_vectored(cx, bufs);
+        this.stamp_write(before_ns, &written);
+        written
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.tcp.is_write_vectored()
+    }
+
+    fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.get_mut().tcp).poll_flush(cx)
+    }
+
+    fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.get_mut().tcp).poll_shutdown(cx)
+    }
+}
+
+/// A channel to `addr` whose traffic is stamped into `stamps` (nodelay, as tonic's own
+/// connector sets it).
+async fn stamped_channel(
+    addr: SocketAddr,
+    stamps: Arc<Mutex<Stamps>>,
+) -> Result<Channel, tonic::transport::Error> {
+    let connector = tower::service_fn(move |_: Uri| {
+        let stamps = stamps.clone();
+        async move {
+            let tcp = tokio::net::TcpStream::connect(addr).await?;
+            tcp.set_nodelay(true)?;
+            setsockopt(tcp.as_raw_fd(), ReceiveTimestampns, &true)?;
+            Ok::<_, std::io::Error>(hyper_util::rt::TokioIo::new(StampedStream { tcp, stamps }))
+        }
+    });
+    Endpoint::from_shared(format!("http://{addr}"))
+        .expect("a valid URI")
+        .connect_with_connector(connector)
+        .await
 }
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {
@@ -157,13 +286,7 @@ async fn run(ticks: usize) {
                 ) else {
                     return;
                 };
-                let stamp = msg.cmsgs().find_map(|c| match c {
-                    ControlMessageOwned::ScmTimestampns(t) => {
-                        Some(t.tv_sec() as u128 * 1_000_000_000 + t.tv_nsec() as u128)
-                    }
-                    _ => None,
-                });
-                (msg.bytes, stamp.expect("a kernel arrival stamp"))
+                (msg.bytes, arrival_ns(msg.cmsgs()).expect("a kernel arrival stamp"))
             };
             let woke = Instant::now();
             let mut reader = mavlink::MavlinkReader::new(&buf[..n]);
@@ -176,12 +299,18 @@ async fn run(ticks: usize) {
         }
     });
 
-    let mut plant = loop {
-        if let Ok(c) = PlantClient::connect(format!("http://{addr}")).await {
-            break c;
+    let command_stamps = Arc::new(Mutex::new(Stamps::default()));
+    let state_stamps = Arc::new(Mutex::new(Stamps::default()));
+    let connect = |stamps: Arc<Mutex<Stamps>>| async move {
+        loop {
+            if let Ok(c) = stamped_channel(addr, stamps.clone()).await {
+                break PlantClient::new(c);
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
         }
-        tokio::time::sleep(Duration::from_millis(10)).await;
     };
+    let mut plant = connect(command_stamps.clone()).await;
+    let mut state_plant = connect(state_stamps.clone()).await;
     let position = |k: usize| {
         MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA {
             time_boot_ms: 2 + k as u32 * 20,
@@ -191,7 +320,7 @@ async fn run(ticks: usize) {
     };
     vehicle.send(&encode(&position(0), 2)).expect("send");
     let mut stream = loop {
-        match plant.stream_state(pb::StreamStateRequest { period_ns: 0 }).await {
+        match state_plant.stream_state(pb::StreamStateRequest { period_ns: 0 }).await {
             Ok(s) => break s.into_inner(),
             Err(_) => tokio::time::sleep(Duration::from_millis(20)).await,
         }
@@ -199,8 +328,10 @@ async fn run(ticks: usize) {
     let _first = stream.next().await;
 
     let mut command_ms = Vec::with_capacity(ticks);
+    let mut command_own_ms = Vec::with_capacity(ticks);
     let mut command_woken_ms = Vec::with_capacity(ticks);
     let mut state_ms = Vec::with_capacity(ticks);
+    let mut state_own_ms = Vec::with_capacity(ticks);
     let mut tick = tokio::time::interval(Duration::from_millis(20));
     for k in 1..=ticks {
         tick.tick().await;
@@ -208,10 +339,15 @@ async fn run(ticks: usize) {
             vehicle.send(&encode(&heartbeat, k as u8)).expect("send");
         }
         // State: LOCAL_POSITION_NED out, its sample in.
+        let bytes = encode(&position(k), k as u8);
+        state_stamps.lock().expect("not poisoned").reads_ns.clear();
         let sent = Instant::now();
-        vehicle.send(&encode(&position(k), k as u8)).expect("send");
+        let sent_ns = realtime_ns();
+        vehicle.send(&bytes).expect("send");
         let sample = stream.next().await.expect("a sample").expect("ok");
         state_ms.push(sent.elapsed().as_secs_f64() * 1e3);
+        let arrived_ns = *state_stamps.lock().expect("not poisoned").reads_ns.last().expect("a stamped read");
+        state_own_ms.push(arrived_ns.saturating_sub(sent_ns) as f64 / 1e6);
         assert_eq!(sample.time_ns, k as u64 * 20_000_000, "the sample of this message");
 
         // Command: ApplyCommand in, its setpoint out (a thrust no other setpoint carries).
@@ -222,6 +358,7 @@ async fn run(ticks: usize) {
             command_seq: k as u64,
             ..Default::default()
         };
+        command_stamps.lock().expect("not poisoned").writes_ns.clear();
         let start = Instant::now();
         let start_ns = realtime_ns();
         plant.apply_command(cmd).await.expect("applied");
@@ -229,6 +366,18 @@ async fn run(ticks: usize) {
             let (thrust, arrived_ns, woke) = rx.recv_timeout(Duration::from_secs(5)).expect("a setpoint");
             if thrust == expect {
                 command_ms.push(arrived_ns.saturating_sub(start_ns) as f64 / 1e6);
+                // The request's last write before its setpoint arrived: the gateway could not
+                // act on it earlier.
+                let written_ns = command_stamps
+                    .lock()
+                    .expect("not poisoned")
+                    .writes_ns
+                    .iter()
+                    .copied()
+                    .filter(|&w| w < arrived_ns)
+                    .max()
+                    .expect("the request was written");
+                command_own_ms.push((arrived_ns - written_ns) as f64 / 1e6);
                 command_woken_ms.push(woke.duration_since(start).as_secs_f64() * 1e3);
                 break;
             }
@@ -236,8 +385,16 @@ async fn run(ticks: usize) {
     }
     report("command: ApplyCommand -> SET_ATTITUDE_TARGET in the vehicle's socket (kernel stamp)", command_ms);
     report("command: ApplyCommand -> the vehicle's thread woken by it", command_woken_ms);
-    report("command, the gateway's share: Bridge::apply + Link::send -> on the socket", core_share_ms(ticks));
+    report(
+        "command, the gateway's own: request written -> SET_ATTITUDE_TARGET in the vehicle's socket",
+        command_own_ms,
+    );
+    report("command, the gateway's core: Bridge::apply + Link::send -> on the socket", core_share_ms(ticks));
     report("state: LOCAL_POSITION_NED sent -> StreamState sample received", state_ms);
+    report(
+        "state, the gateway's own: LOCAL_POSITION_NED sent -> sample in the client's socket (kernel stamp)",
+        state_own_ms,
+    );
     let _ = stop.send(());
     let _ = server.await;
     gateway_runtime.shutdown_background();
