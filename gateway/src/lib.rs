@@ -3,8 +3,8 @@
 //! [`mavsim`], the MAV model playing the autopilot's side of the same MAVLink subset.
 //!
 //! The decisions are [`mavbridge`]'s (frames, thrust, setpoints, the command timeout, resets);
-//! this crate is the shell: a thread reads the MAVLink link and feeds the core, a thread sends
-//! what the core schedules (setpoints at 50 Hz, heartbeats, `TIMESYNC`), the gRPC services
+//! this crate is the shell: the runtime reads a UDP link as its datagrams arrive (a thread reads
+//! a serial one) and feeds the core, a thread sends what the core schedules (setpoints at 50 Hz, heartbeats, `TIMESYNC`), the gRPC services
 //! decode, call the core, send and encode, and health follows the vehicle's heartbeat (and
 //! goes NOT_SERVING from a reboot of the vehicle until the next `Reset`).
 
@@ -12,7 +12,7 @@ pub mod link;
 pub mod mavsim;
 pub mod service;
 
-pub use link::{Link, LinkError};
+pub use link::{Link, LinkError, TryRecv};
 pub use service::{GatewayService, NotServing};
 
 use hilbench_proto::pb::plant_server::PlantServer;
@@ -24,6 +24,7 @@ use std::future::Future;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
+use tokio::io::Interest;
 use tonic::server::NamedService;
 
 /// Settings of one gateway.
@@ -115,15 +116,25 @@ pub async fn serve_with_link(
     set_health(&health, &NAMES, false).await;
 
     let stop = Arc::new(AtomicBool::new(false));
-    let reader = {
-        let (service, stop, link) = (service.clone(), stop.clone(), link.clone());
-        std::thread::Builder::new().name("mavlink-recv".into()).spawn(move || {
-            while !stop.load(Ordering::Relaxed) {
-                if let Some((header, msg)) = link.recv() {
-                    service.on_message(&header, &msg);
-                }
-            }
-        })
+    let reader = match link.udp_socket().map_err(ServeError::Io)? {
+        Some(socket) => {
+            // Registered with the runtime for readiness only: the link reads it.
+            let ready = tokio::net::UdpSocket::from_std(socket).map_err(ServeError::Io)?;
+            Ok(Reader::Task(tokio::spawn(read_udp(ready, link.clone(), service.clone()))))
+        }
+        None => {
+            let (service, stop, link) = (service.clone(), stop.clone(), link.clone());
+            std::thread::Builder::new()
+                .name("mavlink-recv".into())
+                .spawn(move || {
+                    while !stop.load(Ordering::Relaxed) {
+                        if let Some((header, msg)) = link.recv() {
+                            service.on_message(&header, &msg);
+                        }
+                    }
+                })
+                .map(Reader::Thread)
+        }
     };
     let scheduler = {
         let (service, stop) = (service.clone(), stop.clone());
@@ -188,9 +199,48 @@ pub async fn serve_with_link(
         )
         .await;
     stop.store(true, Ordering::Relaxed);
-    let _ = reader.join();
+    match reader {
+        Reader::Task(task) => task.abort(),
+        Reader::Thread(thread) => {
+            let _ = thread.join();
+        }
+    }
     let _ = scheduler.join();
     result?;
     tracing::info!("gateway stopped");
     Ok(())
+}
+
+/// Who reads the link.
+enum Reader {
+    /// A UDP link: a task on the runtime.
+    Task(tokio::task::JoinHandle<()>),
+    /// A serial link: a thread of its own (blocking reads, reopening a lost device).
+    Thread(std::thread::JoinHandle<()>),
+}
+
+/// Reads a UDP link on the runtime, the frames of each datagram as it arrives. A sample made of
+/// one is then served by the same worker: one thread woken per state, where a reading thread of
+/// its own would wake and then wake a worker (BENCHMARKS.md, the gateway's overhead).
+async fn read_udp(ready: tokio::net::UdpSocket, link: Link, service: GatewayService) {
+    let would_block = || std::io::Error::from(std::io::ErrorKind::WouldBlock);
+    loop {
+        if ready.readable().await.is_err() {
+            // Only a runtime shutting down fails here.
+            return;
+        }
+        // Until the socket is drained; `try_io` then clears its readiness.
+        loop {
+            let received = ready.try_io(Interest::READABLE, || match link.try_recv() {
+                TryRecv::Empty => Err(would_block()),
+                other => Ok(other),
+            });
+            match received {
+                Ok(TryRecv::Message(header, msg)) => service.on_message(&header, &msg),
+                Ok(TryRecv::Skipped | TryRecv::Empty) => {}
+                Ok(TryRecv::Failed) => tokio::time::sleep(link::UDP_ERROR_PAUSE).await,
+                Err(_) => break,
+            }
+        }
+    }
 }

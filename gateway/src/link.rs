@@ -1,7 +1,10 @@
 //! The MAVLink transport: UDP (`udpin:HOST:PORT` listens and answers the last sender,
-//! `udpout:HOST:PORT` sends there, with the `mavlink` crate's blocking connection) or a serial
-//! device (`serial:/dev/ttyACM0:921600`, opened here with `serialport`). Reads time out every
-//! [`RECV_TIMEOUT`] so that the threads reading them notice a shutdown.
+//! `udpout:HOST:PORT` sends there from any port and hears anyone, the `mavlink` crate's
+//! conventions; a datagram carries one or more frames) or a serial device
+//! (`serial:/dev/ttyACM0:921600`, opened here with `serialport`). Blocking reads
+//! ([`Link::recv`]) time out every [`RECV_TIMEOUT`] so that the threads reading them notice a
+//! shutdown; a UDP link is also read without blocking ([`Link::try_recv`]) when its socket
+//! ([`Link::udp_socket`]) is ready, so that a runtime's worker reads it.
 //!
 //! A serial device can go away under the gateway: a USB autopilot pulled out, or rebooting
 //! (PX4 re-enumerates its USB port when it reboots). Its reads then fail at once and for ever
@@ -15,10 +18,12 @@
 
 use mavbridge::mavlink::dialects::common::MavMessage;
 use mavbridge::mavlink::error::{MessageReadError, MessageWriteError};
-use mavbridge::mavlink::{
-    self, Connectable, ConnectionAddress, MavConnection, MavHeader, MavlinkReader, MavlinkVersion,
-};
+use mavbridge::mavlink::{self, MavHeader, MavlinkReader, MavlinkVersion};
+use rustix::event::{PollFd, PollFlags, Timespec};
+use rustix::net::RecvFlags;
+use std::collections::VecDeque;
 use std::io;
+use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
@@ -32,8 +37,12 @@ pub const REOPEN_BACKOFF_MIN: Duration = Duration::from_millis(100);
 /// heartbeat timeout, and a failed `open` a second costs nothing.
 pub const REOPEN_BACKOFF_MAX: Duration = Duration::from_secs(1);
 /// The pause after a UDP read error other than a timeout (an ICMP refusal on `udpout`), so that
-/// a socket failing at once cannot spin the reading thread.
-const UDP_ERROR_PAUSE: Duration = Duration::from_millis(10);
+/// a socket failing at once cannot spin its reader.
+pub const UDP_ERROR_PAUSE: Duration = Duration::from_millis(10);
+/// The longest MAVLink frame (v2, 255 bytes of payload, signed).
+const MAX_FRAME_BYTES: usize = 280;
+/// The largest UDP payload: a datagram is read whole, however many frames it packs.
+const MAX_DATAGRAM_BYTES: usize = 65_507;
 
 /// Why an address cannot be used.
 #[derive(Debug, thiserror::Error)]
@@ -72,11 +81,49 @@ pub struct Link {
 struct Shared {
     transport: Transport,
     status: Mutex<LinkStatus>,
+    /// The MAVLink sequence number of the next frame sent.
+    sequence: AtomicU8,
 }
 
 enum Transport {
-    Udp(mavlink::Connection<MavMessage>),
+    Udp(Udp),
     Serial(Serial),
+}
+
+/// A non-blocking UDP socket (so that a runtime may wait on it; [`Link::recv`] waits in
+/// `poll`, up to [`RECV_TIMEOUT`]).
+struct Udp {
+    socket: UdpSocket,
+    /// Where frames go: `udpout`'s address, or the last sender heard on `udpin` (none before
+    /// the first datagram).
+    destination: Mutex<Option<SocketAddr>>,
+    /// `udpin`: answer whoever sent last.
+    answers_last_sender: bool,
+    reader: Mutex<UdpReader>,
+}
+
+/// One reader at a time takes a datagram and hands out its frames.
+struct UdpReader {
+    datagram: Vec<u8>,
+    /// The frames of the last datagram not handed out yet.
+    pending: VecDeque<(MavHeader, MavMessage)>,
+}
+
+/// What [`Link::try_recv`] found.
+#[derive(Debug)]
+#[expect(
+    clippy::large_enum_variant,
+    reason = "returned by value and consumed at once, as `recv`'s `Option` of the same size"
+)]
+pub enum TryRecv {
+    Message(MavHeader, MavMessage),
+    /// Nothing waits on the socket now.
+    Empty,
+    /// A datagram came with no frame the common dialect decodes: more may wait.
+    Skipped,
+    /// A read failed (counted in [`LinkStatus::read_errors`] and logged): the caller pauses
+    /// [`UDP_ERROR_PAUSE`] before the next, so that a failing socket cannot spin it.
+    Failed,
 }
 
 /// A serial device: a reading and a writing descriptor of one open port, as the `mavlink`
@@ -87,8 +134,6 @@ struct Serial {
     /// Taken by the reading thread only, which alone closes and reopens the device.
     reader: Mutex<SerialReader>,
     writer: Mutex<Option<serialport::TTYPort>>,
-    /// The MAVLink sequence number of the next frame sent.
-    sequence: AtomicU8,
 }
 
 struct SerialReader {
@@ -163,31 +208,45 @@ impl Link {
                     lost_at: Instant::now(),
                 }),
                 writer: Mutex::new(Some(writer)),
-                sequence: AtomicU8::new(0),
             })
         } else {
-            let parsed = match address.strip_prefix("udpin:") {
-                // Bound here, so that the port is known when it was 0 (tests use ephemeral ports).
-                Some(at) => {
-                    let socket = std::net::UdpSocket::bind(at).map_err(open_err)?;
-                    local_addr = Some(socket.local_addr().map_err(open_err)?);
-                    ConnectionAddress::Udp(
-                        mavlink::UdpConfig::from_socket(socket, mavlink::UdpMode::Udpin).map_err(open_err)?,
-                    )
+            let (socket, destination, answers_last_sender) = match address.split_once(':') {
+                Some(("udpin", at)) => (UdpSocket::bind(at).map_err(open_err)?, None, true),
+                Some((_, to)) => {
+                    let resolved = to.to_socket_addrs().map_err(open_err)?.next();
+                    let to = resolved.ok_or_else(|| {
+                        open_err(io::Error::new(
+                            io::ErrorKind::NotFound,
+                            format!("{to} resolves to no address"),
+                        ))
+                    })?;
+                    let any: SocketAddr =
+                        if to.is_ipv4() { ([0u8; 4], 0).into() } else { ([0u16; 8], 0).into() };
+                    (UdpSocket::bind(any).map_err(open_err)?, Some(to), false)
                 }
-                None => ConnectionAddress::parse_address(address).map_err(open_err)?,
+                None => unreachable!("checked by serial_address"),
             };
-            let parsed = match parsed {
-                ConnectionAddress::Udp(c) => ConnectionAddress::Udp(c.read_timeout(RECV_TIMEOUT)),
-                other => other,
-            };
-            let mut conn = parsed.connect::<MavMessage>().map_err(open_err)?;
-            conn.set_protocol_version(MavlinkVersion::V2);
-            conn.set_allow_recv_any_version(true);
-            Transport::Udp(conn)
+            socket.set_nonblocking(true).map_err(open_err)?;
+            if answers_last_sender {
+                // Known here when the port was 0 (tests use ephemeral ports).
+                local_addr = Some(socket.local_addr().map_err(open_err)?);
+            }
+            Transport::Udp(Udp {
+                socket,
+                destination: Mutex::new(destination),
+                answers_last_sender,
+                reader: Mutex::new(UdpReader {
+                    datagram: vec![0; MAX_DATAGRAM_BYTES],
+                    pending: VecDeque::new(),
+                }),
+            })
         };
         Ok(Self {
-            shared: Arc::new(Shared { transport, status: Mutex::new(LinkStatus::default()) }),
+            shared: Arc::new(Shared {
+                transport,
+                status: Mutex::new(LinkStatus::default()),
+                sequence: AtomicU8::new(0),
+            }),
             header: MavHeader { system_id: u32::from(system_id), component_id, sequence: 0 },
             address: local_addr.map_or_else(|| address.into(), |at| format!("udpin:{at}")),
             local_addr,
@@ -202,9 +261,26 @@ impl Link {
     /// Sends `msg`; an error is returned for the caller to count and log (a datagram that
     /// cannot leave is not retried: the next setpoint follows within a period). While a serial
     /// device is lost the error is `NotConnected`, which the loss's own warning has explained.
+    /// A `udpin` link that has heard nobody yet has nobody to answer: `NotConnected` too.
     pub fn send(&self, msg: &MavMessage) -> Result<(), MessageWriteError> {
+        // Numbered when it can leave: a frame refused here leaves no gap for the vehicle to
+        // count as lost.
+        let header =
+            || MavHeader { sequence: self.shared.sequence.fetch_add(1, Ordering::Relaxed), ..self.header };
         match &self.shared.transport {
-            Transport::Udp(conn) => conn.send(&self.header, msg).map(|_| ()),
+            Transport::Udp(udp) => {
+                let Some(destination) = *lock(&udp.destination) else {
+                    return Err(MessageWriteError::Io(io::Error::new(
+                        io::ErrorKind::NotConnected,
+                        format!("{} has heard no vehicle yet to answer", self.address),
+                    )));
+                };
+                let mut frame = [0u8; MAX_FRAME_BYTES];
+                let mut cursor = &mut frame[..];
+                let n = mavlink::write_versioned_msg(&mut cursor, MavlinkVersion::V2, header(), msg)?;
+                udp.socket.send_to(&frame[..n], destination)?;
+                Ok(())
+            }
             Transport::Serial(serial) => {
                 let mut writer = lock(&serial.writer);
                 let Some(port) = writer.as_mut() else {
@@ -213,9 +289,7 @@ impl Link {
                         format!("the serial device {} is lost", serial.device),
                     )));
                 };
-                let header =
-                    MavHeader { sequence: serial.sequence.fetch_add(1, Ordering::Relaxed), ..self.header };
-                mavlink::write_versioned_msg(port, MavlinkVersion::V2, header, msg).map(|_| ())
+                mavlink::write_versioned_msg(port, MavlinkVersion::V2, header(), msg).map(|_| ())
             }
         }
     }
@@ -225,31 +299,85 @@ impl Link {
     /// having read something or waited: a failing transport cannot spin the reading thread.
     pub fn recv(&self) -> Option<(MavHeader, MavMessage)> {
         match &self.shared.transport {
-            Transport::Udp(conn) => self.recv_udp(conn),
+            Transport::Udp(udp) => match self.recv_udp(udp, true) {
+                TryRecv::Message(header, msg) => Some((header, msg)),
+                TryRecv::Empty | TryRecv::Skipped => None,
+                TryRecv::Failed => {
+                    std::thread::sleep(UDP_ERROR_PAUSE);
+                    None
+                }
+            },
             Transport::Serial(serial) => self.recv_serial(serial),
         }
     }
 
-    fn recv_udp(&self, conn: &mavlink::Connection<MavMessage>) -> Option<(MavHeader, MavMessage)> {
-        use io::ErrorKind::{TimedOut, WouldBlock};
-        match conn.recv() {
-            Ok(m) => Some(m),
-            // A datagram's frame that the common dialect does not decode was consumed: the
-            // next read waits for the next datagram.
-            Err(MessageReadError::Parse(_)) => None,
-            Err(MessageReadError::Io(e)) if matches!(e.kind(), WouldBlock | TimedOut) => None,
-            Err(MessageReadError::Io(e)) => {
+    /// A UDP link's socket (a handle on the same socket), for a runtime to wait until it is
+    /// readable and then call [`Link::try_recv`]; `None` for a serial link.
+    pub fn udp_socket(&self) -> io::Result<Option<UdpSocket>> {
+        match &self.shared.transport {
+            Transport::Udp(udp) => udp.socket.try_clone().map(Some),
+            Transport::Serial(_) => Ok(None),
+        }
+    }
+
+    /// The next message of a UDP link, without blocking: [`TryRecv::Empty`] when no frame
+    /// waits (and always on a serial link, which only [`Link::recv`] reads).
+    pub fn try_recv(&self) -> TryRecv {
+        match &self.shared.transport {
+            Transport::Udp(udp) => self.recv_udp(udp, false),
+            Transport::Serial(_) => TryRecv::Empty,
+        }
+    }
+
+    /// The next frame: one left from the last datagram, or the first of the next datagram
+    /// (waiting for it up to [`RECV_TIMEOUT`] when `wait`). A frame the common dialect does
+    /// not decode is skipped with the datagram's others kept.
+    fn recv_udp(&self, udp: &Udp, wait: bool) -> TryRecv {
+        let mut reader = lock(&udp.reader);
+        if let Some((header, msg)) = reader.pending.pop_front() {
+            return TryRecv::Message(header, msg);
+        }
+        if wait {
+            let mut fds = [PollFd::new(&udp.socket, PollFlags::IN)];
+            let timeout = Timespec { tv_sec: 0, tv_nsec: RECV_TIMEOUT.as_nanos() as _ };
+            // A timeout or an interruption leaves the socket empty: the read says so.
+            let _ = rustix::event::poll(&mut fds, Some(&timeout));
+        }
+        let UdpReader { datagram, pending } = &mut *reader;
+        let (n, sender) = match rustix::net::recvfrom(&udp.socket, &mut datagram[..], RecvFlags::empty()) {
+            Ok((n, _, sender)) => (n, sender),
+            // A timeout, or nothing waiting.
+            Err(rustix::io::Errno::AGAIN | rustix::io::Errno::INTR) => return TryRecv::Empty,
+            Err(e) => {
                 let errors = {
                     let mut status = lock(&self.shared.status);
                     status.read_errors += 1;
                     status.read_errors
                 };
                 if errors.is_power_of_two() {
-                    tracing::warn!(errors, "MAVLink read on {}: {e}", self.address);
+                    tracing::warn!(errors, "MAVLink read on {}: {}", self.address, io::Error::from(e));
                 }
-                std::thread::sleep(UDP_ERROR_PAUSE);
-                None
+                return TryRecv::Failed;
             }
+        };
+        if udp.answers_last_sender
+            && let Some(sender) = sender.and_then(|a| SocketAddr::try_from(a).ok())
+        {
+            *lock(&udp.destination) = Some(sender);
+        }
+        let mut frames = MavlinkReader::new(&datagram[..n]);
+        loop {
+            match frames.read_any_message::<MavMessage>() {
+                Ok(frame) => pending.push_back(frame),
+                // The frame was consumed; the datagram's next ones follow.
+                Err(MessageReadError::Parse(_)) => continue,
+                // The end of the datagram (a frame cut short there is dropped with it).
+                Err(MessageReadError::Io(_)) => break,
+            }
+        }
+        match pending.pop_front() {
+            Some((header, msg)) => TryRecv::Message(header, msg),
+            None => TryRecv::Skipped,
         }
     }
 
@@ -356,6 +484,104 @@ mod tests {
         assert!(link.local_addr.is_some_and(|a| a.port() != 0));
         assert_eq!(link.address, format!("udpin:{}", link.local_addr.expect("bound")), "named with its port");
         assert!(link.recv().is_none(), "nothing arrived: the read times out");
+    }
+
+    fn frame(msg: &MavMessage, sequence: u8) -> Vec<u8> {
+        let mut bytes = Vec::new();
+        let header = MavHeader { system_id: 1, component_id: 1, sequence };
+        mavlink::write_v2_msg(&mut bytes, header, msg).expect("encodes");
+        bytes
+    }
+
+    fn attitude(time_boot_ms: u32) -> MavMessage {
+        MavMessage::ATTITUDE(mavlink::dialects::common::ATTITUDE_DATA { time_boot_ms, ..Default::default() })
+    }
+
+    fn time_boot_ms(received: Option<(MavHeader, MavMessage)>) -> u32 {
+        match received {
+            Some((_, MavMessage::ATTITUDE(a))) => a.time_boot_ms,
+            other => panic!("not an ATTITUDE: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_datagram_of_several_frames_gives_each_in_order_skipping_one_the_dialect_cannot_decode() {
+        let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("opens");
+        let vehicle = UdpSocket::bind("127.0.0.1:0").expect("vehicle");
+        // A valid frame of a message id the common dialect does not know (a dialect's unknown
+        // id has CRC extra 0): it passes the CRC and fails to decode.
+        let mut unknown = frame(&attitude(0), 0);
+        unknown[7..10].copy_from_slice(&[0xAA, 0xBB, 0xCC]);
+        let crc_at = unknown.len() - 2;
+        let crc = mavlink::calculate_crc(&unknown[1..crc_at], 0);
+        unknown[crc_at..].copy_from_slice(&crc.to_le_bytes());
+        assert!(matches!(
+            MavlinkReader::new(&unknown[..]).read_any_message::<MavMessage>(),
+            Err(MessageReadError::Parse(_))
+        ));
+        let datagram =
+            [frame(&attitude(1), 1), unknown, frame(&attitude(2), 2), frame(&attitude(3), 3)].concat();
+        vehicle.send_to(&datagram, link.local_addr.expect("bound")).expect("sent");
+        assert_eq!(time_boot_ms(link.recv()), 1);
+        assert_eq!(time_boot_ms(link.recv()), 2);
+        assert_eq!(time_boot_ms(link.recv()), 3);
+        assert!(link.recv().is_none(), "nothing more: the read times out");
+    }
+
+    #[test]
+    fn try_recv_never_blocks_and_takes_what_waits() {
+        let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("opens");
+        let started = Instant::now();
+        assert!(matches!(link.try_recv(), TryRecv::Empty));
+        assert!(started.elapsed() < RECV_TIMEOUT, "returned without waiting for the timeout");
+        let vehicle = UdpSocket::bind("127.0.0.1:0").expect("vehicle");
+        vehicle.send_to(&frame(&attitude(7), 0), link.local_addr.expect("bound")).expect("sent");
+        vehicle.send_to(&[0xFE, 0x00], link.local_addr.expect("bound")).expect("sent");
+        vehicle.send_to(&frame(&attitude(8), 1), link.local_addr.expect("bound")).expect("sent");
+        let TryRecv::Message(_, first) = link.try_recv() else { panic!("the first datagram waits") };
+        assert_eq!(time_boot_ms(Some((MavHeader::default(), first))), 7);
+        assert!(
+            matches!(link.try_recv(), TryRecv::Skipped),
+            "a datagram of no frame is skipped, not the end"
+        );
+        let TryRecv::Message(_, third) = link.try_recv() else { panic!("the third datagram waits") };
+        assert_eq!(time_boot_ms(Some((MavHeader::default(), third))), 8);
+        assert!(matches!(link.try_recv(), TryRecv::Empty));
+    }
+
+    #[test]
+    fn udpin_answers_the_last_sender_and_refuses_to_send_before_it_heard_one() {
+        let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("opens");
+        let heartbeat = MavMessage::HEARTBEAT(Default::default());
+        let Err(MessageWriteError::Io(e)) = link.send(&heartbeat) else { panic!("sent to nobody") };
+        assert_eq!(e.kind(), io::ErrorKind::NotConnected);
+        assert!(e.to_string().contains(&link.address), "names the link: {e}");
+        let mut buf = [0u8; 512];
+        for k in 0..2u32 {
+            let vehicle = UdpSocket::bind("127.0.0.1:0").expect("vehicle");
+            vehicle.set_read_timeout(Some(Duration::from_secs(5))).expect("timeout");
+            vehicle.send_to(&frame(&attitude(k), 0), link.local_addr.expect("bound")).expect("sent");
+            assert_eq!(time_boot_ms(link.recv()), k);
+            link.send(&heartbeat).expect("sent");
+            let n = vehicle.recv(&mut buf).expect("the answer reaches the last sender");
+            let (header, msg) =
+                MavlinkReader::new(&buf[..n]).read_any_message::<MavMessage>().expect("a frame");
+            assert!(matches!(msg, MavMessage::HEARTBEAT(_)));
+            assert_eq!((header.system_id, header.component_id, header.sequence), (255, 191, k as u8));
+        }
+    }
+
+    #[test]
+    fn udpout_sends_to_its_address_and_hears_the_reply() {
+        let vehicle = UdpSocket::bind("127.0.0.1:0").expect("vehicle");
+        vehicle.set_read_timeout(Some(Duration::from_secs(5))).expect("timeout");
+        let link =
+            Link::open(&format!("udpout:{}", vehicle.local_addr().expect("bound")), 255, 191).expect("opens");
+        link.send(&MavMessage::HEARTBEAT(Default::default())).expect("sent");
+        let mut buf = [0u8; 512];
+        let (_, from) = vehicle.recv_from(&mut buf).expect("the heartbeat arrives");
+        vehicle.send_to(&frame(&attitude(5), 0), from).expect("replied");
+        assert_eq!(time_boot_ms(link.recv()), 5);
     }
 
     /// A pty plays the serial device: its master is the autopilot's end.
