@@ -9,9 +9,9 @@ use hilbench_proto::convert::vehicle as vconv;
 use hilbench_proto::pb;
 use hilbench_svc::streams::{Guarded, Pushed, StreamSlots, Writer, drop_oldest};
 use mav::{PlantSample, Scenario, SimSettings};
-use mavbridge::mavlink::dialects::common::{MavCmd, MavMessage, MavResult};
+use mavbridge::mavlink::dialects::common::{MavAutopilot, MavCmd, MavMessage, MavResult};
 use mavbridge::mavlink::error::MessageWriteError;
-use mavbridge::{Bridge, ModeRequest};
+use mavbridge::{Bridge, ModeRequest, modes};
 use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
@@ -22,10 +22,26 @@ use tonic::{Request, Response, Status};
 /// What the gateway calls itself in `PlantDescription.implementation`.
 pub const IMPLEMENTATION: &str = concat!("hilbench-gateway ", env!("CARGO_PKG_VERSION"), " (MAVLink)");
 
-/// How long a `COMMAND_LONG` waits for its `COMMAND_ACK` before it is sent again, and how many
-/// times it is sent.
+/// How long a `COMMAND_LONG` waits for its `COMMAND_ACK` (a `PARAM_REQUEST_READ` for its
+/// `PARAM_VALUE`) before it is sent again, and how many times it is sent.
 const ACK_WAIT: Duration = Duration::from_millis(1_000);
 const ACK_ATTEMPTS: u32 = 3;
+
+/// What a request to the vehicle waits for.
+#[derive(Debug, Clone, PartialEq)]
+enum Awaited {
+    /// The `COMMAND_ACK` of this command.
+    Ack(MavCmd),
+    /// The `PARAM_VALUE` of this parameter.
+    Param(String),
+}
+
+/// The vehicle's answer to a request.
+#[derive(Debug)]
+enum Answer {
+    Ack(MavResult),
+    Param(f32),
+}
 
 struct Subscriber {
     period_ns: u64,
@@ -36,8 +52,8 @@ struct Subscriber {
 struct Inner {
     bridge: Bridge,
     subscribers: Vec<Subscriber>,
-    /// Commands waiting for their `COMMAND_ACK`.
-    pending: Vec<(MavCmd, oneshot::Sender<MavResult>)>,
+    /// Requests waiting for their answer.
+    pending: Vec<(Awaited, oneshot::Sender<Answer>)>,
     closed: bool,
     next_flight_id: u64,
     /// Samples evicted from full subscriber buffers.
@@ -178,11 +194,16 @@ impl GatewayService {
             if let Some(sample) = &event.sample {
                 publish(&mut inner, sample);
             }
-            if let Some((command, result)) = event.ack
-                && let Some(i) = inner.pending.iter().position(|(c, _)| *c == command)
+            let answered = match (event.ack, event.param) {
+                (Some((command, result)), _) => Some((Awaited::Ack(command), Answer::Ack(result))),
+                (None, Some((name, value))) => Some((Awaited::Param(name), Answer::Param(value))),
+                (None, None) => None,
+            };
+            if let Some((awaited, answer)) = answered
+                && let Some(i) = inner.pending.iter().position(|(a, _)| *a == awaited)
             {
                 let (_, tx) = inner.pending.remove(i);
-                let _ = tx.send(result);
+                let _ = tx.send(answer);
             }
             event.reply
         };
@@ -241,41 +262,60 @@ impl GatewayService {
         conv::plant_description(inner.bridge.scenario(), &settings, pb::TimeMode::RealTime, &implementation)
     }
 
-    /// Sends `msg` (a `COMMAND_LONG` for `command`) until its `COMMAND_ACK` arrives.
-    async fn command(
-        &self,
-        command: MavCmd,
-        msg: MavMessage,
-    ) -> Result<Response<pb::VehicleCommandResponse>, Status> {
+    /// Sends `msg` until the answer it awaits arrives, [`ACK_ATTEMPTS`] times [`ACK_WAIT`]
+    /// apart (`None`: no answer).
+    async fn request(&self, awaited: Awaited, msg: &MavMessage) -> Result<Option<Answer>, Status> {
         for _ in 0..ACK_ATTEMPTS {
             let (tx, rx) = oneshot::channel();
             {
                 let mut inner = self.shared.lock();
                 self.alive(&inner, self.shared.now_ns())?;
-                inner.pending.push((command, tx));
+                inner.pending.push((awaited.clone(), tx));
             }
-            self.shared.send(&msg);
+            self.shared.send(msg);
             match tokio::time::timeout(ACK_WAIT, rx).await {
-                Ok(Ok(MavResult::MAV_RESULT_ACCEPTED)) => {
-                    return Ok(Response::new(pb::VehicleCommandResponse {
-                        result: format!("{:?}", MavResult::MAV_RESULT_ACCEPTED),
-                    }));
-                }
-                Ok(Ok(result)) => {
-                    return Err(Status::failed_precondition(format!(
-                        "the vehicle refused {command:?}: {result:?}"
-                    )));
-                }
+                Ok(Ok(answer)) => return Ok(Some(answer)),
                 _ => {
                     let mut inner = self.shared.lock();
                     inner.pending.retain(|(_, tx)| !tx.is_closed());
                 }
             }
         }
-        Err(Status::deadline_exceeded(format!(
-            "no COMMAND_ACK for {command:?} after {ACK_ATTEMPTS} attempts {} ms apart",
-            ACK_WAIT.as_millis()
-        )))
+        Ok(None)
+    }
+
+    /// Sends `msg` (a `COMMAND_LONG` for `command`) until its `COMMAND_ACK` arrives.
+    async fn command(
+        &self,
+        command: MavCmd,
+        msg: MavMessage,
+    ) -> Result<Response<pb::VehicleCommandResponse>, Status> {
+        match self.request(Awaited::Ack(command), &msg).await? {
+            Some(Answer::Ack(MavResult::MAV_RESULT_ACCEPTED)) => {
+                Ok(Response::new(pb::VehicleCommandResponse {
+                    result: format!("{:?}", MavResult::MAV_RESULT_ACCEPTED),
+                }))
+            }
+            Some(Answer::Ack(result)) => {
+                Err(Status::failed_precondition(format!("the vehicle refused {command:?}: {result:?}")))
+            }
+            _ => Err(Status::deadline_exceeded(format!(
+                "no COMMAND_ACK for {command:?} after {ACK_ATTEMPTS} attempts {} ms apart",
+                ACK_WAIT.as_millis()
+            ))),
+        }
+    }
+
+    /// The vehicle's parameter `name` (`PARAM_REQUEST_READ` until its `PARAM_VALUE` arrives).
+    async fn read_param(&self, name: &str) -> Result<f32, Status> {
+        let msg = self.shared.lock().bridge.param_request(name);
+        match self.request(Awaited::Param(name.into()), &msg).await? {
+            Some(Answer::Param(value)) => Ok(value),
+            _ => Err(Status::deadline_exceeded(format!(
+                "no PARAM_VALUE for {name} after {ACK_ATTEMPTS} attempts {} ms apart",
+                ACK_WAIT.as_millis()
+            ))),
+        }
     }
 }
 
@@ -433,7 +473,25 @@ impl pb::vehicle_control_server::VehicleControl for GatewayService {
         request: Request<pb::SetModeRequest>,
     ) -> Result<Response<pb::VehicleCommandResponse>, Status> {
         let mode: ModeRequest = vconv::mode_request(request.get_ref()).map_err(Status::from)?;
-        let msg = self.shared.lock().bridge.mode_message(mode);
+        let (msg, autopilot) = {
+            let inner = self.shared.lock();
+            (inner.bridge.mode_message(mode), inner.bridge.autopilot())
+        };
+        // ArduCopter reads the setpoints' thrust as a climb rate unless told otherwise: a mode
+        // in which the controller's thrust would not be flown is refused before it is asked for.
+        if mode == ModeRequest::ArduGuidedNoGps
+            && autopilot == Some(MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA)
+        {
+            let guid_options = self.read_param(modes::ARDU_GUID_OPTIONS).await?;
+            if !modes::ardu_thrust_as_thrust(guid_options) {
+                return Err(Status::failed_precondition(format!(
+                    "ArduCopter's {} is {guid_options}: without bit 3 (8, \"SetAttitudeTarget interprets \
+                     Thrust As Thrust\") it flies SET_ATTITUDE_TARGET's thrust as a climb rate, not the \
+                     controller's thrust; set it to include 8 and ask again (the mode is unchanged)",
+                    modes::ARDU_GUID_OPTIONS
+                )));
+            }
+        }
         tracing::info!(?mode, "setting the vehicle's mode (asked)");
         self.command(MavCmd::MAV_CMD_DO_SET_MODE, msg).await
     }

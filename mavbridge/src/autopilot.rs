@@ -6,19 +6,49 @@
 //!
 //! What it does as PX4 does: OFFBOARD is refused unless setpoints are streaming (one within
 //! the loss timeout), and when the stream stops in OFFBOARD it fails safe to a hold
-//! (AUTO_LOITER; here level attitude at hover thrust). What it simplifies: disarmed, the
-//! vehicle rests (the model is not integrated: it stands on the ground or a stand); armed in
-//! POSCTL or a hold, it flies level at hover thrust. Time is the vehicle's boot clock, passed
-//! in.
+//! (AUTO_LOITER; here level attitude at hover thrust). As ArduCopter does
+//! ([`Firmware::ArduCopter`]): GUIDED_NOGPS (mode 20) is accepted without a stream; when the
+//! stream stops the vehicle levels and holds its height in that mode (`GUID_TIMEOUT`); the
+//! setpoints' thrust is thrust only with `GUID_OPTIONS` bit 3, otherwise a climb rate (0.5
+//! holds the height, 1 climbs at 2.5 m/s, 0 sinks at 1.5 m/s, `WPNAV_SPEED_UP`/`_DN`'s
+//! defaults); `PARAM_REQUEST_READ` of `GUID_OPTIONS` is answered. What it simplifies: disarmed,
+//! the vehicle rests (the model is not integrated: it stands on the ground or a stand); armed in
+//! POSCTL (LOITER) or a hold, it flies level at hover thrust. Time is the vehicle's boot clock,
+//! passed in.
 
 use crate::messages;
 use crate::modes::{self, ModeRequest};
 use crate::thrust::{ThrustError, ThrustMap};
 use mav::{CommandMeta, PlantSim, Scenario, SimSettings};
 use mavlink::dialects::common::{
-    COMMAND_ACK_DATA, HEARTBEAT_DATA, MavAutopilot, MavCmd, MavMessage, MavModeFlag, MavResult, MavState,
-    MavSysStatusSensor, MavType, SYS_STATUS_DATA, TIMESYNC_DATA,
+    COMMAND_ACK_DATA, HEARTBEAT_DATA, MavAutopilot, MavCmd, MavMessage, MavModeFlag, MavParamType, MavResult,
+    MavState, MavSysStatusSensor, MavType, PARAM_VALUE_DATA, SYS_STATUS_DATA, TIMESYNC_DATA,
 };
+
+/// Whose side of MAVLink the simulator plays.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Firmware {
+    #[default]
+    Px4,
+    /// ArduCopter with this `GUID_OPTIONS` (its default is 0: thrust read as a climb rate).
+    ArduCopter { guid_options: u32 },
+}
+
+impl Firmware {
+    fn autopilot(self) -> MavAutopilot {
+        match self {
+            Self::Px4 => MavAutopilot::MAV_AUTOPILOT_PX4,
+            Self::ArduCopter { .. } => MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+        }
+    }
+}
+
+/// ArduCopter's climb and descent rates at full and zero climb-rate "thrust", m/s
+/// (`WPNAV_SPEED_UP` and `WPNAV_SPEED_DN`'s defaults).
+const ARDU_CLIMB_MPS: f64 = 2.5;
+const ARDU_DESCENT_MPS: f64 = 1.5;
+/// The gain from a climb-rate error to mass-normalised thrust, 1/s.
+const ARDU_CLIMB_GAIN_PER_S: f64 = 2.0;
 
 /// Settings of the simulated autopilot, with units.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -33,6 +63,7 @@ pub struct AutopilotSettings {
     pub heartbeat_period_ns: u64,
     /// The vehicle's heading, rad (the model has no yaw; the frames carry it).
     pub yaw_rad: f64,
+    pub firmware: Firmware,
 }
 
 impl Default for AutopilotSettings {
@@ -43,6 +74,7 @@ impl Default for AutopilotSettings {
             state_period_ns: 10_000_000,
             heartbeat_period_ns: 1_000_000_000,
             yaw_rad: 0.0,
+            firmware: Firmware::Px4,
         }
     }
 }
@@ -50,18 +82,24 @@ impl Default for AutopilotSettings {
 /// The flight modes the simulator plays.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SimMode {
+    /// PX4's POSCTL, ArduCopter's LOITER.
     Posctl,
+    /// PX4's OFFBOARD, ArduCopter's GUIDED_NOGPS.
     Offboard,
-    /// AUTO_LOITER, where the offboard failsafe goes.
+    /// PX4's AUTO_LOITER, where the offboard failsafe goes (ArduCopter stays in GUIDED_NOGPS).
     Hold,
 }
 
 impl SimMode {
-    fn custom_mode(self) -> u32 {
-        match self {
-            Self::Posctl => ModeRequest::px4_custom_mode(modes::PX4_MAIN_POSCTL, 0),
-            Self::Offboard => ModeRequest::px4_custom_mode(modes::PX4_MAIN_OFFBOARD, 0),
-            Self::Hold => ModeRequest::px4_custom_mode(modes::PX4_MAIN_AUTO, modes::PX4_SUB_AUTO_LOITER),
+    fn custom_mode(self, firmware: Firmware) -> u32 {
+        match (firmware, self) {
+            (Firmware::Px4, Self::Posctl) => ModeRequest::px4_custom_mode(modes::PX4_MAIN_POSCTL, 0),
+            (Firmware::Px4, Self::Offboard) => ModeRequest::px4_custom_mode(modes::PX4_MAIN_OFFBOARD, 0),
+            (Firmware::Px4, Self::Hold) => {
+                ModeRequest::px4_custom_mode(modes::PX4_MAIN_AUTO, modes::PX4_SUB_AUTO_LOITER)
+            }
+            (Firmware::ArduCopter { .. }, Self::Offboard) => modes::ARDU_GUIDED_NOGPS,
+            (Firmware::ArduCopter { .. }, Self::Posctl | Self::Hold) => modes::ARDU_LOITER,
         }
     }
 }
@@ -72,7 +110,7 @@ pub struct AutopilotCounters {
     pub setpoints: u64,
     /// Setpoints that could not fly (attitude or thrust ignored, not a rotation).
     pub refused_setpoints: u64,
-    /// OFFBOARD left because the setpoint stream stopped.
+    /// OFFBOARD left because the setpoint stream stopped (ArduCopter: levelled in GUIDED_NOGPS).
     pub offboard_failsafes: u64,
 }
 
@@ -98,6 +136,10 @@ pub struct SimAutopilot {
     offset_ns: u64,
     last_setpoint_ns: Option<u64>,
     setpoint: Option<mav::Input>,
+    /// ArduCopter, thrust read as a climb rate: the last setpoint's, m/s up.
+    climb_mps: Option<f64>,
+    /// ArduCopter: levelled in GUIDED_NOGPS since the setpoints stopped.
+    levelled: bool,
     next_state_ns: u64,
     next_heartbeat_ns: u64,
     counters: AutopilotCounters,
@@ -119,6 +161,8 @@ impl SimAutopilot {
             offset_ns: 0,
             last_setpoint_ns: None,
             setpoint: None,
+            climb_mps: None,
+            levelled: false,
             next_state_ns: 0,
             next_heartbeat_ns: 0,
             counters: AutopilotCounters::default(),
@@ -157,6 +201,27 @@ impl SimAutopilot {
         self.fly(self.sim.model().params.hover_input());
     }
 
+    /// The setpoint flown now: as sent, or (ArduCopter reading a climb rate) its attitude with
+    /// the thrust that closes the climb-rate error.
+    fn flown(&self, input: mav::Input) -> mav::Input {
+        match self.climb_mps {
+            Some(climb_mps) => {
+                // Hover, the drag at the target rate (where ArduCopter's vertical speed loop has
+                // integral action, the model's drag is known here) and a proportional term.
+                let params = &self.sim.model().params;
+                let thrust = params.gravity_mps2
+                    + params.drag_z_per_s * climb_mps
+                    + ARDU_CLIMB_GAIN_PER_S * (climb_mps - self.sim.state()[5]);
+                mav::Input::new(thrust.max(0.0), input[1], input[2])
+            }
+            None => input,
+        }
+    }
+
+    fn fly_setpoint(&mut self, input: mav::Input) {
+        self.fly(self.flown(input));
+    }
+
     /// A message from the gateway at vehicle time `now_ns`; answers are appended to `out`.
     pub fn on_message(&mut self, msg: &MavMessage, now_ns: u64, out: &mut Vec<MavMessage>) {
         self.advance(now_ns);
@@ -169,12 +234,35 @@ impl SimAutopilot {
                     self.counters.setpoints += 1;
                     self.last_setpoint_ns = Some(now_ns);
                     self.setpoint = Some(input);
+                    self.levelled = false;
+                    self.climb_mps = match self.settings.firmware {
+                        Firmware::ArduCopter { guid_options }
+                            if !modes::ardu_thrust_as_thrust(guid_options as f32) =>
+                        {
+                            let rate = (f64::from(d.thrust) - 0.5) * 2.0;
+                            Some(rate * if rate > 0.0 { ARDU_CLIMB_MPS } else { ARDU_DESCENT_MPS })
+                        }
+                        _ => None,
+                    };
                     if self.mode == SimMode::Offboard {
-                        self.fly(input);
+                        self.fly_setpoint(input);
                     }
                 }
                 Err(_) => self.counters.refused_setpoints += 1,
             },
+            MavMessage::PARAM_REQUEST_READ(r) => {
+                if let Firmware::ArduCopter { guid_options } = self.settings.firmware
+                    && r.param_id.to_str() == Ok(modes::ARDU_GUID_OPTIONS)
+                {
+                    out.push(MavMessage::PARAM_VALUE(PARAM_VALUE_DATA {
+                        param_value: guid_options as f32,
+                        param_count: 1,
+                        param_index: 0,
+                        param_id: modes::ARDU_GUID_OPTIONS.into(),
+                        param_type: MavParamType::MAV_PARAM_TYPE_INT32,
+                    }));
+                }
+            }
             MavMessage::COMMAND_LONG(c) => {
                 let result = self.command(c.command, c.param1, c.param2, c.param3, now_ns);
                 out.push(MavMessage::COMMAND_ACK(COMMAND_ACK_DATA { command: c.command, result }));
@@ -202,6 +290,25 @@ impl SimAutopilot {
             MavCmd::MAV_CMD_COMPONENT_ARM_DISARM if p1 == 0.0 => {
                 self.armed = false;
                 MavResult::MAV_RESULT_ACCEPTED
+            }
+            MavCmd::MAV_CMD_DO_SET_MODE if matches!(self.settings.firmware, Firmware::ArduCopter { .. }) => {
+                match ModeRequest::from_params(p2, p3, MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA) {
+                    // ArduCopter enters GUIDED_NOGPS without a setpoint stream, level until one comes.
+                    Some(ModeRequest::ArduGuidedNoGps) => {
+                        self.mode = SimMode::Offboard;
+                        match (self.streaming(now_ns), self.setpoint) {
+                            (true, Some(input)) => self.fly_setpoint(input),
+                            _ => self.hover(),
+                        }
+                        MavResult::MAV_RESULT_ACCEPTED
+                    }
+                    _ if p2 as u32 == modes::ARDU_LOITER => {
+                        self.mode = SimMode::Posctl;
+                        self.hover();
+                        MavResult::MAV_RESULT_ACCEPTED
+                    }
+                    _ => MavResult::MAV_RESULT_UNSUPPORTED,
+                }
             }
             MavCmd::MAV_CMD_DO_SET_MODE => {
                 let main = p2 as u32;
@@ -237,9 +344,25 @@ impl SimAutopilot {
     pub fn poll(&mut self, now_ns: u64, out: &mut Vec<MavMessage>) {
         self.advance(now_ns);
         if self.mode == SimMode::Offboard && !self.streaming(now_ns) {
-            self.mode = SimMode::Hold;
-            self.counters.offboard_failsafes += 1;
-            self.hover();
+            match self.settings.firmware {
+                Firmware::Px4 => {
+                    self.mode = SimMode::Hold;
+                    self.counters.offboard_failsafes += 1;
+                    self.hover();
+                }
+                Firmware::ArduCopter { .. } if !self.levelled => {
+                    self.levelled = true;
+                    self.counters.offboard_failsafes += 1;
+                    self.hover();
+                }
+                Firmware::ArduCopter { .. } => {}
+            }
+        } else if self.mode == SimMode::Offboard
+            && self.climb_mps.is_some()
+            && let Some(input) = self.setpoint
+        {
+            // The climb-rate loop follows the vertical speed.
+            self.fly_setpoint(input);
         }
         if now_ns >= self.next_heartbeat_ns {
             self.next_heartbeat_ns = now_ns + self.settings.heartbeat_period_ns;
@@ -248,9 +371,9 @@ impl SimAutopilot {
                 base_mode |= MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED;
             }
             out.push(MavMessage::HEARTBEAT(HEARTBEAT_DATA {
-                custom_mode: self.mode.custom_mode(),
+                custom_mode: self.mode.custom_mode(self.settings.firmware),
                 mavtype: MavType::MAV_TYPE_QUADROTOR,
-                autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+                autopilot: self.settings.firmware.autopilot(),
                 base_mode,
                 system_status: if self.armed {
                     MavState::MAV_STATE_ACTIVE

@@ -12,7 +12,7 @@ use mav::{AppliedCommand, CommandMeta, Contacts, Input, PlantSample, Scenario, S
 use mavlink::MavHeader;
 use mavlink::dialects::common::{
     COMMAND_LONG_DATA, HEARTBEAT_DATA, LOCAL_POSITION_NED_DATA, MavAutopilot, MavCmd, MavMessage,
-    MavModeFlag, MavResult, MavState, MavType, TIMESYNC_DATA,
+    MavModeFlag, MavResult, MavState, MavType, PARAM_REQUEST_READ_DATA, TIMESYNC_DATA,
 };
 
 /// A state message stamped this much earlier than the last one of its kind means the vehicle
@@ -208,6 +208,8 @@ pub struct Event {
     pub sample: Option<PlantSample>,
     /// A `COMMAND_ACK`: the command and its result.
     pub ack: Option<(MavCmd, MavResult)>,
+    /// A `PARAM_VALUE`: the parameter's name and value.
+    pub param: Option<(String, f32)>,
     /// A message to send back (an answer to the vehicle's `TIMESYNC` request).
     pub reply: Option<MavMessage>,
     /// This message showed that the vehicle rebooted (once per reboot).
@@ -397,6 +399,10 @@ impl Bridge {
                 }
             }
             MavMessage::COMMAND_ACK(a) => event.ack = Some((a.command, a.result)),
+            MavMessage::PARAM_VALUE(p) => match p.param_id.to_str() {
+                Ok(name) => event.param = Some((name.to_owned(), p.param_value)),
+                Err(_) => self.counters.bad_messages += 1,
+            },
             MavMessage::ATTITUDE(a) => match Attitude::from_euler(a) {
                 Some(att) => self.on_attitude(att, now_ns, &mut event),
                 None => self.counters.bad_messages += 1,
@@ -684,6 +690,21 @@ impl Bridge {
             MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
             [f32::from(u8::from(arm)), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
         )
+    }
+
+    /// `PARAM_REQUEST_READ` of the vehicle's parameter `name`.
+    pub fn param_request(&self, name: &str) -> MavMessage {
+        MavMessage::PARAM_REQUEST_READ(PARAM_REQUEST_READ_DATA {
+            param_index: -1,
+            target_system: self.target.0,
+            target_component: self.target.1,
+            param_id: name.into(),
+        })
+    }
+
+    /// The autopilot of the last heartbeat (`None`: none heard).
+    pub fn autopilot(&self) -> Option<MavAutopilot> {
+        self.heard.as_ref().map(|h| h.autopilot)
     }
 
     /// `COMMAND_LONG` asking for `mode`.

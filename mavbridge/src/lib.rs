@@ -18,7 +18,7 @@ pub mod modes;
 pub mod thrust;
 pub mod timesync;
 
-pub use autopilot::{AutopilotError, AutopilotSettings, SimAutopilot, SimMode};
+pub use autopilot::{AutopilotError, AutopilotSettings, Firmware, SimAutopilot, SimMode};
 pub use bridge::{
     Bridge, BridgeError, BridgeSettings, Counters, Event, REBOOT_CLOCK_JUMP_MS, Reboot, ResetRefusal,
     VehicleStatus, shows_reboot,

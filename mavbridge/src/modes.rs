@@ -22,6 +22,22 @@ pub const PX4_MAIN_OFFBOARD: u32 = 6;
 pub const PX4_SUB_AUTO_LOITER: u32 = 3;
 /// ArduCopter GUIDED_NOGPS.
 pub const ARDU_GUIDED_NOGPS: u32 = 20;
+/// ArduCopter LOITER.
+pub const ARDU_LOITER: u32 = 5;
+/// ArduCopter's parameter that says how GUIDED and GUIDED_NOGPS read `SET_ATTITUDE_TARGET`.
+pub const ARDU_GUID_OPTIONS: &str = "GUID_OPTIONS";
+/// Its bit 3, "SetAttitudeTarget interprets Thrust As Thrust": set, the thrust field is the
+/// normalised thrust the gateway sends; clear (the default), a climb rate (0.5 holds height).
+pub const ARDU_GUID_THRUST_AS_THRUST: u32 = 1 << 3;
+
+/// Whether ArduCopter with this `GUID_OPTIONS` (a `PARAM_VALUE`'s value: ArduPilot sends
+/// integers cast to float) flies `SET_ATTITUDE_TARGET`'s thrust as thrust.
+pub fn ardu_thrust_as_thrust(guid_options: f32) -> bool {
+    guid_options.is_finite()
+        && guid_options >= 0.0
+        && guid_options <= u32::MAX as f32
+        && (guid_options as u32) & ARDU_GUID_THRUST_AS_THRUST != 0
+}
 
 impl ModeRequest {
     /// `MAV_CMD_DO_SET_MODE`'s `(param1, param2, param3)`.
@@ -125,5 +141,15 @@ mod tests {
         );
         let (_, p2, p3) = ModeRequest::ArduGuidedNoGps.params();
         assert_eq!(ModeRequest::from_params(p2, p3, MavAutopilot::MAV_AUTOPILOT_PX4), None);
+    }
+
+    #[test]
+    fn only_guid_options_with_bit_3_flies_thrust_as_thrust() {
+        for thrust in [8.0, 9.0, 15.0, 8.0 + 1024.0] {
+            assert!(ardu_thrust_as_thrust(thrust), "{thrust}");
+        }
+        for climb_rate in [0.0, 1.0, 4.0, 7.0, 16.0, -8.0, f32::NAN, f32::INFINITY, 1e20] {
+            assert!(!ardu_thrust_as_thrust(climb_rate), "{climb_rate}");
+        }
     }
 }

@@ -3,10 +3,11 @@
 //! decision.
 
 use mav::{CommandMeta, Input, Scenario};
-use mavbridge::mavlink::dialects::common::{MavCmd, MavMessage, MavResult};
+use mavbridge::mavlink::dialects::common::{MavAutopilot, MavCmd, MavMessage, MavResult};
 use mavbridge::mavlink::{self, MavHeader, MavlinkVersion};
 use mavbridge::{
-    AutopilotSettings, Bridge, BridgeSettings, ModeRequest, Reboot, ResetRefusal, SimAutopilot, SimMode,
+    AutopilotSettings, Bridge, BridgeSettings, Firmware, ModeRequest, Reboot, ResetRefusal, SimAutopilot,
+    SimMode, modes,
 };
 
 const MS: u64 = 1_000_000;
@@ -28,6 +29,8 @@ struct Pair {
     /// The vehicle's clock minus the gateway's, ns.
     vehicle_ahead_ns: i64,
     acks: Vec<(MavCmd, MavResult)>,
+    /// `PARAM_VALUE`s heard: names and values.
+    params: Vec<(String, f32)>,
     samples: Vec<mav::PlantSample>,
     /// The reboots the bridge reported, one event each.
     reboots: Vec<Reboot>,
@@ -56,6 +59,7 @@ impl Pair {
             now_ns: 0,
             vehicle_ahead_ns: ahead_ns as i64,
             acks: Vec::new(),
+            params: Vec::new(),
             samples: Vec::new(),
             reboots: Vec::new(),
             unasked_commands: 0,
@@ -93,6 +97,7 @@ impl Pair {
             let event = self.bridge.on_message(&h, &m, self.now_ns);
             self.samples.extend(event.sample);
             self.acks.extend(event.ack);
+            self.params.extend(event.param);
             self.reboots.extend(event.reboot);
             if let Some(reply) = event.reply {
                 self.send_to_vehicle(vec![reply]);
@@ -464,4 +469,83 @@ fn setpoints_hold_the_yaw_of_arming_while_the_vehicle_turns_and_follow_it_again_
     p.send_to_gateway(vec![turned]);
     assert!((p.bridge.yaw_hold_rad() - 1.2).abs() < 1e-6, "{}", p.bridge.yaw_hold_rad());
     assert!((next_setpoint_yaw(&mut p) - 1.2).abs() < 1e-6);
+}
+
+/// Flies `input` from the gateway every 20 ms (as a controller would) for `ms`.
+fn fly_for(p: &mut Pair, input: Input, ms: u64) {
+    for _ in 0..ms / 20 {
+        let (_, msg) = p.bridge.apply(input, CommandMeta::default(), p.now_ns);
+        p.send_to_vehicle(msg.into_iter().collect());
+        p.run(20);
+    }
+}
+
+#[test]
+fn arducopter_enters_guided_nogps_without_a_stream_and_levels_in_it_when_the_setpoints_stop() {
+    let scenario = Scenario::paper_2();
+    let firmware = Firmware::ArduCopter { guid_options: 8 };
+    let mut vehicle =
+        SimAutopilot::new(&scenario, AutopilotSettings { firmware, ..Default::default() }).expect("valid");
+    let bridge = Bridge::new(scenario.clone(), BridgeSettings::default(), 0, 1).expect("valid");
+    let mut out = Vec::new();
+    vehicle.on_message(&bridge.mode_message(ModeRequest::ArduGuidedNoGps), 1_000 * MS, &mut out);
+    assert!(
+        matches!(&out[..], [MavMessage::COMMAND_ACK(a)] if a.result == MavResult::MAV_RESULT_ACCEPTED),
+        "no setpoint stream needed: {out:?}"
+    );
+    assert_eq!(vehicle.mode(), SimMode::Offboard);
+    // PX4's OFFBOARD is not an ArduCopter mode.
+    out.clear();
+    vehicle.on_message(&bridge.mode_message(ModeRequest::Px4Offboard), 1_001 * MS, &mut out);
+    assert!(
+        matches!(&out[..], [MavMessage::COMMAND_ACK(a)] if a.result == MavResult::MAV_RESULT_UNSUPPORTED)
+    );
+
+    // Setpoints stream, then stop: the vehicle levels once and stays in GUIDED_NOGPS.
+    let mut p = Pair::new(&scenario);
+    p.vehicle =
+        SimAutopilot::new(&scenario, AutopilotSettings { firmware, ..Default::default() }).expect("valid");
+    p.run(1_000);
+    p.command(p.bridge.arm_message(true));
+    p.command(p.bridge.mode_message(ModeRequest::ArduGuidedNoGps));
+    p.run(200);
+    assert_eq!(p.bridge.status(p.now_ns).mode, "GUIDED_NOGPS");
+    p.silent_vehicle = true;
+    p.run(2_000);
+    assert_eq!(p.vehicle.mode(), SimMode::Offboard, "ArduCopter stays in GUIDED_NOGPS");
+    assert_eq!(p.vehicle.counters().offboard_failsafes, 1, "levelled once");
+}
+
+#[test]
+fn arducopter_answers_guid_options_and_flies_the_thrust_as_thrust_only_with_bit_3() {
+    let scenario = Scenario::paper_2();
+    let mut climb_after_1_5_s = Vec::new();
+    for guid_options in [0, 8] {
+        let mut p = Pair::new(&scenario);
+        let firmware = Firmware::ArduCopter { guid_options };
+        p.vehicle = SimAutopilot::new(&scenario, AutopilotSettings { firmware, ..Default::default() })
+            .expect("valid");
+        p.run(1_000);
+        let status = p.bridge.status(p.now_ns);
+        assert_eq!(
+            (status.autopilot, status.mode.as_str()),
+            (MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA, "LOITER")
+        );
+        p.send_to_vehicle(vec![p.bridge.param_request(modes::ARDU_GUID_OPTIONS)]);
+        assert_eq!(p.params, [(modes::ARDU_GUID_OPTIONS.to_owned(), guid_options as f32)]);
+        // Unknown parameters are not answered (as ArduPilot does).
+        p.send_to_vehicle(vec![p.bridge.param_request("NOT_A_PARAM")]);
+        assert_eq!(p.params.len(), 1);
+
+        p.command(p.bridge.arm_message(true));
+        p.command(p.bridge.mode_message(ModeRequest::ArduGuidedNoGps));
+        p.run(100);
+        // T = 1.5 g: normalised thrust 0.75 at --hover-thrust 0.5; as a climb rate, 1.25 m/s.
+        let g = scenario.model.gravity_mps2;
+        fly_for(&mut p, Input::new(1.5 * g, 0.0, 0.0), 1_500);
+        climb_after_1_5_s.push(p.vehicle.sim().state()[5]);
+    }
+    let [as_climb_rate, as_thrust] = climb_after_1_5_s[..] else { unreachable!() };
+    assert!((as_climb_rate - 1.25).abs() < 0.15, "GUID_OPTIONS 0 climbs at 1.25 m/s: {as_climb_rate}");
+    assert!(as_thrust > 3.0, "GUID_OPTIONS 8 accelerates at 0.5 g: {as_thrust}");
 }

@@ -1,15 +1,17 @@
-//! `mavsim`: the hilbench MAV model in real time playing a PX4 autopilot's side of MAVLink, so
+//! `mavsim`: the hilbench MAV model in real time playing a PX4 (or ArduCopter) autopilot's side of MAVLink, so
 //! that the whole chain controller -> netem -> gateway -> MAVLink -> vehicle runs on one
 //! machine. Glue only: flags, logging, signals; the simulator is `gateway::mavsim`.
 
 use clap::Parser;
 use gateway::mavsim::{Mavsim, MavsimConfig};
-use mavbridge::AutopilotSettings;
+use mavbridge::{AutopilotSettings, Firmware};
 
 /// A simulated PX4 vehicle over MAVLink 2: HEARTBEAT (armed, custom mode), ATTITUDE,
 /// LOCAL_POSITION_NED, SYS_STATUS, TIMESYNC answers, COMMAND_LONG arming and modes with
 /// COMMAND_ACK, and SET_ATTITUDE_TARGET. OFFBOARD is refused without a setpoint stream; when the
-/// stream stops the vehicle fails safe to a hold (level, hover thrust).
+/// stream stops the vehicle fails safe to a hold (level, hover thrust). With `--autopilot
+/// arducopter`, an ArduCopter: GUIDED_NOGPS, GUID_OPTIONS (answered to PARAM_REQUEST_READ) and
+/// its reading of the thrust.
 #[derive(Debug, Parser)]
 #[command(name = "mavsim", version)]
 struct Args {
@@ -31,6 +33,13 @@ struct Args {
     /// Setpoints older than this end OFFBOARD (failsafe to a hold), ms.
     #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..=60_000))]
     offboard_loss_ms: u64,
+    /// Whose side of MAVLink to play.
+    #[arg(long, value_enum, default_value_t = AutopilotArg::Px4)]
+    autopilot: AutopilotArg,
+    /// ArduCopter's GUID_OPTIONS: with bit 3 (8) the setpoints' thrust is thrust, without it a
+    /// climb rate (0.5 holds the height), as with ArduCopter's default, 0 [default: 0].
+    #[arg(long, value_name = "N")]
+    guid_options: Option<u32>,
     /// Reboot once, this long after start, s: the boot clock restarts at 0, disarmed in POSCTL
     /// (to try the gateway's reboot handling; see also --reboot-silence-s).
     #[arg(long, value_name = "S")]
@@ -40,6 +49,12 @@ struct Args {
     /// silence lasted).
     #[arg(long, default_value_t = 0.0, value_name = "S", requires = "reboot_after_s")]
     reboot_silence_s: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum AutopilotArg {
+    Px4,
+    Arducopter,
 }
 
 /// A duration flag in seconds: finite and not negative.
@@ -62,6 +77,15 @@ fn main() -> anyhow::Result<()> {
         offboard_loss_ns: args.offboard_loss_ms * 1_000_000,
         state_period_ns: 1_000_000_000 / args.state_rate_hz,
         yaw_rad: args.yaw_deg.to_radians(),
+        firmware: match (args.autopilot, args.guid_options) {
+            (AutopilotArg::Px4, None) => Firmware::Px4,
+            (AutopilotArg::Px4, Some(_)) => {
+                anyhow::bail!("--guid-options: an ArduCopter parameter, only with --autopilot arducopter")
+            }
+            (AutopilotArg::Arducopter, guid_options) => {
+                Firmware::ArduCopter { guid_options: guid_options.unwrap_or(0) }
+            }
+        },
         ..AutopilotSettings::default()
     };
     mavbridge::ThrustMap::new(args.hover_thrust, scenario.model.gravity_mps2)

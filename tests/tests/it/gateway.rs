@@ -6,7 +6,8 @@
 //! - the vehicle going silent: the Plant API answers UNAVAILABLE, health goes NOT_SERVING;
 //! - the vehicle rebooting (its clock restarts): UNAVAILABLE and NOT_SERVING until a Reset;
 //!   also the `mavsim` binary rebooting from its command line after a silence;
-//! - refusals: a Reset far from the vehicle, a mode the vehicle does not know;
+//! - refusals: a Reset far from the vehicle, a mode the vehicle does not know, GUIDED_NOGPS on an
+//!   ArduCopter whose `GUID_OPTIONS` would read the thrust as a climb rate (accepted with bit 3);
 //! - a serial autopilot (pymavlink behind a pty, the `gateway` binary) unplugged and plugged
 //!   back in: UNAVAILABLE and NOT_SERVING without burning CPU, served again, stopped by SIGTERM.
 //!
@@ -23,7 +24,7 @@ use hilbench_proto::pb::plant_client::PlantClient;
 use hilbench_proto::pb::vehicle_control_client::VehicleControlClient;
 use hilbench_tests::server::{self, Running};
 use mav::Scenario;
-use mavbridge::AutopilotSettings;
+use mavbridge::{AutopilotSettings, Firmware};
 use mpc::ControllerMode;
 use tonic::transport::Channel;
 use tonic_health::pb::HealthCheckRequest;
@@ -52,11 +53,16 @@ async fn start_gateway(scenario: &Scenario) -> (Running<GatewayError>, u16) {
 
 /// A gateway and a simulated vehicle of `scenario` sending to it.
 async fn start(scenario: &Scenario) -> Bench {
+    start_with(scenario, AutopilotSettings::default()).await
+}
+
+/// As [`start`], the vehicle's autopilot set by `autopilot`.
+async fn start_with(scenario: &Scenario, autopilot: AutopilotSettings) -> Bench {
     let (gateway, port) = start_gateway(scenario).await;
     let vehicle = Mavsim::start(&MavsimConfig {
         mavlink: format!("udpout:127.0.0.1:{port}"),
         scenario: scenario.clone(),
-        autopilot: AutopilotSettings::default(),
+        autopilot,
     })
     .expect("mavsim starts");
     Bench { gateway, vehicle }
@@ -375,6 +381,33 @@ async fn a_reset_far_from_the_vehicle_and_a_mode_the_vehicle_refuses_are_failed_
         assert!(services.iter().any(|s| s == expected), "{services:?} lacks {expected}");
     }
     bench.gateway.stop().await.expect("gateway stops cleanly");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn guided_nogps_is_refused_naming_guid_options_when_arducopter_would_read_the_thrust_as_a_climb_rate() {
+    let scenario = Scenario::paper_2();
+    for (guid_options, thrust_as_thrust) in [(0, false), (8, true)] {
+        let firmware = Firmware::ArduCopter { guid_options };
+        let bench = start_with(&scenario, AutopilotSettings { firmware, ..Default::default() }).await;
+        let mut vc = vehicle_control(bench.gateway.addr).await;
+        wait_status(&mut vc, "the ArduCopter's heartbeat", |s| s.link_alive && s.mode == "LOITER").await;
+        let asked =
+            vc.set_mode(pb::SetModeRequest { mode: pb::FlightMode::ArdupilotGuidedNogps as i32 }).await;
+        if thrust_as_thrust {
+            asked.expect("GUID_OPTIONS has bit 3: GUIDED_NOGPS is asked for and accepted");
+            wait_status(&mut vc, "GUIDED_NOGPS", |s| s.mode == "GUIDED_NOGPS").await;
+            assert_eq!(bench.vehicle.autopilot().mode(), mavbridge::SimMode::Offboard);
+        } else {
+            let refused = asked.expect_err("refused before the mode is asked for");
+            assert_eq!(refused.code(), tonic::Code::FailedPrecondition, "{refused}");
+            assert!(refused.message().contains("GUID_OPTIONS is 0"), "{refused}");
+            assert!(refused.message().contains("climb rate"), "{refused}");
+            let status = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+            assert_eq!(status.mode, "LOITER", "the mode is unchanged");
+            assert_eq!(bench.vehicle.autopilot().mode(), mavbridge::SimMode::Posctl);
+        }
+        bench.gateway.stop().await.expect("gateway stops cleanly");
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
