@@ -30,9 +30,10 @@ struct Args {
     /// The vehicle's heading, degrees (the model has no yaw; the MAVLink frames carry it).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     yaw_deg: f64,
-    /// Setpoints older than this end OFFBOARD (failsafe to a hold), ms.
-    #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..=60_000))]
-    offboard_loss_ms: u64,
+    /// Setpoints older than this end OFFBOARD (failsafe to a hold; ArduCopter levels in
+    /// GUIDED_NOGPS), ms [default: 500, PX4's COM_OF_LOSS_T; 3000 for ArduCopter, its GUID_TIMEOUT].
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=60_000))]
+    offboard_loss_ms: Option<u64>,
     /// Whose side of MAVLink to play.
     #[arg(long, value_enum, default_value_t = AutopilotArg::Px4)]
     autopilot: AutopilotArg,
@@ -74,7 +75,10 @@ fn main() -> anyhow::Result<()> {
     }
     let autopilot = AutopilotSettings {
         hover_thrust: args.hover_thrust,
-        offboard_loss_ns: args.offboard_loss_ms * 1_000_000,
+        offboard_loss_ns: args.offboard_loss_ms.unwrap_or(match args.autopilot {
+            AutopilotArg::Px4 => 500,
+            AutopilotArg::Arducopter => 3_000,
+        }) * 1_000_000,
         state_period_ns: 1_000_000_000 / args.state_rate_hz,
         yaw_rad: args.yaw_deg.to_radians(),
         firmware: match (args.autopilot, args.guid_options) {

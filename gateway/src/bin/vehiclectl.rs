@@ -37,7 +37,8 @@ enum Action {
     Disarm,
     /// Switch to PX4's OFFBOARD (the gateway must be streaming setpoints: it always does).
     Offboard,
-    /// Switch to ArduCopter's GUIDED_NOGPS.
+    /// Switch to ArduCopter's GUIDED_NOGPS (refused unless its GUID_OPTIONS has bit 3, 8: the
+    /// setpoints' thrust read as thrust, not as a climb rate).
     GuidedNogps,
     /// Arm, then switch to PX4's OFFBOARD.
     ArmOffboard,
