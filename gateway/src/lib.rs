@@ -167,7 +167,7 @@ pub async fn serve_with_link(
                                 "vehicle heartbeat lost for 2 s{why}: NOT_SERVING, calls answer UNAVAILABLE"
                             );
                         }
-                        // The reading thread logged the reboot once, naming the Reset it needs.
+                        // The reader logged the reboot once, naming the Reset it needs.
                         Some(NotServing::Rebooted) => {}
                     }
                 }
@@ -200,7 +200,11 @@ pub async fn serve_with_link(
         .await;
     stop.store(true, Ordering::Relaxed);
     match reader {
-        Reader::Task(task) => task.abort(),
+        Reader::Task(task) => {
+            // Gone before this returns: the link's socket is closed when `serve` is.
+            task.abort();
+            let _ = task.await;
+        }
         Reader::Thread(thread) => {
             let _ = thread.join();
         }

@@ -213,7 +213,11 @@ impl Link {
             let (socket, destination, answers_last_sender) = match address.split_once(':') {
                 Some(("udpin", at)) => (UdpSocket::bind(at).map_err(open_err)?, None, true),
                 Some((_, to)) => {
-                    let resolved = to.to_socket_addrs().map_err(open_err)?.next();
+                    // IPv4 first: `localhost` may list `::1` first, and a vehicle heard on IPv4
+                    // only would get nothing, silently (an unconnected socket reports no
+                    // refusal).
+                    let addrs: Vec<SocketAddr> = to.to_socket_addrs().map_err(open_err)?.collect();
+                    let resolved = addrs.iter().find(|a| a.is_ipv4()).or(addrs.first()).copied();
                     let to = resolved.ok_or_else(|| {
                         open_err(io::Error::new(
                             io::ErrorKind::NotFound,
@@ -263,8 +267,9 @@ impl Link {
     /// device is lost the error is `NotConnected`, which the loss's own warning has explained.
     /// A `udpin` link that has heard nobody yet has nobody to answer: `NotConnected` too.
     pub fn send(&self, msg: &MavMessage) -> Result<(), MessageWriteError> {
-        // Numbered when it can leave: a frame refused here leaves no gap for the vehicle to
-        // count as lost.
+        // Numbered once it is encoded to leave: a frame refused before (nobody heard yet, a
+        // serial device lost) leaves no gap for the vehicle to count as lost; one the socket
+        // then fails to send (a full send buffer: the socket is non-blocking) does.
         let header =
             || MavHeader { sequence: self.shared.sequence.fetch_add(1, Ordering::Relaxed), ..self.header };
         match &self.shared.transport {
@@ -321,7 +326,8 @@ impl Link {
     }
 
     /// The next message of a UDP link, without blocking: [`TryRecv::Empty`] when no frame
-    /// waits (and always on a serial link, which only [`Link::recv`] reads).
+    /// waits (and always on a serial link, which only [`Link::recv`] reads). It takes the
+    /// reader's lock, which [`Link::recv`] holds through its wait: read a link one way only.
     pub fn try_recv(&self) -> TryRecv {
         match &self.shared.transport {
             Transport::Udp(udp) => self.recv_udp(udp, false),
@@ -344,10 +350,16 @@ impl Link {
             let _ = rustix::event::poll(&mut fds, Some(&timeout));
         }
         let UdpReader { datagram, pending } = &mut *reader;
-        let (n, sender) = match rustix::net::recvfrom(&udp.socket, &mut datagram[..], RecvFlags::empty()) {
+        let received = loop {
+            match rustix::net::recvfrom(&udp.socket, &mut datagram[..], RecvFlags::empty()) {
+                Err(rustix::io::Errno::INTR) => continue,
+                other => break other,
+            }
+        };
+        let (n, sender) = match received {
             Ok((n, _, sender)) => (n, sender),
-            // A timeout, or nothing waiting.
-            Err(rustix::io::Errno::AGAIN | rustix::io::Errno::INTR) => return TryRecv::Empty,
+            // Nothing waiting (after the wait, a timeout).
+            Err(rustix::io::Errno::AGAIN) => return TryRecv::Empty,
             Err(e) => {
                 let errors = {
                     let mut status = lock(&self.shared.status);

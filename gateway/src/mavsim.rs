@@ -110,7 +110,7 @@ impl Mavsim {
             .into_iter()
             .collect::<Result<Vec<_>, _>>()
             .map_err(|e| LinkError::Open { address: config.mavlink.clone(), source: e })?;
-        tracing::info!(mavlink = %config.mavlink, scenario = %config.scenario.name, "mavsim running (PX4's side of MAVLink)");
+        tracing::info!(mavlink = %config.mavlink, scenario = %config.scenario.name, firmware = ?config.autopilot.firmware, "mavsim running (the autopilot's side of MAVLink)");
         Ok(Self { config: config.clone(), clock, autopilot, stop, silent, threads })
     }
 

@@ -58,7 +58,7 @@ struct Inner {
     next_flight_id: u64,
     /// Samples evicted from full subscriber buffers.
     overflow_dropped: u64,
-    /// MAVLink messages that could not be sent.
+    /// MAVLink messages that could not be sent to a vehicle there (`NotConnected` aside).
     send_errors: u64,
 }
 
@@ -84,13 +84,17 @@ impl Shared {
 
     fn send(&self, msg: &MavMessage) {
         if let Err(e) = self.link.send(msg) {
-            let mut inner = self.lock();
-            inner.send_errors += 1;
-            // While a serial device is lost every message fails; the link logged the loss once.
-            let link_down =
+            // No vehicle to send to (a serial device lost, which the link logged once; a udpin
+            // link that has heard nobody yet, whose heartbeat timeout says so): not a failure
+            // of the send, and not counted, so that a real one is logged at once.
+            let no_vehicle =
                 matches!(&e, MessageWriteError::Io(io) if io.kind() == std::io::ErrorKind::NotConnected);
-            if !link_down && inner.send_errors.is_power_of_two() {
-                tracing::warn!(errors = inner.send_errors, "cannot send a MAVLink message: {e}");
+            if !no_vehicle {
+                let mut inner = self.lock();
+                inner.send_errors += 1;
+                if inner.send_errors.is_power_of_two() {
+                    tracing::warn!(errors = inner.send_errors, "cannot send a MAVLink message: {e}");
+                }
             }
         }
     }
@@ -199,11 +203,14 @@ impl GatewayService {
                 (None, Some((name, value))) => Some((Awaited::Param(name), Answer::Param(value))),
                 (None, None) => None,
             };
-            if let Some((awaited, answer)) = answered
-                && let Some(i) = inner.pending.iter().position(|(a, _)| *a == awaited)
-            {
-                let (_, tx) = inner.pending.remove(i);
-                let _ = tx.send(answer);
+            if let Some((awaited, answer)) = answered {
+                // A request whose caller went away (a cancelled call) must not take the answer
+                // from the one waiting now.
+                inner.pending.retain(|(_, tx)| !tx.is_closed());
+                if let Some(i) = inner.pending.iter().position(|(a, _)| *a == awaited) {
+                    let (_, tx) = inner.pending.remove(i);
+                    let _ = tx.send(answer);
+                }
             }
             event.reply
         };
@@ -511,5 +518,56 @@ impl pb::vehicle_control_server::VehicleControl for GatewayService {
         status.link_error = link.down.unwrap_or_default();
         status.link_read_errors = link.read_errors;
         Ok(Response::new(status))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mavbridge::mavlink::MavHeader;
+    use mavbridge::mavlink::dialects::common::{COMMAND_ACK_DATA, PARAM_VALUE_DATA};
+
+    fn service() -> GatewayService {
+        let bridge =
+            Bridge::new(Scenario::paper_2(), mavbridge::BridgeSettings::default(), 0, 1).expect("valid");
+        let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("a loopback UDP port");
+        GatewayService::new(bridge, link, 4, 16)
+    }
+
+    #[test]
+    fn an_answer_goes_to_the_live_request_not_to_one_whose_caller_went_away() {
+        let service = service();
+        let arm = Awaited::Ack(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM);
+        let guid = Awaited::Param(modes::ARDU_GUID_OPTIONS.into());
+        let (cancelled_arm, _) = oneshot::channel();
+        let (cancelled_guid, _) = oneshot::channel();
+        let (live_arm, mut arm_answer) = oneshot::channel();
+        let (live_guid, mut guid_answer) = oneshot::channel();
+        {
+            let mut inner = service.shared.lock();
+            inner.pending.push((arm.clone(), cancelled_arm));
+            inner.pending.push((guid.clone(), cancelled_guid));
+            inner.pending.push((arm, live_arm));
+            inner.pending.push((guid, live_guid));
+        }
+        let header = MavHeader { system_id: 1, component_id: 1, sequence: 0 };
+        service.on_message(
+            &header,
+            &MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
+                command: MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+                result: MavResult::MAV_RESULT_ACCEPTED,
+            }),
+        );
+        service.on_message(
+            &header,
+            &MavMessage::PARAM_VALUE(PARAM_VALUE_DATA {
+                param_value: 8.0,
+                param_id: modes::ARDU_GUID_OPTIONS.into(),
+                ..Default::default()
+            }),
+        );
+        assert!(matches!(arm_answer.try_recv(), Ok(Answer::Ack(MavResult::MAV_RESULT_ACCEPTED))));
+        assert!(matches!(guid_answer.try_recv(), Ok(Answer::Param(v)) if v == 8.0));
+        assert!(service.shared.lock().pending.is_empty(), "the cancelled requests are dropped");
     }
 }
