@@ -31,6 +31,8 @@ pub enum Firmware {
     #[default]
     Px4,
     /// ArduCopter with this `GUID_OPTIONS` (its default is 0: thrust read as a climb rate).
+    /// [`AutopilotSettings::offboard_loss_ns`] plays `GUID_TIMEOUT` (ArduCopter's default is
+    /// 3 s; `mavsim` sets it).
     ArduCopter { guid_options: u32 },
 }
 
@@ -207,11 +209,14 @@ impl SimAutopilot {
         match self.climb_mps {
             Some(climb_mps) => {
                 // Hover, the drag at the target rate (where ArduCopter's vertical speed loop has
-                // integral action, the model's drag is known here) and a proportional term.
+                // integral action, the model's drag is known here) and a proportional term, over
+                // the tilt (ArduCopter's angle boost: a tilted thrust lifts by its cosines).
                 let params = &self.sim.model().params;
-                let thrust = params.gravity_mps2
+                let x = self.sim.state();
+                let vertical = params.gravity_mps2
                     + params.drag_z_per_s * climb_mps
-                    + ARDU_CLIMB_GAIN_PER_S * (climb_mps - self.sim.state()[5]);
+                    + ARDU_CLIMB_GAIN_PER_S * (climb_mps - x[5]);
+                let thrust = vertical / (x[6].cos() * x[7].cos()).max(0.5);
                 mav::Input::new(thrust.max(0.0), input[1], input[2])
             }
             None => input,
@@ -296,9 +301,14 @@ impl SimAutopilot {
                     // ArduCopter enters GUIDED_NOGPS without a setpoint stream, level until one comes.
                     Some(ModeRequest::ArduGuidedNoGps) => {
                         self.mode = SimMode::Offboard;
-                        match (self.streaming(now_ns), self.setpoint) {
-                            (true, Some(input)) => self.fly_setpoint(input),
-                            _ => self.hover(),
+                        if !(self.streaming(now_ns) && self.setpoint.is_some()) {
+                            // Level, holding its height, as after a stream that stopped.
+                            self.levelled = true;
+                            self.climb_mps = Some(0.0);
+                            self.setpoint = Some(self.sim.model().params.hover_input());
+                        }
+                        if let Some(input) = self.setpoint {
+                            self.fly_setpoint(input);
                         }
                         MavResult::MAV_RESULT_ACCEPTED
                     }
@@ -350,14 +360,17 @@ impl SimAutopilot {
                     self.counters.offboard_failsafes += 1;
                     self.hover();
                 }
+                // ArduCopter levels and holds its height (climb rate 0, whatever GUID_OPTIONS).
                 Firmware::ArduCopter { .. } if !self.levelled => {
                     self.levelled = true;
                     self.counters.offboard_failsafes += 1;
-                    self.hover();
+                    self.climb_mps = Some(0.0);
+                    self.setpoint = Some(self.sim.model().params.hover_input());
                 }
                 Firmware::ArduCopter { .. } => {}
             }
-        } else if self.mode == SimMode::Offboard
+        }
+        if self.mode == SimMode::Offboard
             && self.climb_mps.is_some()
             && let Some(input) = self.setpoint
         {

@@ -481,7 +481,7 @@ fn fly_for(p: &mut Pair, input: Input, ms: u64) {
 }
 
 #[test]
-fn arducopter_enters_guided_nogps_without_a_stream_and_levels_in_it_when_the_setpoints_stop() {
+fn arducopter_enters_guided_nogps_without_a_stream_and_levels_holding_its_height_when_the_setpoints_stop() {
     let scenario = Scenario::paper_2();
     let firmware = Firmware::ArduCopter { guid_options: 8 };
     let mut vehicle =
@@ -501,7 +501,8 @@ fn arducopter_enters_guided_nogps_without_a_stream_and_levels_in_it_when_the_set
         matches!(&out[..], [MavMessage::COMMAND_ACK(a)] if a.result == MavResult::MAV_RESULT_UNSUPPORTED)
     );
 
-    // Setpoints stream, then stop: the vehicle levels once and stays in GUIDED_NOGPS.
+    // Setpoints climb (T = 1.5 g, tilted), then stop: the vehicle levels once, stays in
+    // GUIDED_NOGPS and stops climbing (climb rate 0), where plain hover thrust would coast up.
     let mut p = Pair::new(&scenario);
     p.vehicle =
         SimAutopilot::new(&scenario, AutopilotSettings { firmware, ..Default::default() }).expect("valid");
@@ -510,10 +511,14 @@ fn arducopter_enters_guided_nogps_without_a_stream_and_levels_in_it_when_the_set
     p.command(p.bridge.mode_message(ModeRequest::ArduGuidedNoGps));
     p.run(200);
     assert_eq!(p.bridge.status(p.now_ns).mode, "GUIDED_NOGPS");
+    fly_for(&mut p, Input::new(1.5 * scenario.model.gravity_mps2, 0.2, 0.0), 600);
+    assert!(p.vehicle.sim().state()[5] > 1.5, "climbing: {:?}", p.vehicle.sim().state());
     p.silent_vehicle = true;
-    p.run(2_000);
+    p.run(2_500);
     assert_eq!(p.vehicle.mode(), SimMode::Offboard, "ArduCopter stays in GUIDED_NOGPS");
     assert_eq!(p.vehicle.counters().offboard_failsafes, 1, "levelled once");
+    let x = p.vehicle.sim().state();
+    assert!(x[5].abs() < 0.1 && x[6].abs() < 0.05, "level, not climbing: {x:?}");
 }
 
 #[test]
