@@ -41,7 +41,7 @@ struct Args {
     /// climb rate (0.5 holds the height), as with ArduCopter's default, 0 [default: 0].
     #[arg(long, value_name = "N")]
     guid_options: Option<u32>,
-    /// Reboot once, this long after start, s: the boot clock restarts at 0, disarmed in POSCTL
+    /// Reboot once, this long after start, s: the boot clock restarts at 0, disarmed in POSCTL (LOITER)
     /// (to try the gateway's reboot handling; see also --reboot-silence-s).
     #[arg(long, value_name = "S")]
     reboot_after_s: Option<f64>,
