@@ -60,6 +60,9 @@ struct Inner {
     overflow_dropped: u64,
     /// MAVLink messages that could not be sent to a vehicle there (`NotConnected` aside).
     send_errors: u64,
+    /// Commands arrive while the vehicle does not fly them (armed, in its external mode), and
+    /// that was logged.
+    warned_not_flown: bool,
 }
 
 pub(crate) struct Shared {
@@ -154,6 +157,7 @@ impl GatewayService {
                     next_flight_id: first_flight_id,
                     overflow_dropped: 0,
                     send_errors: 0,
+                    warned_not_flown: false,
                 }),
                 origin: Instant::now(),
                 link,
@@ -418,6 +422,19 @@ impl pb::plant_server::Plant for GatewayService {
         let (applied, msg) = {
             let mut inner = self.shared.lock();
             self.serving(&inner, now)?;
+            // Said once per spell: a controller flying a vehicle that ignores it would otherwise
+            // only see the states not follow.
+            let flies = inner.bridge.flies_setpoints();
+            if !flies && !inner.warned_not_flown {
+                let status = inner.bridge.status(now);
+                tracing::warn!(
+                    mode = %status.mode,
+                    armed = status.armed,
+                    "commands arrive but the vehicle does not fly them: arm it and set OFFBOARD (PX4) or \
+                     GUIDED_NOGPS (ArduCopter), e.g. `vehiclectl arm-offboard`"
+                );
+            }
+            inner.warned_not_flown = !flies;
             inner.bridge.apply(command.input, command.meta, now)
         };
         if let Some(msg) = msg {

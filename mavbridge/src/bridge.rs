@@ -707,6 +707,17 @@ impl Bridge {
         self.heard.as_ref().map(|h| h.autopilot)
     }
 
+    /// Whether the vehicle flies the setpoints, by its last heartbeat: armed, in PX4's OFFBOARD
+    /// or ArduCopter's GUIDED_NOGPS. Otherwise they are sent, and the vehicle ignores them.
+    pub fn flies_setpoints(&self) -> bool {
+        self.heard.as_ref().is_some_and(|h| {
+            h.armed
+                && [ModeRequest::Px4Offboard, ModeRequest::ArduGuidedNoGps]
+                    .into_iter()
+                    .any(|m| modes::is_mode(m, h.autopilot, h.custom_mode))
+        })
+    }
+
     /// `COMMAND_LONG` asking for `mode`.
     pub fn mode_message(&self, mode: ModeRequest) -> MavMessage {
         let (p1, p2, p3) = mode.params();

@@ -147,10 +147,13 @@ fn offboard_needs_the_setpoint_stream_and_the_gateway_never_arms_or_switches_on_
         p.command(p.bridge.arm_message(true)),
         (MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, MavResult::MAV_RESULT_ACCEPTED)
     );
+    p.run(1_100);
+    assert!(!p.bridge.flies_setpoints(), "armed in POSCTL: the setpoints are not flown");
     assert_eq!(p.command(ask), (MavCmd::MAV_CMD_DO_SET_MODE, MavResult::MAV_RESULT_ACCEPTED));
     p.run(1_100);
     let status = p.bridge.status(p.now_ns);
     assert!(status.armed && status.mode == "OFFBOARD", "{status:?}");
+    assert!(p.bridge.flies_setpoints());
     assert_eq!(status.battery_voltage_v, Some(16.0));
     // The yaw held is the vehicle's at arming.
     assert!((p.bridge.yaw_hold_rad() - 0.7).abs() < 1e-6);
