@@ -4,9 +4,10 @@
 //!
 //! The decisions are [`mavbridge`]'s (frames, thrust, setpoints, the command timeout, resets);
 //! this crate is the shell: the runtime reads a UDP link as its datagrams arrive (a thread reads
-//! a serial one) and feeds the core, a thread sends what the core schedules (setpoints at 50 Hz, heartbeats, `TIMESYNC`), the gRPC services
-//! decode, call the core, send and encode, and health follows the vehicle's heartbeat (and
-//! goes NOT_SERVING from a reboot of the vehicle until the next `Reset`).
+//! a serial one) and feeds the core, a thread sends what the core schedules (setpoints at 50 Hz,
+//! heartbeats, `TIMESYNC`), the gRPC services decode, call the core, send and encode, and health
+//! follows the vehicle's heartbeat (and goes NOT_SERVING from a reboot of the vehicle until the
+//! next `Reset`).
 
 pub mod link;
 pub mod mavsim;

@@ -345,7 +345,7 @@ impl Link {
         }
         if wait {
             let mut fds = [PollFd::new(&udp.socket, PollFlags::IN)];
-            let timeout = Timespec { tv_sec: 0, tv_nsec: RECV_TIMEOUT.as_nanos() as _ };
+            let timeout = Timespec::try_from(RECV_TIMEOUT).expect("a short timeout");
             // A timeout or an interruption leaves the socket empty: the read says so.
             let _ = rustix::event::poll(&mut fds, Some(&timeout));
         }

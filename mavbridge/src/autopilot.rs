@@ -223,6 +223,14 @@ impl SimAutopilot {
         }
     }
 
+    /// ArduCopter in GUIDED_NOGPS without setpoints: level, climb rate 0 (whatever
+    /// `GUID_OPTIONS`), until the next setpoint.
+    fn level_and_hold_height(&mut self) {
+        self.levelled = true;
+        self.climb_mps = Some(0.0);
+        self.setpoint = Some(self.sim.model().params.hover_input());
+    }
+
     fn fly_setpoint(&mut self, input: mav::Input) {
         self.fly(self.flown(input));
     }
@@ -302,10 +310,7 @@ impl SimAutopilot {
                     Some(ModeRequest::ArduGuidedNoGps) => {
                         self.mode = SimMode::Offboard;
                         if !(self.streaming(now_ns) && self.setpoint.is_some()) {
-                            // Level, holding its height, as after a stream that stopped.
-                            self.levelled = true;
-                            self.climb_mps = Some(0.0);
-                            self.setpoint = Some(self.sim.model().params.hover_input());
+                            self.level_and_hold_height();
                         }
                         if let Some(input) = self.setpoint {
                             self.fly_setpoint(input);
@@ -362,10 +367,8 @@ impl SimAutopilot {
                 }
                 // ArduCopter levels and holds its height (climb rate 0, whatever GUID_OPTIONS).
                 Firmware::ArduCopter { .. } if !self.levelled => {
-                    self.levelled = true;
                     self.counters.offboard_failsafes += 1;
-                    self.climb_mps = Some(0.0);
-                    self.setpoint = Some(self.sim.model().params.hover_input());
+                    self.level_and_hold_height();
                 }
                 Firmware::ArduCopter { .. } => {}
             }

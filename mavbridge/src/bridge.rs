@@ -470,8 +470,9 @@ impl Bridge {
     /// ([`shows_reboot`]), `silence_ns` apart. What was measured on its old clock is forgotten
     /// (the clock offset, the last state and its stamps, the plant-time epoch, the last
     /// command's stamps), as is its armed state (a rebooted autopilot is disarmed; the next
-    /// heartbeat says so, and an arming after it takes the yaw to hold again). The setpoint goes back to level hover, and no sample is
-    /// made until the next [`Bridge::reset`]. Nothing is sent to the vehicle.
+    /// heartbeat says so, and an arming after it takes the yaw to hold again). The setpoint goes
+    /// back to level hover, and no sample is made until the next [`Bridge::reset`]. Nothing is
+    /// sent to the vehicle.
     fn on_reboot(&mut self, before_ms: u32, after_ms: u32, silence_ns: u64, now_ns: u64) -> Reboot {
         let reboot = Reboot { before_ms, after_ms, silence_ns };
         self.counters.reboots += 1;
