@@ -21,7 +21,7 @@ use hilbench_proto::convert::plant::Command;
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
 use mav::{PlantSample, Scenario, ScenarioError};
-use mpc::{ControllerMode, CycleOutput, CycleTiming, Episode, EpisodeSettings, Finish};
+use mpc::{ControllerMode, CycleOutput, CycleTiming, Episode, EpisodeSettings, RunEnd};
 use tokio::sync::{Notify, broadcast, watch};
 use tonic::transport::Channel;
 
@@ -48,8 +48,8 @@ pub struct Status {
     pub episode_finished: bool,
     /// Episodes ended.
     pub episodes_finished: u64,
-    /// Why the last episode ended (`reached`, `time_limit`); empty while one runs.
-    pub finish_reason: String,
+    /// Why the last episode ended; `None` while one runs.
+    pub finish_reason: Option<RunEnd>,
     /// Outages of the plant link during the current episode: failed calls, or in real time no
     /// completed cycle for longer than the stall timeout (one per outage).
     pub link_losses: u64,
@@ -412,7 +412,7 @@ pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch:
                     st.last_error = e.to_string();
                     st.episode_finished = true;
                     st.episodes_finished += 1;
-                    st.finish_reason = FINISH_ERROR.to_string();
+                    st.finish_reason = Some(RunEnd::Error);
                 });
                 active = false;
                 current.flight = None;
@@ -519,7 +519,7 @@ async fn fly(
             st.reached = false;
             st.episode = number;
             st.episode_finished = false;
-            st.finish_reason.clear();
+            st.finish_reason = None;
             (st.link_losses, st.link_down_s, st.longest_link_down_s) = (0, 0.0, 0.0);
             (st.plant_resets, st.plant_reset_time_s) = (0, 0.0);
             st.sampling_times_s = episode.controller().definition().sampling_times_s.clone();
@@ -567,7 +567,7 @@ async fn fly(
         hilbench_svc::inject_panic("controller-cycle");
         flight.episode.check_flight(&sample).map_err(episode_error)?;
         match flight.episode.finish(&sample) {
-            Some(Finish::Reached) => {
+            Some(end @ RunEnd::Reached { .. }) => {
                 shared.update(|st| st.reached = true);
                 if lockstep {
                     tracing::info!(
@@ -575,22 +575,18 @@ async fn fly(
                         cycles = flight.episode.cycles(),
                         "goal reached"
                     );
-                    finish(shared, Finish::Reached);
+                    finish(shared, end);
                     return Ok(Outcome::Finished);
                 }
             }
-            Some(Finish::Collided) if lockstep => {
-                tracing::warn!(
+            Some(end @ (RunEnd::Collided | RunEnd::TimeLimit)) if lockstep => {
+                tracing::info!(
                     t_s = mav::ns_to_s(sample.time_ns),
                     cycles = flight.episode.cycles(),
-                    "the vehicle collided; the episode ends"
+                    end = end.name(),
+                    "the episode ends"
                 );
-                finish(shared, Finish::Collided);
-                return Ok(Outcome::Finished);
-            }
-            Some(Finish::TimeLimit) if lockstep => {
-                tracing::info!(cycles = flight.episode.cycles(), "time limit reached");
-                finish(shared, Finish::TimeLimit);
+                finish(shared, end);
                 return Ok(Outcome::Finished);
             }
             _ => {}
@@ -631,14 +627,11 @@ async fn fly(
 }
 
 /// Marks the current episode as ended (the loop idles until the next request).
-/// `ControllerStatus.finish_reason` of an episode ended by an error (`last_error` says which).
-pub const FINISH_ERROR: &str = "error";
-
-fn finish(shared: &Shared, reason: Finish) {
+fn finish(shared: &Shared, end: RunEnd) {
     shared.update(|st| {
         st.episode_finished = true;
         st.episodes_finished += 1;
-        st.finish_reason = reason.name().to_string();
+        st.finish_reason = Some(end);
     });
 }
 

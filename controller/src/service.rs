@@ -54,7 +54,7 @@ impl Controller for ControllerService {
             episode: s.episode,
             episode_finished: s.episode_finished,
             episodes_finished: s.episodes_finished,
-            finish_reason: s.finish_reason,
+            finish_reason: hilbench_proto::convert::controller::finish_reason_to_pb(s.finish_reason) as i32,
             link_losses: s.link_losses,
             link_down_s: s.link_down_s,
             longest_link_down_s: s.longest_link_down_s,

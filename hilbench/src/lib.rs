@@ -1,20 +1,23 @@
-//! The hilbench CLI's library: paper-mode runs over real gRPC ([`grpc`]), runs of scenarios
-//! and their `summary.json` ([`bench`]), scenario files ([`scenario_file`]), an external
-//! controller under test ([`external`]), per-cycle CSV logs ([`cycle_log`]), MCAP files and the
-//! live Foxglove view ([`foxglove_out`]), sweeps ([`sweep`]), the paper's
-//! tables beside the measured values ([`report`]), plots ([`plots`]), progress bars ([`progress`])
-//! and `report.md` ([`report_md`]); certificates for mutual TLS ([`certs`]).
+//! The hilbench CLI's library, by purpose (ARCHITECTURE.md has the map and its invariants):
+//!
+//! - [`cli`]: the command line's types, validated by clap; [`commands`]: one module per
+//!   command, each returning how the process ends.
+//! - [`run`]: what a run is ([`run::Job`]) and what is known once it flew
+//!   ([`run::FinishedRun`]: summary, rows, timing, faults, delays); plain data.
+//! - [`drive`]: how a run is flown (in process, over the gRPC services, an external
+//!   controller); [`fly`]: flying a list of jobs with one driver.
+//! - [`output`]: everything written from runs (summary.json, CSV, MCAP, report.md, plots,
+//!   the terminal's tables).
+//! - [`sweep`]: many runs under drawn delay processes, their statistics, shrinking, shards.
+//! - [`panics`], [`progress`]: a panic ends its run; progress bars and lines.
 
-pub mod bench;
-pub mod certs;
-pub mod cycle_log;
-pub mod external;
-pub mod foxglove_out;
-pub mod grpc;
+pub mod cli;
+pub mod commands;
+pub mod drive;
+pub mod fly;
+pub mod output;
 pub mod panics;
-pub mod plots;
 pub mod progress;
-pub mod report;
-pub mod report_md;
+pub mod run;
 pub mod sweep;
 pub use hilbench_svc::scenario_file;

@@ -451,6 +451,12 @@ impl Scenario {
     }
 
     /// The end condition of `docs/spec.md`: close to the goal and nearly at rest.
+    /// `max_duration_s` in plant-time nanoseconds (validated scenarios hold at most a day, so
+    /// this never saturates; an unvalidated one past `u64::MAX` ns gives `u64::MAX`).
+    pub fn max_duration_ns(&self) -> u64 {
+        crate::s_to_ns(self.max_duration_s).unwrap_or(u64::MAX)
+    }
+
     pub fn goal_reached(&self, x: &State) -> bool {
         let dp = ((x[0] - self.goal_m[0]).powi(2)
             + (x[1] - self.goal_m[1]).powi(2)

@@ -5,7 +5,7 @@
 
 use mav::{Input, PlantSim, Scenario, SimSettings};
 
-use crate::episode::{CycleTiming, Episode, EpisodeSettings, Finish};
+use crate::episode::{CycleTiming, Episode, EpisodeSettings};
 use crate::error::MpcError;
 use crate::problem::ControllerMode;
 use crate::record::{CycleRecord, RunSummary, summarize};
@@ -153,21 +153,10 @@ pub fn run_closed_loop(
         .map_err(|e| MpcError::InvalidProblem(e.to_string()))?;
     let min_cycle_ns = episode.min_cycle_ns();
     let mut traces = Vec::new();
-    let mut time_to_goal_ns = None;
-    let mut end = None;
-    loop {
+    let end = loop {
         let sample = sim.sample();
-        match episode.finish(&sample) {
-            Some(Finish::Reached) => {
-                time_to_goal_ns = Some(sample.time_ns);
-                break;
-            }
-            Some(Finish::TimeLimit) => break,
-            Some(Finish::Collided) => {
-                end = Some(Finish::Collided);
-                break;
-            }
-            None => {}
+        if let Some(end) = episode.finish(&sample) {
+            break end;
         }
         let mut out = episode.on_sample(&sample, &CycleTiming::Lockstep)?;
         if settings.record_predictions {
@@ -202,11 +191,8 @@ pub fn run_closed_loop(
             fault: out.outcome.fault,
             plan: episode.controller().plan().to_vec(),
         });
-    }
+    };
     let records: Vec<CycleRecord> = traces.iter().map(|t| t.record.clone()).collect();
-    let mut summary = summarize(&scenario.name, settings.mode, &records, &sim.peek(), time_to_goal_ns);
-    if let Some(end) = end {
-        summary.end_reason = end.name().to_string();
-    }
+    let summary = summarize(&scenario.name, settings.mode, &records, &sim.peek(), end);
     Ok((summary, traces))
 }

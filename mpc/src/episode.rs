@@ -82,38 +82,73 @@ pub enum CycleTiming {
     RealTime { deadline: std::time::Duration },
 }
 
-/// Why an episode is over.
+/// How a run ended: the one vocabulary of every driver (the in-process loop, the controller
+/// service, `hilbench` over gRPC and with an external controller), decided once per sample by
+/// [`finish_at`] and, for a run that failed, by the driver ([`RunEnd::Error`]). Its names are
+/// `summary.json`'s `end_reason` and, through `proto`, the controller's `finish_reason`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Finish {
-    /// The sample is at the goal.
-    Reached,
+pub enum RunEnd {
+    /// The sample at plant time `time_ns` is at the goal.
+    Reached { time_ns: u64 },
     /// The sample is at or past the scenario's `max_duration_s` of plant time.
     TimeLimit,
     /// The vehicle has collided (a cylinder or the ground), and the scenario does not ask to
     /// go on (`continue_after_collision`).
     Collided,
+    /// The run failed part-way (a service died, a trace ran out, ...): the driver's error says
+    /// why.
+    Error,
 }
 
-impl Finish {
+impl RunEnd {
+    /// Every name, in the order of the variants.
+    pub const NAMES: [&'static str; 4] = ["reached", "time_limit", "collided", "error"];
+
     pub fn name(self) -> &'static str {
         match self {
-            Finish::Reached => "reached",
-            Finish::TimeLimit => "time_limit",
-            Finish::Collided => "collided",
+            RunEnd::Reached { .. } => "reached",
+            RunEnd::TimeLimit => "time_limit",
+            RunEnd::Collided => "collided",
+            RunEnd::Error => "error",
         }
+    }
+
+    /// The plant time of the goal, when reached.
+    pub fn time_to_goal_ns(self) -> Option<u64> {
+        match self {
+            RunEnd::Reached { time_ns } => Some(time_ns),
+            _ => None,
+        }
+    }
+
+    pub fn reached(self) -> bool {
+        matches!(self, RunEnd::Reached { .. })
+    }
+}
+
+impl std::fmt::Display for RunEnd {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl serde::Serialize for RunEnd {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.name())
     }
 }
 
 /// Whether `sample` ends a flight of `scenario` ([`Episode::finish`]; also how `hilbench`
-/// judges an external controller from the plant's samples): after a collision (unless the
-/// scenario asks to go on), at the goal, or at `max_ns` (the scenario's `max_duration_s`).
-pub fn finish_at(scenario: &Scenario, max_ns: u64, sample: &PlantSample) -> Option<Finish> {
+/// judges an external controller from the plant's samples and ends a real-time run from the
+/// telemetry): after a collision (unless the scenario asks to go on), at the goal, or at
+/// the scenario's `max_duration_s`. The same rule in lockstep and in real time.
+pub fn finish_at(scenario: &Scenario, sample: &PlantSample) -> Option<RunEnd> {
     if sample.collided && !scenario.continue_after_collision {
-        Some(Finish::Collided)
+        Some(RunEnd::Collided)
     } else if scenario.goal_reached(&sample.state) {
-        Some(Finish::Reached)
-    } else if sample.time_ns >= max_ns {
-        Some(Finish::TimeLimit)
+        Some(RunEnd::Reached { time_ns: sample.time_ns })
+    } else if sample.time_ns >= scenario.max_duration_ns() {
+        Some(RunEnd::TimeLimit)
     } else {
         None
     }
@@ -159,7 +194,6 @@ pub struct Episode {
     in_flight: Vec<InFlight>,
     hover: [f64; 3],
     min_cycle_ns: u64,
-    max_ns: u64,
     /// The plant's flight id of the episode's first sample, and the plant time of the last
     /// sample of that flight (`None` before the first sample).
     flight: Option<(u64, u64)>,
@@ -178,7 +212,6 @@ impl Episode {
         );
         let hover = scenario.model.hover_input();
         let min_cycle_ns = s_to_ns(scenario.min_cycle_s).unwrap_or(50_000_000).max(1);
-        let max_ns = s_to_ns(scenario.max_duration_s).unwrap_or(u64::MAX);
         Ok(Self {
             hover: [hover[0], hover[1], hover[2]],
             scenario,
@@ -192,7 +225,6 @@ impl Episode {
             sent: VecDeque::with_capacity(MAX_IN_FLIGHT),
             in_flight: Vec::with_capacity(MAX_IN_FLIGHT),
             min_cycle_ns,
-            max_ns,
             flight: None,
         })
     }
@@ -245,8 +277,8 @@ impl Episode {
     /// at the goal, or at the time limit. A driver in
     /// lockstep stops there; one in real time keeps holding the goal (a vehicle must not be left
     /// uncontrolled) and only reports it.
-    pub fn finish(&self, sample: &PlantSample) -> Option<Finish> {
-        finish_at(&self.scenario, self.max_ns, sample)
+    pub fn finish(&self, sample: &PlantSample) -> Option<RunEnd> {
+        finish_at(&self.scenario, sample)
     }
 
     /// A new goal from the next cycle on. Refused, with nothing changed, when it cannot be the

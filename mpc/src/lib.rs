@@ -39,12 +39,12 @@ pub use cycle::{CycleController, CycleOutcome};
 #[cfg(feature = "fault-injection")]
 pub use cycle::{FaultInjection, PanocFault};
 pub use delays::{DelayWindow, GammaParams, ScenarioWeights, WeightSettings, WeightSource};
-pub use episode::{CycleOutput, CycleTiming, Episode, EpisodeSettings, Finish};
+pub use episode::{CycleOutput, CycleTiming, Episode, EpisodeSettings, RunEnd};
 pub use error::MpcError;
 pub use fail_safe::{BrakingCheck, Envelope, FailSafe, InFlight};
 pub use problem::{ControllerMode, Evaluator, ObstacleFormulation, OcpDefinition, PassCounts};
 pub use qp::{QpBudget, QpFallback, QpReport, QpSettings, QpStatus};
-pub use record::{CycleRecord, PredictedPath, RunSummary, SolveStats, summarize};
+pub use record::{CycleRecord, PredictedPath, RunOutcome, RunSummary, SolveStats, summarize};
 pub use safety::{Decision, QpSchedule, Rejection, SafetyLayer, SafetySettings, Selection};
 pub use solver::{
     InactiveSetTolerances, Mpc, MpcSettings, PanocSolver, SolveBudget, SolveReport, SolveStatus,

@@ -11,6 +11,7 @@ use std::collections::BTreeMap;
 use mav::{CollisionKind, PlantSample, ns_to_s};
 
 use crate::cycle::CycleOutcome;
+use crate::episode::RunEnd;
 use crate::problem::ControllerMode;
 use crate::safety::Decision;
 use crate::solver::{SolveReport, SolveStatus};
@@ -155,9 +156,9 @@ pub struct RunSummary {
     pub controller: String,
     pub reached: bool,
     pub collided: bool,
-    /// Why the run ended: `reached`, `time_limit`, or `collided` (at the first collision,
-    /// unless the scenario's `continue_after_collision`).
-    pub end_reason: String,
+    /// Why the run ended (`summary.json`'s `end_reason`): decided once, by
+    /// [`crate::episode::finish_at`] or the driver's error.
+    pub end_reason: RunEnd,
     pub time_to_goal_s: Option<f64>,
     pub end_time_s: f64,
     pub path_length_m: f64,
@@ -165,6 +166,10 @@ pub struct RunSummary {
     pub min_clearance_m: f64,
     pub cycles: u64,
     pub solve_ms_mean: f64,
+    /// The solve times summed over the records, s (0 without records, as for an external
+    /// controller, whose solver the bench cannot see): the one definition of a run's solver
+    /// time.
+    pub solver_s: f64,
     pub solve_ms_median: f64,
     pub solve_ms_p95: f64,
     pub solve_ms_max: f64,
@@ -193,6 +198,43 @@ pub struct RunSummary {
     pub final_state: [f64; 8],
     /// Every entry into a cylinder or the ground.
     pub collisions: Vec<CollisionSummary>,
+}
+
+/// What a run amounts to when runs are counted (a sweep's `outcome`): a collision first,
+/// whatever ended the run, then the goal; anything else missed it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RunOutcome {
+    Collided,
+    Reached,
+    Missed,
+}
+
+impl RunOutcome {
+    pub fn name(self) -> &'static str {
+        match self {
+            RunOutcome::Collided => "collided",
+            RunOutcome::Reached => "reached",
+            RunOutcome::Missed => "missed",
+        }
+    }
+}
+
+impl RunSummary {
+    /// Every collision of the run, described (kind, depth, time, place), `; `-separated.
+    pub fn collisions_text(&self) -> String {
+        self.collisions.iter().map(|c| c.describe()).collect::<Vec<_>>().join("; ")
+    }
+
+    /// The run counted (see [`RunOutcome`]).
+    pub fn outcome(&self) -> RunOutcome {
+        if self.collided {
+            RunOutcome::Collided
+        } else if self.reached {
+            RunOutcome::Reached
+        } else {
+            RunOutcome::Missed
+        }
+    }
 }
 
 /// Statistics of the cross-check's cost gap.
@@ -329,17 +371,16 @@ pub fn explain(records: &[CycleRecord], last: &PlantSample, reached: bool) -> Ve
 }
 
 /// The run's numbers: the trajectory's from the plant's last sample (`last`), the solver's from
-/// the records; `time_to_goal_ns` is the plant time at which the goal was reached (`None`: not
-/// reached).
+/// the records; `end` is how the run ended (from [`crate::episode::finish_at`], or
+/// [`RunEnd::Error`] for a run that failed).
 pub fn summarize(
     scenario: &str,
     mode: ControllerMode,
     records: &[CycleRecord],
     last: &PlantSample,
-    time_to_goal_ns: Option<u64>,
+    end: RunEnd,
 ) -> RunSummary {
-    // The driver knows when the run ended at a collision and says so (see `Finish`).
-    let end_reason = if time_to_goal_ns.is_some() { "reached" } else { "time_limit" };
+    let time_to_goal_ns = end.time_to_goal_ns();
     let mut solve_ms: Vec<f64> = records.iter().map(|r| r.solve.solve_ms).collect();
     let mut iterations: Vec<f64> = records.iter().map(|r| r.solve.iterations as f64).collect();
     let mean =
@@ -349,7 +390,7 @@ pub fn summarize(
         scenario: scenario.to_string(),
         controller: mode.name().to_string(),
         reached: time_to_goal_ns.is_some(),
-        end_reason: end_reason.to_string(),
+        end_reason: end,
         collided: last.collided,
         time_to_goal_s: time_to_goal_ns.map(ns_to_s),
         end_time_s: ns_to_s(last.time_ns),
@@ -357,6 +398,7 @@ pub fn summarize(
         min_clearance_m: last.min_clearance_m,
         cycles: records.len() as u64,
         solve_ms_mean: mean,
+        solver_s: solve_ms.iter().sum::<f64>() * 1e-3,
         solve_ms_median: percentile(&mut solve_ms, 50.0),
         solve_ms_p95: percentile(&mut solve_ms, 95.0),
         solve_ms_max: percentile(&mut solve_ms, 100.0),

@@ -2,7 +2,7 @@
 //! measured from the samples' stamps alone.
 
 use mav::{CommandMeta, Input, PlantSim, Scenario, SimSettings};
-use mpc::{ControllerMode, CycleTiming, Episode, EpisodeSettings, Finish, MpcSettings};
+use mpc::{ControllerMode, CycleTiming, Episode, EpisodeSettings, MpcSettings, RunEnd};
 
 fn settings(mode: ControllerMode, delays_expected: bool) -> EpisodeSettings {
     EpisodeSettings { delays_expected, ..EpisodeSettings::new(mode, MpcSettings::default()) }
@@ -76,11 +76,11 @@ fn an_episode_finishes_at_the_goal_or_at_the_time_limit_and_not_before() {
     let mut sim = PlantSim::new(&scenario, SimSettings::default()).expect("valid");
     assert_eq!(episode.finish(&sim.sample()), None);
     sim.advance(1_000_000_000, |_| {});
-    assert_eq!(episode.finish(&sim.sample()), Some(Finish::TimeLimit));
+    assert_eq!(episode.finish(&sim.sample()), Some(RunEnd::TimeLimit));
     let mut at_goal = scenario.clone();
     at_goal.start[..3].copy_from_slice(&scenario.goal_m);
     let mut sim = PlantSim::new(&at_goal, SimSettings::default()).expect("valid");
-    assert_eq!(episode.finish(&sim.sample()), Some(Finish::Reached));
+    assert!(episode.finish(&sim.sample()).is_some_and(RunEnd::reached));
 }
 
 #[test]

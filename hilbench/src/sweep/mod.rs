@@ -1,6 +1,6 @@
 //! `hilbench sweep FILE`: N closed-loop runs of a scenario file, each under a delay process
 //! drawn from the file's `[sweep]` table ([`draw`]), flown in lockstep the way `hilbench run`
-//! flies a run ([`fly`] is `bench::run_all` with one job, so whatever transport `run` gains, a
+//! flies a run ([`fly`] is `fly::fly_all` with one job, so whatever driver `run` gains, a
 //! sweep gains), on worker threads; outcomes as distributions ([`stats`]), failures written as
 //! replayable traces and optionally shrunk ([`shrink`]), sharded and merged ([`stats::merge`]).
 //!
@@ -10,6 +10,7 @@
 
 pub mod draw;
 pub mod output;
+pub mod plots;
 pub mod shrink;
 pub mod stats;
 
@@ -23,8 +24,9 @@ use hilbench_svc::sweep_table::SweepSection;
 use mav::Scenario;
 use mpc::{ControllerMode, RunSummary};
 
-use crate::bench::{Transport, run_all};
-use crate::cycle_log::CycleRow;
+use crate::drive::Driver;
+use crate::fly::fly_all;
+use crate::run::{CycleRow, Job};
 use draw::RunPlan;
 use stats::RunRow;
 
@@ -46,7 +48,7 @@ pub struct Sweep {
     /// `(i, k)`: the i-th of k slices of the runs.
     pub shard: Option<(u64, u64)>,
     pub jobs: usize,
-    pub transport: Transport,
+    pub driver: Driver,
     pub run_timeout: Duration,
     pub shrink: bool,
     pub shrink_runs: u64,
@@ -79,7 +81,7 @@ pub struct Flown {
 
 /// What became of one run.
 #[derive(Debug, Clone)]
-pub enum Flight {
+pub enum RunFate {
     Flown(Box<Flown>),
     /// The run stopped with an error (a trace that ran out, a service that failed, ...).
     Failed(String),
@@ -89,34 +91,34 @@ pub enum Flight {
     Interrupted,
 }
 
-/// Flies `scenario` with `mode` as `hilbench run` does (`bench::run_all` with one job), on a
+/// Flies `scenario` with `mode` as `hilbench run` does (`fly::fly_all` with one job), on a
 /// thread of its own so that a run that hangs past `timeout` is given up (and counted) while
 /// the sweep goes on.
-pub fn fly(scenario: &Scenario, mode: ControllerMode, transport: &Transport, timeout: Duration) -> Flight {
+pub fn fly(scenario: &Scenario, mode: ControllerMode, driver: &Driver, timeout: Duration) -> RunFate {
     let (tx, rx) = mpsc::channel();
-    let (scenario, transport) = (scenario.clone(), transport.clone());
+    let (job, driver) = (Job { scenario: scenario.clone(), mode }, driver.clone());
     let spawned = std::thread::Builder::new().name("hilbench-sweep-run".into()).spawn(move || {
-        let _ = tx.send(run_all(&[(scenario, mode)], &transport, false));
+        let _ = tx.send(fly_all(&[job], &driver, false));
     });
     if let Err(e) = spawned {
-        return Flight::Failed(format!("cannot start the run's thread: {e}"));
+        return RunFate::Failed(format!("cannot start the run's thread: {e}"));
     }
     match rx.recv_timeout(timeout) {
-        Ok(Ok(mut outcome)) => {
-            if outcome.interrupted {
-                return Flight::Interrupted;
+        Ok(Ok(mut batch)) => {
+            if batch.interrupted {
+                return RunFate::Interrupted;
             }
-            if let Some(e) = outcome.error {
-                return Flight::Failed(e);
+            if let Some(e) = batch.error {
+                return RunFate::Failed(e);
             }
-            match (outcome.runs.pop(), outcome.cycles.pop()) {
-                (Some(summary), Some(rows)) => Flight::Flown(Box::new(Flown { summary, rows })),
-                _ => Flight::Failed("the run ended without a summary".into()),
+            match batch.runs.pop() {
+                Some(run) => RunFate::Flown(Box::new(Flown { summary: run.summary, rows: run.rows })),
+                None => RunFate::Failed("the run ended without a summary".into()),
             }
         }
-        Ok(Err(e)) => Flight::Failed(format!("{e:#}")),
-        Err(mpsc::RecvTimeoutError::Timeout) => Flight::TimedOut(timeout),
-        Err(mpsc::RecvTimeoutError::Disconnected) => Flight::Failed("the run's thread panicked".into()),
+        Ok(Err(e)) => RunFate::Failed(format!("{e:#}")),
+        Err(mpsc::RecvTimeoutError::Timeout) => RunFate::TimedOut(timeout),
+        Err(mpsc::RecvTimeoutError::Disconnected) => RunFate::Failed("the run's thread panicked".into()),
     }
 }
 
@@ -218,29 +220,29 @@ fn one(sweep: &Sweep, index: u64, mode: ControllerMode) -> Option<Done> {
         }
     };
     let scenario = plan.scenario(&sweep.scenario);
-    let flight = fly(&scenario, mode, &sweep.transport, sweep.run_timeout);
+    let flight = fly(&scenario, mode, &sweep.driver, sweep.run_timeout);
     let wall_s = started.elapsed().as_secs_f64();
     let row = match &flight {
-        Flight::Interrupted => return None,
-        Flight::Flown(f) => RunRow::of_flight(index, mode, &plan, f, wall_s),
-        Flight::Failed(e) => {
+        RunFate::Interrupted => return None,
+        RunFate::Flown(f) => RunRow::of_flight(index, mode, &plan, f, wall_s),
+        RunFate::Failed(e) => {
             RunRow::of_error(index, mode, &plan.family, &plan.params_text(), "error", e, wall_s)
         }
-        Flight::TimedOut(limit) => {
+        RunFate::TimedOut(limit) => {
             let e = format!("the run took longer than the per-run time limit of {} s", limit.as_secs_f64());
             RunRow::of_error(index, mode, &plan.family, &plan.params_text(), "timeout", &e, wall_s)
         }
     };
     let failure = match &flight {
         _ if row.outcome == "reached" => None,
-        Flight::Flown(f) if sweep.shrink => shrink::shrink(sweep, &plan, mode, f),
-        Flight::Flown(f) => Some(shrink::FailureTrace::unshrunk(&plan, f)),
+        RunFate::Flown(f) if sweep.shrink => shrink::shrink(sweep, &plan, mode, f),
+        RunFate::Flown(f) => Some(shrink::FailureTrace::unshrunk(&plan, f)),
         _ => Some(shrink::FailureTrace::whole(&plan)),
     };
     Some(Done { row, failure })
 }
 
-/// Sets `stop` at the first Ctrl-C (SIGINT). The runs in flight see it too (`run_all` listens
+/// Sets `stop` at the first Ctrl-C (SIGINT). The runs in flight see it too (`fly_all` listens
 /// for it) and end as interrupted.
 fn watch_ctrl_c(stop: Arc<AtomicBool>) {
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build();

@@ -40,7 +40,7 @@ impl Meta {
             shard: sweep.shard.map(|(i, k)| format!("{i}/{k}")),
             controllers: sweep.modes.iter().map(|m| m.name().to_string()).collect(),
             families: sweep.table.families.iter().map(|f| f.name().to_string()).collect(),
-            transport: sweep.transport.name().to_string(),
+            transport: sweep.driver.name().to_string(),
             shrink: sweep.shrink,
         }
     }
@@ -175,8 +175,7 @@ fn finish(
     plots: bool,
 ) -> anyhow::Result<()> {
     write_file(&dir.join("sweep.json"), &serde_json::to_string_pretty(summary)?)?;
-    let figures =
-        if plots { crate::plots::sweep::write(dir, scenario, rows, &meta.families)? } else { Vec::new() };
+    let figures = if plots { super::plots::write(dir, scenario, rows, &meta.families)? } else { Vec::new() };
     write_file(&dir.join("report.md"), &report(meta, summary, rows, &figures, dir))?;
     Ok(())
 }

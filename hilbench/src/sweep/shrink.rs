@@ -14,7 +14,7 @@
 use mpc::ControllerMode;
 
 use super::draw::RunPlan;
-use super::{Flight, Flown, Sweep, fly};
+use super::{Flown, RunFate, Sweep, fly};
 
 /// A failure's trace, and the numbers its replay gives.
 #[derive(Debug, Clone, PartialEq)]
@@ -45,8 +45,8 @@ impl Replay {
     fn of(flown: &Flown) -> Self {
         let s = &flown.summary;
         Self {
-            outcome: outcome(flown).to_string(),
-            end_reason: s.end_reason.clone(),
+            outcome: outcome(flown).name().to_string(),
+            end_reason: s.end_reason.name().to_string(),
             cycles: s.cycles,
             min_clearance_m: s.min_clearance_m,
             path_length_m: s.path_length_m,
@@ -55,15 +55,8 @@ impl Replay {
     }
 }
 
-fn outcome(flown: &Flown) -> &'static str {
-    let s = &flown.summary;
-    if s.collided {
-        "collided"
-    } else if s.reached {
-        "reached"
-    } else {
-        "missed"
-    }
+fn outcome(flown: &Flown) -> mpc::RunOutcome {
+    flown.summary.outcome()
 }
 
 impl FailureTrace {
@@ -112,8 +105,8 @@ pub fn shrink(sweep: &Sweep, plan: &RunPlan, mode: ControllerMode, flown: &Flown
     let mut attempt = |delays: Vec<f64>, reruns: &mut u64| -> Option<(Vec<f64>, Flown)> {
         *reruns += 1;
         let candidate = RunPlan { delays_s: delays, ..plan.clone() };
-        match fly(&candidate.scenario(&sweep.scenario), mode, &sweep.transport, sweep.run_timeout) {
-            Flight::Flown(f) if outcome(&f) == want => {
+        match fly(&candidate.scenario(&sweep.scenario), mode, &sweep.driver, sweep.run_timeout) {
+            RunFate::Flown(f) if outcome(&f) == want => {
                 let mut d = candidate.delays_s;
                 d.truncate(f.rows.len());
                 Some((d, *f))
@@ -195,10 +188,11 @@ mod tests {
     fn flown(cycles: usize, collided: bool) -> Flown {
         let scenario = mav::Scenario::paper_2();
         let sim = mav::PlantSim::new(&scenario, mav::SimSettings::default()).expect("a plant");
-        let mut summary = mpc::summarize("x", ControllerMode::Multistage, &[], &sim.peek(), None);
+        let mut summary =
+            mpc::summarize("x", ControllerMode::Multistage, &[], &sim.peek(), mpc::RunEnd::TimeLimit);
         summary.collided = collided;
         summary.cycles = cycles as u64;
-        let row = crate::cycle_log::CycleRow {
+        let row = crate::run::CycleRow {
             cycle: 0,
             t_s: 0.0,
             state: [0.0; 8],

@@ -63,21 +63,15 @@ impl RunRow {
         let mut solve_ms: Vec<f64> = flown.rows.iter().map(|r| r.solve_ms).collect();
         let stat = |v: &mut Vec<f64>, p: f64| (!v.is_empty()).then(|| percentile(v, p));
         let flown_delays = &plan.delays_s[..flown.rows.len().min(plan.delays_s.len())];
-        let outcome = if s.collided {
-            "collided"
-        } else if s.reached {
-            "reached"
-        } else {
-            "missed"
-        };
+        let outcome = s.outcome();
         let first = s.collisions.first();
         let (fail_time_s, fail_position_m, what) = match outcome {
-            "collided" => (
+            mpc::RunOutcome::Collided => (
                 first.map(|c| c.time_s),
                 first.map(|c| c.position_m),
                 s.collisions.iter().map(|c| c.describe()).collect::<Vec<_>>().join("; "),
             ),
-            "missed" => {
+            mpc::RunOutcome::Missed => {
                 let p = s.final_position_m;
                 (
                     Some(s.end_time_s),
@@ -88,14 +82,14 @@ impl RunRow {
                     ),
                 )
             }
-            _ => (None, None, String::new()),
+            mpc::RunOutcome::Reached => (None, None, String::new()),
         };
         Self {
             run,
             controller: mode.name().to_string(),
             family: plan.family.clone(),
             params: plan.params_text(),
-            outcome: outcome.to_string(),
+            outcome: outcome.name().to_string(),
             collided_ground: s.collisions.iter().any(|c| c.kind == "ground"),
             min_clearance_m: Some(s.min_clearance_m),
             path_length_m: Some(s.path_length_m),

@@ -2,7 +2,8 @@
 
 use mav::{PlantSample, Scenario};
 use mpc::{
-    ControllerMode, CycleRecord, Decision, PredictedPath, QpReport, SolveReport, SolveStats, SolveStatus,
+    ControllerMode, CycleRecord, Decision, PredictedPath, QpReport, RunEnd, SolveReport, SolveStats,
+    SolveStatus,
 };
 
 use super::plant::MAX_ABS_POSITION_M;
@@ -40,6 +41,30 @@ pub fn scenario_from_pb(
             .ok_or_else(|| FieldError::new("scenario", "is required (a built-in name or a definition)"))?;
     let mode = mode_from_pb("mode", &r.mode)?;
     Ok((scenario, mode))
+}
+
+/// `ControllerStatus.finish_reason` of an episode that ended with `end` (`None`: it runs).
+pub fn finish_reason_to_pb(end: Option<RunEnd>) -> pb::FinishReason {
+    match end {
+        None => pb::FinishReason::Unspecified,
+        Some(RunEnd::Reached { .. }) => pb::FinishReason::Reached,
+        Some(RunEnd::TimeLimit) => pb::FinishReason::TimeLimit,
+        Some(RunEnd::Collided) => pb::FinishReason::Collided,
+        Some(RunEnd::Error) => pb::FinishReason::Error,
+    }
+}
+
+/// How the episode of a `ControllerStatus` ended (`None`: it runs), its goal reached at
+/// `final_time_ns` (the wire carries no time: the client's final sample has it).
+pub fn finish_reason_from_pb(code: i32, final_time_ns: u64) -> Result<Option<RunEnd>, FieldError> {
+    match pb::FinishReason::try_from(code) {
+        Ok(pb::FinishReason::Unspecified) => Ok(None),
+        Ok(pb::FinishReason::Reached) => Ok(Some(RunEnd::Reached { time_ns: final_time_ns })),
+        Ok(pb::FinishReason::TimeLimit) => Ok(Some(RunEnd::TimeLimit)),
+        Ok(pb::FinishReason::Collided) => Ok(Some(RunEnd::Collided)),
+        Ok(pb::FinishReason::Error) => Ok(Some(RunEnd::Error)),
+        Err(_) => Err(FieldError::new("finish_reason", format!("unknown finish reason {code}"))),
+    }
 }
 
 impl From<SolveStatus> for pb::SolveStatus {

@@ -8,7 +8,9 @@
 use std::time::Duration;
 
 use controller::ControllerConfig;
-use hilbench::grpc::{Endpoints, GrpcRun, GrpcSettings, run_against, run_over_grpc};
+use hilbench::drive::grpc::{GrpcRun, GrpcSettings, run_against, run_over_grpc};
+use hilbench::drive::services::Endpoints;
+use hilbench::run::DelaySource;
 use hilbench_tests::{Service, free_loopback_address, start_controller, start_plant};
 use mav::Scenario;
 use mpc::{ClosedLoopSettings, ControllerMode, run_closed_loop};
@@ -191,9 +193,9 @@ async fn the_per_cycle_csv_of_a_grpc_run_is_byte_identical_to_the_in_process_one
     let run = run_over_grpc(&scenario, mode, &patient(300)).await.expect("gRPC run");
     let (_, traces) = run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode)).expect("in-process run");
     let csv = |records: &[mpc::CycleRecord]| {
-        let mut rows = hilbench::cycle_log::from_records(records);
+        let mut rows = hilbench::run::rows_of(records);
         rows.iter_mut().for_each(|r| r.solve_ms = 0.0);
-        hilbench::cycle_log::to_csv(&rows)
+        hilbench::output::cycle_log::to_csv(&rows)
     };
     let in_process: Vec<_> = traces.into_iter().map(|t| t.record).collect();
     let (grpc, local) = (csv(&run.records), csv(&in_process));
@@ -301,15 +303,15 @@ async fn a_netem_profile_set_by_the_user_is_kept_when_asked_or_when_the_file_has
     let slalom = scenario_file("slalom-4.toml");
     let kept =
         run_against(&slalom, mode, &settings, &endpoints(true)).await.expect("a run keeping the profile");
-    assert_eq!((kept.delay_profile.source, &kept.delay_profile.delays), ("netem", &lognormal));
+    assert_eq!((kept.delay_profile.source, &kept.delay_profile.delays), (DelaySource::Netem, &lognormal));
     // A scenario that does not describe its network leaves it alone without being asked.
     let mut undescribed = slalom.clone();
     undescribed.delays = None;
     let run = run_against(&undescribed, mode, &settings, &endpoints(false)).await.expect("a run");
-    assert_eq!((run.delay_profile.source, &run.delay_profile.delays), ("netem", &lognormal));
+    assert_eq!((run.delay_profile.source, &run.delay_profile.delays), (DelaySource::Netem, &lognormal));
     // Otherwise the scenario's network replaces it.
     let run = run_against(&slalom, mode, &settings, &endpoints(false)).await.expect("a run");
-    assert_eq!(run.delay_profile.source, "scenario");
+    assert_eq!(run.delay_profile.source, DelaySource::Scenario);
     assert_eq!(run.delay_profile.delays, slalom.delays);
 }
 
@@ -327,13 +329,14 @@ async fn plant_and_controller_binaries_take_a_scenario_file_as_their_scenario() 
         &["--listen", &controller, "--plant", &plant, "--no-autostart", "--scenario", &file],
     );
     let deadline = std::time::Instant::now() + Duration::from_secs(20);
-    let mut client =
-        pb::plant_client::PlantClient::new(hilbench::grpc::connect(&plant, deadline).await.expect("plant"));
+    let mut client = pb::plant_client::PlantClient::new(
+        hilbench::drive::services::connect(&plant, deadline).await.expect("plant"),
+    );
     let described = client.describe(pb::DescribeRequest {}).await.expect("Describe").into_inner();
     let definition = described.definition.as_ref().expect("the scenario in force");
     assert_eq!(Scenario::try_from(definition).expect("a valid scenario"), expected);
     let mut client = pb::controller_client::ControllerClient::new(
-        hilbench::grpc::connect(&controller, deadline).await.expect("controller"),
+        hilbench::drive::services::connect(&controller, deadline).await.expect("controller"),
     );
     let status = client.get_status(pb::GetStatusRequest {}).await.expect("GetStatus").into_inner();
     assert_eq!(status.scenario, expected.name);
@@ -352,11 +355,11 @@ async fn a_run_ends_at_its_first_collision_over_grpc_as_in_process() {
     let settings = patient(120);
     let run = run_over_grpc(&scenario, mode, &settings).await.expect("gRPC run");
     assert!(run.summary.collided, "the launched vehicle must collide");
-    assert_eq!(run.summary.end_reason, "collided");
+    assert_eq!(run.summary.end_reason, mpc::RunEnd::Collided);
     assert_bit_identical(&scenario, mode, &run);
     scenario.continue_after_collision = true;
     let went_on = run_over_grpc(&scenario, mode, &settings).await.expect("gRPC run");
-    assert_eq!(went_on.summary.end_reason, "time_limit");
+    assert_eq!(went_on.summary.end_reason, mpc::RunEnd::TimeLimit);
     assert!(went_on.summary.cycles > run.summary.cycles);
     assert_bit_identical(&scenario, mode, &went_on);
 }

@@ -55,7 +55,7 @@ async fn nmpc_reaches_the_goal_of_paper_3_against_a_lockstep_plant() {
     let s = wait_for(&mut client, "the episode to finish", |s| s.episode_finished).await;
     assert_eq!(s.episode, 1);
     assert_eq!(s.episodes_finished, 1);
-    assert_eq!(s.finish_reason, "reached", "status: {s:?}");
+    assert_eq!(s.finish_reason(), pb::FinishReason::Reached, "status: {s:?}");
     assert!(s.reached);
     assert!(s.cycles > 0);
     assert_eq!(s.scenario, "paper-3");
@@ -85,7 +85,7 @@ async fn nmpc_reaches_the_goal_of_paper_3_against_a_lockstep_plant() {
         .expect("SetScenario");
     let s2 = wait_for(&mut client, "the second episode to finish", |s| s.episodes_finished >= 2).await;
     assert_eq!(s2.episode, 2);
-    assert_eq!(s2.finish_reason, "reached");
+    assert_eq!(s2.finish_reason(), pb::FinishReason::Reached);
     // Lockstep is deterministic: the second run is the first one again.
     assert_eq!(s2.cycles, s.cycles);
 
@@ -195,7 +195,7 @@ async fn a_plant_that_restarts_ends_the_episode_as_a_plant_reset_and_the_control
         let _ = stopped.await;
     }));
     let ended = wait_for(&mut client, "the episode to end at the plant reset", |s| s.episode_finished).await;
-    assert_eq!((ended.finish_reason.as_str(), ended.plant_resets), ("error", 1), "{ended:?}");
+    assert_eq!((ended.finish_reason(), ended.plant_resets), (pb::FinishReason::Error, 1), "{ended:?}");
     assert!(ended.last_error.contains("the plant was reset or restarted"), "{ended:?}");
     assert!(ended.plant_reset_time_s > 0.0, "{ended:?}");
     assert_eq!(ended.episode, 1);

@@ -7,8 +7,10 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use hilbench::external::{ExternalController, ExternalFailure, ExternalRun, ExternalSettings, run_external};
-use hilbench::grpc::TimeMode;
+use hilbench::drive::TimeMode;
+use hilbench::drive::external::{
+    ExternalController, ExternalFailure, ExternalRun, ExternalSettings, run_external,
+};
 use hilbench::scenario_file::ScenarioFile;
 use hilbench_tests::TempDir;
 use hilbench_tests::python::python;
@@ -149,7 +151,7 @@ fn a_controller_that_stops_stepping_fails_the_run_at_the_stall_timeout_and_is_ki
     assert!(error.contains("plant time has not moved for 2 s"), "{error}");
     assert!(error.contains("stopped calling Step"), "{error}");
     let partial = failure.partial.expect("the plant's first sample is kept");
-    assert_eq!(partial.summary.end_reason, "error");
+    assert_eq!(partial.summary.end_reason, mpc::RunEnd::Error);
     assert_eq!(partial.final_sample.time_ns, 0);
     // Its process is gone (or a zombie its parent has not reaped yet), not left sleeping.
     let pid = std::fs::read_to_string(&pid_file).expect("the pid file");
@@ -208,13 +210,16 @@ fn two_lockstep_runs_of_the_python_controller_with_one_seed_are_identical() {
     let a = fly(&scenario, &python_controller(), ExternalSettings::default()).expect("first run");
     let b = fly(&scenario, &python_controller(), ExternalSettings::default()).expect("second run");
     assert!(a.summary.reached);
-    assert_eq!(hilbench::bench::run_json(&a.summary), hilbench::bench::run_json(&b.summary));
+    assert_eq!(
+        hilbench::output::summary::run_json(&a.summary),
+        hilbench::output::summary::run_json(&b.summary)
+    );
     // Each reset starts a new flight id (from a random point per plant): all else is equal.
     let mut b_final = b.final_sample.clone();
     b_final.flight_id = a.final_sample.flight_id;
     assert_eq!(a.final_sample, b_final);
     // Row for row (the CSV's text: its NaN cells compare as text).
-    assert_eq!(hilbench::cycle_log::to_csv(&a.rows), hilbench::cycle_log::to_csv(&b.rows));
+    assert_eq!(hilbench::output::cycle_log::to_csv(&a.rows), hilbench::output::cycle_log::to_csv(&b.rows));
     assert_eq!(a.facts, b.facts);
 }
 

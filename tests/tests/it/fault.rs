@@ -15,7 +15,10 @@
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use hilbench::grpc::{Endpoints, GrpcRun, GrpcSettings, RunFailure, TimeMode, netem_config, run_against};
+use hilbench::drive::TimeMode;
+use hilbench::drive::grpc::{GrpcRun, GrpcSettings, run_against};
+use hilbench::drive::services::{Endpoints, netem_config};
+use hilbench::run::RunFailure;
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
 use hilbench_tests::{Service, TempDir, free_loopback_address, start_plant, wait_for_state};
@@ -80,14 +83,16 @@ async fn bind(addr: SocketAddr) -> tokio::net::TcpListener {
 }
 
 /// Starts a real-time NMPC run of `scenario` against `endpoints` on a task of its own.
-fn start_run(scenario: &Scenario, endpoints: Endpoints) -> JoinHandle<Result<GrpcRun, RunFailure>> {
+fn start_run(scenario: &Scenario, endpoints: Endpoints) -> JoinHandle<Result<GrpcRun, RunFailure<GrpcRun>>> {
     let scenario = scenario.clone();
     let settings = GrpcSettings { timeout: PATIENCE * 2, ..GrpcSettings::default() };
     tokio::spawn(async move { run_against(&scenario, ControllerMode::Nmpc, &settings, &endpoints).await })
 }
 
 /// What the run started by [`start_run`] returned (panics if it does not finish in time).
-async fn finished(run: JoinHandle<Result<GrpcRun, RunFailure>>) -> Result<GrpcRun, RunFailure> {
+async fn finished(
+    run: JoinHandle<Result<GrpcRun, RunFailure<GrpcRun>>>,
+) -> Result<GrpcRun, RunFailure<GrpcRun>> {
     match tokio::time::timeout(PATIENCE * 3, run).await {
         Ok(Ok(r)) => r,
         Ok(Err(e)) => panic!("run task failed: {e}"),
@@ -249,7 +254,7 @@ async fn a_plant_killed_and_restarted_mid_run_fails_the_run_with_a_plant_reset_k
     let error = format!("{failure}");
     assert!(error.contains("the plant was reset or restarted"), "{error}");
     let partial = failure.partial.expect("the flight before the restart is kept");
-    assert_eq!(partial.summary.end_reason, "error");
+    assert_eq!(partial.summary.end_reason, mpc::RunEnd::Error);
     assert!(partial.records.len() >= 10, "{} cycles", partial.records.len());
     assert_eq!(partial.faults.plant_resets, 1, "{:?}", partial.faults);
     // The reset is placed at the last sample of the first flight: after the test saw it fly, and

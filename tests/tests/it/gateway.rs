@@ -18,7 +18,9 @@ use std::time::Duration;
 
 use gateway::mavsim::{Mavsim, MavsimConfig};
 use gateway::{GatewayConfig, GatewayError, Link};
-use hilbench::grpc::{Endpoints, GrpcSettings, TimeMode, netem_config, run_against};
+use hilbench::drive::TimeMode;
+use hilbench::drive::grpc::{GrpcSettings, run_against};
+use hilbench::drive::services::{Endpoints, netem_config};
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
 use hilbench_proto::pb::vehicle_control_client::VehicleControlClient;

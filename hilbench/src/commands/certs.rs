@@ -17,6 +17,16 @@ use rcgen::{
 /// What `hilbench certs` makes a certificate for: the servers, and hilbench as a client.
 pub const IDENTITIES: [&str; 5] = ["plant", "netem", "controller", "gateway", "hilbench"];
 
+/// `hilbench certs --out DIR [--san NAME]...`: writes the files and prints their paths.
+pub fn certs(args: crate::cli::CertsArgs, opts: &super::Options) -> anyhow::Result<super::Exit> {
+    for path in write_dir(&args.out, &args.san)? {
+        if !opts.quiet {
+            println!("{}", path.display());
+        }
+    }
+    Ok(super::Exit::Success)
+}
+
 /// A certificate authority that signs the identities of one deployment.
 pub struct Authority {
     issuer: CertifiedIssuer<'static, KeyPair>,

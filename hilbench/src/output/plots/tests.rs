@@ -22,7 +22,7 @@ pub(crate) fn facts(scenario: &str, controller: &str) -> RunFacts {
         final_position_m: [0.0, 9.0, 1.0],
         collisions_m: Vec::new(),
         collisions_described: Vec::new(),
-        end_reason: "reached".to_string(),
+        end_reason: mpc::RunEnd::Reached { time_ns: 0 },
         explanation: Vec::new(),
     }
 }
@@ -63,7 +63,7 @@ fn rows(scenario: &Scenario, m: usize) -> Vec<CycleRow> {
             }
         })
         .collect();
-    crate::cycle_log::from_records(&records)
+    crate::run::rows_of(&records)
 }
 
 fn is_png(bytes: &[u8]) -> bool {

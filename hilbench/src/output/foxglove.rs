@@ -25,7 +25,7 @@ use mpc::CycleRecord;
 use schemars::JsonSchema;
 use serde::Serialize;
 
-use crate::bench::{Job, Outcome};
+use crate::run::Batch;
 
 /// The frame of the scene, the plan and the poses.
 pub const WORLD_FRAME: &str = "world";
@@ -457,17 +457,16 @@ pub fn write_mcap(
     Ok(())
 }
 
-/// Writes the MCAP file of every run of `outcome` (run `i` flew `jobs[i]`) into `dir`. The
-/// failed run kept as far as it flew ends at its last cycle (no plant state after it).
-pub fn write_outcome(dir: &Path, jobs: &[Job], outcome: &Outcome) -> anyhow::Result<Vec<PathBuf>> {
-    let mut paths = Vec::with_capacity(outcome.runs.len());
-    for (i, ((run, records), (scenario, _))) in
-        outcome.runs.iter().zip(&outcome.records).zip(jobs).enumerate()
-    {
-        let failed = outcome.failed_run_kept && i + 1 == outcome.runs.len();
-        let end = (!failed).then(|| (mav::s_to_ns(run.end_time_s).unwrap_or(0), run.final_state));
-        let path = mcap_path(dir, &run.scenario, &run.controller);
-        write_mcap(&path, scenario, &run.controller, records, end)?;
+/// Writes the MCAP file of every run of `batch` into `dir`. The failed run kept as far as it
+/// flew ends at its last cycle (no plant state after it).
+pub fn write_batch(dir: &Path, batch: &Batch) -> anyhow::Result<Vec<PathBuf>> {
+    let mut paths = Vec::with_capacity(batch.runs.len());
+    for run in &batch.runs {
+        let summary = &run.summary;
+        let end =
+            run.error.is_none().then(|| (mav::s_to_ns(summary.end_time_s).unwrap_or(0), summary.final_state));
+        let path = mcap_path(dir, &summary.scenario, &summary.controller);
+        write_mcap(&path, &run.job.scenario, &summary.controller, &run.records, end)?;
         paths.push(path);
     }
     Ok(paths)
@@ -525,15 +524,6 @@ impl Live {
         self.inner.addr
     }
 
-    /// A cycle of a run of `scenario` (the scene with its first cycle and every
-    /// [`LIVE_SCENE_EVERY`] cycles).
-    pub fn cycle(&self, scenario: &Scenario, record: &CycleRecord) {
-        if record.cycle.is_multiple_of(LIVE_SCENE_EVERY) {
-            self.inner.channels.scene(scenario, record.sample_time_ns);
-        }
-        self.inner.channels.cycle(scenario, record);
-    }
-
     /// Stops the server (its clients are disconnected).
     pub fn stop(&self) {
         let handle = self.inner.server.lock().ok().and_then(|mut s| s.take());
@@ -541,6 +531,17 @@ impl Live {
             // Waits for the server to stop; there is nothing to do if it fails.
             handle.stop().wait_blocking();
         }
+    }
+}
+
+impl crate::run::CycleSink for Live {
+    /// A cycle of a run of `scenario` (the scene with its first cycle and every
+    /// [`LIVE_SCENE_EVERY`] cycles).
+    fn cycle(&self, scenario: &Scenario, record: &CycleRecord) {
+        if record.cycle.is_multiple_of(LIVE_SCENE_EVERY) {
+            self.inner.channels.scene(scenario, record.sample_time_ns);
+        }
+        self.inner.channels.cycle(scenario, record);
     }
 }
 

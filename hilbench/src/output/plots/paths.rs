@@ -10,7 +10,7 @@ use super::{DrawResult, RunData};
 
 /// The range of horizontal coordinate `axis` (0: x, 1: y) that shows the paths, every
 /// cylinder whole, the start and the goal.
-pub(super) fn horizontal_extent(paths: &[Vec<[f64; 3]>], scenario: &Scenario, axis: usize) -> (f64, f64) {
+pub(crate) fn horizontal_extent(paths: &[Vec<[f64; 3]>], scenario: &Scenario, axis: usize) -> (f64, f64) {
     let centre = |c: &mav::Cylinder| if axis == 0 { c.x_m } else { c.y_m };
     let values = paths
         .iter()
@@ -22,7 +22,7 @@ pub(super) fn horizontal_extent(paths: &[Vec<[f64; 3]>], scenario: &Scenario, ax
 }
 
 /// The vehicle's positions at the start of every cycle, then where it ended.
-pub(super) fn path(r: &RunData<'_>) -> Vec<[f64; 3]> {
+pub(crate) fn path(r: &RunData<'_>) -> Vec<[f64; 3]> {
     r.rows
         .iter()
         .map(|row| [row.state[0], row.state[1], row.state[2]])
@@ -31,7 +31,7 @@ pub(super) fn path(r: &RunData<'_>) -> Vec<[f64; 3]> {
         .collect()
 }
 
-pub(super) fn circle(x: f64, y: f64, r: f64) -> Vec<(f64, f64)> {
+pub(crate) fn circle(x: f64, y: f64, r: f64) -> Vec<(f64, f64)> {
     const SEGMENTS: usize = 72;
     (0..=SEGMENTS)
         .map(|i| {
@@ -41,7 +41,7 @@ pub(super) fn circle(x: f64, y: f64, r: f64) -> Vec<(f64, f64)> {
         .collect()
 }
 
-pub(super) fn path_label(r: &RunData<'_>) -> String {
+pub(crate) fn path_label(r: &RunData<'_>) -> String {
     let s = &r.summary;
     let outcome = match (s.reached, s.time_to_goal_s) {
         (true, Some(t)) => format!("reached in {t:.1} s"),
@@ -57,7 +57,7 @@ pub(super) fn path_label(r: &RunData<'_>) -> String {
 }
 
 /// The sample drawn before a legend entry.
-pub(super) enum Swatch {
+pub(crate) enum Swatch {
     Line(RGBColor),
     Fill(RGBAColor),
     Dot(RGBColor),
@@ -66,7 +66,7 @@ pub(super) enum Swatch {
 }
 
 /// A legend in its own area: `wide` entries one per line, then `narrow` ones side by side.
-pub(super) fn draw_legend<DB: DrawingBackend>(
+pub(crate) fn draw_legend<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     wide: &[(Swatch, String)],
     narrow: &[(Swatch, String)],

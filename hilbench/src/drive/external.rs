@@ -37,14 +37,15 @@ use anyhow::{Context, anyhow, bail};
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
 use mav::{PlantSample, Scenario, ns_to_s};
-use mpc::{ControllerMode, Finish, RunSummary};
+use mpc::{ControllerMode, RunEnd, RunSummary};
 use tokio::io::{AsyncBufReadExt, AsyncRead, BufReader};
 use tokio::process::{Child, Command};
 
-use crate::cycle_log::CycleRow;
-use crate::grpc::{
-    DelayProfileInForce, LinkFaults, RunFailure, RunTiming, Running, TimeMode, connect, netem_config,
-    plant_config, start_netem, start_plant,
+use super::TimeMode;
+use super::services::{Running, connect, netem_config, plant_config, start_netem, start_plant};
+use crate::run::{
+    CycleRow, DelayProfileInForce, DelaySource, ExternalFacts, FinishedRun, Job, RunFailure, RunFaults,
+    RunTiming,
 };
 use crate::scenario_file::{Mode, ScenarioFile};
 
@@ -93,27 +94,6 @@ impl Default for ExternalSettings {
     }
 }
 
-/// What `summary.json` says of the external controller of a run (`external_controller`).
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct ExternalFacts {
-    /// The command line.
-    pub command: String,
-    /// How its process ended: `stopped by the bench` (SIGTERM after the run ended), `killed by
-    /// the bench` (SIGKILL: it outlived the grace, or the run failed), or its own exit
-    /// (`exited: exit status: 1`) when that came first.
-    pub exit: String,
-    /// Commands the plant applied, as seen at its steps (one replaced within a step is not
-    /// seen); the CSV has a row for each.
-    pub commands_applied: u64,
-    /// Of them, commands the plant clipped at its actuator limits.
-    pub commands_saturated: u64,
-    /// Plant steps judged (samples of the plant's stream up to the end of the run).
-    pub plant_steps_judged: u64,
-    /// Plant steps the bench's stream missed (its buffer holds the whole run, so 0 unless a
-    /// single call advanced further than that); the end is then judged at the next step seen.
-    pub plant_steps_missed: u64,
-}
-
 /// One run of an external controller.
 #[derive(Debug, Clone)]
 pub struct ExternalRun {
@@ -124,9 +104,26 @@ pub struct ExternalRun {
     pub final_sample: PlantSample,
     pub timing: RunTiming,
     /// The plant's watchdog (the bench does not see the controller's link).
-    pub faults: LinkFaults,
+    pub faults: RunFaults,
     pub delay_profile: DelayProfileInForce,
     pub facts: ExternalFacts,
+}
+
+impl ExternalRun {
+    /// The run of `job` for the outputs (`error`: it failed part-way and this is what flew).
+    pub fn finished(self, job: Job, error: Option<String>) -> FinishedRun {
+        FinishedRun {
+            job,
+            summary: self.summary,
+            rows: self.rows,
+            records: Vec::new(),
+            timing: Some(self.timing),
+            faults: self.faults,
+            delay_profile: self.delay_profile,
+            external: Some(self.facts),
+            error,
+        }
+    }
 }
 
 /// A run that failed: the error, and what the plant flew before it (`None` when it failed
@@ -142,7 +139,7 @@ pub async fn run_external(
     let started = Instant::now();
     let network = scenario.network().map_err(|e| anyhow!("{e}"))?;
     let network = network.unwrap_or_else(|| delay::NetworkProfile::none(scenario.seed));
-    let delay_profile = DelayProfileInForce::of("scenario", &network);
+    let delay_profile = DelayProfileInForce::of(DelaySource::Scenario, &network);
     let mut config = plant_config(scenario, controller.time_mode);
     config.stream_buffer = stream_buffer(scenario, config.rate_hz);
     let (plant, plant_addr) = start_plant(config).await?;
@@ -157,7 +154,7 @@ pub async fn run_external(
             return Err(e.into());
         }
     };
-    let mut flight = Flight::new(scenario, controller, delay_profile);
+    let mut flight = ExternalFlight::new(scenario, controller, delay_profile);
     let result = flight.fly(&plant_addr, &netem_addr, started).await;
     let stopping = Instant::now();
     let stopped = stop_all([netem, plant]).await;
@@ -190,7 +187,7 @@ async fn stop_all(running: [Running; 2]) -> anyhow::Result<()> {
 }
 
 /// One run as it goes: the judge, the process, the facts.
-struct Flight<'a> {
+struct ExternalFlight<'a> {
     scenario: &'a Scenario,
     controller: &'a ExternalController,
     judge: Judge,
@@ -202,7 +199,7 @@ struct Flight<'a> {
     episode_started: Option<Instant>,
 }
 
-impl<'a> Flight<'a> {
+impl<'a> ExternalFlight<'a> {
     fn new(
         scenario: &'a Scenario,
         controller: &'a ExternalController,
@@ -325,12 +322,8 @@ impl<'a> Flight<'a> {
             self.exit = Some(process.stop(settings.stop_grace).await);
         }
         self.stop_s = stopping.elapsed().as_secs_f64();
-        let (finish, last) = self.judge.end.clone().ok_or_else(|| anyhow!("the run has no end"))?;
-        let time_to_goal_ns = (finish == Finish::Reached).then_some(last.time_ns);
-        let mut summary = self.judge.summary(&last, time_to_goal_ns);
-        if finish == Finish::Collided {
-            summary.end_reason = finish.name().to_string();
-        }
+        let (end, last) = self.judge.end.clone().ok_or_else(|| anyhow!("the run has no end"))?;
+        let summary = self.judge.summary(&last, end);
         Ok(self.run(summary, last, episode_s))
     }
 
@@ -361,15 +354,14 @@ impl<'a> Flight<'a> {
     /// The run as far as the plant flew it (after an error): `None` before its first sample.
     fn partial(&self) -> Option<ExternalRun> {
         let last = self.judge.last.clone()?;
-        let mut summary = self.judge.summary(&last, None);
-        summary.end_reason = "error".to_string();
+        let summary = self.judge.summary(&last, RunEnd::Error);
         let episode_s = self.episode_started.map_or(0.0, |t| t.elapsed().as_secs_f64());
         Some(self.run(summary, last, episode_s))
     }
 }
 
-fn faults_of(last: &PlantSample) -> LinkFaults {
-    LinkFaults { watchdog_hover_s: ns_to_s(last.watchdog_hover_ns), ..LinkFaults::default() }
+fn faults_of(last: &PlantSample) -> RunFaults {
+    RunFaults { watchdog_hover_s: ns_to_s(last.watchdog_hover_ns), ..RunFaults::default() }
 }
 
 /// Judges a run from the plant's samples, one per integration step.
@@ -383,13 +375,12 @@ fn faults_of(last: &PlantSample) -> LinkFaults {
 /// `decision`, `cost_gap` and `injected_delay_s` empty.
 struct Judge {
     scenario: Scenario,
-    max_ns: u64,
     step_ns: Option<u64>,
     flight_id: Option<u64>,
     /// The newest sample judged.
     last: Option<PlantSample>,
     /// Why and where the run ended: the first step that ends it.
-    end: Option<(Finish, PlantSample)>,
+    end: Option<(RunEnd, PlantSample)>,
     rows: Vec<CycleRow>,
     /// The last command seen: (`command_seq`, applied time).
     command: Option<(u64, u64)>,
@@ -402,7 +393,6 @@ impl Judge {
     fn new(scenario: &Scenario) -> Self {
         Self {
             scenario: scenario.clone(),
-            max_ns: mav::s_to_ns(scenario.max_duration_s).unwrap_or(u64::MAX),
             step_ns: None,
             flight_id: None,
             last: None,
@@ -463,8 +453,8 @@ impl Judge {
                 cost_gap: None,
             });
         }
-        if let Some(finish) = mpc::episode::finish_at(&self.scenario, self.max_ns, &sample) {
-            self.end = Some((finish, sample.clone()));
+        if let Some(end) = mpc::episode::finish_at(&self.scenario, &sample) {
+            self.end = Some((end, sample.clone()));
         }
         self.last = Some(sample);
         Ok(())
@@ -490,10 +480,9 @@ impl Judge {
 
     /// The one summary (`mpc::summarize`) of the plant's `last` sample; the controller's
     /// solve statistics are unknown (no records), its cycles are the commands applied.
-    fn summary(&self, last: &PlantSample, time_to_goal_ns: Option<u64>) -> RunSummary {
+    fn summary(&self, last: &PlantSample, end: RunEnd) -> RunSummary {
         // The mode only names the controller, which is replaced.
-        let mut summary =
-            mpc::summarize(&self.scenario.name, ControllerMode::Multistage, &[], last, time_to_goal_ns);
+        let mut summary = mpc::summarize(&self.scenario.name, ControllerMode::Multistage, &[], last, end);
         summary.controller = CONTROLLER_NAME.to_string();
         summary.cycles = self.rows.len() as u64;
         summary

@@ -9,7 +9,7 @@ use super::style::{
     BOUND, controller_color, controller_label, draw_legend, draw_mesh, extent, panel_font, title_font,
 };
 use super::{DrawResult, RunData};
-use crate::cycle_log::CycleRow;
+use crate::run::CycleRow;
 
 /// The round-trip delays of a run: `(plant time of the sample the command came from, delay)`,
 /// s. Row k knows the delay of command k-1.

@@ -54,14 +54,9 @@ fn outcome(r: &RunSummary) -> String {
         format!("not reached; ended at [{:.1}, {:.1}, {:.1}]", p[0], p[1], p[2])
     };
     if r.collided {
-        let _ = write!(s, "; COLLIDED ({})", collisions_text(r));
+        let _ = write!(s, "; COLLIDED ({})", r.collisions_text());
     }
     s
-}
-
-/// Every collision of a run, described (kind, depth, time, place), `; `-separated.
-pub fn collisions_text(r: &RunSummary) -> String {
-    r.collisions.iter().map(|c| c.describe()).collect::<Vec<_>>().join("; ")
 }
 
 /// The two tables of `docs/spec.md` (path length, solve time) with paper and measured columns.

@@ -4,17 +4,17 @@
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
-use crate::cycle_log::CycleRow;
+use crate::run::CycleRow;
 
-pub(super) const FONT: &str = "sans-serif";
-pub(super) const FONT_BYTES: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
+pub(crate) const FONT: &str = "sans-serif";
+pub(crate) const FONT_BYTES: &[u8] = include_bytes!("../../../assets/DejaVuSans.ttf");
 
-pub(super) const TITLE_PX: u32 = 26;
-pub(super) const LABEL_PX: u32 = 18;
-pub(super) const TICK_PX: u32 = 15;
-pub(super) const BOUND: RGBColor = RGBColor(200, 30, 30);
-pub(super) const CYLINDER: RGBColor = RGBColor(120, 120, 120);
-pub(super) const PALETTE: [RGBColor; 6] = [
+pub(crate) const TITLE_PX: u32 = 26;
+pub(crate) const LABEL_PX: u32 = 18;
+pub(crate) const TICK_PX: u32 = 15;
+pub(crate) const BOUND: RGBColor = RGBColor(200, 30, 30);
+pub(crate) const CYLINDER: RGBColor = RGBColor(120, 120, 120);
+pub(crate) const PALETTE: [RGBColor; 6] = [
     RGBColor(27, 110, 180),
     RGBColor(217, 95, 2),
     RGBColor(27, 158, 119),
@@ -24,7 +24,7 @@ pub(super) const PALETTE: [RGBColor; 6] = [
 ];
 
 /// The legend of every figure: its series' labels at `position`, on a light box.
-pub(super) fn draw_legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
+pub(crate) fn draw_legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
     chart: &mut ChartContext<'a, DB, CT>,
     position: SeriesLabelPosition,
 ) -> super::DrawResult<DB> {
@@ -38,7 +38,7 @@ pub(super) fn draw_legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::Coor
 }
 
 /// The axes and grid of every 2-D figure: the axis descriptions, the fonts, a light grid.
-pub(super) fn draw_mesh<'a, DB: DrawingBackend + 'a>(
+pub(crate) fn draw_mesh<'a, DB: DrawingBackend + 'a>(
     chart: &mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
     x_desc: &str,
     y_desc: &str,
@@ -54,7 +54,7 @@ pub(super) fn draw_mesh<'a, DB: DrawingBackend + 'a>(
         .draw()
 }
 
-pub(super) fn controller_color(controller: &str, i: usize) -> RGBColor {
+pub(crate) fn controller_color(controller: &str, i: usize) -> RGBColor {
     match controller {
         "multistage" => PALETTE[0],
         "nmpc" => PALETTE[1],
@@ -62,7 +62,7 @@ pub(super) fn controller_color(controller: &str, i: usize) -> RGBColor {
     }
 }
 
-pub(super) fn controller_label(controller: &str) -> &str {
+pub(crate) fn controller_label(controller: &str) -> &str {
     match controller {
         "multistage" => "multi-stage NMPC",
         "nmpc" => "standard NMPC",
@@ -70,16 +70,16 @@ pub(super) fn controller_label(controller: &str) -> &str {
     }
 }
 
-pub(super) fn title_font() -> TextStyle<'static> {
+pub(crate) fn title_font() -> TextStyle<'static> {
     (FONT, TITLE_PX).into_font().color(&BLACK)
 }
 
-pub(super) fn panel_font() -> TextStyle<'static> {
+pub(crate) fn panel_font() -> TextStyle<'static> {
     (FONT, LABEL_PX + 2).into_font().color(&BLACK)
 }
 
 /// Finite `(min, max)` of `values`, or `fallback` when there is none.
-pub(super) fn extent(values: impl Iterator<Item = f64>, fallback: (f64, f64)) -> (f64, f64) {
+pub(crate) fn extent(values: impl Iterator<Item = f64>, fallback: (f64, f64)) -> (f64, f64) {
     let (lo, hi) = values
         .filter(|v| v.is_finite())
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
@@ -87,14 +87,14 @@ pub(super) fn extent(values: impl Iterator<Item = f64>, fallback: (f64, f64)) ->
 }
 
 /// Widens `(lo, hi)` by `frac` of its span (at least `min_pad`).
-pub(super) fn pad((lo, hi): (f64, f64), frac: f64, min_pad: f64) -> std::ops::Range<f64> {
+pub(crate) fn pad((lo, hi): (f64, f64), frac: f64, min_pad: f64) -> std::ops::Range<f64> {
     let p = ((hi - lo) * frac).max(min_pad);
     (lo - p)..(hi + p)
 }
 
 /// `(t, f(row))` for the rows where both are finite; commands hold until the next cycle, so
 /// they are drawn as steps.
-pub(super) fn steps(rows: &[CycleRow], f: impl Fn(&CycleRow) -> f64) -> Vec<(f64, f64)> {
+pub(crate) fn steps(rows: &[CycleRow], f: impl Fn(&CycleRow) -> f64) -> Vec<(f64, f64)> {
     let mut out = Vec::with_capacity(2 * rows.len());
     for (k, row) in rows.iter().enumerate() {
         let v = f(row);
@@ -109,6 +109,6 @@ pub(super) fn steps(rows: &[CycleRow], f: impl Fn(&CycleRow) -> f64) -> Vec<(f64
     out
 }
 
-pub(super) fn samples(rows: &[CycleRow], f: impl Fn(&CycleRow) -> f64) -> Vec<(f64, f64)> {
+pub(crate) fn samples(rows: &[CycleRow], f: impl Fn(&CycleRow) -> f64) -> Vec<(f64, f64)> {
     rows.iter().map(|r| (r.t_s, f(r))).filter(|(t, v)| t.is_finite() && v.is_finite()).collect()
 }

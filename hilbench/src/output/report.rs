@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
-use crate::plots::{self, Kind, RunFacts};
+use super::plots::{self, Kind, RunFacts};
 
 /// What the report shows besides the runs.
 #[derive(Debug, Clone, Copy)]
@@ -99,7 +99,7 @@ pub fn render(
         let what = if r.collided {
             "collided"
         } else if !r.reached {
-            &format!("did not reach its goal ({})", r.end_reason.replace('_', " "))
+            &format!("did not reach its goal ({})", r.end_reason.name().replace('_', " "))
         } else {
             "reached its goal, but"
         };
@@ -180,7 +180,7 @@ mod tests {
     use super::*;
 
     fn run(scenario: &str, controller: &str) -> RunFacts {
-        let mut r = crate::plots::tests::facts(scenario, controller);
+        let mut r = crate::output::plots::tests::facts(scenario, controller);
         r.reached = controller == "multistage";
         r.collided = controller == "nmpc";
         r.time_to_goal_s = r.reached.then_some(12.5);
@@ -197,7 +197,7 @@ mod tests {
                 depth_m: 0.02,
             };
             r.collisions_described = vec![ground.describe()];
-            r.end_reason = "collided".to_string();
+            r.end_reason = mpc::RunEnd::Collided;
             r.explanation = vec!["3 of 70 cycles sent a command that failed the safety check".to_string()];
         }
         r
@@ -205,7 +205,7 @@ mod tests {
 
     #[test]
     fn report_links_the_plots_and_logs_that_exist_and_no_others() {
-        let dir = crate::plots::tests::temp_dir("report-md");
+        let dir = crate::output::plots::tests::temp_dir("report-md");
         let plots_dir = dir.join(plots::PLOTS_DIR);
         std::fs::create_dir_all(&plots_dir).expect("plots dir");
         let top = plots::stem(Kind::Top, "paper-2", None);

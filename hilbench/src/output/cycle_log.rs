@@ -5,63 +5,12 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use crate::run::CycleRow;
 use anyhow::Context;
-use mpc::CycleRecord;
 
-/// One control cycle.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CycleRow {
-    pub cycle: u64,
-    /// Plant time of the sample the controller solved from, s.
-    pub t_s: f64,
-    pub state: [f64; 8],
-    pub command: [f64; 3],
-    /// The round-trip delay the controller knew at this cycle (that of the previous command,
-    /// measured from plant stamps), s; 0 before the first measurement.
-    pub known_delay_s: f64,
-    /// The delay the network put on this cycle's command (netem's stamp, or the in-process
-    /// delay line's draw), s; `None` (an empty cell) when the command was lost.
-    pub injected_delay_s: Option<f64>,
-    pub weights: Vec<f64>,
-    pub status: String,
-    pub iterations: u64,
-    pub solve_ms: f64,
-    pub cost: f64,
-    pub constraint_violation: f64,
-    pub predicted_clearance_m: f64,
-    /// What the safety layer sent: `panoc`, `qp`, `shifted_plan`, `brake`, or `best_effort`
-    /// when no candidate passed its checks (empty when the layer is off).
-    pub decision: String,
-    /// Why, in one line: the rejected candidates before the one sent (empty when the layer is
-    /// off).
-    pub reason: String,
-    /// QP cost minus PANOC cost on the nonlinear model, when the cross-check ran.
-    pub cost_gap: Option<f64>,
-}
-
-/// The rows of a run's records (the same from a gRPC run and an in-process one).
-pub fn from_records(records: &[CycleRecord]) -> Vec<CycleRow> {
-    records
-        .iter()
-        .map(|r| CycleRow {
-            cycle: r.cycle,
-            t_s: r.t_s(),
-            state: r.state,
-            command: r.command,
-            known_delay_s: r.known_delay_s.unwrap_or(0.0),
-            injected_delay_s: r.injected_delay_s,
-            weights: r.weights.clone(),
-            status: r.solve.status.name().to_string(),
-            iterations: r.solve.iterations,
-            solve_ms: r.solve.solve_ms,
-            cost: r.solve.cost,
-            constraint_violation: r.solve.constraint_violation,
-            predicted_clearance_m: r.solve.min_clearance_m,
-            decision: r.decision_label().to_string(),
-            reason: r.reason.clone(),
-            cost_gap: r.cost_gap,
-        })
-        .collect()
+/// Writes the per-cycle CSV log of every run of `batch` into `dir`.
+pub fn write_batch(dir: &Path, batch: &crate::run::Batch) -> anyhow::Result<Vec<PathBuf>> {
+    batch.runs.iter().map(|r| write(dir, &r.summary.scenario, &r.summary.controller, &r.rows)).collect()
 }
 
 /// The CSV text of `rows` (header first; numbers in Rust's shortest round-trip form).

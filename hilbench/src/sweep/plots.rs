@@ -9,10 +9,12 @@ use mav::Scenario;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::paths::circle;
-use super::style::{BOUND, CYLINDER, FONT, LABEL_PX, PALETTE, TICK_PX, draw_legend, extent, pad, title_font};
-use super::{DrawResult, PLOTS_DIR, register_font};
-use crate::sweep::stats::RunRow;
+use super::stats::RunRow;
+use crate::output::plots::paths::circle;
+use crate::output::plots::style::{
+    BOUND, CYLINDER, FONT, LABEL_PX, PALETTE, TICK_PX, draw_legend, extent, pad, title_font,
+};
+use crate::output::plots::{DrawResult, PLOTS_DIR, register_font};
 
 enum Figure<'a> {
     ClearanceCdf { rows: &'a [&'a RunRow], families: &'a [String] },

@@ -12,9 +12,8 @@
 
 mod delays;
 mod inputs;
-mod paths;
-mod style;
-pub mod sweep;
+pub(crate) mod paths;
+pub(crate) mod style;
 #[cfg(test)]
 pub(crate) mod tests;
 mod three_d;
@@ -31,7 +30,7 @@ use mpc::RunSummary;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::cycle_log::CycleRow;
+use crate::run::CycleRow;
 use style::{FONT, FONT_BYTES};
 
 pub use delays::{delays, gamma_fit};
@@ -57,8 +56,7 @@ pub struct RunFacts {
     pub collisions_m: Vec<[f64; 3]>,
     /// Each collision in words: kind, depth, time, place.
     pub collisions_described: Vec<String>,
-    /// `reached`, `time_limit`, `collided` or `error`.
-    pub end_reason: String,
+    pub end_reason: mpc::RunEnd,
     /// Why the run went as it did (`RunSummary::explanation`).
     pub explanation: Vec<String>,
 }
@@ -78,7 +76,7 @@ impl From<&RunSummary> for RunFacts {
             final_position_m: r.final_position_m,
             collisions_m: r.collisions.iter().map(|c| c.position_m).collect(),
             collisions_described: r.collisions.iter().map(|c| c.describe()).collect(),
-            end_reason: r.end_reason.clone(),
+            end_reason: r.end_reason,
             explanation: r.explanation.clone(),
         }
     }
@@ -141,7 +139,7 @@ pub fn stem(kind: Kind, scenario: &str, controller: Option<&str>) -> String {
     }
 }
 
-fn register_font() -> anyhow::Result<()> {
+pub(crate) fn register_font() -> anyhow::Result<()> {
     static REGISTERED: OnceLock<bool> = OnceLock::new();
     let ok = *REGISTERED
         .get_or_init(|| plotters::style::register_font(FONT, FontStyle::Normal, FONT_BYTES).is_ok());
@@ -184,24 +182,12 @@ pub fn write_all(dir: &Path, runs: &[RunData<'_>]) -> anyhow::Result<Vec<PathBuf
     Ok(written)
 }
 
-/// The plots of `outcome`, whose runs are those of `jobs` in order (as [`crate::bench::run_all`]
-/// returns them).
-pub fn write_outcome(
-    dir: &Path,
-    jobs: &[crate::bench::Job],
-    outcome: &crate::bench::Outcome,
-) -> anyhow::Result<Vec<PathBuf>> {
-    anyhow::ensure!(
-        jobs.len() == outcome.runs.len() && jobs.len() == outcome.cycles.len(),
-        "{} jobs for {} runs",
-        jobs.len(),
-        outcome.runs.len()
-    );
-    let runs: Vec<RunData<'_>> = jobs
+/// The plots of the runs of `batch`.
+pub fn write_batch(dir: &Path, batch: &crate::run::Batch) -> anyhow::Result<Vec<PathBuf>> {
+    let runs: Vec<RunData<'_>> = batch
+        .runs
         .iter()
-        .zip(&outcome.runs)
-        .zip(&outcome.cycles)
-        .map(|(((scenario, _), summary), rows)| RunData { scenario, summary: summary.into(), rows })
+        .map(|r| RunData { scenario: &r.job.scenario, summary: (&r.summary).into(), rows: &r.rows })
         .collect();
     write_all(dir, &runs)
 }
@@ -231,7 +217,7 @@ fn figures<'a>(runs: &'a [RunData<'a>]) -> Vec<Figure<'a>> {
     figures
 }
 
-pub(super) type DrawResult<DB> = Result<(), DrawingAreaErrorKind<<DB as DrawingBackend>::ErrorType>>;
+pub(crate) type DrawResult<DB> = Result<(), DrawingAreaErrorKind<<DB as DrawingBackend>::ErrorType>>;
 
 enum Figure<'a> {
     Top(Vec<&'a RunData<'a>>),

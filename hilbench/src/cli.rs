@@ -1,0 +1,338 @@
+//! The command line: clap's types, parsed and checked here, and nothing else (the work is in
+//! `commands`). Every command that reaches services takes the same [`EndpointArgs`] and
+//! [`TlsArgs`].
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::builder::PossibleValuesParser;
+use clap::{Parser, Subcommand, ValueEnum};
+use hilbench_svc::tls::TlsFiles;
+use mav::Scenario;
+
+use crate::drive::TimeMode;
+use crate::drive::services::{BenchTls, Endpoints};
+use crate::scenario_file::Mode;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "hilbench",
+    version,
+    about = "Hardware-in-the-loop bench for MAV control over delayed networks"
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+    /// Print nothing but errors (the summary and logs are still written; the exit code says
+    /// whether a run collided).
+    #[arg(long, global = true)]
+    pub quiet: bool,
+    /// Do not draw the plots (PNG and SVG under OUT/plots/).
+    #[arg(long, global = true)]
+    pub no_plots: bool,
+    /// Do not write the runs' MCAP files (OUT/<scenario>-<controller>.mcap, for Foxglove).
+    #[arg(long, global = true)]
+    pub no_mcap: bool,
+}
+
+/// `--mode`: the bench's controllers to fly.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ModeArg {
+    Nmpc,
+    Multistage,
+    Both,
+}
+
+impl ModeArg {
+    /// The controllers, in the order they fly.
+    pub fn modes(self) -> Vec<Mode> {
+        match self {
+            ModeArg::Nmpc => vec![Mode::Nmpc],
+            ModeArg::Multistage => vec![Mode::Multistage],
+            ModeArg::Both => vec![Mode::Nmpc, Mode::Multistage],
+        }
+    }
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Reproduce the paper: paper-1..3 with NMPC and multi-stage NMPC, tables side by side.
+    Reproduce(ReproduceArgs),
+    /// Run one scenario file (TOML, see scenarios/) over gRPC, in lockstep or real time.
+    Run(RunArgs),
+    /// N lockstep runs of a scenario file, each under a delay process drawn from the file's
+    /// [sweep] table; outcomes as distributions (sweep.json, runs.csv, report.md, plots).
+    Sweep(SweepArgs),
+    /// Make a CA and a certificate for each service (plant, netem, controller, gateway) and
+    /// for hilbench, for mutual TLS (docs/tls.md); keys are written readable by their owner.
+    Certs(CertsArgs),
+    /// Merge the output directories of a sweep's shards into the sweep.json of the whole.
+    SweepMerge(SweepMergeArgs),
+}
+
+// The flags of `hilbench reproduce`.
+#[derive(clap::Args, Debug)]
+pub struct ReproduceArgs {
+    /// Output directory for summary.json (default: runs/<unix time>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Print the summary as JSON on stdout instead of the tables.
+    #[arg(long)]
+    pub json: bool,
+    /// Only this scenario (repeat the flag for more; default: all three).
+    #[arg(long, value_parser = PossibleValuesParser::new(Scenario::BUILT_IN))]
+    pub scenario: Vec<String>,
+    /// Seed of the delay process instead of the scenarios' own (42).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Go on flying after the vehicle's first collision (lockstep); by default a run ends
+    /// there, as a real flight does, and summary.json's `end_reason` is "collided".
+    #[arg(long)]
+    pub continue_after_collision: bool,
+    /// Run the closed loop in process (`mpc::run_closed_loop`) instead of over gRPC.
+    #[arg(long, conflicts_with_all = ["plant", "netem", "controller"])]
+    pub in_process: bool,
+    #[command(flatten)]
+    pub services: EndpointArgs,
+    #[command(flatten)]
+    pub tls: TlsArgs,
+}
+
+// The flags of `hilbench run`.
+#[derive(clap::Args, Debug)]
+pub struct RunArgs {
+    /// The scenario file.
+    pub file: PathBuf,
+    /// Controllers to run (default: the file's `run.modes`).
+    #[arg(long, value_enum)]
+    pub mode: Option<ModeArg>,
+    /// Output directory for summary.json (default: runs/<unix time>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Print the summary as JSON on stdout instead of the table.
+    #[arg(long)]
+    pub json: bool,
+    /// Run the closed loop in process (`mpc::run_closed_loop`) instead of over gRPC.
+    #[arg(long, conflicts_with_all = ["plant", "netem", "controller", "time_mode"])]
+    pub in_process: bool,
+    /// How plant time moves (default: the file's `run.time_mode`, lockstep unless the file
+    /// says otherwise: a bench run should be deterministic; real time exercises the
+    /// services on the wall clock, as a vehicle would).
+    #[arg(long, value_enum)]
+    pub time_mode: Option<TimeMode>,
+    /// Seed of the delay process instead of the file's `scenario.seed`.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Replay this delay trace as the round trip instead of the file's [scenario.delays]:
+    /// one delay in s per line (optional first line `delay_s`), cycle k's command takes
+    /// line k, and a run that outlasts it stops with an error.
+    #[arg(long, value_name = "TRACE.csv", conflicts_with = "keep_netem_profile")]
+    pub delay_trace: Option<PathBuf>,
+    /// Go on flying after the vehicle's first collision (lockstep); by default a run ends
+    /// there, as a real flight does, and summary.json's `end_reason` is "collided".
+    #[arg(long)]
+    pub continue_after_collision: bool,
+    /// Fly run I of the file's [sweep] again, bit for bit (its delays drawn from the sweep's
+    /// seed, which --seed sets, and I alone).
+    #[arg(long, value_name = "I", conflicts_with_all = ["delay_trace", "keep_netem_profile"])]
+    pub sweep_run: Option<u64>,
+    /// Fly your own controller instead of the bench's: a command line (run with `sh -c`)
+    /// that speaks the Plant API as a client at $HILBENCH_PLANT_ADDR (netem, in front of a
+    /// plant started here), with $HILBENCH_SCENARIO and $HILBENCH_TIME_MODE; judged from the
+    /// plant's truth (docs/external-controller.md).
+    #[arg(
+        long,
+        value_name = "CMD",
+        value_parser = command_line,
+        conflicts_with_all = ["in_process", "mode", "plant", "netem", "controller"]
+    )]
+    pub controller_cmd: Option<String>,
+    /// With --controller-cmd: fail the run when plant time has not moved for this long
+    /// (wall time, s; in lockstep a controller that stopped calling Step, or is slow to
+    /// start).
+    #[arg(long, value_name = "S", requires = "controller_cmd", value_parser = seconds)]
+    pub stall_timeout_s: Option<f64>,
+    #[command(flatten)]
+    pub services: EndpointArgs,
+    #[command(flatten)]
+    pub tls: TlsArgs,
+    /// Serve the run live to Foxglove over its WebSocket protocol (the channels of the
+    /// MCAP files) while it flies in real time; ADDR defaults to 127.0.0.1:8765.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+    pub foxglove_ws: Option<std::net::SocketAddr>,
+}
+
+// The flags of `hilbench certs`.
+#[derive(clap::Args, Debug)]
+pub struct CertsArgs {
+    /// Directory to write ca.pem, ca-key.pem, <name>.pem and <name>-key.pem into (files
+    /// already there are never overwritten).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// A host name or IP address every certificate also names (repeat the flag); each names
+    /// its service (plant, netem, ...), localhost, 127.0.0.1 and ::1 anyway.
+    #[arg(long, value_name = "NAME")]
+    pub san: Vec<String>,
+}
+
+// The flags of `hilbench sweep-merge`.
+#[derive(clap::Args, Debug)]
+pub struct SweepMergeArgs {
+    /// The shards' output directories.
+    #[arg(required = true)]
+    pub dirs: Vec<PathBuf>,
+    /// Output directory of the merged sweep.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Print sweep.json on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct SweepArgs {
+    /// The scenario file, with a [sweep] table.
+    pub file: PathBuf,
+    /// Runs of the sweep (default: the file's `sweep.runs`).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    pub runs: Option<u64>,
+    /// Runs flown at once (default: every core).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
+    pub jobs: Option<u64>,
+    /// Seed of the draws (default: the file's `sweep.seed`, else `scenario.seed`).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Output directory (default: runs/sweep-<unix time>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Controllers to fly each run with (default: the file's `run.modes`).
+    #[arg(long, value_enum)]
+    pub mode: Option<ModeArg>,
+    /// Fly only the I-th of K disjoint slices of the runs (I from 0); merge the shards'
+    /// directories with `hilbench sweep-merge`.
+    #[arg(long, value_name = "I/K", value_parser = parse_shard)]
+    pub shard: Option<(u64, u64)>,
+    /// Fly each run over the services (plant, netem, controller on loopback) instead of in
+    /// process: the same numbers, slower.
+    #[arg(long, conflicts_with = "controller_cmd")]
+    pub grpc: bool,
+    /// With --grpc: the services' links over mutual TLS (as `hilbench run`'s).
+    #[command(flatten)]
+    pub tls: TlsArgs,
+    /// Sweep your own controller instead of the bench's: a command line that speaks the Plant
+    /// API as a client at $HILBENCH_PLANT_ADDR (as `hilbench run --controller-cmd`), started
+    /// for each run, judged from the plant's truth (docs/external-controller.md).
+    #[arg(long, value_name = "CMD", value_parser = command_line, conflicts_with = "mode")]
+    pub controller_cmd: Option<String>,
+    /// Shrink each failing run's delay trace to a smaller one that still fails
+    /// (failures/<run>.csv).
+    #[arg(long)]
+    pub shrink: bool,
+    /// A run that takes longer than this (wall clock) is a failure, and the sweep goes on
+    /// (default: the file's `sweep.run_timeout_s`, else 300).
+    #[arg(long, value_name = "S", value_parser = seconds)]
+    pub run_timeout_s: Option<f64>,
+    /// Print sweep.json on stdout instead of the table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `--shard I/K`.
+pub fn parse_shard(text: &str) -> Result<(u64, u64), String> {
+    let (i, k) = text.split_once('/').ok_or("expected I/K, e.g. 0/4")?;
+    let i: u64 = i.trim().parse().map_err(|_| format!("{i:?} is not a shard number"))?;
+    let k: u64 = k.trim().parse().map_err(|_| format!("{k:?} is not a number of shards"))?;
+    if k == 0 || i >= k {
+        return Err(format!("shard {i} of {k}: I must be below K (shards 0 to K-1)"));
+    }
+    Ok((i, k))
+}
+
+/// `--controller-cmd`: a command line with something to run.
+fn command_line(s: &str) -> Result<String, String> {
+    if s.trim().is_empty() {
+        return Err("is empty: give the command that starts your controller".to_string());
+    }
+    Ok(s.to_string())
+}
+
+/// A duration flag (`--run-timeout-s`, `--stall-timeout-s`): finite, above 0 and at most a day.
+fn seconds(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a number of seconds"))?;
+    if !(v.is_finite() && v > 0.0 && v <= 86_400.0) {
+        return Err(format!("must be in (0, 86400] s, got {s}"));
+    }
+    Ok(v)
+}
+
+/// `hilbench`'s TLS flags: a directory made by `hilbench certs`, or the files one by one.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct TlsArgs {
+    /// Run every link over mutual TLS with the certificates in DIR (`hilbench certs --out
+    /// DIR`): ca.pem, and <service>.pem / <service>-key.pem for plant, netem, controller and
+    /// hilbench itself (docs/tls.md).
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["tls_ca", "tls_cert", "tls_key"])]
+    pub tls_dir: Option<std::path::PathBuf>,
+    #[command(flatten)]
+    pub identity: hilbench_svc::tls::IdentityArgs,
+    #[command(flatten)]
+    pub trust: hilbench_svc::tls::TrustArgs,
+}
+
+impl TlsArgs {
+    /// Whether any TLS flag was given.
+    pub fn given(&self) -> bool {
+        self.tls_dir.is_some()
+            || self.identity.tls_cert.is_some()
+            || self.identity.tls_key.is_some()
+            || self.trust.tls_ca.is_some()
+    }
+
+    /// Reads and checks the files (errors name the flag).
+    pub fn load(&self) -> anyhow::Result<BenchTls> {
+        match &self.tls_dir {
+            Some(dir) => BenchTls::from_dir(dir).with_context(|| format!("--tls-dir {}", dir.display())),
+            None => BenchTls::shared(&TlsFiles::client(&self.identity, &self.trust)),
+        }
+    }
+}
+
+/// `--plant`, `--netem`, `--controller` of the CLI: services already running.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct EndpointArgs {
+    /// A running plant (HOST:PORT) instead of one started here.
+    #[arg(long)]
+    pub plant: Option<String>,
+    /// A running netem (HOST:PORT) instead of one started here; it gets each scenario's
+    /// delay profiles through NetemControl.
+    #[arg(long)]
+    pub netem: Option<String>,
+    /// A running controller (HOST:PORT), already pointed at the netem (or plant) it should
+    /// fly; needs --plant or --netem to read the final state.
+    #[arg(long)]
+    pub controller: Option<String>,
+    /// Leave the profile of the netem at --netem as it is (the file's [scenario.delays] is
+    /// then not used); a file without [scenario.delays] leaves it alone anyway. summary.json's
+    /// `delay_profile` says what was in force.
+    #[arg(long, requires = "netem")]
+    pub keep_netem_profile: bool,
+}
+
+impl EndpointArgs {
+    /// Whether any service was given.
+    pub fn given(&self) -> bool {
+        self.plant.is_some() || self.netem.is_some() || self.controller.is_some()
+    }
+
+    pub fn endpoints(self, time_mode: TimeMode) -> Endpoints {
+        Endpoints {
+            plant: self.plant,
+            netem: self.netem,
+            controller: self.controller,
+            time_mode,
+            keep_netem_profile: self.keep_netem_profile,
+            live: None,
+            tls: Default::default(),
+        }
+    }
+}

@@ -1,0 +1,102 @@
+//! One module per command: each takes its validated flags, does its work through `fly`,
+//! `sweep` and `output`, and returns how the process should end ([`Exit`]); only `main` exits.
+
+pub mod certs;
+pub mod reproduce;
+pub mod run;
+pub mod sweep;
+pub mod sweep_merge;
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use crate::drive::Driver;
+use crate::fly::fly_all;
+use crate::output::{self, Outputs, ReportParts};
+use crate::run::Batch;
+use crate::run::Job;
+
+/// How a command that did its work ends (an error is `Err`, exit code 1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Exit {
+    /// Every run ended without a collision (0).
+    Success,
+    /// A run collided (3): a result scripts must be able to tell from both success and error.
+    Collision,
+    /// Ctrl-C, after what had finished was written (130, the shells' 128 + SIGINT).
+    Interrupted,
+}
+
+impl Exit {
+    pub fn code(self) -> i32 {
+        match self {
+            Exit::Success => 0,
+            Exit::Collision => 3,
+            Exit::Interrupted => 130,
+        }
+    }
+}
+
+/// The global flags.
+#[derive(Debug, Clone, Copy)]
+pub struct Options {
+    pub quiet: bool,
+    pub plots: bool,
+    /// Write each run's MCAP file.
+    pub mcap: bool,
+    /// When the command started (for the total wall time).
+    pub started: Instant,
+}
+
+/// A command's runs, flown and written.
+struct Written {
+    batch: Batch,
+    summary: serde_json::Value,
+    dir: PathBuf,
+    /// Print the human-readable report (neither `--json` nor `--quiet`).
+    show: bool,
+}
+
+/// What `reproduce` and `run` do the same way: fly the jobs, write the outputs, print the
+/// JSON summary when asked; a run that failed is the command's error (what finished is kept),
+/// Ctrl-C its [`Exit::Interrupted`].
+fn fly_and_write(
+    jobs: &[Job],
+    out: Option<PathBuf>,
+    json: bool,
+    opts: &Options,
+    driver: &Driver,
+    report: impl FnOnce(&Batch) -> ReportParts,
+) -> anyhow::Result<Result<Written, Exit>> {
+    let show = !json && !opts.quiet;
+    let batch = fly_all(jobs, driver, show)?;
+    let dir = out.unwrap_or_else(|| output::default_out_dir(""));
+    let outputs = Outputs { plots: opts.plots, mcap: opts.mcap, show };
+    let summary = output::write(&dir, jobs, &batch, outputs, report)?;
+    if batch.interrupted {
+        eprintln!(
+            "interrupted: {} run(s) had finished; they are in {}",
+            batch.runs.len(),
+            dir.join("summary.json").display()
+        );
+        return Ok(Err(Exit::Interrupted));
+    }
+    if json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    }
+    if let Some(error) = &batch.error {
+        let kept = batch.runs.iter().any(|r| r.error.is_some());
+        let failed = if kept { ", and the failed run's cycles so far" } else { "" };
+        anyhow::bail!(
+            "{error}\n({} run(s) finished before it; they{failed} and the error are in {})",
+            batch.finished().count(),
+            dir.join("summary.json").display()
+        );
+    }
+    Ok(Ok(Written { batch, summary, dir, show }))
+}
+
+/// The exit of a command whose runs all finished.
+fn exit_of(batch: &Batch) -> Exit {
+    if batch.any_collided() { Exit::Collision } else { Exit::Success }
+}

@@ -1,0 +1,98 @@
+//! `hilbench sweep FILE`: N lockstep runs, each under a delay process drawn from the file's
+//! `[sweep]` table; outcomes as distributions.
+
+use anyhow::Context;
+
+use super::{Exit, Options};
+use crate::cli::SweepArgs;
+use crate::drive::external::{ExternalController, ExternalSettings};
+use crate::drive::services::Endpoints;
+use crate::drive::{Driver, TimeMode};
+use crate::output::terminal;
+use crate::scenario_file::ScenarioFile;
+use crate::sweep::{Sweep, execute, output};
+
+pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
+    let spec = ScenarioFile::load(&args.file)?;
+    let table = spec.sweep.clone().with_context(|| {
+        format!(
+            "{}: no [sweep] table (the delay families to draw from; see docs/sweep.md)",
+            args.file.display()
+        )
+    })?;
+    let runs = args.runs.or(table.runs).with_context(|| {
+        format!(
+            "--runs: how many runs? (give --runs N, or `runs` in the [sweep] table of {})",
+            args.file.display()
+        )
+    })?;
+    let modes = match args.mode {
+        // One flight per run for an external controller (the mode names no controller then).
+        None if args.controller_cmd.is_some() => vec![mpc::ControllerMode::Multistage],
+        None => spec.run.modes.iter().map(|m| crate::run::controller_mode(*m)).collect(),
+        Some(m) => m.modes().into_iter().map(crate::run::controller_mode).collect(),
+    };
+    anyhow::ensure!(
+        spec.run.time_mode == TimeMode::Lockstep,
+        "{}: a sweep flies in lockstep (run.time_mode is real-time)",
+        args.file.display()
+    );
+    let jobs =
+        args.jobs.map_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()), |j| j as usize);
+    let driver = match args.controller_cmd {
+        Some(command) => Driver::External(ExternalController {
+            command,
+            time_mode: TimeMode::Lockstep,
+            settings: ExternalSettings::default(),
+        }),
+        None if args.tls.given() && !args.grpc => {
+            anyhow::bail!("the TLS flags need --grpc (a sweep flies in process otherwise)")
+        }
+        None if args.grpc => {
+            Driver::Services(Endpoints { tls: args.tls.load()?.into(), ..Endpoints::default() })
+        }
+        None => Driver::InProcess,
+    };
+    let sweep = Sweep {
+        file: args.file.clone(),
+        seed: args.seed.or(table.seed).unwrap_or(spec.scenario.seed),
+        runs,
+        modes,
+        shard: args.shard,
+        jobs,
+        driver,
+        run_timeout: std::time::Duration::from_secs_f64(
+            args.run_timeout_s
+                .or(table.run_timeout_s)
+                .unwrap_or(hilbench_svc::sweep_table::DEFAULT_RUN_TIMEOUT_S),
+        ),
+        shrink: args.shrink,
+        shrink_runs: table.shrink_runs.unwrap_or(hilbench_svc::sweep_table::DEFAULT_SHRINK_RUNS),
+        scenario: spec.scenario,
+        table,
+    };
+    let dir = args.out.unwrap_or_else(|| crate::output::default_out_dir("sweep-"));
+    // The output directory before the first run: a sweep that cannot write loses nothing.
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let show = !args.json && !opts.quiet;
+    let items = (sweep.indices().end - sweep.indices().start) * sweep.modes.len() as u64;
+    let bar = crate::progress::bar_with_eta(items, "runs", show);
+    let result = execute(&sweep, &bar, show);
+    bar.finish_and_clear();
+    let summary = output::write(&dir, &sweep, &result, opts.plots)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else if show {
+        terminal::print_sweep(&summary, &dir);
+    }
+    if result.interrupted {
+        eprintln!(
+            "interrupted: {} run(s) had finished; they are in {}",
+            result.done.len(),
+            dir.join("sweep.json").display()
+        );
+        return Ok(Exit::Interrupted);
+    }
+    // A sweep's failures are its findings, in sweep.json: the command itself succeeded.
+    Ok(Exit::Success)
+}

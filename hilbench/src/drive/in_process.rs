@@ -1,0 +1,27 @@
+//! A run in this process: `mpc::run_closed_loop`, the same control loop and delay line the
+//! services run, without them (lockstep only).
+
+use mpc::{ClosedLoopSettings, run_closed_loop};
+
+use crate::run::{DelayProfileInForce, DelaySource, FinishedRun, Job, RunFaults};
+
+/// Flies `job` with the predicted trajectories recorded (as the gRPC telemetry carries them).
+/// Blocking: call it off the async runtime.
+pub fn fly(job: Job) -> Result<FinishedRun, String> {
+    let settings = ClosedLoopSettings { record_predictions: true, ..ClosedLoopSettings::paper(job.mode) };
+    let network = job.scenario.network().map_err(|e| e.to_string())?;
+    let network = network.unwrap_or_else(|| delay::NetworkProfile::none(job.scenario.seed));
+    let (summary, traces) = run_closed_loop(&job.scenario, &settings).map_err(|e| e.to_string())?;
+    let records: Vec<_> = traces.into_iter().map(|t| t.record).collect();
+    Ok(FinishedRun {
+        job,
+        summary,
+        rows: crate::run::rows_of(&records),
+        records,
+        timing: None,
+        faults: RunFaults::default(),
+        delay_profile: DelayProfileInForce::of(DelaySource::Scenario, &network),
+        external: None,
+        error: None,
+    })
+}

@@ -1,0 +1,173 @@
+//! Flying jobs: [`fly_all`] runs every [`Job`] in order with one [`Driver`], on a runtime of its
+//! own that also watches for Ctrl-C, and gives back each [`FinishedRun`] (the failed one kept as
+//! far as it flew). `hilbench reproduce`, `run`, `sweep` (one job per run) and `falsify` all fly
+//! through here, so whatever a driver gains, every command gains.
+
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+
+use crate::drive::{Driver, TimeMode, grpc, in_process};
+use crate::run::{Batch, FinishedRun, Job};
+
+/// How often a real-time run without a terminal says it is still flying.
+const HEARTBEAT: Duration = Duration::from_secs(5);
+
+/// Runs every job in order (in lockstep, or in real time when the driver says so). `progress`
+/// shows a progress bar on stderr when it is a terminal, and a line per finished run (and
+/// every few seconds of a real-time run) either way.
+pub fn fly_all(jobs: &[Job], driver: &Driver, progress: bool) -> anyhow::Result<Batch> {
+    let started = Instant::now();
+    // In process too: the runtime watches for Ctrl-C while a run goes on.
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name(crate::panics::RUN_THREAD)
+        .enable_all()
+        .build()
+        .context("cannot start the tokio runtime")?;
+    let mut runs = Vec::with_capacity(jobs.len());
+    let mut error = None;
+    let mut interrupted = false;
+    let bar = crate::progress::bar(jobs.len() as u64, "runs", progress);
+    // One Ctrl-C listener for all the runs: a listener made per run would miss a Ctrl-C that
+    // lands between two runs (tokio's handler, once installed, swallows it).
+    let (ctrl_c_tx, ctrl_c_rx) = tokio::sync::watch::channel(false);
+    runtime.spawn(async move {
+        if tokio::signal::ctrl_c().await.is_ok() {
+            let _ = ctrl_c_tx.send(true);
+        }
+    });
+    let real_time = driver.time_mode() == TimeMode::RealTime;
+    for job in jobs {
+        let name = &job.scenario.name;
+        // The controller flown: the job's mode, or the external controller.
+        let controller = match driver {
+            Driver::External(_) => crate::drive::external::CONTROLLER_NAME,
+            _ => job.mode.name(),
+        };
+        bar.set_message(format!("{name} with {controller}"));
+        let mut ctrl_c = ctrl_c_rx.clone();
+        if *ctrl_c.borrow_and_update() {
+            interrupted = true;
+            break;
+        }
+        let run_started = Instant::now();
+        let flown = runtime.block_on(async {
+            // Without a terminal a real-time run would say nothing for its whole flight (tens
+            // of seconds): a line every few seconds says it is alive.
+            let heartbeat = async {
+                let mut tick = tokio::time::interval(HEARTBEAT);
+                tick.tick().await;
+                loop {
+                    tick.tick().await;
+                    let text = format!(
+                        "  {name} {controller:<11} flying ({:.0} s)",
+                        run_started.elapsed().as_secs_f64()
+                    );
+                    crate::progress::line(&bar, progress, &text);
+                }
+            };
+            tokio::select! {
+                flown = fly(job, driver) => Some(flown),
+                Ok(()) = ctrl_c.changed() => None,
+                () = heartbeat, if real_time && bar.is_hidden() => None,
+            }
+        });
+        let Some(flown) = flown else {
+            interrupted = true;
+            break;
+        };
+        let run = match flown {
+            Ok(run) => run,
+            Err((e, partial)) => {
+                // What flew before the error is kept, its error with it.
+                runs.extend(partial);
+                error = Some(e);
+                break;
+            }
+        };
+        let summary = &run.summary;
+        let mut collided = if summary.collided {
+            format!("; COLLIDED: {}", summary.collisions_text())
+        } else {
+            String::new()
+        };
+        if !summary.reached || summary.collided {
+            for line in &summary.explanation {
+                collided.push_str("; ");
+                collided.push_str(line);
+            }
+        }
+        let done = format!(
+            "  {name} {controller:<11} done ({} cycles, {:.2} s){collided}",
+            summary.cycles,
+            run_started.elapsed().as_secs_f64()
+        );
+        crate::progress::line(&bar, progress, &done);
+        bar.inc(1);
+        runs.push(run);
+    }
+    bar.finish_and_clear();
+    // An interrupted run's services and solve are abandoned, not awaited.
+    runtime.shutdown_background();
+    Ok(Batch {
+        runs,
+        error,
+        interrupted,
+        driver: driver.name(),
+        time_mode: driver.time_mode(),
+        wall_time_s: started.elapsed().as_secs_f64(),
+    })
+}
+
+/// One run, or its error (`what` failed: ...) with the part that flew, if any. Each driver's
+/// run is a task of its own: a panic in it is this run's error.
+async fn fly(job: &Job, driver: &Driver) -> Result<FinishedRun, (String, Option<FinishedRun>)> {
+    let name = &job.scenario.name;
+    let failed = |e: tokio::task::JoinError| format!("the run {}", hilbench_svc::task_failure(e));
+    match driver {
+        Driver::Services(endpoints) => {
+            let what = format!("{name} with {} over gRPC", job.mode.name());
+            let (task_job, endpoints) = (job.clone(), endpoints.clone());
+            let task = tokio::spawn(async move {
+                let settings = grpc::GrpcSettings::default();
+                grpc::run_against(&task_job.scenario, task_job.mode, &settings, &endpoints).await
+            });
+            match task.await {
+                Ok(Ok(run)) => Ok(run.finished(job.clone(), None)),
+                Ok(Err(f)) => {
+                    let e = format!("{what}: {:#}", f.error);
+                    Err((e.clone(), f.partial.map(|p| p.finished(job.clone(), Some(e)))))
+                }
+                Err(join) => Err((format!("{what}: {}", failed(join)), None)),
+            }
+        }
+        Driver::External(controller) => {
+            let what = format!("{name} with an external controller");
+            let (scenario, controller) = (job.scenario.clone(), controller.clone());
+            let task =
+                tokio::spawn(
+                    async move { crate::drive::external::run_external(&scenario, &controller).await },
+                );
+            match task.await {
+                Ok(Ok(run)) => Ok(run.finished(job.clone(), None)),
+                Ok(Err(f)) => {
+                    let e = format!("{what}: {:#}", f.error);
+                    Err((e.clone(), f.partial.map(|p| p.finished(job.clone(), Some(e)))))
+                }
+                Err(join) => Err((format!("{what}: {}", failed(join)), None)),
+            }
+        }
+        Driver::InProcess => {
+            let what = format!("{name} with {}", job.mode.name());
+            let task_job = job.clone();
+            match tokio::task::spawn_blocking(move || in_process::fly(task_job)).await {
+                Ok(Ok(run)) => Ok(run),
+                Ok(Err(e)) => Err((format!("{what}: {e}"), None)),
+                Err(join) => {
+                    Err((format!("{what}: the closed loop {}", hilbench_svc::task_failure(join)), None))
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,140 @@
+//! What the commands print on the terminal: the table of a command's runs, where the time
+//! went, the files written, a sweep's counts.
+
+use mpc::RunSummary;
+
+/// A short table of the runs of one scenario file.
+pub fn run_table(runs: &[RunSummary]) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{:<16} {:<11} {:>8} {:>9} {:>9} {:>10} {:>7} {:>9} {:>9}",
+        "scenario",
+        "controller",
+        "reached",
+        "time [s]",
+        "path [m]",
+        "clear. [m]",
+        "cycles",
+        "solve ms",
+        "collided"
+    );
+    // A number that does not exist prints as "-": no goal reached (time), no obstacle
+    // (clearance +inf), no solver the bench can see (an external controller's solve time).
+    let finite = |v: f64, text: String| if v.is_finite() { text } else { "-".to_string() };
+    for r in runs {
+        let time = r.time_to_goal_s.map_or_else(|| "-".to_string(), |t| format!("{t:.2}"));
+        let _ = writeln!(
+            out,
+            "{:<16} {:<11} {:>8} {:>9} {:>9.2} {:>10} {:>7} {:>9} {:>9}",
+            r.scenario,
+            r.controller,
+            if r.reached { "yes" } else { "no" },
+            time,
+            r.path_length_m,
+            finite(r.min_clearance_m, format!("{:+.3}", r.min_clearance_m)),
+            r.cycles,
+            finite(r.solve_ms_median, format!("{:.2}", r.solve_ms_median)),
+            if r.collided { "YES" } else { "no" },
+        );
+    }
+    for r in runs.iter().filter(|r| r.collided) {
+        let _ = writeln!(out, "  {} {} collided: {}", r.scenario, r.controller, r.collisions_text());
+    }
+    for r in runs {
+        for line in &r.explanation {
+            let _ = writeln!(out, "  {} {}: {line}", r.scenario, r.controller);
+        }
+    }
+    out
+}
+
+/// Where the wall time went: the runs (solver, gRPC, services), the plots, and the command.
+pub fn print_time(summary: &serde_json::Value, plots: bool, mcap: bool, started: std::time::Instant) {
+    let timing = &summary["timing"];
+    let secs = |key: &str| timing[key].as_f64().map_or_else(|| "-".to_string(), |s| format!("{s:.2} s"));
+    let runs = if summary["transport"] == "grpc" {
+        format!(
+            "runs {} (solver {}, gRPC loop: round trips, netem, plant RK4, telemetry {}, service start {}, stop {})",
+            secs("wall_time_s"),
+            secs("solver_s"),
+            secs("loop_overhead_s"),
+            secs("setup_s"),
+            secs("teardown_s"),
+        )
+    } else {
+        format!("runs {} (solver {})", secs("wall_time_s"), secs("solver_s"))
+    };
+    let plots = if plots { format!(", plotting {}", secs("plotting_s")) } else { String::new() };
+    let mcap = if mcap { format!(", MCAP files {}", secs("mcap_s")) } else { String::new() };
+    println!("Time: {:.2} s wall in all; {runs}{plots}{mcap}", started.elapsed().as_secs_f64());
+}
+
+/// The files a command wrote.
+pub fn print_outputs(dir: &std::path::Path) {
+    println!("Report: {}", dir.join("report.md").display());
+    println!("Summary: {}", dir.join("summary.json").display());
+}
+
+/// The sweep's counts and distributions, per family, on stdout.
+pub fn print_sweep(v: &serde_json::Value, dir: &std::path::Path) {
+    let f = |x: &serde_json::Value| x.as_f64().map_or_else(|| "-".to_string(), |x| format!("{x:.3}"));
+    println!();
+    println!(
+        "{} runs of {} ({}), seed {}: {} reached, {} collided ({} with the ground), {} missed, {} errors",
+        v["runs"],
+        v["scenario"].as_str().unwrap_or(""),
+        v["file"].as_str().unwrap_or(""),
+        v["seed"],
+        v["reached"],
+        v["collided"],
+        v["collided_ground"],
+        v["missed"],
+        v["errors"]
+    );
+    println!();
+    println!(
+        "{:<16} {:>6} {:>8} {:>9} {:>7} {:>7} {:>22} {:>16}",
+        "family",
+        "runs",
+        "reached",
+        "collided",
+        "missed",
+        "errors",
+        "clearance p1/p5/p50 m",
+        "path p50/p95 m"
+    );
+    let families = v["family_order"].as_array().cloned().unwrap_or_default();
+    for name in families.iter().filter_map(|n| n.as_str()) {
+        let a = &v["families"][name];
+        println!(
+            "{:<16} {:>6} {:>8} {:>9} {:>7} {:>7} {:>22} {:>16}",
+            name,
+            a["runs"].to_string(),
+            a["reached"].to_string(),
+            a["collided"].to_string(),
+            a["missed"].to_string(),
+            a["errors"].to_string(),
+            format!(
+                "{}/{}/{}",
+                f(&a["min_clearance_m"]["p1"]),
+                f(&a["min_clearance_m"]["p5"]),
+                f(&a["min_clearance_m"]["p50"])
+            ),
+            format!("{}/{}", f(&a["path_length_m"]["p50"]), f(&a["path_length_m"]["p95"])),
+        );
+    }
+    let t = &v["timing"];
+    if let (Some(wall), Some(rate)) = (t["wall_time_s"].as_f64(), t["runs_per_s"].as_f64()) {
+        println!();
+        println!(
+            "Time: {wall:.1} s wall, {rate:.1} runs/s with {} jobs (solver {:.1} s of {:.1} s in runs)",
+            t["jobs"],
+            t["solver_s"].as_f64().unwrap_or(0.0),
+            t["run_wall_s"].as_f64().unwrap_or(0.0)
+        );
+    }
+    println!("Report: {}", dir.join("report.md").display());
+    println!("Summary: {}", dir.join("sweep.json").display());
+}

@@ -1,0 +1,311 @@
+//! What a run is and what is known of it once flown, whichever driver flew it: the [`Job`]
+//! (scenario and controller), the [`FinishedRun`] the outputs are written from, and its facts
+//! (where the time went, faults, the delays in force, an external controller's process, the
+//! per-cycle rows). Plain data: this module imports no other module of the crate.
+
+use hilbench_svc::scenario_file::Mode;
+use mav::Scenario;
+use mpc::{ControllerMode, CycleRecord, RunSummary};
+
+/// A run to make: a scenario and the bench's controller to fly it with (an external
+/// controller, when the driver is one, replaces the controller).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Job {
+    pub scenario: Scenario,
+    pub mode: ControllerMode,
+}
+
+/// The runs of one command, in the order of their jobs.
+#[derive(Debug, Clone)]
+pub struct Batch {
+    /// Every run that finished, and last the one that failed part-way (its `error` set) when
+    /// it had flown at least one cycle.
+    pub runs: Vec<FinishedRun>,
+    /// The error that ended the command early (a run that failed: a service died, a trace ran
+    /// out, ...): no later run started.
+    pub error: Option<String>,
+    /// Ctrl-C stopped the command: `runs` holds the runs that finished before it.
+    pub interrupted: bool,
+    /// The driver's `summary.json` name (`transport`).
+    pub driver: &'static str,
+    pub time_mode: hilbench_svc::scenario_file::TimeMode,
+    pub wall_time_s: f64,
+}
+
+impl Batch {
+    pub fn any_collided(&self) -> bool {
+        self.runs.iter().any(|r| r.summary.collided)
+    }
+
+    /// The runs that finished (the failed one left out).
+    pub fn finished(&self) -> impl Iterator<Item = &FinishedRun> {
+        self.runs.iter().filter(|r| r.error.is_none())
+    }
+
+    /// Every run's summary, in order.
+    pub fn summaries(&self) -> Vec<mpc::RunSummary> {
+        self.runs.iter().map(|r| r.summary.clone()).collect()
+    }
+
+    /// Solver time summed over every run, s.
+    pub fn solver_s(&self) -> f64 {
+        self.runs.iter().map(|r| r.summary.solver_s).sum()
+    }
+}
+
+/// The bench's controller a scenario file's or the command line's mode names.
+pub fn controller_mode(mode: Mode) -> ControllerMode {
+    match mode {
+        Mode::Nmpc => ControllerMode::Nmpc,
+        Mode::Multistage => ControllerMode::Multistage,
+    }
+}
+
+/// The scenario file's name of a controller (`run.modes`).
+pub fn file_mode(mode: ControllerMode) -> Mode {
+    match mode {
+        ControllerMode::Nmpc => Mode::Nmpc,
+        ControllerMode::Multistage => Mode::Multistage,
+    }
+}
+
+/// Where a run's cycles also go as they arrive (the live Foxglove view of `--foxglove-ws`).
+pub trait CycleSink: Send + Sync + std::fmt::Debug {
+    /// One cycle of a run of `scenario`.
+    fn cycle(&self, scenario: &Scenario, record: &CycleRecord);
+}
+
+/// A run as flown (or, when `error` is set, as far as it flew before it failed).
+#[derive(Debug, Clone)]
+pub struct FinishedRun {
+    pub job: Job,
+    pub summary: RunSummary,
+    /// The per-cycle rows (the CSV log).
+    pub rows: Vec<CycleRow>,
+    /// The controller's records, predicted trajectories included (the MCAP log); none for an
+    /// external controller, which has no telemetry.
+    pub records: Vec<CycleRecord>,
+    /// Where the wall time went (runs over services only).
+    pub timing: Option<RunTiming>,
+    pub faults: RunFaults,
+    pub delay_profile: DelayProfileInForce,
+    /// What the external controller's process did (`None` for the bench's controller).
+    pub external: Option<ExternalFacts>,
+    /// The error that stopped the run part-way (its `end_reason` is then "error").
+    pub error: Option<String>,
+}
+
+impl FinishedRun {
+    /// The name of the controller flown: the job's mode, or the external controller's.
+    pub fn controller(&self) -> &str {
+        &self.summary.controller
+    }
+}
+
+/// What delayed the run's messages: `summary.json`'s `delay_profile` (a stable key).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct DelayProfileInForce {
+    pub source: DelaySource,
+    /// The process, as a `[scenario.delays]` table (seeds aside: `scenario.seed` or netem's);
+    /// a trace read from a file is named by its file, its delays left out.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub delays: Option<delay::DelaysTable>,
+}
+
+impl DelayProfileInForce {
+    /// The table of `network`, traces from files named rather than listed.
+    pub fn of(source: DelaySource, network: &delay::NetworkProfile) -> Self {
+        fn name_only(t: &mut delay::DelaysTable) {
+            if t.file.is_some() {
+                t.delays_s = None;
+            }
+        }
+        let mut table = delay::DelaysTable::from_network(network);
+        name_only(&mut table);
+        for direction in [&mut table.to_plant, &mut table.to_controller].into_iter().flatten() {
+            name_only(direction);
+        }
+        Self { source, delays: Some(table) }
+    }
+
+    /// No netem between the controller and the plant.
+    pub fn none() -> Self {
+        Self { source: DelaySource::None, delays: None }
+    }
+}
+
+/// Where the delays of a run came from (`summary.json`'s `delay_profile.source`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DelaySource {
+    /// The scenario's `[scenario.delays]` (set on netem, or run in process).
+    Scenario,
+    /// The profile a netem running elsewhere had, left alone (`--keep-netem-profile`, or a
+    /// scenario that does not describe its network).
+    Netem,
+    /// No netem between the controller and the plant (the link's own delays, unknown to the
+    /// bench).
+    None,
+}
+
+/// Faults of a run: its plant link's outages, the plant's watchdog and resets, from the
+/// controller's status, the telemetry and the plant's last sample (all zero when nothing
+/// failed; the `summary.json` keys of docs/output.md's schema).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct RunFaults {
+    /// Outages of the controller's link to the Plant API during the episode: failed calls, or in
+    /// real time no completed cycle for longer than the controller's stall timeout.
+    pub link_losses: u64,
+    /// Wall time from the last completed cycle before each outage to the first after it (the
+    /// time to notice included), summed over the outages, s.
+    pub link_down_s: f64,
+    /// The longest outage, s.
+    pub longest_link_down_s: f64,
+    /// Cycles that started from a sample in which the plant's watchdog held hover (no command
+    /// for longer than its timeout: in real time, the cycles after an outage until their first
+    /// command has crossed the delays).
+    pub watchdog_cycles: u64,
+    /// Plant time the plant's watchdog held hover during the run, s (the plant's own count,
+    /// cycles or none).
+    pub watchdog_hover_s: f64,
+    /// The plant was reset or restarted under the run (which then failed).
+    pub plant_resets: u64,
+    /// Plant time of the run's last sample before the reset, s (0 without one).
+    pub plant_reset_time_s: f64,
+}
+
+impl RunFaults {
+    /// Adds the keys to a run's `summary.json` entry.
+    pub fn add_to(&self, entry: &mut serde_json::Value) {
+        if let (Some(entry), serde_json::Value::Object(keys)) =
+            (entry.as_object_mut(), serde_json::json!(self))
+        {
+            entry.extend(keys);
+        }
+    }
+}
+
+/// A run that failed part-way: the error, and what it flew before it (`None` when it failed
+/// before its first cycle). The partial run's summary ends with `end_reason` "error", from the
+/// last sample its telemetry carried. `R` is the run: the bench's controller's
+/// (`drive::grpc::GrpcRun`) or an external one's (`drive::external::ExternalRun`).
+#[derive(Debug)]
+pub struct RunFailure<R> {
+    pub error: anyhow::Error,
+    pub partial: Option<Box<R>>,
+}
+
+impl<R> std::fmt::Display for RunFailure<R> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:#}", self.error)
+    }
+}
+
+impl<R: std::fmt::Debug> std::error::Error for RunFailure<R> {}
+
+impl<R> From<anyhow::Error> for RunFailure<R> {
+    fn from(error: anyhow::Error) -> Self {
+        Self { error, partial: None }
+    }
+}
+
+/// Where the wall time of a run went.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+pub struct RunTiming {
+    /// Starting the three services, connecting and subscribing, s.
+    pub setup_s: f64,
+    /// From `SetScenario` to the end of the episode (all cycles), s.
+    pub episode_s: f64,
+    /// Sum of the controller's solve times (from telemetry), s; part of `episode_s`.
+    pub solver_s: f64,
+    /// Stopping the services, s.
+    pub teardown_s: f64,
+}
+
+impl RunTiming {
+    /// The rest of the episode: gRPC round trips, netem, plant integration, telemetry.
+    pub fn loop_overhead_s(&self) -> f64 {
+        (self.episode_s - self.solver_s).max(0.0)
+    }
+
+    pub fn total_s(&self) -> f64 {
+        self.setup_s + self.episode_s + self.teardown_s
+    }
+}
+
+/// What `summary.json` says of the external controller of a run (`external_controller`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ExternalFacts {
+    /// The command line.
+    pub command: String,
+    /// How its process ended: `stopped by the bench` (SIGTERM after the run ended), `killed by
+    /// the bench` (SIGKILL: it outlived the grace, or the run failed), or its own exit
+    /// (`exited: exit status: 1`) when that came first.
+    pub exit: String,
+    /// Commands the plant applied, as seen at its steps (one replaced within a step is not
+    /// seen); the CSV has a row for each.
+    pub commands_applied: u64,
+    /// Of them, commands the plant clipped at its actuator limits.
+    pub commands_saturated: u64,
+    /// Plant steps judged (samples of the plant's stream up to the end of the run).
+    pub plant_steps_judged: u64,
+    /// Plant steps the bench's stream missed (its buffer holds the whole run, so 0 unless a
+    /// single call advanced further than that); the end is then judged at the next step seen.
+    pub plant_steps_missed: u64,
+}
+
+/// One control cycle: a row of the CSV log (`output::cycle_log`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CycleRow {
+    pub cycle: u64,
+    /// Plant time of the sample the controller solved from, s.
+    pub t_s: f64,
+    pub state: [f64; 8],
+    pub command: [f64; 3],
+    /// The round-trip delay the controller knew at this cycle (that of the previous command,
+    /// measured from plant stamps), s; 0 before the first measurement.
+    pub known_delay_s: f64,
+    /// The delay the network put on this cycle's command (netem's stamp, or the in-process
+    /// delay line's draw), s; `None` (an empty cell) when the command was lost.
+    pub injected_delay_s: Option<f64>,
+    pub weights: Vec<f64>,
+    pub status: String,
+    pub iterations: u64,
+    pub solve_ms: f64,
+    pub cost: f64,
+    pub constraint_violation: f64,
+    pub predicted_clearance_m: f64,
+    /// What the safety layer sent: `panoc`, `qp`, `shifted_plan`, `brake`, or `best_effort`
+    /// when no candidate passed its checks (empty when the layer is off).
+    pub decision: String,
+    /// Why, in one line: the rejected candidates before the one sent (empty when the layer is
+    /// off).
+    pub reason: String,
+    /// QP cost minus PANOC cost on the nonlinear model, when the cross-check ran.
+    pub cost_gap: Option<f64>,
+}
+
+/// The rows of a run's records (the same from a gRPC run and an in-process one).
+pub fn rows_of(records: &[CycleRecord]) -> Vec<CycleRow> {
+    records
+        .iter()
+        .map(|r| CycleRow {
+            cycle: r.cycle,
+            t_s: r.t_s(),
+            state: r.state,
+            command: r.command,
+            known_delay_s: r.known_delay_s.unwrap_or(0.0),
+            injected_delay_s: r.injected_delay_s,
+            weights: r.weights.clone(),
+            status: r.solve.status.name().to_string(),
+            iterations: r.solve.iterations,
+            solve_ms: r.solve.solve_ms,
+            cost: r.solve.cost,
+            constraint_violation: r.solve.constraint_violation,
+            predicted_clearance_m: r.solve.min_clearance_m,
+            decision: r.decision_label().to_string(),
+            reason: r.reason.clone(),
+            cost_gap: r.cost_gap,
+        })
+        .collect()
+}
