@@ -122,8 +122,12 @@ pub async fn serve(
     config: GatewayConfig,
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), GatewayError> {
-    let link =
-        Link::open_signed(&config.mavlink, config.system_id, config.component_id, config.signing_key.clone())?;
+    let link = Link::open_signed(
+        &config.mavlink,
+        config.system_id,
+        config.component_id,
+        config.signing_key.clone(),
+    )?;
     serve_with_link(listener, config, link, shutdown).await
 }
 

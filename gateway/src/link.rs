@@ -321,7 +321,8 @@ impl Link {
 
     /// `msg` as one MAVLink 2 frame with the next sequence number, signed when the link signs.
     fn encode(&self, msg: &MavMessage) -> Result<Vec<u8>, MessageWriteError> {
-        let header = MavHeader { sequence: self.shared.sequence.fetch_add(1, Ordering::Relaxed), ..self.header };
+        let header =
+            MavHeader { sequence: self.shared.sequence.fetch_add(1, Ordering::Relaxed), ..self.header };
         let mut frame = Vec::with_capacity(MAX_FRAME_BYTES);
         mavlink::write_versioned_msg(&mut frame, MavlinkVersion::V2, header, msg)?;
         if let Some(signer) = &self.shared.signer {
@@ -332,14 +333,18 @@ impl Link {
 
     /// One frame read: checked against the signing key (when the link signs), then decoded.
     fn frame(&self, peer: Peer, raw: &MAVLinkMessageRaw) -> Frame {
-        let header =
-            MavHeader { system_id: raw.system_id(), component_id: raw.component_id(), sequence: raw.sequence() };
+        let header = MavHeader {
+            system_id: raw.system_id(),
+            component_id: raw.component_id(),
+            sequence: raw.sequence(),
+        };
         if let Some(verifier) = &self.shared.verifier {
             let bytes = match raw {
                 MAVLinkMessageRaw::V1(v1) => v1.raw_bytes(),
                 MAVLinkMessageRaw::V2(v2) => v2.raw_bytes(),
             };
-            if let Err(why) = lock(verifier).check(bytes, header.system_id, header.component_id, signing_stamp())
+            if let Err(why) =
+                lock(verifier).check(bytes, header.system_id, header.component_id, signing_stamp())
             {
                 return Frame::Refused(peer, why);
             }
@@ -463,7 +468,9 @@ impl Link {
             match frames.read_any_raw_message::<MavMessage>() {
                 Ok(raw) => pending.push_back(self.frame(peer, &raw)),
                 // The frame was consumed; the datagram's next ones follow.
-                Err(MessageReadError::Parse(_)) => pending.push_back(Frame::Refused(peer, Refusal::Undecodable)),
+                Err(MessageReadError::Parse(_)) => {
+                    pending.push_back(Frame::Refused(peer, Refusal::Undecodable))
+                }
                 // The end of the datagram (a frame cut short there is dropped with it).
                 Err(MessageReadError::Io(_)) => break,
             }

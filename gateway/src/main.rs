@@ -99,7 +99,9 @@ fn config(args: &Args) -> anyhow::Result<GatewayConfig> {
         mavbridge::BridgeError::Setting("start_tolerance_m", r) => {
             anyhow::anyhow!("--start-tolerance-m: {r}")
         }
-        mavbridge::BridgeError::Setting("envelope_margin_m", r) => anyhow::anyhow!("--envelope-margin-m: {r}"),
+        mavbridge::BridgeError::Setting("envelope_margin_m", r) => {
+            anyhow::anyhow!("--envelope-margin-m: {r}")
+        }
         mavbridge::BridgeError::Setting("max_speed_mps", r) => anyhow::anyhow!("--max-speed-mps: {r}"),
         other => anyhow::anyhow!("{other}"),
     })?;

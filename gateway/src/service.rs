@@ -249,8 +249,8 @@ impl GatewayService {
             crate::link::Frame::Message(peer, header, msg) => self.on_message(peer, &header, &msg),
             crate::link::Frame::Refused(peer, why) => {
                 let mut inner = self.shared.lock();
-                inner.bridge.refuse(peer, why);
-                log_dropped(&inner, peer, why, None);
+                let counted = inner.bridge.refuse(peer, why);
+                log_dropped(&inner, peer, counted, None);
             }
         }
     }
@@ -272,7 +272,8 @@ impl GatewayService {
                 self.shared.link.answer(vehicle.peer);
             }
             if let Some(reboot) = &event.reboot {
-                let due = inner.reboot_logged_ns.is_none_or(|t| now.saturating_sub(t) >= REBOOT_LOG_PERIOD_NS);
+                let due =
+                    inner.reboot_logged_ns.is_none_or(|t| now.saturating_sub(t) >= REBOOT_LOG_PERIOD_NS);
                 if due {
                     let unlogged = std::mem::take(&mut inner.reboots_unlogged);
                     let more = if unlogged > 0 {

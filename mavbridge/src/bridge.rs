@@ -830,9 +830,10 @@ impl Bridge {
         })
     }
 
-    /// A frame from `peer` refused before it was decoded (junk, or its signature), counted.
-    pub fn refuse(&mut self, peer: Peer, why: Refusal) {
-        self.trust.refuse(peer, why);
+    /// A frame from `peer` refused before it was decoded (junk, or its signature), counted;
+    /// returns what it was counted as ([`Trust::refuse`]).
+    pub fn refuse(&mut self, peer: Peer, why: Refusal) -> Refusal {
+        self.trust.refuse(peer, why)
     }
 
     /// The frames not believed so far.

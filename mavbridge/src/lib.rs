@@ -27,8 +27,8 @@ pub use bridge::{
     Bridge, BridgeError, BridgeSettings, Counters, Event, REBOOT_CLOCK_JUMP_MS, REBOOT_CONFIRMATIONS, Reboot,
     ResetRefusal, VehicleStatus, shows_reboot,
 };
-pub use signing::{KeyError, Signer, SigningKey, Verifier};
-pub use trust::{Dropped, Peer, Refusal, Vehicle, VehicleFilter};
 pub use mavlink;
 pub use modes::ModeRequest;
+pub use signing::{KeyError, Signer, SigningKey, Verifier};
 pub use thrust::ThrustMap;
+pub use trust::{Dropped, Peer, Refusal, Vehicle, VehicleFilter};

@@ -42,7 +42,9 @@ impl std::fmt::Debug for SigningKey {
 pub enum KeyError {
     #[error("is empty: a signing key is 32 bytes, or 64 hex digits")]
     Empty,
-    #[error("holds {0} bytes: a signing key is 32 bytes, or 64 hex digits (e.g. `sha256sum` of a passphrase)")]
+    #[error(
+        "holds {0} bytes: a signing key is 32 bytes, or 64 hex digits (e.g. `sha256sum` of a passphrase)"
+    )]
     Length(usize),
 }
 

@@ -189,14 +189,16 @@ impl Trust {
     }
 
     /// A frame from `peer` refused before it was decoded (`why`: junk, or its signature),
-    /// counted: as from another address when it is not the vehicle's.
-    pub fn refuse(&mut self, peer: Peer, why: Refusal) {
+    /// counted: as from another address when it is not the vehicle's. Returns what it was
+    /// counted as.
+    pub fn refuse(&mut self, peer: Peer, why: Refusal) -> Refusal {
         let why = match self.vehicle {
             Some(v) if v.peer != peer => Refusal::ForeignAddress,
             None if why == Refusal::Undecodable => Refusal::NoVehicle,
             _ => why,
         };
         self.dropped.count(why, None);
+        why
     }
 }
 
@@ -243,9 +245,9 @@ mod tests {
             assert_eq!(t.admit(at(7000), &header(sysid, 1), &px4, false), Err(Refusal::ForeignAddress));
         }
         assert_eq!(t.vehicle(), Some(vehicle), "nothing moved the lock");
-        t.refuse(at(7000), Refusal::Undecodable);
-        t.refuse(at(5000), Refusal::Undecodable);
-        t.refuse(at(5000), Refusal::BadSignature);
+        assert_eq!(t.refuse(at(7000), Refusal::Undecodable), Refusal::ForeignAddress);
+        assert_eq!(t.refuse(at(5000), Refusal::Undecodable), Refusal::Undecodable);
+        assert_eq!(t.refuse(at(5000), Refusal::BadSignature), Refusal::BadSignature);
         let d = t.dropped();
         assert_eq!(
             (d.no_vehicle, d.foreign_address, d.foreign_system, d.undecodable, d.bad_signature),

@@ -6,8 +6,8 @@ use mav::{CommandMeta, Input, Scenario};
 use mavbridge::mavlink::dialects::common::{MavAutopilot, MavCmd, MavMessage, MavResult};
 use mavbridge::mavlink::{self, MavHeader, MavlinkVersion};
 use mavbridge::{
-    AutopilotSettings, Bridge, BridgeSettings, Firmware, ModeRequest, Peer, Reboot, ResetRefusal, SimAutopilot,
-    SimMode, modes,
+    AutopilotSettings, Bridge, BridgeSettings, Firmware, ModeRequest, Peer, Reboot, ResetRefusal,
+    SimAutopilot, SimMode, modes,
 };
 
 const MS: u64 = 1_000_000;
@@ -573,10 +573,8 @@ fn arducopter_answers_guid_options_and_flies_the_thrust_as_thrust_only_with_bit_
 }
 
 /// An attacker on another UDP port, and one on the vehicle's own link with another system id.
-const ATTACKER: Peer = Some(std::net::SocketAddr::V4(std::net::SocketAddrV4::new(
-    std::net::Ipv4Addr::LOCALHOST,
-    40_000,
-)));
+const ATTACKER: Peer =
+    Some(std::net::SocketAddr::V4(std::net::SocketAddrV4::new(std::net::Ipv4Addr::LOCALHOST, 40_000)));
 
 impl Pair {
     /// `msgs` as system `system_id` from `peer` (not the vehicle's frames): the events.
@@ -622,10 +620,7 @@ fn spoofed_states_from_another_address_or_system_are_dropped_counted_by_name_and
         p.forge(ATTACKER, 1, spoofed);
         p.run(1);
     }
-    assert!(matches!(
-        p.bridge.reset(far, None, p.now_ns, 2),
-        Err(ResetRefusal::FarFromVehicle { .. })
-    ));
+    assert!(matches!(p.bridge.reset(far, None, p.now_ns, 2), Err(ResetRefusal::FarFromVehicle { .. })));
 }
 
 #[test]
@@ -701,9 +696,7 @@ fn timesync_answers_going_backwards_and_states_outside_the_envelope_are_refused_
     let offset = p.bridge.status(p.now_ns).clock_offset_ns;
     assert_eq!(offset, Some((VEHICLE_AHEAD_NS as i64, true)));
     // Answers from the vehicle's link to requests never sent, or with a clock gone back.
-    let back = |ts1: i64| {
-        MavMessage::TIMESYNC(mavlink::dialects::common::TIMESYNC_DATA { tc1: 1, ts1 })
-    };
+    let back = |ts1: i64| MavMessage::TIMESYNC(mavlink::dialects::common::TIMESYNC_DATA { tc1: 1, ts1 });
     let events = p.forge(VEHICLE, 1, vec![back(p.now_ns as i64 - MS as i64), back(0)]);
     assert!(events.iter().all(|e| e.reply.is_none()));
     p.run(600);

@@ -286,8 +286,8 @@ impl Tls {
 pub fn client_common_name<T>(request: &tonic::Request<T>) -> Result<String, &'static str> {
     let certs = request.peer_certs().ok_or("no client certificate")?;
     let leaf = certs.first().ok_or("no client certificate")?;
-    let (_, cert) =
-        x509_parser::parse_x509_certificate(leaf.as_ref()).map_err(|_| "a certificate that does not parse")?;
+    let (_, cert) = x509_parser::parse_x509_certificate(leaf.as_ref())
+        .map_err(|_| "a certificate that does not parse")?;
     let name = cert.subject().iter_common_name().next().ok_or("a certificate without a common name")?;
     name.as_str().map(str::to_owned).map_err(|_| "a certificate whose common name is not text")
 }
