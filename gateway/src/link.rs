@@ -319,16 +319,19 @@ impl Link {
         }
     }
 
-    /// `msg` as one MAVLink 2 frame with the next sequence number, signed when the link signs.
-    fn encode(&self, msg: &MavMessage) -> Result<Vec<u8>, MessageWriteError> {
+    /// `msg` as one MAVLink 2 frame with the next sequence number in `buf`, signed when the
+    /// link signs: its length.
+    fn encode(&self, msg: &MavMessage, buf: &mut [u8; MAX_FRAME_BYTES]) -> Result<usize, MessageWriteError> {
         let header =
             MavHeader { sequence: self.shared.sequence.fetch_add(1, Ordering::Relaxed), ..self.header };
-        let mut frame = Vec::with_capacity(MAX_FRAME_BYTES);
-        mavlink::write_versioned_msg(&mut frame, MavlinkVersion::V2, header, msg)?;
-        if let Some(signer) = &self.shared.signer {
-            lock(signer).sign(&mut frame, MavMessage::extra_crc(msg.message_id()), signing_stamp());
-        }
-        Ok(frame)
+        let mut cursor = &mut buf[..];
+        let n = mavlink::write_versioned_msg(&mut cursor, MavlinkVersion::V2, header, msg)?;
+        Ok(match &self.shared.signer {
+            Some(signer) => {
+                lock(signer).sign(buf, n, MavMessage::extra_crc(msg.message_id()), signing_stamp())
+            }
+            None => n,
+        })
     }
 
     /// One frame read: checked against the signing key (when the link signs), then decoded.
@@ -371,7 +374,9 @@ impl Link {
                         format!("{} has locked to no vehicle yet to answer", self.address),
                     )));
                 };
-                udp.socket.send_to(&self.encode(msg)?, destination)?;
+                let mut frame = [0u8; MAX_FRAME_BYTES];
+                let n = self.encode(msg, &mut frame)?;
+                udp.socket.send_to(&frame[..n], destination)?;
                 Ok(())
             }
             Transport::Serial(serial) => {
@@ -382,7 +387,9 @@ impl Link {
                         format!("the serial device {} is lost", serial.device),
                     )));
                 };
-                io::Write::write_all(port, &self.encode(msg)?)?;
+                let mut frame = [0u8; MAX_FRAME_BYTES];
+                let n = self.encode(msg, &mut frame)?;
+                io::Write::write_all(port, &frame[..n])?;
                 Ok(())
             }
         }

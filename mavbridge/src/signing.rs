@@ -95,21 +95,23 @@ impl Signer {
         Self { key, link_id, last_stamp: 0 }
     }
 
-    /// Signs the unsigned MAVLink 2 frame `frame` (as the `mavlink` crate writes it) at wall
-    /// time `now_stamp` ([`stamp_of_unix_us`]): sets the signed flag, recomputes the checksum
-    /// with the message's `extra_crc`, and appends link id, timestamp and signature. The
-    /// timestamp is the clock's, or one more than the last when the clock did not move on.
-    pub fn sign(&mut self, frame: &mut Vec<u8>, extra_crc: u8, now_stamp: u64) {
+    /// Signs the unsigned MAVLink 2 frame in `buf[..len]` (as the `mavlink` crate writes it)
+    /// at wall time `now_stamp` ([`stamp_of_unix_us`]): sets the signed flag, recomputes the
+    /// checksum with the message's `extra_crc`, and appends link id, timestamp and signature;
+    /// returns the signed length (`len` + 13; `buf` must hold it: a frame's 280 bytes at most).
+    /// The timestamp is the clock's, or one more than the last when the clock did not move on.
+    pub fn sign(&mut self, buf: &mut [u8], len: usize, extra_crc: u8, now_stamp: u64) -> usize {
         let stamp = now_stamp.max(self.last_stamp + 1);
         self.last_stamp = stamp;
-        frame[2] |= IFLAG_SIGNED;
-        let crc_at = frame.len() - 2;
-        let crc = mavlink::calculate_crc(&frame[1..crc_at], extra_crc);
-        frame[crc_at..].copy_from_slice(&crc.to_le_bytes());
-        frame.push(self.link_id);
-        frame.extend_from_slice(&stamp.to_le_bytes()[..6]);
-        let signature = self.key.signature(frame);
-        frame.extend_from_slice(&signature);
+        buf[2] |= IFLAG_SIGNED;
+        let crc_at = len - 2;
+        let crc = mavlink::calculate_crc(&buf[1..crc_at], extra_crc);
+        buf[crc_at..len].copy_from_slice(&crc.to_le_bytes());
+        buf[len] = self.link_id;
+        buf[len + 1..len + 7].copy_from_slice(&stamp.to_le_bytes()[..6]);
+        let signature = self.key.signature(&buf[..len + 7]);
+        buf[len + 7..len + SIGNATURE_BLOCK].copy_from_slice(&signature);
+        len + SIGNATURE_BLOCK
     }
 }
 
@@ -174,6 +176,16 @@ mod tests {
         (bytes, MavMessage::extra_crc(msg.message_id()))
     }
 
+    /// `frame` signed by `signer` at `now`.
+    fn signed(signer: &mut Signer, frame: (Vec<u8>, u8), now: u64) -> Vec<u8> {
+        let (mut bytes, extra) = frame;
+        let len = bytes.len();
+        bytes.resize(len + SIGNATURE_BLOCK, 0);
+        let n = signer.sign(&mut bytes, len, extra, now);
+        bytes.truncate(n);
+        bytes
+    }
+
     const NOW: u64 = 3_500_000_000_000;
 
     #[test]
@@ -198,18 +210,16 @@ mod tests {
     fn a_signed_frame_still_decodes_and_verifies_once_and_a_replay_a_wrong_key_or_no_signature_is_refused() {
         let key = SigningKey::new([3; 32]);
         let mut signer = Signer::new(key.clone(), 0);
-        let (mut signed, extra) = frame(0);
-        signer.sign(&mut signed, extra, NOW);
-        let (_, msg) = mavlink::MavlinkReader::new(&signed[..])
+        let first = signed(&mut signer, frame(0), NOW);
+        let (_, msg) = mavlink::MavlinkReader::new(&first[..])
             .read_any_message::<MavMessage>()
             .expect("the checksum holds with the flag set");
         assert!(matches!(msg, MavMessage::HEARTBEAT(_)));
         let mut verifier = Verifier::new(key);
-        assert_eq!(verifier.check(&signed, 1, 1, NOW), Ok(()));
-        assert_eq!(verifier.check(&signed, 1, 1, NOW), Err(Refusal::Replayed), "the same timestamp again");
+        assert_eq!(verifier.check(&first, 1, 1, NOW), Ok(()));
+        assert_eq!(verifier.check(&first, 1, 1, NOW), Err(Refusal::Replayed), "the same timestamp again");
         // The clock did not move: the next frame's timestamp is one more.
-        let (mut next, extra) = frame(1);
-        signer.sign(&mut next, extra, NOW);
+        let next = signed(&mut signer, frame(1), NOW);
         assert_eq!(verifier.check(&next, 1, 1, NOW), Ok(()));
         let (unsigned, _) = frame(2);
         assert_eq!(verifier.check(&unsigned, 1, 1, NOW), Err(Refusal::Unsigned));
@@ -217,8 +227,7 @@ mod tests {
         tampered[HEADER] ^= 1;
         assert_eq!(verifier.check(&tampered, 1, 1, NOW), Err(Refusal::BadSignature));
         let mut wrong = Signer::new(SigningKey::new([4; 32]), 0);
-        let (mut other, extra) = frame(3);
-        wrong.sign(&mut other, extra, NOW + 10);
+        let other = signed(&mut wrong, frame(3), NOW + 10);
         assert_eq!(verifier.check(&other, 1, 1, NOW + 10), Err(Refusal::BadSignature));
     }
 
@@ -227,12 +236,10 @@ mod tests {
         let key = SigningKey::new([3; 32]);
         let mut verifier = Verifier::new(key.clone());
         let mut old = Signer::new(key.clone(), 1);
-        let (mut stale, extra) = frame(0);
-        old.sign(&mut stale, extra, NOW - NEW_STREAM_SLACK - 1);
+        let stale = signed(&mut old, frame(0), NOW - NEW_STREAM_SLACK - 1);
         assert_eq!(verifier.check(&stale, 1, 1, NOW), Err(Refusal::Replayed));
         let mut recent = Signer::new(key, 2);
-        let (mut ok, extra) = frame(0);
-        recent.sign(&mut ok, extra, NOW - NEW_STREAM_SLACK);
+        let ok = signed(&mut recent, frame(0), NOW - NEW_STREAM_SLACK);
         assert_eq!(verifier.check(&ok, 1, 1, NOW), Ok(()));
     }
 }
