@@ -711,4 +711,39 @@ mod tests {
         assert!(matches!(guid_answer.try_recv(), Ok(Answer::Param(v)) if v == 8.0));
         assert!(service.shared.lock().pending.is_empty(), "the cancelled requests are dropped");
     }
+
+    #[test]
+    fn reboot_after_reboot_is_logged_once_in_ten_seconds_and_the_rest_are_counted_for_the_next_warning() {
+        let service = service();
+        let header = MavHeader { system_id: 1, component_id: 1, sequence: 0 };
+        let px4 = mavbridge::mavlink::dialects::common::HEARTBEAT_DATA {
+            autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+            ..Default::default()
+        };
+        service.on_message(None, &header, &MavMessage::HEARTBEAT(px4));
+        let start = Scenario::paper_2().start_state();
+        let state = |ms: u64| {
+            let (a, p) = mavbridge::messages::state_messages(&start, 0.0, ms * 1_000_000);
+            [MavMessage::ATTITUDE(a), MavMessage::LOCAL_POSITION_NED(p)]
+        };
+        // Two vehicles on one link (one up for ten minutes, one just booted), in turns: each
+        // turn of the young one is a reboot of the old one's clock, confirmed.
+        for turn in 0..5u64 {
+            for k in 0..3 {
+                for m in state(600_000 + turn * 10 + k) {
+                    service.on_message(None, &header, &m);
+                }
+            }
+            for k in 0..3 {
+                for m in state(turn * 10 + k) {
+                    service.on_message(None, &header, &m);
+                }
+            }
+        }
+        let inner = service.shared.lock();
+        let reboots = inner.bridge.counters().reboots;
+        assert_eq!(reboots, 5, "{:?}", inner.bridge.counters());
+        assert!(inner.reboot_logged_ns.is_some());
+        assert_eq!(inner.reboots_unlogged, reboots - 1, "one warning, the rest counted for the next");
+    }
 }
