@@ -195,7 +195,13 @@ fn core_share_ms(ticks: usize) -> Vec<f64> {
         mavbridge::Bridge::new(mav::Scenario::paper_2(), mavbridge::BridgeSettings::default(), 0, 1)
             .expect("valid");
     let header = MavHeader { system_id: 1, component_id: 1, sequence: 0 };
+    let px4 = mavbridge::mavlink::dialects::common::HEARTBEAT_DATA {
+        autopilot: mavbridge::mavlink::dialects::common::MavAutopilot::MAV_AUTOPILOT_PX4,
+        ..Default::default()
+    };
+    bridge.on_message(None, &header, &MavMessage::HEARTBEAT(px4), 0);
     bridge.on_message(
+        None,
         &header,
         &MavMessage::ATTITUDE(ATTITUDE_DATA { time_boot_ms: 1, ..Default::default() }),
         0,

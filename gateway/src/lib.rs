@@ -13,7 +13,7 @@ pub mod link;
 pub mod mavsim;
 pub mod service;
 
-pub use link::{Link, LinkError, TryRecv};
+pub use link::{Frame, Link, LinkError, TryRecv};
 pub use service::{GatewayService, NotServing};
 
 use hilbench_proto::pb::plant_server::PlantServer;
@@ -43,6 +43,11 @@ pub struct GatewayConfig {
     pub stream_buffer: usize,
     /// TLS of the Plant and VehicleControl APIs (default: plaintext).
     pub tls: hilbench_svc::tls::Tls,
+    /// MAVLink 2 signing of the vehicle link (`--mavlink-signing-key`; `None`: unsigned).
+    pub signing_key: Option<mavbridge::SigningKey>,
+    /// The client certificates (common names) that may call VehicleControl (`--allow-client`;
+    /// empty: any client the TLS set-up lets in).
+    pub allow_clients: Vec<String>,
 }
 
 impl GatewayConfig {
@@ -57,6 +62,8 @@ impl GatewayConfig {
             max_streams: hilbench_svc::streams::DEFAULT_MAX_STREAMS,
             stream_buffer: 256,
             tls: hilbench_svc::tls::Tls::plaintext(),
+            signing_key: None,
+            allow_clients: Vec::new(),
         }
     }
 }
@@ -74,6 +81,32 @@ pub enum GatewayError {
     Count(&'static str),
 }
 
+/// Why a signing key file cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum KeyFileError {
+    #[error("--mavlink-signing-key {}: cannot read it: {source}", path.display())]
+    Read { path: std::path::PathBuf, source: std::io::Error },
+    #[error("--mavlink-signing-key {}: {source}", path.display())]
+    Key { path: std::path::PathBuf, source: mavbridge::KeyError },
+    #[error(
+        "--mavlink-signing-key {}: readable or writable by every user (mode {mode:o}); the key signs commands to the vehicle: chmod 600 it",
+        path.display()
+    )]
+    WorldReadable { path: std::path::PathBuf, mode: u32 },
+}
+
+/// Reads a MAVLink signing key file (32 bytes, or 64 hex digits) that other users cannot read.
+pub fn signing_key_file(path: &std::path::Path) -> Result<mavbridge::SigningKey, KeyFileError> {
+    use std::os::unix::fs::PermissionsExt;
+    let read = |source| KeyFileError::Read { path: path.into(), source };
+    let mode = std::fs::metadata(path).map_err(read)?.permissions().mode();
+    if mode & 0o006 != 0 {
+        return Err(KeyFileError::WorldReadable { path: path.into(), mode: mode & 0o777 });
+    }
+    let contents = std::fs::read(path).map_err(read)?;
+    mavbridge::SigningKey::parse(&contents).map_err(|source| KeyFileError::Key { path: path.into(), source })
+}
+
 /// Reports every one of `names` SERVING or NOT_SERVING.
 async fn set_health(health: &tonic_health::server::HealthReporter, names: &[&str], serving: bool) {
     use tonic_health::ServingStatus;
@@ -89,12 +122,18 @@ pub async fn serve(
     config: GatewayConfig,
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), GatewayError> {
-    let link = Link::open(&config.mavlink, config.system_id, config.component_id)?;
+    let link = Link::open_signed(
+        &config.mavlink,
+        config.system_id,
+        config.component_id,
+        config.signing_key.clone(),
+    )?;
     serve_with_link(listener, config, link, shutdown).await
 }
 
-/// As [`serve`], on a link already open (`config.mavlink` only names it); tests open a
-/// `udpin:127.0.0.1:0` link to learn its port first.
+/// As [`serve`], on a link already open (`config.mavlink` only names it, and the link's own
+/// signing key is used, not `config.signing_key`); tests open a `udpin:127.0.0.1:0` link to
+/// learn its port first.
 pub async fn serve_with_link(
     listener: tokio::net::TcpListener,
     config: GatewayConfig,
@@ -108,7 +147,13 @@ pub async fn serve_with_link(
         return Err(GatewayError::Count("stream_buffer"));
     }
     let bridge = Bridge::new(config.scenario.clone(), config.bridge, 0, 1)?;
-    let service = GatewayService::new(bridge, link.clone(), config.max_streams, config.stream_buffer);
+    let service = GatewayService::new(
+        bridge,
+        link.clone(),
+        config.max_streams,
+        config.stream_buffer,
+        config.allow_clients.clone(),
+    );
     const NAMES: [&str; 2] =
         [PlantServer::<GatewayService>::NAME, VehicleControlServer::<GatewayService>::NAME];
     let server = GrpcServer::new(listener, true, &config.tls, &NAMES).await?;
@@ -129,8 +174,8 @@ pub async fn serve_with_link(
                 .name("mavlink-recv".into())
                 .spawn(move || {
                     while !stop.load(Ordering::Relaxed) {
-                        if let Some((header, msg)) = link.recv() {
-                            service.on_message(&header, &msg);
+                        if let Some(frame) = link.recv() {
+                            service.on_frame(frame);
                         }
                     }
                 })
@@ -188,7 +233,13 @@ pub async fn serve_with_link(
             service.close();
         }
     };
-    tracing::info!(%addr, mavlink = %config.mavlink, scenario = %config.scenario.name, "gateway serving");
+    tracing::info!(
+        %addr,
+        mavlink = %config.mavlink,
+        signed = link.signs(),
+        scenario = %config.scenario.name,
+        "gateway serving"
+    );
     let result = server
         .serve(
             |router| {
@@ -241,11 +292,42 @@ async fn read_udp(ready: tokio::net::UdpSocket, link: Link, service: GatewayServ
                 other => Ok(other),
             });
             match received {
-                Ok(TryRecv::Message(header, msg)) => service.on_message(&header, &msg),
-                Ok(TryRecv::Skipped | TryRecv::Empty) => {}
+                Ok(TryRecv::Frame(frame)) => service.on_frame(frame),
+                Ok(TryRecv::Empty) => {}
                 Ok(TryRecv::Failed) => tokio::time::sleep(link::UDP_ERROR_PAUSE).await,
                 Err(_) => break,
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::os::unix::fs::PermissionsExt;
+
+    #[test]
+    fn a_signing_key_file_is_refused_naming_the_flag_when_missing_short_or_readable_by_everyone() {
+        let dir = std::env::temp_dir().join(format!("gateway-key-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("a directory");
+        let write = |name: &str, contents: &[u8], mode: u32| {
+            let path = dir.join(name);
+            std::fs::write(&path, contents).expect("written");
+            std::fs::set_permissions(&path, std::fs::Permissions::from_mode(mode)).expect("chmod");
+            path
+        };
+        let good = write("good", &[1; 32], 0o600);
+        assert_eq!(signing_key_file(&good).expect("a key"), mavbridge::SigningKey::new([1; 32]));
+        let hex = write("hex", format!("{}\n", "ab".repeat(32)).as_bytes(), 0o640);
+        assert_eq!(signing_key_file(&hex).expect("a key"), mavbridge::SigningKey::new([0xab; 32]));
+        let missing = dir.join("missing");
+        let short = write("short", &[1; 31], 0o600);
+        let open = write("open", &[1; 32], 0o644);
+        for (path, says) in [(&missing, "cannot read"), (&short, "31 bytes"), (&open, "chmod 600")] {
+            let e = signing_key_file(path).expect_err("refused").to_string();
+            assert!(e.starts_with("--mavlink-signing-key") && e.contains(says), "{e}");
+            assert!(e.contains(&path.display().to_string()), "{e}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

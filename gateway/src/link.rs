@@ -1,6 +1,7 @@
-//! The MAVLink transport: UDP (`udpin:HOST:PORT` listens and answers the last sender,
-//! `udpout:HOST:PORT` sends there from any port and hears anyone, the `mavlink` crate's
-//! conventions; a datagram carries one or more frames) or a serial device
+//! The MAVLink transport: UDP (`udpin:HOST:PORT` listens and answers the address it is told
+//! to, [`Link::answer`]: the vehicle the gateway locked to, never merely the last sender;
+//! `udpout:HOST:PORT` sends there from any port and hears anyone; a datagram carries one or more
+//! frames, each handed out with its sender, [`Frame`]) or a serial device
 //! (`serial:/dev/ttyACM0:921600`, opened here with `serialport`). Blocking reads
 //! ([`Link::recv`]) time out every [`RECV_TIMEOUT`] so that the threads reading them notice a
 //! shutdown; a UDP link is also read without blocking ([`Link::try_recv`]) when its socket
@@ -15,10 +16,15 @@
 //! heartbeat arrives, and the service's heartbeat timeout makes the Plant API `UNAVAILABLE`.
 //! The `mavlink` crate's own serial connection is not used: it retries every read error but
 //! end of file inside `recv`, so a hung-up device spins there and a quiet one never returns.
+//!
+//! With a signing key ([`Link::open_signed`]) every frame sent is signed and every frame read
+//! is checked ([`mavbridge::signing`], the wall clock passed in) before it is decoded: an
+//! unsigned, badly signed or replayed one is handed out as [`Frame::Refused`].
 
 use mavbridge::mavlink::dialects::common::MavMessage;
 use mavbridge::mavlink::error::{MessageReadError, MessageWriteError};
-use mavbridge::mavlink::{self, MavHeader, MavlinkReader, MavlinkVersion};
+use mavbridge::mavlink::{self, MAVLinkMessageRaw, MavHeader, MavlinkReader, MavlinkVersion, Message};
+use mavbridge::{Peer, Refusal, Signer, SigningKey, Verifier};
 use rustix::event::{PollFd, PollFlags, Timespec};
 use rustix::net::RecvFlags;
 use std::collections::VecDeque;
@@ -83,6 +89,31 @@ struct Shared {
     status: Mutex<LinkStatus>,
     /// The MAVLink sequence number of the next frame sent.
     sequence: AtomicU8,
+    /// With a signing key: what signs the frames sent and checks those read.
+    signer: Option<Mutex<Signer>>,
+    verifier: Option<Mutex<Verifier>>,
+}
+
+/// What one frame of the link is.
+#[derive(Debug)]
+#[expect(
+    clippy::large_enum_variant,
+    reason = "handed out by value and consumed at once, as the message itself would be"
+)]
+pub enum Frame {
+    /// A frame decoded, from `Peer`.
+    Message(Peer, MavHeader, MavMessage),
+    /// Bytes from `Peer` not decoded: no frame the common dialect decodes
+    /// ([`Refusal::Undecodable`]), or a signature refused.
+    Refused(Peer, Refusal),
+}
+
+/// The signature timestamp of now (the wall clock, as the protocol wants).
+fn signing_stamp() -> u64 {
+    let unix_us = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_micros()).unwrap_or(u64::MAX));
+    mavbridge::signing::stamp_of_unix_us(unix_us)
 }
 
 enum Transport {
@@ -94,11 +125,11 @@ enum Transport {
 /// `poll`, up to [`RECV_TIMEOUT`]).
 struct Udp {
     socket: UdpSocket,
-    /// Where frames go: `udpout`'s address, or the last sender heard on `udpin` (none before
-    /// the first datagram).
+    /// Where frames go: `udpout`'s address, or on `udpin` the address [`Link::answer`] named
+    /// (none before).
     destination: Mutex<Option<SocketAddr>>,
-    /// `udpin`: answer whoever sent last.
-    answers_last_sender: bool,
+    /// `udpin`: the destination is whom [`Link::answer`] names.
+    answers: bool,
     reader: Mutex<UdpReader>,
 }
 
@@ -106,7 +137,7 @@ struct Udp {
 struct UdpReader {
     datagram: Vec<u8>,
     /// The frames of the last datagram not handed out yet.
-    pending: VecDeque<(MavHeader, MavMessage)>,
+    pending: VecDeque<Frame>,
 }
 
 /// What [`Link::try_recv`] found.
@@ -116,11 +147,9 @@ struct UdpReader {
     reason = "returned by value and consumed at once, as `recv`'s `Option` of the same size"
 )]
 pub enum TryRecv {
-    Message(MavHeader, MavMessage),
+    Frame(Frame),
     /// Nothing waits on the socket now.
     Empty,
-    /// A datagram came with no frame the common dialect decodes: more may wait.
-    Skipped,
     /// A read failed (counted in [`LinkStatus::read_errors`] and logged): the caller pauses
     /// [`UDP_ERROR_PAUSE`] before the next, so that a failing socket cannot spin it.
     Failed,
@@ -193,6 +222,17 @@ impl Link {
     /// cannot be opened now is an error (a wrong path fails at start); once open, a lost
     /// device is opened again by [`Link::recv`].
     pub fn open(address: &str, system_id: u8, component_id: u8) -> Result<Self, LinkError> {
+        Self::open_signed(address, system_id, component_id, None)
+    }
+
+    /// As [`Link::open`], signing every frame sent with `key` and refusing every frame read
+    /// that is not signed with it (link id 0).
+    pub fn open_signed(
+        address: &str,
+        system_id: u8,
+        component_id: u8,
+        key: Option<SigningKey>,
+    ) -> Result<Self, LinkError> {
         let serial = serial_address(address)?;
         let open_err = |source| LinkError::Open { address: address.into(), source };
         let mut local_addr = None;
@@ -210,7 +250,7 @@ impl Link {
                 writer: Mutex::new(Some(writer)),
             })
         } else {
-            let (socket, destination, answers_last_sender) = match address.split_once(':') {
+            let (socket, destination, answers) = match address.split_once(':') {
                 Some(("udpin", at)) => (UdpSocket::bind(at).map_err(open_err)?, None, true),
                 Some((_, to)) => {
                     // IPv4 first: `localhost` may list `::1` first, and a vehicle heard on IPv4
@@ -231,14 +271,14 @@ impl Link {
                 None => unreachable!("checked by serial_address"),
             };
             socket.set_nonblocking(true).map_err(open_err)?;
-            if answers_last_sender {
+            if answers {
                 // Known here when the port was 0 (tests use ephemeral ports).
                 local_addr = Some(socket.local_addr().map_err(open_err)?);
             }
             Transport::Udp(Udp {
                 socket,
                 destination: Mutex::new(destination),
-                answers_last_sender,
+                answers,
                 reader: Mutex::new(UdpReader {
                     datagram: vec![0; MAX_DATAGRAM_BYTES],
                     pending: VecDeque::new(),
@@ -250,6 +290,8 @@ impl Link {
                 transport,
                 status: Mutex::new(LinkStatus::default()),
                 sequence: AtomicU8::new(0),
+                signer: key.clone().map(|k| Mutex::new(Signer::new(k, 0))),
+                verifier: key.map(|k| Mutex::new(Verifier::new(k))),
             }),
             header: MavHeader { system_id: u32::from(system_id), component_id, sequence: 0 },
             address: local_addr.map_or_else(|| address.into(), |at| format!("udpin:{at}")),
@@ -262,6 +304,60 @@ impl Link {
         lock(&self.shared.status).clone()
     }
 
+    /// Whether frames are signed and checked.
+    pub fn signs(&self) -> bool {
+        self.shared.signer.is_some()
+    }
+
+    /// A `udpin` link sends to `peer` from now on (the vehicle it locked to); a `udpout` or
+    /// serial link keeps its destination.
+    pub fn answer(&self, peer: Peer) {
+        if let (Transport::Udp(udp), Some(at)) = (&self.shared.transport, peer)
+            && udp.answers
+        {
+            *lock(&udp.destination) = Some(at);
+        }
+    }
+
+    /// `msg` as one MAVLink 2 frame with the next sequence number in `buf`, signed when the
+    /// link signs: its length.
+    fn encode(&self, msg: &MavMessage, buf: &mut [u8; MAX_FRAME_BYTES]) -> Result<usize, MessageWriteError> {
+        let header =
+            MavHeader { sequence: self.shared.sequence.fetch_add(1, Ordering::Relaxed), ..self.header };
+        let mut cursor = &mut buf[..];
+        let n = mavlink::write_versioned_msg(&mut cursor, MavlinkVersion::V2, header, msg)?;
+        Ok(match &self.shared.signer {
+            Some(signer) => {
+                lock(signer).sign(buf, n, MavMessage::extra_crc(msg.message_id()), signing_stamp())
+            }
+            None => n,
+        })
+    }
+
+    /// One frame read: checked against the signing key (when the link signs), then decoded.
+    fn frame(&self, peer: Peer, raw: &MAVLinkMessageRaw) -> Frame {
+        let header = MavHeader {
+            system_id: raw.system_id(),
+            component_id: raw.component_id(),
+            sequence: raw.sequence(),
+        };
+        if let Some(verifier) = &self.shared.verifier {
+            let bytes = match raw {
+                MAVLinkMessageRaw::V1(v1) => v1.raw_bytes(),
+                MAVLinkMessageRaw::V2(v2) => v2.raw_bytes(),
+            };
+            if let Err(why) =
+                lock(verifier).check(bytes, header.system_id, header.component_id, signing_stamp())
+            {
+                return Frame::Refused(peer, why);
+            }
+        }
+        match MavMessage::parse(raw.version(), raw.message_id(), raw.payload()) {
+            Ok(msg) => Frame::Message(peer, header, msg),
+            Err(_) => Frame::Refused(peer, Refusal::Undecodable),
+        }
+    }
+
     /// Sends `msg`; an error is returned for the caller to count and log (a datagram that
     /// cannot leave is not retried: the next setpoint follows within a period). While a serial
     /// device is lost the error is `NotConnected`, which the loss's own warning has explained.
@@ -270,19 +366,16 @@ impl Link {
         // Numbered once it is encoded to leave: a frame refused before (nobody heard yet, a
         // serial device lost) leaves no gap for the vehicle to count as lost; one the socket
         // then fails to send (a full send buffer: the socket is non-blocking) does.
-        let header =
-            || MavHeader { sequence: self.shared.sequence.fetch_add(1, Ordering::Relaxed), ..self.header };
         match &self.shared.transport {
             Transport::Udp(udp) => {
                 let Some(destination) = *lock(&udp.destination) else {
                     return Err(MessageWriteError::Io(io::Error::new(
                         io::ErrorKind::NotConnected,
-                        format!("{} has heard no vehicle yet to answer", self.address),
+                        format!("{} has locked to no vehicle yet to answer", self.address),
                     )));
                 };
                 let mut frame = [0u8; MAX_FRAME_BYTES];
-                let mut cursor = &mut frame[..];
-                let n = mavlink::write_versioned_msg(&mut cursor, MavlinkVersion::V2, header(), msg)?;
+                let n = self.encode(msg, &mut frame)?;
                 udp.socket.send_to(&frame[..n], destination)?;
                 Ok(())
             }
@@ -294,19 +387,22 @@ impl Link {
                         format!("the serial device {} is lost", serial.device),
                     )));
                 };
-                mavlink::write_versioned_msg(port, MavlinkVersion::V2, header(), msg).map(|_| ())
+                let mut frame = [0u8; MAX_FRAME_BYTES];
+                let n = self.encode(msg, &mut frame)?;
+                io::Write::write_all(port, &frame[..n])?;
+                Ok(())
             }
         }
     }
 
-    /// The next message, or `None` when none came within [`RECV_TIMEOUT`], a frame was not one
-    /// of the common dialect's, or the transport failed. No path returns at once without
-    /// having read something or waited: a failing transport cannot spin the reading thread.
-    pub fn recv(&self) -> Option<(MavHeader, MavMessage)> {
+    /// The next frame, or `None` when none came within [`RECV_TIMEOUT`] or the transport
+    /// failed. No path returns at once without having read something or waited: a failing
+    /// transport cannot spin the reading thread.
+    pub fn recv(&self) -> Option<Frame> {
         match &self.shared.transport {
             Transport::Udp(udp) => match self.recv_udp(udp, true) {
-                TryRecv::Message(header, msg) => Some((header, msg)),
-                TryRecv::Empty | TryRecv::Skipped => None,
+                TryRecv::Frame(frame) => Some(frame),
+                TryRecv::Empty => None,
                 TryRecv::Failed => {
                     std::thread::sleep(UDP_ERROR_PAUSE);
                     None
@@ -337,11 +433,12 @@ impl Link {
 
     /// The next frame: one left from the last datagram, or the first of the next datagram
     /// (waiting for it up to [`RECV_TIMEOUT`] when `wait`). A frame the common dialect does
-    /// not decode is skipped with the datagram's others kept.
+    /// not decode is refused with the datagram's others kept; a datagram of no frame at all is
+    /// one refusal.
     fn recv_udp(&self, udp: &Udp, wait: bool) -> TryRecv {
         let mut reader = lock(&udp.reader);
-        if let Some((header, msg)) = reader.pending.pop_front() {
-            return TryRecv::Message(header, msg);
+        if let Some(frame) = reader.pending.pop_front() {
+            return TryRecv::Frame(frame);
         }
         if wait {
             let mut fds = [PollFd::new(&udp.socket, PollFlags::IN)];
@@ -372,38 +469,33 @@ impl Link {
                 return TryRecv::Failed;
             }
         };
-        if udp.answers_last_sender
-            && let Some(sender) = sender.and_then(|a| SocketAddr::try_from(a).ok())
-        {
-            *lock(&udp.destination) = Some(sender);
-        }
+        let peer: Peer = sender.and_then(|a| SocketAddr::try_from(a).ok());
         let mut frames = MavlinkReader::new(&datagram[..n]);
         loop {
-            match frames.read_any_message::<MavMessage>() {
-                Ok(frame) => pending.push_back(frame),
+            match frames.read_any_raw_message::<MavMessage>() {
+                Ok(raw) => pending.push_back(self.frame(peer, &raw)),
                 // The frame was consumed; the datagram's next ones follow.
-                Err(MessageReadError::Parse(_)) => continue,
+                Err(MessageReadError::Parse(_)) => {
+                    pending.push_back(Frame::Refused(peer, Refusal::Undecodable))
+                }
                 // The end of the datagram (a frame cut short there is dropped with it).
                 Err(MessageReadError::Io(_)) => break,
             }
         }
-        match pending.pop_front() {
-            Some((header, msg)) => TryRecv::Message(header, msg),
-            None => TryRecv::Skipped,
-        }
+        TryRecv::Frame(pending.pop_front().unwrap_or(Frame::Refused(peer, Refusal::Undecodable)))
     }
 
-    fn recv_serial(&self, serial: &Serial) -> Option<(MavHeader, MavMessage)> {
+    fn recv_serial(&self, serial: &Serial) -> Option<Frame> {
         let mut reader = lock(&serial.reader);
         let Some(port) = reader.port.as_mut() else {
             self.reopen(serial, &mut reader);
             return None;
         };
-        match port.read_any_message::<MavMessage>() {
-            Ok(m) => {
+        match port.read_any_raw_message::<MavMessage>() {
+            Ok(raw) => {
                 // The device works: a later loss starts again from the shortest wait.
                 reader.backoff = REOPEN_BACKOFF_MIN;
-                Some(m)
+                Some(self.frame(None, &raw))
             }
             // The undecodable frame was consumed, so this is progress through the bytes that
             // arrived, never a loop on the same ones.
@@ -509,15 +601,15 @@ mod tests {
         MavMessage::ATTITUDE(mavlink::dialects::common::ATTITUDE_DATA { time_boot_ms, ..Default::default() })
     }
 
-    fn time_boot_ms(received: Option<(MavHeader, MavMessage)>) -> u32 {
+    fn time_boot_ms(received: Option<Frame>) -> u32 {
         match received {
-            Some((_, MavMessage::ATTITUDE(a))) => a.time_boot_ms,
+            Some(Frame::Message(_, _, MavMessage::ATTITUDE(a))) => a.time_boot_ms,
             other => panic!("not an ATTITUDE: {other:?}"),
         }
     }
 
     #[test]
-    fn a_datagram_of_several_frames_gives_each_in_order_skipping_one_the_dialect_cannot_decode() {
+    fn a_datagram_of_several_frames_gives_each_in_order_refusing_one_the_dialect_cannot_decode() {
         let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("opens");
         let vehicle = UdpSocket::bind("127.0.0.1:0").expect("vehicle");
         // A valid frame of a message id the common dialect does not know (a dialect's unknown
@@ -535,6 +627,8 @@ mod tests {
             [frame(&attitude(1), 1), unknown, frame(&attitude(2), 2), frame(&attitude(3), 3)].concat();
         vehicle.send_to(&datagram, link.local_addr.expect("bound")).expect("sent");
         assert_eq!(time_boot_ms(link.recv()), 1);
+        let from = vehicle.local_addr().ok();
+        assert!(matches!(link.recv(), Some(Frame::Refused(p, Refusal::Undecodable)) if p == from));
         assert_eq!(time_boot_ms(link.recv()), 2);
         assert_eq!(time_boot_ms(link.recv()), 3);
         assert!(link.recv().is_none(), "nothing more: the read times out");
@@ -550,37 +644,84 @@ mod tests {
         vehicle.send_to(&frame(&attitude(7), 0), link.local_addr.expect("bound")).expect("sent");
         vehicle.send_to(&[0xFE, 0x00], link.local_addr.expect("bound")).expect("sent");
         vehicle.send_to(&frame(&attitude(8), 1), link.local_addr.expect("bound")).expect("sent");
-        let TryRecv::Message(_, first) = link.try_recv() else { panic!("the first datagram waits") };
-        assert_eq!(time_boot_ms(Some((MavHeader::default(), first))), 7);
+        let TryRecv::Frame(first) = link.try_recv() else { panic!("the first datagram waits") };
+        assert_eq!(time_boot_ms(Some(first)), 7);
         assert!(
-            matches!(link.try_recv(), TryRecv::Skipped),
-            "a datagram of no frame is skipped, not the end"
+            matches!(link.try_recv(), TryRecv::Frame(Frame::Refused(_, Refusal::Undecodable))),
+            "a datagram of no frame is refused, not the end"
         );
-        let TryRecv::Message(_, third) = link.try_recv() else { panic!("the third datagram waits") };
-        assert_eq!(time_boot_ms(Some((MavHeader::default(), third))), 8);
+        let TryRecv::Frame(third) = link.try_recv() else { panic!("the third datagram waits") };
+        assert_eq!(time_boot_ms(Some(third)), 8);
         assert!(matches!(link.try_recv(), TryRecv::Empty));
     }
 
     #[test]
-    fn udpin_answers_the_last_sender_and_refuses_to_send_before_it_heard_one() {
+    fn udpin_answers_whom_it_is_told_never_merely_the_last_sender_and_nobody_before() {
         let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("opens");
         let heartbeat = MavMessage::HEARTBEAT(Default::default());
         let Err(MessageWriteError::Io(e)) = link.send(&heartbeat) else { panic!("sent to nobody") };
         assert_eq!(e.kind(), io::ErrorKind::NotConnected);
         assert!(e.to_string().contains(&link.address), "names the link: {e}");
         let mut buf = [0u8; 512];
+        let vehicle = UdpSocket::bind("127.0.0.1:0").expect("vehicle");
+        vehicle.set_read_timeout(Some(Duration::from_secs(5))).expect("timeout");
+        vehicle.send_to(&frame(&attitude(0), 0), link.local_addr.expect("bound")).expect("sent");
+        assert_eq!(time_boot_ms(link.recv()), 0);
+        assert!(link.send(&heartbeat).is_err(), "heard, not told to answer");
+        link.answer(vehicle.local_addr().ok());
+        let other = UdpSocket::bind("127.0.0.1:0").expect("another sender");
+        other.set_read_timeout(Some(Duration::from_millis(200))).expect("timeout");
         for k in 0..2u32 {
-            let vehicle = UdpSocket::bind("127.0.0.1:0").expect("vehicle");
-            vehicle.set_read_timeout(Some(Duration::from_secs(5))).expect("timeout");
-            vehicle.send_to(&frame(&attitude(k), 0), link.local_addr.expect("bound")).expect("sent");
-            assert_eq!(time_boot_ms(link.recv()), k);
+            // Another sender speaks last: the answers still go to the vehicle.
+            other.send_to(&[0x00], link.local_addr.expect("bound")).expect("sent");
+            assert!(matches!(link.recv(), Some(Frame::Refused(..))));
             link.send(&heartbeat).expect("sent");
-            let n = vehicle.recv(&mut buf).expect("the answer reaches the last sender");
+            let n = vehicle.recv(&mut buf).expect("the answer reaches the vehicle");
             let (header, msg) =
                 MavlinkReader::new(&buf[..n]).read_any_message::<MavMessage>().expect("a frame");
             assert!(matches!(msg, MavMessage::HEARTBEAT(_)));
             assert_eq!((header.system_id, header.component_id, header.sequence), (255, 191, k as u8));
         }
+        assert!(other.recv(&mut buf).is_err(), "the other sender got nothing");
+    }
+
+    #[test]
+    fn a_signed_link_signs_what_it_sends_and_refuses_unsigned_wrongly_signed_and_replayed_frames() {
+        let key = SigningKey::new([9; 32]);
+        let gateway = Link::open_signed("udpin:127.0.0.1:0", 255, 191, Some(key.clone())).expect("opens");
+        let at = gateway.local_addr.expect("bound");
+        let vehicle = Link::open_signed(&format!("udpout:{at}"), 1, 1, Some(key)).expect("opens");
+        let stranger =
+            Link::open_signed(&format!("udpout:{at}"), 1, 1, Some(SigningKey::new([8; 32]))).expect("opens");
+        vehicle.send(&attitude(1)).expect("sent");
+        assert_eq!(time_boot_ms(gateway.recv()), 1, "signed with the key: decoded");
+        stranger.send(&attitude(2)).expect("sent");
+        assert!(matches!(gateway.recv(), Some(Frame::Refused(_, Refusal::BadSignature))));
+        let plain = UdpSocket::bind("127.0.0.1:0").expect("socket");
+        plain.send_to(&frame(&attitude(3), 0), at).expect("sent");
+        assert!(matches!(gateway.recv(), Some(Frame::Refused(_, Refusal::Unsigned))));
+        // A signed frame captured and sent again.
+        let tap = UdpSocket::bind("127.0.0.1:0").expect("tap");
+        let copy = Link::open_signed(
+            &format!("udpout:{}", tap.local_addr().expect("bound")),
+            1,
+            1,
+            Some(SigningKey::new([9; 32])),
+        )
+        .expect("opens");
+        copy.send(&attitude(4)).expect("sent");
+        let mut buf = [0u8; 512];
+        let n = tap.recv(&mut buf).expect("captured");
+        plain.send_to(&buf[..n], at).expect("sent");
+        assert_eq!(time_boot_ms(gateway.recv()), 4, "the first time");
+        plain.send_to(&buf[..n], at).expect("sent");
+        assert!(matches!(gateway.recv(), Some(Frame::Refused(_, Refusal::Replayed))));
+        // What the gateway sends is signed: a verifier with the key takes it.
+        gateway.answer(tap.local_addr().ok());
+        gateway.send(&attitude(5)).expect("sent");
+        let n = tap.recv(&mut buf).expect("received");
+        let mut check = mavbridge::Verifier::new(SigningKey::new([9; 32]));
+        assert_eq!(check.check(&buf[..n], 255, 191, signing_stamp()), Ok(()));
     }
 
     #[test]

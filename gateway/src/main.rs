@@ -41,6 +41,30 @@ struct Args {
     /// The gateway's MAVLink component id (191: onboard computer).
     #[arg(long, default_value_t = 191)]
     component_id: u8,
+    /// Lock to the vehicle of this MAVLink system id (default: the first autopilot heartbeat
+    /// heard); frames from any other system, component or address are dropped and counted.
+    #[arg(long, value_name = "ID")]
+    vehicle_sysid: Option<u8>,
+    /// Lock to the vehicle's component of this id (default: the first autopilot heartbeat's).
+    #[arg(long, value_name = "ID")]
+    vehicle_compid: Option<u8>,
+    /// MAVLink 2 signing: a file of the 32-byte key shared with the vehicle (32 bytes, or 64 hex
+    /// digits; not readable by other users). Frames sent are signed; unsigned, badly signed
+    /// and replayed frames are dropped and counted.
+    #[arg(long, value_name = "FILE")]
+    mavlink_signing_key: Option<std::path::PathBuf>,
+    /// A LOCAL_POSITION_NED farther than this outside the scenario's box (start, goal,
+    /// obstacles) is refused and counted, m.
+    #[arg(long, default_value_t = 100.0)]
+    envelope_margin_m: f64,
+    /// A LOCAL_POSITION_NED faster than this is refused and counted, m/s.
+    #[arg(long, default_value_t = 50.0)]
+    max_speed_mps: f64,
+    /// Only the client certificate with this common name may call VehicleControl (Arm,
+    /// Disarm, SetMode, GetStatus); repeatable. Needs --tls-client-ca. Default: any client
+    /// the TLS set-up lets in.
+    #[arg(long, value_name = "NAME")]
+    allow_client: Vec<String>,
     /// StreamState streams served at once; one more is refused with RESOURCE_EXHAUSTED.
     #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
     max_streams: usize,
@@ -59,11 +83,26 @@ fn config(args: &Args) -> anyhow::Result<GatewayConfig> {
     config.component_id = args.component_id;
     config.max_streams = args.max_streams;
     config.tls = hilbench_svc::tls::TlsFiles::server(&args.server.tls).load()?;
+    config.bridge.vehicle =
+        mavbridge::VehicleFilter { system_id: args.vehicle_sysid, component_id: args.vehicle_compid };
+    config.bridge.envelope_margin_m = args.envelope_margin_m;
+    config.bridge.max_speed_mps = args.max_speed_mps;
+    config.signing_key = args.mavlink_signing_key.as_deref().map(gateway::signing_key_file).transpose()?;
+    if !args.allow_client.is_empty() && !config.tls.requires_client_certificates() {
+        anyhow::bail!(
+            "--allow-client needs client certificates: give --tls-cert, --tls-key and --tls-client-ca"
+        );
+    }
+    config.allow_clients = args.allow_client.clone();
     config.bridge.validate().map_err(|e| match e {
         mavbridge::BridgeError::Thrust(t) => anyhow::anyhow!("--hover-thrust: {t}"),
         mavbridge::BridgeError::Setting("start_tolerance_m", r) => {
             anyhow::anyhow!("--start-tolerance-m: {r}")
         }
+        mavbridge::BridgeError::Setting("envelope_margin_m", r) => {
+            anyhow::anyhow!("--envelope-margin-m: {r}")
+        }
+        mavbridge::BridgeError::Setting("max_speed_mps", r) => anyhow::anyhow!("--max-speed-mps: {r}"),
         other => anyhow::anyhow!("{other}"),
     })?;
     Ok(config)

@@ -4,7 +4,7 @@
 //! integrates and sends the streams; the vehicle's boot clock is the time since start (or since
 //! the last [`Mavsim::reboot`]).
 
-use crate::link::{Link, LinkError};
+use crate::link::{Frame, Link, LinkError};
 use mav::Scenario;
 use mavbridge::{AutopilotSettings, SimAutopilot};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -19,6 +19,9 @@ pub struct MavsimConfig {
     pub mavlink: String,
     pub scenario: Scenario,
     pub autopilot: AutopilotSettings,
+    /// MAVLink 2 signing: frames sent are signed, frames read unsigned or signed otherwise are
+    /// dropped (`None`: neither).
+    pub signing_key: Option<mavbridge::SigningKey>,
 }
 
 /// The vehicle's boot clock: the time since start, less the time of the last reboot.
@@ -56,7 +59,7 @@ impl Mavsim {
         let autopilot = SimAutopilot::new(&config.scenario, config.autopilot).map_err(|e| {
             LinkError::Address { address: config.mavlink.clone(), reason: format!("autopilot settings: {e}") }
         })?;
-        let link = Link::open(&config.mavlink, 1, 1)?;
+        let link = Link::open_signed(&config.mavlink, 1, 1, config.signing_key.clone())?;
         let autopilot = Arc::new(Mutex::new(autopilot));
         let (stop, silent) = (Arc::new(AtomicBool::new(false)), Arc::new(AtomicBool::new(false)));
         let clock = BootClock { origin: Instant::now(), booted_ns: Arc::new(AtomicU64::new(0)) };
@@ -71,8 +74,23 @@ impl Mavsim {
             let (autopilot, stop, silent, link, clock) =
                 (autopilot.clone(), stop.clone(), silent.clone(), link.clone(), clock.clone());
             std::thread::Builder::new().name("mavsim-recv".into()).spawn(move || {
+                let mut answering = false;
                 while !stop.load(Ordering::Relaxed) {
-                    let Some((_, msg)) = link.recv() else { continue };
+                    let msg = match link.recv() {
+                        Some(Frame::Message(peer, _, msg)) => {
+                            // Listening (udpin): the vehicle answers the first that speaks to it.
+                            if !answering {
+                                link.answer(peer);
+                                answering = true;
+                            }
+                            msg
+                        }
+                        Some(Frame::Refused(_, why)) => {
+                            tracing::debug!("mavsim drops a frame: {why:?}");
+                            continue;
+                        }
+                        None => continue,
+                    };
                     if silent.load(Ordering::Relaxed) {
                         continue;
                     }

@@ -11,7 +11,7 @@ use hilbench_svc::streams::{Guarded, Pushed, StreamSlots, Writer, drop_oldest};
 use mav::{PlantSample, Scenario, SimSettings};
 use mavbridge::mavlink::dialects::common::{MavAutopilot, MavCmd, MavMessage, MavResult};
 use mavbridge::mavlink::error::MessageWriteError;
-use mavbridge::{Bridge, ModeRequest, modes};
+use mavbridge::{Bridge, ModeRequest, Peer, Refusal, modes};
 use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
@@ -21,6 +21,10 @@ use tonic::{Request, Response, Status};
 
 /// What the gateway calls itself in `PlantDescription.implementation`.
 pub const IMPLEMENTATION: &str = concat!("hilbench-gateway ", env!("CARGO_PKG_VERSION"), " (MAVLink)");
+
+/// At most one reboot warning this often, ns: a link that shows reboot after reboot (two
+/// vehicles on one port, a flapping clock) says so without flooding the log.
+const REBOOT_LOG_PERIOD_NS: u64 = 10_000_000_000;
 
 /// How long a `COMMAND_LONG` waits for its `COMMAND_ACK` (a `PARAM_REQUEST_READ` for its
 /// `PARAM_VALUE`) before it is sent again, and how many times it is sent.
@@ -63,6 +67,9 @@ struct Inner {
     /// Commands arrive while the vehicle does not fly them (armed, in its external mode), and
     /// that was logged.
     warned_not_flown: bool,
+    /// Gateway time of the last reboot warning, and the reboots not logged since.
+    reboot_logged_ns: Option<u64>,
+    reboots_unlogged: u64,
 }
 
 pub(crate) struct Shared {
@@ -73,6 +80,9 @@ pub(crate) struct Shared {
     stream_buffer: usize,
     /// The scenario given at start (what an empty `Reset.scenario` names at first).
     config_scenario: Scenario,
+    /// The client certificates (common names) that may call VehicleControl (`--allow-client`;
+    /// empty: any client the TLS set-up lets in).
+    allow_clients: Vec<String>,
 }
 
 impl Shared {
@@ -100,6 +110,43 @@ impl Shared {
                 }
             }
         }
+    }
+}
+
+/// Logs a dropped frame: the first of its kind, then each time the count of its kind reaches
+/// a power of two (a flood says so a few times, not once a frame).
+fn log_dropped(
+    inner: &Inner,
+    peer: Peer,
+    why: Refusal,
+    message: Option<(&mavbridge::mavlink::MavHeader, &MavMessage)>,
+) {
+    let dropped = inner.bridge.dropped();
+    let count = match why {
+        Refusal::NoVehicle => dropped.no_vehicle,
+        Refusal::ForeignAddress => dropped.foreign_address,
+        Refusal::ForeignSystem => dropped.foreign_system,
+        Refusal::Undecodable => dropped.undecodable,
+        Refusal::Unsigned => dropped.unsigned,
+        Refusal::BadSignature => dropped.bad_signature,
+        Refusal::Replayed => dropped.replayed,
+    };
+    if !count.is_power_of_two() {
+        return;
+    }
+    let from = peer.map_or_else(|| "the serial device".to_string(), |a| a.to_string());
+    let what = message.map_or_else(
+        || "bytes".to_string(),
+        |(h, m)| {
+            use mavbridge::mavlink::Message;
+            format!("{} of system {} component {}", m.message_name(), h.system_id, h.component_id)
+        },
+    );
+    let vehicle = inner.bridge.vehicle().map_or_else(|| "none yet".to_string(), |v| v.to_string());
+    if why == Refusal::NoVehicle {
+        tracing::debug!(count, "dropped {what} from {from}: no vehicle heartbeat locked the link yet");
+    } else {
+        tracing::warn!(count, "dropped {what} from {from} ({why:?}); the vehicle is {vehicle}");
     }
 }
 
@@ -140,7 +187,13 @@ pub struct GatewayService {
 }
 
 impl GatewayService {
-    pub(crate) fn new(bridge: Bridge, link: Link, max_streams: usize, stream_buffer: usize) -> Self {
+    pub(crate) fn new(
+        bridge: Bridge,
+        link: Link,
+        max_streams: usize,
+        stream_buffer: usize,
+        allow_clients: Vec<String>,
+    ) -> Self {
         let first_flight_id = std::hash::BuildHasher::hash_one(
             &std::collections::hash_map::RandomState::new(),
             std::process::id(),
@@ -158,12 +211,15 @@ impl GatewayService {
                     overflow_dropped: 0,
                     send_errors: 0,
                     warned_not_flown: false,
+                    reboot_logged_ns: None,
+                    reboots_unlogged: 0,
                 }),
                 origin: Instant::now(),
                 link,
                 slots: StreamSlots::new("gateway", max_streams),
                 stream_buffer,
                 config_scenario,
+                allow_clients,
             }),
         }
     }
@@ -187,17 +243,52 @@ impl GatewayService {
         inner.subscribers.clear();
     }
 
-    /// The reading side: one message from the vehicle.
-    pub(crate) fn on_message(&self, header: &mavbridge::mavlink::MavHeader, msg: &MavMessage) {
+    /// The reading side: one frame of the link.
+    pub(crate) fn on_frame(&self, frame: crate::link::Frame) {
+        match frame {
+            crate::link::Frame::Message(peer, header, msg) => self.on_message(peer, &header, &msg),
+            crate::link::Frame::Refused(peer, why) => {
+                let mut inner = self.shared.lock();
+                let counted = inner.bridge.refuse(peer, why);
+                log_dropped(&inner, peer, counted, None);
+            }
+        }
+    }
+
+    /// One message from `peer`: believed only from the vehicle locked to.
+    pub(crate) fn on_message(&self, peer: Peer, header: &mavbridge::mavlink::MavHeader, msg: &MavMessage) {
         let now = self.shared.now_ns();
         let reply = {
             let mut inner = self.shared.lock();
-            let event = inner.bridge.on_message(header, msg, now);
-            if let Some(reboot) = &event.reboot {
-                tracing::warn!(
-                    reboots = inner.bridge.counters().reboots,
-                    "{reboot}; until then the Plant API answers UNAVAILABLE and health is NOT_SERVING"
+            let event = inner.bridge.on_message(peer, header, msg, now);
+            if let Some(why) = event.dropped {
+                log_dropped(&inner, peer, why, Some((header, msg)));
+                return;
+            }
+            if let Some(vehicle) = event.locked {
+                tracing::info!(
+                    "locked to the vehicle {vehicle}: frames from any other address, system or component are dropped"
                 );
+                self.shared.link.answer(vehicle.peer);
+            }
+            if let Some(reboot) = &event.reboot {
+                let due =
+                    inner.reboot_logged_ns.is_none_or(|t| now.saturating_sub(t) >= REBOOT_LOG_PERIOD_NS);
+                if due {
+                    let unlogged = std::mem::take(&mut inner.reboots_unlogged);
+                    let more = if unlogged > 0 {
+                        format!(" ({unlogged} more since the last warning)")
+                    } else {
+                        String::new()
+                    };
+                    inner.reboot_logged_ns = Some(now);
+                    tracing::warn!(
+                        reboots = inner.bridge.counters().reboots,
+                        "{reboot}{more}; until then the Plant API answers UNAVAILABLE and health is NOT_SERVING"
+                    );
+                } else {
+                    inner.reboots_unlogged += 1;
+                }
             }
             if let Some(sample) = &event.sample {
                 publish(&mut inner, sample);
@@ -314,6 +405,27 @@ impl GatewayService {
                 "no COMMAND_ACK for {command:?} after {ACK_ATTEMPTS} attempts {} ms apart",
                 ACK_WAIT.as_millis()
             ))),
+        }
+    }
+
+    /// Whether the client may call `VehicleControl/{call}`: any client when no `--allow-client`
+    /// was given, else only those whose certificate's common name is listed.
+    fn authorize<T>(&self, request: &Request<T>, call: &str) -> Result<(), Status> {
+        let allowed = &self.shared.allow_clients;
+        if allowed.is_empty() {
+            return Ok(());
+        }
+        let refused = |who: String| {
+            tracing::warn!("VehicleControl/{call} refused to {who}");
+            Status::permission_denied(format!(
+                "VehicleControl/{call} is only for the client certificates {allowed:?} (--allow-client); \
+                 this client presented {who}"
+            ))
+        };
+        match hilbench_svc::tls::client_common_name(request) {
+            Ok(name) if allowed.contains(&name) => Ok(()),
+            Ok(name) => Err(refused(format!("the certificate {name:?}"))),
+            Err(why) => Err(refused(why.to_string())),
         }
     }
 
@@ -476,8 +588,9 @@ impl pb::plant_server::Plant for GatewayService {
 impl pb::vehicle_control_server::VehicleControl for GatewayService {
     async fn arm(
         &self,
-        _request: Request<pb::ArmRequest>,
+        request: Request<pb::ArmRequest>,
     ) -> Result<Response<pb::VehicleCommandResponse>, Status> {
+        self.authorize(&request, "Arm")?;
         let msg = self.shared.lock().bridge.arm_message(true);
         tracing::info!("arming the vehicle (asked)");
         self.command(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, msg).await
@@ -485,8 +598,9 @@ impl pb::vehicle_control_server::VehicleControl for GatewayService {
 
     async fn disarm(
         &self,
-        _request: Request<pb::DisarmRequest>,
+        request: Request<pb::DisarmRequest>,
     ) -> Result<Response<pb::VehicleCommandResponse>, Status> {
+        self.authorize(&request, "Disarm")?;
         let msg = self.shared.lock().bridge.arm_message(false);
         tracing::info!("disarming the vehicle (asked)");
         self.command(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, msg).await
@@ -496,6 +610,7 @@ impl pb::vehicle_control_server::VehicleControl for GatewayService {
         &self,
         request: Request<pb::SetModeRequest>,
     ) -> Result<Response<pb::VehicleCommandResponse>, Status> {
+        self.authorize(&request, "SetMode")?;
         let mode: ModeRequest = vconv::mode_request(request.get_ref()).map_err(Status::from)?;
         let (msg, autopilot) = {
             let inner = self.shared.lock();
@@ -522,8 +637,9 @@ impl pb::vehicle_control_server::VehicleControl for GatewayService {
 
     async fn get_status(
         &self,
-        _request: Request<pb::GetVehicleStatusRequest>,
+        request: Request<pb::GetVehicleStatusRequest>,
     ) -> Result<Response<pb::VehicleStatus>, Status> {
+        self.authorize(&request, "GetStatus")?;
         let now = self.shared.now_ns();
         let inner = self.shared.lock();
         let status = inner.bridge.status(now);
@@ -534,6 +650,7 @@ impl pb::vehicle_control_server::VehicleControl for GatewayService {
         status.link_reopens = link.reopens;
         status.link_error = link.down.unwrap_or_default();
         status.link_read_errors = link.read_errors;
+        status.mavlink_signed = self.shared.link.signs();
         Ok(Response::new(status))
     }
 }
@@ -548,7 +665,7 @@ mod tests {
         let bridge =
             Bridge::new(Scenario::paper_2(), mavbridge::BridgeSettings::default(), 0, 1).expect("valid");
         let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("a loopback UDP port");
-        GatewayService::new(bridge, link, 4, 16)
+        GatewayService::new(bridge, link, 4, 16, Vec::new())
     }
 
     #[test]
@@ -568,7 +685,13 @@ mod tests {
             inner.pending.push((guid, live_guid));
         }
         let header = MavHeader { system_id: 1, component_id: 1, sequence: 0 };
+        let px4 = mavbridge::mavlink::dialects::common::HEARTBEAT_DATA {
+            autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+            ..Default::default()
+        };
+        service.on_message(None, &header, &MavMessage::HEARTBEAT(px4));
         service.on_message(
+            None,
             &header,
             &MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
                 command: MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
@@ -576,6 +699,7 @@ mod tests {
             }),
         );
         service.on_message(
+            None,
             &header,
             &MavMessage::PARAM_VALUE(PARAM_VALUE_DATA {
                 param_value: 8.0,
@@ -586,5 +710,40 @@ mod tests {
         assert!(matches!(arm_answer.try_recv(), Ok(Answer::Ack(MavResult::MAV_RESULT_ACCEPTED))));
         assert!(matches!(guid_answer.try_recv(), Ok(Answer::Param(v)) if v == 8.0));
         assert!(service.shared.lock().pending.is_empty(), "the cancelled requests are dropped");
+    }
+
+    #[test]
+    fn reboot_after_reboot_is_logged_once_in_ten_seconds_and_the_rest_are_counted_for_the_next_warning() {
+        let service = service();
+        let header = MavHeader { system_id: 1, component_id: 1, sequence: 0 };
+        let px4 = mavbridge::mavlink::dialects::common::HEARTBEAT_DATA {
+            autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+            ..Default::default()
+        };
+        service.on_message(None, &header, &MavMessage::HEARTBEAT(px4));
+        let start = Scenario::paper_2().start_state();
+        let state = |ms: u64| {
+            let (a, p) = mavbridge::messages::state_messages(&start, 0.0, ms * 1_000_000);
+            [MavMessage::ATTITUDE(a), MavMessage::LOCAL_POSITION_NED(p)]
+        };
+        // Two vehicles on one link (one up for ten minutes, one just booted), in turns: each
+        // turn of the young one is a reboot of the old one's clock, confirmed.
+        for turn in 0..5u64 {
+            for k in 0..3 {
+                for m in state(600_000 + turn * 10 + k) {
+                    service.on_message(None, &header, &m);
+                }
+            }
+            for k in 0..3 {
+                for m in state(turn * 10 + k) {
+                    service.on_message(None, &header, &m);
+                }
+            }
+        }
+        let inner = service.shared.lock();
+        let reboots = inner.bridge.counters().reboots;
+        assert_eq!(reboots, 5, "{:?}", inner.bridge.counters());
+        assert!(inner.reboot_logged_ns.is_some());
+        assert_eq!(inner.reboots_unlogged, reboots - 1, "one warning, the rest counted for the next");
     }
 }

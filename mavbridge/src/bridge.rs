@@ -8,6 +8,7 @@ use crate::messages::{self, Attitude};
 use crate::modes::{self, ModeRequest};
 use crate::thrust::{ThrustError, ThrustMap};
 use crate::timesync::TimeSync;
+use crate::trust::{Admitted, Dropped, Peer, Refusal, Trust, Vehicle, VehicleFilter};
 use mav::{AppliedCommand, CommandMeta, Contacts, Input, PlantSample, Scenario, State};
 use mavlink::MavHeader;
 use mavlink::dialects::common::{
@@ -23,6 +24,13 @@ use mavlink::dialects::common::{
 /// The same margin serves a clock that comes back *ahead* after a silence but counted this much
 /// less than the gateway's clock did meanwhile (see [`shows_reboot`]).
 pub const REBOOT_CLOCK_JUMP_MS: u32 = 1_000;
+
+/// State messages that must follow a stamp showing a reboot, on the restarted clock (within
+/// [`REBOOT_CLOCK_JUMP_MS`] of it), before the reboot is believed: one stray or forged stamp is
+/// not a reboot. At the vehicle's state rates (50 Hz and more, two kinds) this takes tens of
+/// milliseconds; a message on the old clock meanwhile refuses the stamp
+/// ([`Counters::reboot_stamps_refused`]).
+pub const REBOOT_CONFIRMATIONS: u32 = 3;
 
 /// Whether a state message stamped `after_ms` on the vehicle's boot clock, arriving `silence_ns`
 /// of gateway time after the last one of its kind (stamped `before_ms`), shows that the vehicle
@@ -64,6 +72,14 @@ pub struct BridgeSettings {
     pub timesync_period_ns: u64,
     /// A `Reset` whose start is farther than this from the vehicle is refused, m.
     pub start_tolerance_m: f64,
+    /// Which vehicle the link locks to (`--vehicle-sysid`, `--vehicle-compid`; default: the
+    /// first autopilot heard).
+    pub vehicle: VehicleFilter,
+    /// A `LOCAL_POSITION_NED` farther than this outside the scenario's box (its start, goal and
+    /// obstacles) is refused, m (`--envelope-margin-m`).
+    pub envelope_margin_m: f64,
+    /// A `LOCAL_POSITION_NED` faster than this is refused, m/s (`--max-speed-mps`).
+    pub max_speed_mps: f64,
 }
 
 impl Default for BridgeSettings {
@@ -76,6 +92,9 @@ impl Default for BridgeSettings {
             heartbeat_period_ns: 1_000_000_000,
             timesync_period_ns: 500_000_000,
             start_tolerance_m: 0.5,
+            vehicle: VehicleFilter::default(),
+            envelope_margin_m: 100.0,
+            max_speed_mps: 50.0,
         }
     }
 }
@@ -117,6 +136,18 @@ impl BridgeSettings {
                 format!("must be >= 0 m, got {}", self.start_tolerance_m),
             ));
         }
+        if !(self.envelope_margin_m.is_finite() && self.envelope_margin_m > 0.0) {
+            return Err(BridgeError::Setting(
+                "envelope_margin_m",
+                format!("must be > 0 m, got {}", self.envelope_margin_m),
+            ));
+        }
+        if !(self.max_speed_mps.is_finite() && self.max_speed_mps > 0.0) {
+            return Err(BridgeError::Setting(
+                "max_speed_mps",
+                format!("must be > 0 m/s, got {}", self.max_speed_mps),
+            ));
+        }
         Ok(())
     }
 }
@@ -151,6 +182,10 @@ pub struct VehicleStatus {
     /// `vehicle - gateway` clock offset, ns, and whether `TIMESYNC` measured it.
     pub clock_offset_ns: Option<(i64, bool)>,
     pub counters: Counters,
+    /// The vehicle the link is locked to (`None`: no autopilot heartbeat yet).
+    pub vehicle: Option<Vehicle>,
+    /// Frames not believed: from another address or system, undecodable, unsigned, ...
+    pub dropped: Dropped,
 }
 
 /// What the bridge counted since start: every fault and best-effort decision.
@@ -168,6 +203,14 @@ pub struct Counters {
     /// Times the vehicle's boot clock showed a reboot ([`shows_reboot`]: it went back by more
     /// than [`REBOOT_CLOCK_JUMP_MS`], or restarted during a silence).
     pub reboots: u64,
+    /// `LOCAL_POSITION_NED`s far outside the scenario's envelope or faster than the speed
+    /// bound, not used.
+    pub implausible_states: u64,
+    /// `TIMESYNC` answers not taken: not to an outstanding request of ours, or going back.
+    pub timesync_refused: u64,
+    /// Stamps that showed a reboot which the next messages did not confirm
+    /// ([`REBOOT_CONFIRMATIONS`]).
+    pub reboot_stamps_refused: u64,
 }
 
 /// A reboot of the vehicle, seen in its boot clock (`time_boot_ms`): gone back, or restarted
@@ -212,8 +255,21 @@ pub struct Event {
     pub param: Option<(String, f32)>,
     /// A message to send back (an answer to the vehicle's `TIMESYNC` request).
     pub reply: Option<MavMessage>,
-    /// This message showed that the vehicle rebooted (once per reboot).
+    /// This message confirmed that the vehicle rebooted (once per reboot).
     pub reboot: Option<Reboot>,
+    /// This heartbeat locked the link to its sender: where to send from now on.
+    pub locked: Option<Vehicle>,
+    /// The message was not believed (counted in [`VehicleStatus::dropped`]).
+    pub dropped: Option<Refusal>,
+}
+
+/// A stamp that showed a reboot, waiting for [`REBOOT_CONFIRMATIONS`] more.
+#[derive(Debug, Clone, Copy)]
+struct PendingReboot {
+    reboot: Reboot,
+    /// Gateway time of the stamp, ns.
+    heard_ns: u64,
+    confirmations: u32,
 }
 
 #[derive(Debug, Clone)]
@@ -232,6 +288,10 @@ pub struct Bridge {
     thrust: ThrustMap,
     /// The vehicle's (system, component), from its heartbeat.
     target: (u8, u8),
+    /// Whom to believe.
+    trust: Trust,
+    /// A stamp that showed a reboot, not confirmed yet.
+    pending_reboot: Option<PendingReboot>,
     heard: Option<Heard>,
     battery_voltage_v: Option<f64>,
     battery_remaining_pct: Option<f64>,
@@ -294,6 +354,8 @@ impl Bridge {
             settings,
             thrust,
             target: (1, 1),
+            trust: Trust::new(settings.vehicle),
+            pending_reboot: None,
             heard: None,
             battery_voltage_v: None,
             battery_remaining_pct: None,
@@ -362,9 +424,22 @@ impl Bridge {
         vehicle_ns.saturating_sub(self.epoch_vehicle_ns.unwrap_or(vehicle_ns))
     }
 
-    /// An incoming message from the vehicle, at gateway time `now_ns`.
-    pub fn on_message(&mut self, header: &MavHeader, msg: &MavMessage, now_ns: u64) -> Event {
+    /// An incoming message from `peer`, at gateway time `now_ns`: believed only from the
+    /// vehicle the link is locked to ([`Trust`]); anything else is counted and changes nothing.
+    pub fn on_message(&mut self, peer: Peer, header: &MavHeader, msg: &MavMessage, now_ns: u64) -> Event {
         let mut event = Event::default();
+        let lost = !self.link_alive(now_ns);
+        match self.trust.admit(peer, header, msg, lost) {
+            Err(why) => {
+                event.dropped = Some(why);
+                return event;
+            }
+            Ok(Admitted::Locked(vehicle)) => {
+                self.target = (vehicle.system_id, vehicle.component_id);
+                event.locked = Some(vehicle);
+            }
+            Ok(Admitted::Vehicle) => {}
+        }
         match msg {
             MavMessage::HEARTBEAT(h) if h.autopilot != MavAutopilot::MAV_AUTOPILOT_INVALID => {
                 let armed = h.base_mode.contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED);
@@ -375,7 +450,6 @@ impl Bridge {
                         self.yaw_hold_rad = a.yaw_rad;
                     }
                 }
-                self.target = (header.system_id as u8, header.component_id);
                 self.heard = Some(Heard {
                     local_ns: now_ns,
                     autopilot: h.autopilot,
@@ -394,8 +468,8 @@ impl Bridge {
                     // The vehicle asks: answer with our clock.
                     event.reply =
                         Some(MavMessage::TIMESYNC(TIMESYNC_DATA { tc1: now_ns as i64, ts1: t.ts1 }));
-                } else {
-                    self.timesync.on_answer(t.tc1, t.ts1, now_ns);
+                } else if self.timesync.on_answer(t.tc1, t.ts1, now_ns).is_none() {
+                    self.counters.timesync_refused += 1;
                 }
             }
             MavMessage::COMMAND_ACK(a) => event.ack = Some((a.command, a.result)),
@@ -415,6 +489,10 @@ impl Bridge {
                 let t = p.time_boot_ms;
                 if [p.x, p.y, p.z, p.vx, p.vy, p.vz].iter().any(|v| !v.is_finite()) {
                     self.counters.bad_messages += 1;
+                    return event;
+                }
+                if !self.plausible(p) {
+                    self.counters.implausible_states += 1;
                     return event;
                 }
                 let old_ms = self.position.as_ref().map(|old| old.time_boot_ms);
@@ -442,9 +520,38 @@ impl Bridge {
         event.sample = self.produce(u64::from(att.time_boot_ms) * 1_000_000, now_ns);
     }
 
+    /// Whether a `LOCAL_POSITION_NED` is inside the scenario's envelope: its position within
+    /// [`BridgeSettings::envelope_margin_m`] of the box around the scenario's start, goal and
+    /// obstacles (the model's frame), its speed at most [`BridgeSettings::max_speed_mps`].
+    fn plausible(&self, p: &LOCAL_POSITION_NED_DATA) -> bool {
+        let s = &self.scenario;
+        let margin = self.settings.envelope_margin_m;
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        let mut include = |point: [f64; 3], r: f64| {
+            for i in 0..3 {
+                lo[i] = lo[i].min(point[i] - r);
+                hi[i] = hi[i].max(point[i] + r);
+            }
+        };
+        include([s.start[0], s.start[1], s.start[2]], 0.0);
+        include(s.goal_m, 0.0);
+        for c in &s.obstacles {
+            include([c.x_m, c.y_m, 0.0], c.radius_m);
+            include([c.x_m, c.y_m, c.height_m.min(1e6)], c.radius_m);
+        }
+        // The model's frame: z up, y = -east.
+        let at = [f64::from(p.x), -f64::from(p.y), -f64::from(p.z)];
+        let inside = (0..3).all(|i| at[i] >= lo[i] - margin && at[i] <= hi[i] + margin);
+        let speed = [p.vx, p.vy, p.vz].iter().map(|v| f64::from(*v).powi(2)).sum::<f64>().sqrt();
+        inside && speed <= self.settings.max_speed_mps
+    }
+
     /// A state message of one kind stamped `t_ms`, after the last of its kind stamped `old_ms`
     /// and heard at `heard_ns`: whether it is newer (else it is counted stale). A stamp that
-    /// shows a reboot ([`shows_reboot`]) is recorded in `event` and starts afresh (newer).
+    /// shows a reboot ([`shows_reboot`]) is held as a candidate and the message not used; the
+    /// next [`REBOOT_CONFIRMATIONS`] state messages on the restarted clock confirm it (the
+    /// reboot is then recorded in `event` and the confirming message starts afresh), and one on
+    /// any other clock refuses it (counted).
     fn is_new_stamp(
         &mut self,
         old_ms: Option<u32>,
@@ -453,11 +560,31 @@ impl Bridge {
         now_ns: u64,
         event: &mut Event,
     ) -> bool {
+        if let Some(pending) = &mut self.pending_reboot {
+            let elapsed_ms = now_ns.saturating_sub(pending.heard_ns) / 1_000_000;
+            let expected_ms = u64::from(pending.reboot.after_ms) + elapsed_ms;
+            if u64::from(t_ms).abs_diff(expected_ms) <= u64::from(REBOOT_CLOCK_JUMP_MS) {
+                pending.confirmations += 1;
+                if pending.confirmations < REBOOT_CONFIRMATIONS {
+                    return false;
+                }
+                let Reboot { before_ms, after_ms, silence_ns } = pending.reboot;
+                self.pending_reboot = None;
+                event.reboot = Some(self.on_reboot(before_ms, after_ms, silence_ns, now_ns));
+                return true;
+            }
+            self.pending_reboot = None;
+            self.counters.reboot_stamps_refused += 1;
+        }
         let Some(old_ms) = old_ms else { return true };
         let silence_ns = now_ns.saturating_sub(heard_ns);
         if shows_reboot(old_ms, t_ms, silence_ns) {
-            event.reboot = Some(self.on_reboot(old_ms, t_ms, silence_ns, now_ns));
-            return true;
+            self.pending_reboot = Some(PendingReboot {
+                reboot: Reboot { before_ms: old_ms, after_ms: t_ms, silence_ns },
+                heard_ns: now_ns,
+                confirmations: 0,
+            });
+            return false;
         }
         if old_ms > t_ms {
             self.counters.stale_messages += 1;
@@ -600,7 +727,7 @@ impl Bridge {
         }
         if now_ns >= self.next_timesync_ns {
             self.next_timesync_ns = now_ns + self.settings.timesync_period_ns;
-            let (tc1, ts1) = TimeSync::request(now_ns);
+            let (tc1, ts1) = self.timesync.request(now_ns);
             out.push(MavMessage::TIMESYNC(TIMESYNC_DATA { tc1, ts1 }));
         }
     }
@@ -703,6 +830,22 @@ impl Bridge {
         })
     }
 
+    /// A frame from `peer` refused before it was decoded (junk, or its signature), counted;
+    /// returns what it was counted as ([`Trust::refuse`]).
+    pub fn refuse(&mut self, peer: Peer, why: Refusal) -> Refusal {
+        self.trust.refuse(peer, why)
+    }
+
+    /// The frames not believed so far.
+    pub fn dropped(&self) -> &Dropped {
+        self.trust.dropped()
+    }
+
+    /// The vehicle the link is locked to (`None`: no autopilot heartbeat heard yet).
+    pub fn vehicle(&self) -> Option<Vehicle> {
+        self.trust.vehicle()
+    }
+
     /// The autopilot of the last heartbeat (`None`: none heard).
     pub fn autopilot(&self) -> Option<MavAutopilot> {
         self.heard.as_ref().map(|h| h.autopilot)
@@ -746,6 +889,8 @@ impl Bridge {
             battery_remaining_pct: self.battery_remaining_pct,
             clock_offset_ns: self.timesync.offset_ns(),
             counters: self.counters,
+            vehicle: self.trust.vehicle(),
+            dropped: self.trust.dropped().clone(),
         }
     }
 }

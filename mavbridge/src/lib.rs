@@ -8,6 +8,8 @@
 //! - [`modes`]: PX4 and ArduPilot modes.
 //! - [`bridge`]: the gateway's core (samples, setpoints, the command timeout, resets, the
 //!   vehicle's reboots).
+//! - [`trust`]: whom the gateway believes (the vehicle lock) and what it dropped.
+//! - [`signing`]: MAVLink 2 message signing, both ways.
 //! - [`autopilot`]: the simulator's autopilot around `mav::PlantSim`.
 
 pub mod autopilot;
@@ -15,14 +17,18 @@ pub mod bridge;
 pub mod frame;
 pub mod messages;
 pub mod modes;
+pub mod signing;
 pub mod thrust;
 pub mod timesync;
+pub mod trust;
 
 pub use autopilot::{AutopilotError, AutopilotSettings, Firmware, SimAutopilot, SimMode};
 pub use bridge::{
-    Bridge, BridgeError, BridgeSettings, Counters, Event, REBOOT_CLOCK_JUMP_MS, Reboot, ResetRefusal,
-    VehicleStatus, shows_reboot,
+    Bridge, BridgeError, BridgeSettings, Counters, Event, REBOOT_CLOCK_JUMP_MS, REBOOT_CONFIRMATIONS, Reboot,
+    ResetRefusal, VehicleStatus, shows_reboot,
 };
 pub use mavlink;
 pub use modes::ModeRequest;
+pub use signing::{KeyError, Signer, SigningKey, Verifier};
 pub use thrust::ThrustMap;
+pub use trust::{Dropped, Peer, Refusal, Vehicle, VehicleFilter};

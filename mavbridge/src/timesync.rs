@@ -17,21 +17,38 @@ pub struct TimeSync {
     arrival_offset_ns: Option<i64>,
     /// Local time of the last [`TimeSync::restart`]: answers to earlier requests are ignored.
     since_ns: i64,
+    /// `ts1` of the last requests sent and not answered yet: an answer must echo one.
+    outstanding: Vec<i64>,
+    /// `(ts1, tc1)` of the last answer taken: a later one must be newer in both clocks.
+    last_answer: Option<(i64, i64)>,
 }
 
 impl TimeSync {
-    /// The request to send at local time `now_ns`: `(tc1, ts1)`.
-    pub fn request(now_ns: u64) -> (i64, i64) {
+    /// The request to send at local time `now_ns`: `(tc1, ts1)`, remembered until answered.
+    pub fn request(&mut self, now_ns: u64) -> (i64, i64) {
+        if self.outstanding.len() == WINDOW {
+            self.outstanding.remove(0);
+        }
+        self.outstanding.push(now_ns as i64);
         (0, now_ns as i64)
     }
 
     /// An answer `(tc1, ts1)` arrived at local time `now_ns`. Returns the exchange's round trip
-    /// when it is an answer to one of ours (`ts1` in the past), `None` otherwise.
+    /// when it answers one of our outstanding requests (sent since the last restart) and goes
+    /// forward in both clocks from the last answer taken; `None` otherwise (the caller counts
+    /// it): an answer to someone else's request, a second answer, or a vehicle clock that went
+    /// backwards, which would drag the offset that stamps the commands.
     pub fn on_answer(&mut self, tc1: i64, ts1: i64, now_ns: u64) -> Option<u64> {
         let now = now_ns as i64;
         if tc1 <= 0 || ts1 < self.since_ns || ts1 > now {
             return None;
         }
+        let asked = self.outstanding.iter().position(|&t| t == ts1)?;
+        if self.last_answer.is_some_and(|(last_ts1, last_tc1)| ts1 <= last_ts1 || tc1 <= last_tc1) {
+            return None;
+        }
+        self.outstanding.remove(asked);
+        self.last_answer = Some((ts1, tc1));
         let rtt = (now - ts1) as u64;
         let offset = tc1 - (ts1 + (now - ts1) / 2);
         if self.exchanges.len() < WINDOW {
@@ -86,12 +103,12 @@ mod tests {
         assert_eq!(t.offset_ns(), Some((4_000_000_000, false)));
         // Vehicle clock = local + 3 s. Exchange 1: sent at 10 ms, answered after 1 ms each
         // way... but the answer leg took 5 ms: a loose estimate.
-        let (_, ts1) = TimeSync::request(10_000_000);
+        let (_, ts1) = t.request(10_000_000);
         let rtt = t.on_answer(3_011_000_000, ts1, 16_000_000);
         assert_eq!(rtt, Some(6_000_000));
         assert_eq!(t.offset_ns(), Some((3_011_000_000 - 13_000_000, true)));
         // Exchange 2: symmetric 0.1 ms legs: exact.
-        let (_, ts1) = TimeSync::request(20_000_000);
+        let (_, ts1) = t.request(20_000_000);
         t.on_answer(3_020_100_000, ts1, 20_200_000);
         assert_eq!(t.offset_ns(), Some((3_000_000_000, true)));
         assert_eq!(t.vehicle_ns(1), Some(3_000_000_001));
@@ -103,7 +120,7 @@ mod tests {
     #[test]
     fn a_restart_forgets_the_offset_and_ignores_answers_to_requests_sent_before_it() {
         let mut t = TimeSync::default();
-        let (_, ts1) = TimeSync::request(10_000_000);
+        let (_, ts1) = t.request(10_000_000);
         t.on_answer(600_000_000_000, ts1, 10_200_000);
         t.on_arrival(600_000_000_000, 10_000_000);
         t.restart(20_000_000);
@@ -112,8 +129,25 @@ mod tests {
         assert_eq!(t.on_answer(600_010_000_000, ts1, 20_100_000), None);
         assert_eq!(t.offset_ns(), None);
         // Sent after it: the new clock (booted 1 s ago).
-        let (_, ts1) = TimeSync::request(20_000_000);
+        let (_, ts1) = t.request(20_000_000);
         t.on_answer(1_000_100_000, ts1, 20_200_000);
         assert_eq!(t.offset_ns(), Some((1_000_000_000 - 20_000_000, true)));
+    }
+
+    #[test]
+    fn an_answer_must_echo_an_outstanding_request_once_and_go_forward_in_both_clocks() {
+        let mut t = TimeSync::default();
+        // Vehicle clock = local + 3 s.
+        let (_, first) = t.request(10_000_000);
+        let (_, second) = t.request(20_000_000);
+        assert_eq!(t.on_answer(3_015_000_000, 15_000_000, 21_000_000), None, "never asked at 15 ms");
+        assert!(t.on_answer(3_010_100_000, first, 10_200_000).is_some());
+        assert_eq!(t.on_answer(3_010_100_000, first, 10_300_000), None, "answered already");
+        // The second answer says the vehicle's clock went back by 2 s: refused, offset kept.
+        assert_eq!(t.on_answer(1_020_100_000, second, 20_200_000), None);
+        assert_eq!(t.offset_ns(), Some((3_000_000_000, true)));
+        let (_, third) = t.request(30_000_000);
+        assert!(t.on_answer(3_030_100_000, third, 30_200_000).is_some());
+        assert_eq!(t.offset_ns(), Some((3_000_000_000, true)));
     }
 }

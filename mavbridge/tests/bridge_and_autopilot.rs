@@ -6,8 +6,8 @@ use mav::{CommandMeta, Input, Scenario};
 use mavbridge::mavlink::dialects::common::{MavAutopilot, MavCmd, MavMessage, MavResult};
 use mavbridge::mavlink::{self, MavHeader, MavlinkVersion};
 use mavbridge::{
-    AutopilotSettings, Bridge, BridgeSettings, Firmware, ModeRequest, Reboot, ResetRefusal, SimAutopilot,
-    SimMode, modes,
+    AutopilotSettings, Bridge, BridgeSettings, Firmware, ModeRequest, Peer, Reboot, ResetRefusal,
+    SimAutopilot, SimMode, modes,
 };
 
 const MS: u64 = 1_000_000;
@@ -41,6 +41,8 @@ struct Pair {
 }
 
 const VEHICLE_AHEAD_NS: u64 = 3_000 * MS;
+/// Where the vehicle's frames come from (a serial device: one peer).
+const VEHICLE: Peer = None;
 
 fn sim_autopilot(scenario: &Scenario) -> SimAutopilot {
     SimAutopilot::new(scenario, AutopilotSettings { yaw_rad: 0.7, ..Default::default() }).expect("valid")
@@ -65,6 +67,18 @@ impl Pair {
             unasked_commands: 0,
             silent_vehicle: false,
         }
+        .heard()
+    }
+
+    /// The vehicle's first heartbeat has reached the gateway, which locked to it (its other
+    /// first messages are not delivered: the tests start without a state).
+    fn heard(mut self) -> Self {
+        let mut out = Vec::new();
+        self.vehicle.poll(self.vehicle_ns(), &mut out);
+        out.retain(|m| matches!(m, MavMessage::HEARTBEAT(_)));
+        self.send_to_gateway(out);
+        assert!(self.bridge.vehicle().is_some(), "locked to the vehicle");
+        self
     }
 
     /// The vehicle's clock now, ns.
@@ -94,7 +108,7 @@ impl Pair {
         }
         for m in msgs {
             let (h, m) = wire(&m, 1);
-            let event = self.bridge.on_message(&h, &m, self.now_ns);
+            let event = self.bridge.on_message(VEHICLE, &h, &m, self.now_ns);
             self.samples.extend(event.sample);
             self.acks.extend(event.ack);
             self.params.extend(event.param);
@@ -556,4 +570,155 @@ fn arducopter_answers_guid_options_and_flies_the_thrust_as_thrust_only_with_bit_
     let [as_climb_rate, as_thrust] = climb_after_1_5_s[..] else { unreachable!() };
     assert!((as_climb_rate - 1.25).abs() < 0.15, "GUID_OPTIONS 0 climbs at 1.25 m/s: {as_climb_rate}");
     assert!(as_thrust > 3.0, "GUID_OPTIONS 8 accelerates at 0.5 g: {as_thrust}");
+}
+
+/// An attacker on another UDP port, and one on the vehicle's own link with another system id.
+const ATTACKER: Peer =
+    Some(std::net::SocketAddr::V4(std::net::SocketAddrV4::new(std::net::Ipv4Addr::LOCALHOST, 40_000)));
+
+impl Pair {
+    /// `msgs` as system `system_id` from `peer` (not the vehicle's frames): the events.
+    fn forge(&mut self, peer: Peer, system_id: u8, msgs: Vec<MavMessage>) -> Vec<mavbridge::bridge::Event> {
+        msgs.iter()
+            .map(|m| {
+                let (h, m) = wire(m, system_id);
+                self.bridge.on_message(peer, &h, &m, self.now_ns)
+            })
+            .collect()
+    }
+}
+
+/// A state 40 m north of the vehicle, stamped ahead of its clock.
+fn spoofed_state(p: &Pair, scenario: &Scenario) -> Vec<MavMessage> {
+    let mut x = scenario.start_state();
+    x[0] += 40.0;
+    let (attitude, position) = mavbridge::messages::state_messages(&x, 0.0, p.vehicle_ns() + 5 * MS);
+    vec![MavMessage::ATTITUDE(attitude), MavMessage::LOCAL_POSITION_NED(position)]
+}
+
+#[test]
+fn spoofed_states_from_another_address_or_system_are_dropped_counted_by_name_and_never_served() {
+    let scenario = Scenario::paper_2();
+    let mut p = Pair::new(&scenario);
+    p.run(500);
+    let served = p.bridge.sample().expect("served").clone();
+    for (peer, system_id) in [(ATTACKER, 1), (ATTACKER, 77), (VEHICLE, 77)] {
+        let spoofed = spoofed_state(&p, &scenario);
+        let events = p.forge(peer, system_id, spoofed);
+        assert!(events.iter().all(|e| e.sample.is_none() && e.dropped.is_some()), "{events:?}");
+        assert_eq!(p.bridge.sample(), Some(&served), "still the vehicle's");
+    }
+    let status = p.bridge.status(p.now_ns);
+    assert_eq!((status.dropped.foreign_address, status.dropped.foreign_system), (4, 2), "{status:?}");
+    assert_eq!(status.dropped.by_message.get("LOCAL_POSITION_NED"), Some(&3));
+    assert_eq!(status.dropped.by_message.get("ATTITUDE"), Some(&3));
+    // A burst of them does not let through a Reset the vehicle's position refuses.
+    let mut far = scenario.clone();
+    far.start[0] += 40.0;
+    for _ in 0..100 {
+        let spoofed = spoofed_state(&p, &scenario);
+        p.forge(ATTACKER, 1, spoofed);
+        p.run(1);
+    }
+    assert!(matches!(p.bridge.reset(far, None, p.now_ns, 2), Err(ResetRefusal::FarFromVehicle { .. })));
+}
+
+#[test]
+fn heartbeats_of_other_systems_neither_retarget_the_setpoints_nor_change_the_status() {
+    let scenario = Scenario::paper_2();
+    let mut p = Pair::new(&scenario);
+    p.run(100);
+    let offboard_armed = MavMessage::HEARTBEAT(mavlink::dialects::common::HEARTBEAT_DATA {
+        custom_mode: ModeRequest::px4_custom_mode(6, 0),
+        autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+        base_mode: mavlink::dialects::common::MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED
+            | mavlink::dialects::common::MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+        ..Default::default()
+    });
+    for system_id in 2..=250u8 {
+        let peer = if system_id % 2 == 0 { ATTACKER } else { VEHICLE };
+        p.forge(peer, system_id, vec![offboard_armed.clone()]);
+    }
+    let status = p.bridge.status(p.now_ns);
+    assert!(!status.armed && status.mode == "POSCTL", "{status:?}");
+    assert_eq!(status.vehicle.map(|v| (v.system_id, v.component_id)), Some((1, 1)));
+    assert_eq!(status.dropped.by_message.get("HEARTBEAT"), Some(&249));
+    let mut out = Vec::new();
+    p.bridge.poll(p.now_ns + 20 * MS, &mut out);
+    let targets: Vec<_> = out
+        .iter()
+        .filter_map(|m| match m {
+            MavMessage::SET_ATTITUDE_TARGET(s) => Some((s.target_system, s.target_component)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(targets, vec![(1, 1)]);
+}
+
+#[test]
+fn a_forged_ack_is_not_an_answer() {
+    let scenario = Scenario::paper_2();
+    let mut p = Pair::new(&scenario);
+    let ack = MavMessage::COMMAND_ACK(mavlink::dialects::common::COMMAND_ACK_DATA {
+        command: MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+        result: MavResult::MAV_RESULT_ACCEPTED,
+    });
+    for (peer, system_id) in [(ATTACKER, 99), (VEHICLE, 99), (ATTACKER, 1)] {
+        let events = p.forge(peer, system_id, vec![ack.clone()]);
+        assert!(events[0].ack.is_none(), "{events:?}");
+    }
+    let events = p.forge(VEHICLE, 1, vec![ack]);
+    assert_eq!(events[0].ack, Some((MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, MavResult::MAV_RESULT_ACCEPTED)));
+}
+
+#[test]
+fn one_stamp_of_zero_even_from_the_vehicle_is_no_reboot_and_is_counted() {
+    let scenario = Scenario::paper_2();
+    let mut p = Pair::new(&scenario);
+    p.run(500);
+    // Another address: dropped before anything looks at its stamp.
+    p.forge(ATTACKER, 1, state_at(&scenario, 0));
+    // The vehicle's own link: one position stamped 0, then the vehicle's clock goes on.
+    let zero = state_at(&scenario, 0).pop().expect("a position");
+    p.forge(VEHICLE, 1, vec![zero]);
+    p.run(100);
+    let c = p.bridge.counters();
+    assert_eq!((c.reboots, c.reboot_stamps_refused), (0, 1), "{c:?}");
+    assert!(p.reboots.is_empty() && p.bridge.awaiting_reset().is_none());
+    assert!(p.bridge.status(p.now_ns).dropped.foreign_address == 2);
+}
+
+#[test]
+fn timesync_answers_going_backwards_and_states_outside_the_envelope_are_refused_and_counted() {
+    let scenario = Scenario::paper_2();
+    let mut p = Pair::new(&scenario);
+    p.run(1_100);
+    let offset = p.bridge.status(p.now_ns).clock_offset_ns;
+    assert_eq!(offset, Some((VEHICLE_AHEAD_NS as i64, true)));
+    // Answers from the vehicle's link to requests never sent, or with a clock gone back.
+    let back = |ts1: i64| MavMessage::TIMESYNC(mavlink::dialects::common::TIMESYNC_DATA { tc1: 1, ts1 });
+    let events = p.forge(VEHICLE, 1, vec![back(p.now_ns as i64 - MS as i64), back(0)]);
+    assert!(events.iter().all(|e| e.reply.is_none()));
+    p.run(600);
+    let status = p.bridge.status(p.now_ns);
+    assert_eq!(status.clock_offset_ns, offset, "unchanged");
+    assert_eq!(status.counters.timesync_refused, 2, "{status:?}");
+    // A position of 3e38 m and one at 1 km/s: not served, path length unchanged.
+    let path = p.bridge.sample().expect("served").path_length_m;
+    let n = p.samples.len();
+    let mut wild = state_at(&scenario, p.vehicle_ns() / MS + 1);
+    if let MavMessage::LOCAL_POSITION_NED(pos) = &mut wild[1] {
+        pos.x = 3e38;
+    }
+    let mut fast = state_at(&scenario, p.vehicle_ns() / MS + 2);
+    if let MavMessage::LOCAL_POSITION_NED(pos) = &mut fast[1] {
+        pos.vx = 1_000.0;
+    }
+    let events = p.forge(VEHICLE, 1, vec![wild[1].clone(), fast[1].clone()]);
+    assert!(events.iter().all(|e| e.sample.is_none()));
+    assert_eq!(p.samples.len(), n);
+    assert_eq!(p.bridge.counters().implausible_states, 2);
+    p.run(100);
+    let s = p.bridge.sample().expect("served");
+    assert!(s.path_length_m < path + 1.0, "{} then {}", path, s.path_length_m);
 }

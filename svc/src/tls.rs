@@ -280,6 +280,18 @@ impl Tls {
     }
 }
 
+/// The common name of the certificate the client of `request` presented, or why there is
+/// none (a plaintext connection, a server that asks for no client certificate, a certificate
+/// without a common name).
+pub fn client_common_name<T>(request: &tonic::Request<T>) -> Result<String, &'static str> {
+    let certs = request.peer_certs().ok_or("no client certificate")?;
+    let leaf = certs.first().ok_or("no client certificate")?;
+    let (_, cert) = x509_parser::parse_x509_certificate(leaf.as_ref())
+        .map_err(|_| "a certificate that does not parse")?;
+    let name = cert.subject().iter_common_name().next().ok_or("a certificate without a common name")?;
+    name.as_str().map(str::to_owned).map_err(|_| "a certificate whose common name is not text")
+}
+
 /// `e: its source: its source's source ...` (tonic's transport errors say "transport error"
 /// and keep the reason in their sources).
 pub fn error_chain(e: &dyn std::error::Error) -> String {

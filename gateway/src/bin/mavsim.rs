@@ -50,6 +50,10 @@ struct Args {
     /// silence lasted).
     #[arg(long, default_value_t = 0.0, value_name = "S", requires = "reboot_after_s")]
     reboot_silence_s: f64,
+    /// MAVLink 2 signing with the key in FILE (as the gateway's --mavlink-signing-key): frames
+    /// sent are signed, unsigned or otherwise signed ones dropped.
+    #[arg(long, value_name = "FILE")]
+    mavlink_signing_key: Option<std::path::PathBuf>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -100,7 +104,8 @@ fn main() -> anyhow::Result<()> {
         }
         None => None,
     };
-    let sim = Mavsim::start(&MavsimConfig { mavlink: args.mavlink, scenario, autopilot })?;
+    let signing_key = args.mavlink_signing_key.as_deref().map(gateway::signing_key_file).transpose()?;
+    let sim = Mavsim::start(&MavsimConfig { mavlink: args.mavlink, scenario, autopilot, signing_key })?;
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     runtime.block_on(async {
         let shutdown = hilbench_svc::shutdown_signal();

@@ -9,11 +9,15 @@
 //! - refusals: a Reset far from the vehicle, a mode the vehicle does not know, GUIDED_NOGPS on an
 //!   ArduCopter whose `GUID_OPTIONS` would read the thrust as a climb rate (accepted with bit 3);
 //! - a serial autopilot (pymavlink behind a pty, the `gateway` binary) unplugged and plugged
-//!   back in: UNAVAILABLE and NOT_SERVING without burning CPU, served again, stopped by SIGTERM.
+//!   back in: UNAVAILABLE and NOT_SERVING without burning CPU, served again, stopped by SIGTERM;
+//! - trust: pymavlink as the vehicle and as an attacker on another port (junk, spoofed states,
+//!   heartbeats, acks, a reboot stamp, TIMESYNC), with and without MAVLink signing; who may
+//!   call VehicleControl (`--allow-client`).
 //!
 //! Every wait is bounded; no wall-clock duration is asserted (CPU time is, in the serial test).
 
 use std::net::SocketAddr;
+use std::path::Path;
 use std::time::Duration;
 
 use gateway::mavsim::{Mavsim, MavsimConfig};
@@ -43,9 +47,19 @@ struct Bench {
 
 /// A gateway for `scenario` listening for MAVLink on an ephemeral loopback UDP port (returned).
 async fn start_gateway(scenario: &Scenario) -> (Running<GatewayError>, u16) {
-    let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("a loopback UDP port");
+    start_gateway_with(scenario, None, |_| {}).await
+}
+
+/// As [`start_gateway`], the link signed with `key`, the configuration changed by `set`.
+async fn start_gateway_with(
+    scenario: &Scenario,
+    key: Option<mavbridge::SigningKey>,
+    set: impl FnOnce(&mut GatewayConfig),
+) -> (Running<GatewayError>, u16) {
+    let link = Link::open_signed("udpin:127.0.0.1:0", 255, 191, key).expect("a loopback UDP port");
     let port = link.local_addr.expect("bound").port();
-    let config = GatewayConfig::new(format!("udpin:127.0.0.1:{port}"), scenario.clone());
+    let mut config = GatewayConfig::new(format!("udpin:127.0.0.1:{port}"), scenario.clone());
+    set(&mut config);
     let gateway = server::start("gateway", move |listener, shutdown| {
         gateway::serve_with_link(listener, config, link, shutdown)
     })
@@ -65,6 +79,7 @@ async fn start_with(scenario: &Scenario, autopilot: AutopilotSettings) -> Bench 
         mavlink: format!("udpout:127.0.0.1:{port}"),
         scenario: scenario.clone(),
         autopilot,
+        signing_key: None,
     })
     .expect("mavsim starts");
     Bench { gateway, vehicle }
@@ -775,4 +790,204 @@ async fn vehiclectl_arms_and_switches_to_offboard_reads_the_status_and_fails_nam
         assert!(a.armed() && a.mode() == mavbridge::SimMode::Offboard);
     }
     bench.gateway.stop().await.expect("gateway stops cleanly");
+}
+
+/// The model's x of a state sample.
+fn x0(s: &pb::StateSample) -> f64 {
+    s.state.as_ref().expect("a state").x[0]
+}
+
+/// Runs `attacker_gateway.py` against the gateway on `port` while the test watches the
+/// gateway: every state served is the vehicle's; the status never says armed, OFFBOARD or
+/// rebooted; `Arm` during the attack is not answered by a forged ack; a `Reset` at the spoofed
+/// position is refused. Returns the script's report and the last status.
+async fn watch_an_attack(
+    addr: SocketAddr,
+    script_args: Vec<String>,
+) -> (serde_json::Value, pb::VehicleStatus) {
+    let script = tokio::task::spawn_blocking(move || {
+        let args: Vec<&str> = script_args.iter().map(String::as_str).collect();
+        hilbench_tests::python::run_script("attacker_gateway.py", &args)
+    });
+    let mut vc = vehicle_control(addr).await;
+    wait_status(&mut vc, "the vehicle locked", |s| s.link_alive && s.vehicle_locked).await;
+    let mut p = plant(addr).await;
+    wait_for_state(&mut p).await;
+    let home = x0(&p.get_state(pb::GetStateRequest {}).await.expect("state").into_inner());
+    let mut arm: Option<tokio::task::JoinHandle<Result<_, tonic::Status>>> = None;
+    let mut reset_refused = false;
+    let mut states = 0;
+    while !script.is_finished() {
+        let status = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+        assert!(!status.armed && status.mode == "POSCTL", "{status:?}");
+        assert_eq!((status.vehicle_system_id, status.vehicle_component_id), (1, 1), "{status:?}");
+        assert_eq!(status.autopilot_reboots, 0, "{status:?}");
+        if let Ok(s) = p.get_state(pb::GetStateRequest {}).await {
+            let s = s.into_inner();
+            assert!((x0(&s) - home).abs() < 1e-3, "served a state that is not the vehicle's: {s:?}");
+            states += 1;
+        }
+        let attacked = status.dropped_foreign_address > 100;
+        if attacked && arm.is_none() {
+            let mut vc = vc.clone();
+            arm = Some(tokio::spawn(async move { vc.arm(pb::ArmRequest {}).await }));
+        }
+        if attacked && !reset_refused {
+            let mut far = Scenario::paper_2().start;
+            far[0] += 40.0;
+            let refused = p
+                .reset(pb::ResetRequest {
+                    initial_state: Some(pb::MavState { x: far.to_vec() }),
+                    ..Default::default()
+                })
+                .await
+                .expect_err("the vehicle is 40 m away from the spoofed position");
+            assert_eq!(refused.code(), tonic::Code::FailedPrecondition, "{refused:?}");
+            reset_refused = true;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let out = script.await.expect("the script's thread");
+    let report: serde_json::Value = serde_json::from_str(out.trim()).expect("the script's JSON line");
+    assert!(states > 50, "the gateway served states throughout: {states}");
+    let arm = arm.expect("the attack was seen").await.expect("the Arm call's task");
+    assert_eq!(
+        arm.expect_err("no ack from the vehicle: the forged one is not believed").code(),
+        tonic::Code::DeadlineExceeded
+    );
+    assert!(reset_refused);
+    let status = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+    (report, status)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_attacker_on_another_port_gets_nothing_changes_nothing_and_is_counted_while_the_setpoints_stay_on_the_vehicle()
+ {
+    let (gateway, port) = start_gateway(&Scenario::paper_2()).await;
+    let args = [port.to_string(), "10".into(), "2".into(), "8".into()].to_vec();
+    let (r, status) = watch_an_attack(gateway.addr, args).await;
+    let f = |k: &str| r[k].as_f64().unwrap_or_else(|| panic!("{k} in {r}"));
+    assert_eq!(f("attacker_received"), 0.0, "nothing is sent to another address: {r}");
+    assert!(f("attack_rounds") >= 100.0, "{r}");
+    assert!(f("setpoints_per_second_min_during_attack") >= 20.0, "the setpoints stay on the vehicle: {r}");
+    assert_eq!(r["targets"], serde_json::json!([[1, 1]]), "{r}");
+    assert!(
+        r["commands"].as_array().expect("commands").contains(&serde_json::json!(400)),
+        "Arm reached it: {r}"
+    );
+    assert_eq!(status.vehicle_address, format!("127.0.0.1:{}", r["vehicle_port"]), "{status:?}");
+    let rounds = f("attack_rounds") as u64;
+    // Per round: junk, 2 x (position, attitude), a heartbeat, an ack, a reboot stamp, TIMESYNC.
+    assert!(status.dropped_foreign_address >= 8 * rounds, "{status:?}");
+    for name in ["LOCAL_POSITION_NED", "ATTITUDE", "HEARTBEAT", "COMMAND_ACK", "TIMESYNC"] {
+        assert!(
+            status.dropped_by_message.get(name).copied().unwrap_or(0) >= rounds - 1,
+            "{name}: {status:?}"
+        );
+    }
+    assert_eq!((status.dropped_foreign_system, status.implausible_states), (0, 0), "{status:?}");
+    assert!(status.clock_offset_from_timesync, "{status:?}");
+    gateway.stop().await.expect("gateway stops cleanly");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_signed_link_locks_to_the_vehicle_with_the_key_though_another_key_and_unsigned_frames_came_first() {
+    let key = [0x5au8; 32];
+    let (gateway, port) =
+        start_gateway_with(&Scenario::paper_2(), Some(mavbridge::SigningKey::new(key)), |_| {}).await;
+    let hex: String = key.iter().map(|b| format!("{b:02x}")).collect();
+    let args = [port.to_string(), "8".into(), "0".into(), "7".into(), hex].to_vec();
+    let (r, status) = watch_an_attack(gateway.addr, args).await;
+    let f = |k: &str| r[k].as_f64().unwrap_or_else(|| panic!("{k} in {r}"));
+    assert!(status.mavlink_signed, "{status:?}");
+    assert_eq!(status.vehicle_address, format!("127.0.0.1:{}", r["vehicle_port"]), "{status:?}");
+    assert_eq!(f("attacker_received"), 0.0, "{r}");
+    // The vehicle's pymavlink delivers only frames signed with the key: the gateway's.
+    assert!(f("setpoints_per_second_min_during_attack") >= 20.0, "{r}");
+    assert!(
+        status.dropped_bad_signature > 0 && status.dropped_unsigned > 0,
+        "refused before the lock: {status:?}"
+    );
+    assert!(status.dropped_foreign_address > 0, "{status:?}");
+    gateway.stop().await.expect("gateway stops cleanly");
+}
+
+#[tokio::test]
+async fn allow_client_limits_vehicle_control_to_the_named_certificates_and_the_refusal_names_the_certificate()
+{
+    use hilbench_svc::tls::TlsFiles;
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("gateway-allow-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    hilbench::certs::write_dir(&dir, &[]).expect("certificates");
+    let tls = TlsFiles { ca: None, ..TlsFiles::in_dir(&dir, "gateway") }.load().expect("the gateway's TLS");
+    let (gateway, _) = start_gateway_with(&Scenario::paper_2(), None, |c| {
+        c.tls = tls;
+        c.allow_clients = vec!["hilbench".into()];
+    })
+    .await;
+    let client = |name: &str| {
+        TlsFiles { ca: Some(dir.join("ca.pem")), client_ca: None, ..TlsFiles::in_dir(&dir, name) }
+            .load()
+            .expect("the client's TLS")
+    };
+    let connect = |tls: hilbench_svc::tls::Tls| async move {
+        let channel =
+            tls.endpoint(&gateway.addr.to_string()).expect("endpoint").connect().await.expect("connects");
+        VehicleControlClient::new(channel)
+    };
+    let mut allowed = connect(client("hilbench")).await;
+    allowed.get_status(pb::GetVehicleStatusRequest {}).await.expect("hilbench may");
+    // The plant's certificate is from the same CA, and still may not fly.
+    let mut plant_client = connect(client("plant")).await;
+    let refused = plant_client.arm(pb::ArmRequest {}).await.expect_err("the plant may not arm");
+    assert_eq!(refused.code(), tonic::Code::PermissionDenied, "{refused:?}");
+    assert!(
+        refused.message().contains("\"plant\"") && refused.message().contains("--allow-client"),
+        "{refused:?}"
+    );
+    let refused = plant_client.get_status(pb::GetVehicleStatusRequest {}).await.expect_err("nor read");
+    assert_eq!(refused.code(), tonic::Code::PermissionDenied);
+    // The Plant API is not VehicleControl: the plant's certificate still reads states.
+    let mut p = PlantClient::new(
+        client("plant")
+            .endpoint(&gateway.addr.to_string())
+            .expect("endpoint")
+            .connect()
+            .await
+            .expect("connects"),
+    );
+    p.describe(pb::DescribeRequest {}).await.expect("Describe is served");
+    gateway.stop().await.expect("gateway stops cleanly");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mavsim_signing_with_the_gateways_key_is_served_and_with_another_key_is_never_locked_to() {
+    let scenario = Scenario::paper_2();
+    let key = mavbridge::SigningKey::new([0x21; 32]);
+    for (vehicle_key, served) in [(key.clone(), true), (mavbridge::SigningKey::new([0x22; 32]), false)] {
+        let (gateway, port) = start_gateway_with(&scenario, Some(key.clone()), |_| {}).await;
+        let vehicle = Mavsim::start(&MavsimConfig {
+            mavlink: format!("udpout:127.0.0.1:{port}"),
+            scenario: scenario.clone(),
+            autopilot: AutopilotSettings::default(),
+            signing_key: Some(vehicle_key),
+        })
+        .expect("mavsim starts");
+        let mut vc = vehicle_control(gateway.addr).await;
+        if served {
+            let mut p = plant(gateway.addr).await;
+            wait_for_state(&mut p).await;
+            // Its TIMESYNC answers are signed too.
+            wait_status(&mut vc, "the clock offset from TIMESYNC", |s| s.clock_offset_from_timesync).await;
+            let s = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+            assert!(s.mavlink_signed && s.vehicle_locked && s.dropped_bad_signature == 0, "{s:?}");
+        } else {
+            wait_status(&mut vc, "mavsim's frames refused", |s| s.dropped_bad_signature > 100).await;
+            let s = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+            assert!(!s.vehicle_locked && !s.link_alive, "{s:?}");
+        }
+        vehicle.stop();
+        gateway.stop().await.expect("gateway stops cleanly");
+    }
 }
