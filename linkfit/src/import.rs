@@ -408,8 +408,7 @@ fn ping(text: &str, skip_bad: bool) -> Result<Imported, ImportError> {
 /// The number `text` times `10^exp`, rounded once: `0.047` ms is `0.047e-3` s, read as
 /// written (`0.047 * 1e-3` would be `4.7000000000000004e-5`). `None` if `text` is no number.
 fn parse_scaled(text: &str, exp: i32) -> Option<f64> {
-    use std::io::Write as _;
-    if exp == 0 || text.contains(['e', 'E']) || text.len() > 48 {
+    if exp == 0 || text.contains(['e', 'E']) || text.len() > 48 || !(-9..0).contains(&exp) {
         let v: f64 = text.parse().ok()?;
         return Some(if exp == 0 { v } else { v / 10f64.powi(-exp) });
     }
@@ -417,11 +416,11 @@ fn parse_scaled(text: &str, exp: i32) -> Option<f64> {
     if !text.bytes().all(|b| b.is_ascii_digit() || b == b'.' || b == b'-' || b == b'+') {
         return None;
     }
-    let mut buf = [0u8; 64];
-    let mut w = &mut buf[..];
-    write!(w, "{text}e{exp}").ok()?;
-    let len = 64 - w.len();
-    std::str::from_utf8(&buf[..len]).ok()?.parse().ok()
+    let mut buf = [0u8; 52];
+    let n = text.len();
+    buf[..n].copy_from_slice(text.as_bytes());
+    buf[n..n + 3].copy_from_slice(&[b'e', b'-', b'0' + (-exp) as u8]);
+    std::str::from_utf8(&buf[..n + 3]).ok()?.parse().ok()
 }
 
 /// At most 60 characters of `s`, for messages.
