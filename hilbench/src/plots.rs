@@ -19,6 +19,7 @@ pub mod sweep;
 pub(crate) mod tests;
 mod three_d;
 mod top;
+pub mod trace;
 mod weights;
 
 use std::path::{Path, PathBuf};
