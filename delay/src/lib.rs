@@ -20,7 +20,8 @@
 //! - [`line`]: the per-direction [`DelayLine`] that turns send times into [`Decision`]s.
 //! - [`queue`]: a [`ReleaseQueue`] ordering held messages by release time.
 //! - [`stats`]: counters, delay histogram and percentiles of one direction.
-//! - [`trace`]: recorded delay traces ([`Trace`]) and their file format ([`parse_trace`]).
+//! - [`trace`]: recorded delay traces ([`Trace`]) and their file format ([`parse_trace_file`],
+//!   [`write_trace`]): delays, losses (`lost`, [`LOST_S`]) and provenance.
 //! - [`record`]: one line of a delivery trace.
 
 pub mod line;
@@ -40,7 +41,10 @@ pub use queue::ReleaseQueue;
 pub use record::Record;
 pub use spec::{DelaysTable, SpecError};
 pub use stats::{DirectionStats, Percentiles};
-pub use trace::{Trace, TraceEnd, TraceEnded, TraceError, parse_trace};
+pub use trace::{
+    LOST_S, Provenance, Trace, TraceEnd, TraceEnded, TraceError, TraceFile, WriteError, is_lost, parse_trace,
+    parse_trace_file, write_trace,
+};
 
 /// Nanoseconds per second.
 pub const NS_PER_S: f64 = 1e9;

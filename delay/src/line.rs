@@ -174,9 +174,10 @@ impl Sampler {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Draw {
     pub seq: u64,
-    /// NaN when the trace ended.
+    /// NaN when the trace ended or records this message as lost.
     pub sampled_delay_s: f64,
-    /// Lost on the way, or no delay left in a trace that stops at its end (`trace_ended`).
+    /// Lost on the way (the loss probability, or a trace's `lost` entry), or no delay left in
+    /// a trace that stops at its end (`trace_ended`).
     pub lost: bool,
     pub duplicated: bool,
     /// The line's trace ([`TraceEnd::Stop`]) had no delay for this message: it is lost, and the
@@ -214,7 +215,8 @@ pub struct Decision {
     pub send_time_ns: u64,
     /// The delay drawn for the message, s. It is drawn even for a lost message, so the delay of
     /// message `k` does not depend on the loss or duplicate probability. NaN when the trace
-    /// ended.
+    /// ended or records the message as lost (a trace's loss is a [`Fate::Dropped`], counted
+    /// as any loss).
     pub sampled_delay_s: f64,
     pub fate: Fate,
     /// Dropped because the line's trace has no delay left for it ([`TraceEnd::Stop`]).
@@ -345,7 +347,8 @@ impl DelayLine {
 
     /// Draws one delay, s, from the delay stream (what [`DelayLine::send`] does for each
     /// message), at the time of the latest message; NaN past the end of a trace that stops
-    /// there. Exposed for benchmarks and statistical tests.
+    /// there and for a message a trace records as lost. Exposed for benchmarks and
+    /// statistical tests.
     pub fn sample_delay_s(&mut self) -> f64 {
         self.sample_delay_at(self.last_send_ns)
     }
@@ -353,7 +356,10 @@ impl DelayLine {
     /// [`DelayLine::sample_delay_s`] for a message sent at `time_ns` (a regime's clock).
     pub fn sample_delay_at(&mut self, time_ns: u64) -> f64 {
         self.last_send_ns = time_ns;
-        self.sampler.sample(time_ns, &mut self.streams.delay, &mut self.streams.regime).unwrap_or(f64::NAN)
+        match self.sampler.sample(time_ns, &mut self.streams.delay, &mut self.streams.regime) {
+            Some(d) if !crate::trace::is_lost(d) => d,
+            _ => f64::NAN,
+        }
     }
 
     fn release(&mut self, send_time_ns: u64, sampled_delay_s: f64, duplicate: bool) -> Release {
@@ -379,6 +385,11 @@ impl DelayLine {
         let lost = self.streams.loss.random::<f64>() < self.profile.loss_probability;
         let duplicated = self.streams.duplicate.random::<f64>() < self.profile.duplicate_probability;
         match sampled {
+            // A message the trace records as lost is lost here too, whatever the loss stream
+            // says: it has no delay.
+            Some(d) if crate::trace::is_lost(d) => {
+                Draw { seq, sampled_delay_s: f64::NAN, lost: true, duplicated: false, trace_ended: false }
+            }
             Some(sampled_delay_s) => Draw { seq, sampled_delay_s, lost, duplicated, trace_ended: false },
             None => Draw { seq, sampled_delay_s: f64::NAN, lost: true, duplicated: false, trace_ended: true },
         }

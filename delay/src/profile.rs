@@ -53,8 +53,8 @@ pub enum Distribution {
     LognormalMoments { mean_s: f64, std_s: f64 },
     /// Pareto (type I) with minimum `scale_s > 0` and tail index `shape > 0`.
     Pareto { scale_s: f64, shape: f64 },
-    /// Replay of recorded delays, in order; what happens past the end is the trace's
-    /// [`crate::TraceEnd`].
+    /// Replay of recorded delays, in order (an entry [`crate::LOST_S`] is a lost message);
+    /// what happens past the end is the trace's [`crate::TraceEnd`].
     Trace(Trace),
     /// A Markov-modulated process for bursty links (Wi-Fi, LTE): the link is in one of
     /// `states`, each with its own delay law and mean dwell time; see [`RegimeState`].
@@ -221,7 +221,8 @@ impl Distribution {
                 if trace.delays_s.is_empty() {
                     return Err(ProfileError::new(field("delays_s"), "must hold at least one delay"));
                 }
-                for (i, d) in trace.delays_s.iter().enumerate() {
+                // A lost message (`LOST_S`) is an entry, not a delay.
+                for (i, d) in trace.delays_s.iter().enumerate().filter(|(_, d)| !crate::trace::is_lost(**d)) {
                     nonneg(&format!("delays_s[{i}]"), *d)?;
                 }
                 Ok(())

@@ -24,7 +24,7 @@
 //! | `gamma` | `shape`, `scale_s`; or `mean_s`, `std_s` |
 //! | `lognormal` | `mean_s`, `std_s` of the delay itself; or `mu`, `sigma` of its log |
 //! | `pareto` | `scale_s` (the minimum), `shape` (the tail index) |
-//! | `trace` | `file` (one delay in s per line, optional first line `delay_s`), `looping` (default false) |
+//! | `trace` | `file` (one delay in s per line or `lost`, optional first line `delay_s`; see [`crate::trace`]), `looping` (default false) |
 //! | `regime` | `[[...states]]`: each a kind above but trace, with `mean_dwell_messages` or `mean_dwell_s` |
 //!
 //! `gamma_moments` and `lognormal_moments`, the names of netem's API, are accepted too. A
@@ -66,8 +66,9 @@ pub struct DelaysTable {
     /// A trace's file.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub file: Option<String>,
-    /// A trace's delays written inline, s (the scenario file loader puts a trace file's delays
-    /// here, keeping `file` as the trace's name, so that a loaded scenario is self-contained).
+    /// A trace's delays written inline, s, `-1.0` ([`crate::LOST_S`]) for a lost message (the
+    /// scenario file loader puts a trace file's entries here, keeping `file` as the trace's
+    /// name, so that a loaded scenario is self-contained).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub delays_s: Option<Vec<f64>>,
     /// A trace replays from its start once used up (default: the run ends there).

@@ -74,3 +74,32 @@ fn loss_one_drops_everything_and_duplicate_one_doubles() -> Result<(), ProfileEr
     assert!((0..100).all(|i| l.send(i).releases().count() == 2));
     Ok(())
 }
+
+#[test]
+fn a_traces_lost_entry_drops_that_message_and_counts_as_a_loss() -> Result<(), ProfileError> {
+    let trace = Trace::from_file("link.csv", vec![0.01, crate::LOST_S, 0.02], false);
+    let mut l = line(Distribution::Trace(trace))?;
+    let mut stats = crate::DirectionStats::default();
+    let decisions: Vec<Decision> = (0..3u64).map(|k| l.send(k * 50_000_000)).collect();
+    for d in &decisions {
+        stats.record_decision(d);
+        for r in d.releases() {
+            stats.record_delivered(r.delay_ns);
+        }
+    }
+    assert_eq!(decisions[1].fate, Fate::Dropped);
+    assert!(decisions[1].sampled_delay_s.is_nan() && !decisions[1].trace_ended);
+    let delays: Vec<Option<u64>> =
+        decisions.iter().map(|d| d.releases().next().map(|r| r.delay_ns)).collect();
+    assert_eq!(delays, vec![Some(10_000_000), None, Some(20_000_000)], "the loss is not skipped");
+    assert_eq!((stats.sent, stats.dropped, stats.delivered), (3, 1, 2));
+    Ok(())
+}
+
+#[test]
+fn a_trace_with_losses_validates_and_other_negatives_do_not() {
+    let ok = DirectionProfile::with_delay(Distribution::Trace(Trace::looping(vec![crate::LOST_S, 0.1])), 1);
+    assert_eq!(ok.validate(), Ok(()));
+    let bad = DirectionProfile::with_delay(Distribution::Trace(Trace::looping(vec![0.1, -0.5])), 1);
+    assert_eq!(bad.validate().map_err(|e| e.field), Err("delay.trace.delays_s[1]".to_string()));
+}

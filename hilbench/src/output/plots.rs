@@ -18,6 +18,7 @@ pub(crate) mod style;
 pub(crate) mod tests;
 mod three_d;
 mod top;
+pub mod trace;
 mod weights;
 
 use std::path::{Path, PathBuf};

@@ -1,0 +1,176 @@
+//! A fit as the tables the bench reads: `[scenario.delays]` (`delay::DelaysTable`, checked
+//! through `DelaysTable::to_network`) and `[[sweep.families]]` (svc's `sweep_table`
+//! vocabulary: each parameter a range `[lower, upper]`, its 95 % interval).
+
+use delay::DelaysTable;
+use toml::{Table, Value};
+
+use super::{Candidate, FitReport, Kind, Model};
+
+/// Why a fit gives no table.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TableError {
+    #[error("no kind the bench can replay was fitted")]
+    NothingReplayable,
+    /// The table does not pass `DelaysTable::to_network` (a bug: reported, never written).
+    #[error("the fitted table is not a valid delays table: {0}")]
+    Invalid(String),
+    #[error("TOML: {0}")]
+    Toml(String),
+}
+
+impl FitReport {
+    /// The best candidate by AIC.
+    pub fn best(&self) -> Option<&Candidate> {
+        self.candidates.first()
+    }
+
+    /// The best by AIC among the kinds the bench can replay.
+    pub fn best_replayable(&self) -> Option<&Candidate> {
+        self.candidates.iter().find(|c| c.kind().replayable())
+    }
+
+    /// The candidate of `kind`, if fitted.
+    pub fn candidate(&self, kind: Kind) -> Option<&Candidate> {
+        self.candidates.iter().find(|c| c.kind() == kind)
+    }
+
+    /// The regime's dwell in seconds (`rate_hz` known) rather than in messages.
+    fn dwell_in_seconds(&self) -> Option<f64> {
+        self.rate_hz
+    }
+
+    /// `candidate`'s `[scenario.delays]` table, with the trace's loss rate as
+    /// `loss_probability` (when there were losses), checked through
+    /// `DelaysTable::to_network`.
+    pub fn delays_table(&self, candidate: &Candidate) -> Result<DelaysTable, TableError> {
+        let kind = |k: &str| DelaysTable { kind: Some(k.to_string()), ..DelaysTable::default() };
+        let mut table = match candidate.model {
+            Model::Weibull { .. } => return Err(TableError::NothingReplayable),
+            Model::Gamma { shape, scale_s } => DelaysTable::gamma(shape, scale_s),
+            Model::Lognormal { mu, sigma } => {
+                DelaysTable { mu: Some(mu), sigma: Some(sigma), ..kind("lognormal") }
+            }
+            Model::Pareto { scale_s, shape } => {
+                DelaysTable { scale_s: Some(scale_s), shape: Some(shape), ..kind("pareto") }
+            }
+            Model::Regime(r) => {
+                let dwell = r.mean_dwell_messages();
+                let states = (0..2)
+                    .map(|i| {
+                        let mut s =
+                            DelaysTable { mu: Some(r.mu[i]), sigma: Some(r.sigma[i]), ..kind("lognormal") };
+                        match self.dwell_in_seconds() {
+                            Some(hz) => s.mean_dwell_s = Some(dwell[i] / hz),
+                            None => s.mean_dwell_messages = Some(dwell[i]),
+                        }
+                        s
+                    })
+                    .collect();
+                DelaysTable { states: Some(states), ..kind("regime") }
+            }
+        };
+        table.loss_probability = (self.loss_probability > 0.0).then_some(self.loss_probability);
+        table
+            .to_network(0, &mut |f| Err(format!("{f}: a fitted table names no file")))
+            .map_err(|e| TableError::Invalid(e.to_string()))?;
+        Ok(table)
+    }
+
+    /// The best replayable fit as a `[scenario.delays]` table, TOML, with comment lines
+    /// saying what it is.
+    pub fn scenario_toml(&self) -> Result<String, TableError> {
+        let best = self.best_replayable().ok_or(TableError::NothingReplayable)?;
+        let table = self.delays_table(best)?;
+        let delays = Value::try_from(&table).map_err(|e| TableError::Toml(e.to_string()))?;
+        let mut scenario = Table::new();
+        scenario.insert("delays".into(), delays);
+        let mut doc = Table::new();
+        doc.insert("scenario".into(), Value::Table(scenario));
+        let body = toml::to_string(&doc).map_err(|e| TableError::Toml(e.to_string()))?;
+        Ok(format!("{}{body}", self.comment(best)))
+    }
+
+    /// The best replayable fit as a `[[sweep.families]]` table whose parameters range over
+    /// their 95 % intervals (the sweep has no loss key: the trace's loss rate is in a
+    /// comment, and in the `[scenario.delays]` table).
+    pub fn sweep_toml(&self) -> Result<String, TableError> {
+        let best = self.best_replayable().ok_or(TableError::NothingReplayable)?;
+        self.delays_table(best)?;
+        let range = |name: &str| -> Option<Value> {
+            let p = best.params.iter().find(|p| p.name == name)?;
+            let (lo, hi) = (p.lower.min(p.value), p.upper.max(p.value));
+            Some(Value::Array(vec![Value::Float(lo), Value::Float(hi)]))
+        };
+        let mut family = Table::new();
+        family.insert("name".into(), Value::String(format!("fit-{}", best.kind().name())));
+        family.insert("kind".into(), Value::String(best.kind().name().into()));
+        match best.model {
+            Model::Regime(_) => {
+                let mut states = Vec::new();
+                for i in 0..2 {
+                    let mut s = Table::new();
+                    s.insert("kind".into(), Value::String("lognormal".into()));
+                    for key in ["mu", "sigma"] {
+                        if let Some(v) = range(&format!("states[{i}].{key}")) {
+                            s.insert(key.into(), v);
+                        }
+                    }
+                    if let Some(Value::Array(r)) = range(&format!("states[{i}].mean_dwell_messages")) {
+                        let r: Vec<f64> = r.iter().filter_map(Value::as_float).map(|v| v.max(1.0)).collect();
+                        let (key, r) = match self.dwell_in_seconds() {
+                            Some(hz) => ("mean_dwell_s", r.iter().map(|v| v / hz).collect::<Vec<_>>()),
+                            None => ("mean_dwell_messages", r),
+                        };
+                        s.insert(key.into(), Value::Array(r.into_iter().map(Value::Float).collect()));
+                    }
+                    states.push(Value::Table(s));
+                }
+                family.insert("states".into(), Value::Array(states));
+            }
+            _ => {
+                for p in &best.params {
+                    if let Some(v) = range(&p.name) {
+                        family.insert(p.name.clone(), v);
+                    }
+                }
+            }
+        }
+        let mut sweep = Table::new();
+        sweep.insert("families".into(), Value::Array(vec![Value::Table(family)]));
+        let mut doc = Table::new();
+        doc.insert("sweep".into(), Value::Table(sweep));
+        let body = toml::to_string(&doc).map_err(|e| TableError::Toml(e.to_string()))?;
+        let loss = if self.loss_probability > 0.0 {
+            format!(
+                "# The trace lost {:.4} of its probes; a sweep family has no loss key (the scenario's\n# [scenario.delays] table carries loss_probability).\n",
+                self.loss_probability
+            )
+        } else {
+            String::new()
+        };
+        Ok(format!("{}# Ranges: the parameters' 95 % intervals.\n{loss}{body}", self.comment(best)))
+    }
+
+    /// Comment lines naming the fit and the ranking.
+    fn comment(&self, best: &Candidate) -> String {
+        let ranking: Vec<String> = self
+            .candidates
+            .iter()
+            .map(|c| format!("{} (AIC {:.1}, KS {:.4})", c.kind().name(), c.aic, c.ks))
+            .collect();
+        let mut s = format!(
+            "# linkfit: {} of {} delivered delays ({} entries), by AIC: {}.\n",
+            best.kind().name(),
+            self.delivered,
+            self.entries,
+            ranking.join(", ")
+        );
+        if self.best().is_some_and(|b| !b.kind().replayable()) {
+            s.push_str(
+                "# The best fit is weibull, which the bench cannot replay: this is the best it can.\n",
+            );
+        }
+        s
+    }
+}

@@ -1,0 +1,79 @@
+//! The tables a fit writes load where the bench reads them: the scenario file loader
+//! (`hilbench_svc::scenario_file`, which checks `[scenario.delays]` through
+//! `delay::DelaysTable::to_network`) and its `[sweep]` table (`sweep_table`, every corner of
+//! the ranges checked the same way).
+
+use std::path::Path;
+
+use delay::{DelayLine, Direction, DirectionProfile, Distribution, Dwell, RegimeState};
+use hilbench_svc::scenario_file::ScenarioFile;
+use linkfit::{FitOptions, Format, ImportOptions, Kind, fit, import};
+
+/// paper-2's scenario file, renamed, with its `[scenario.delays]` replaced by `tables`.
+fn scenario_with(tables: &str) -> Result<ScenarioFile, String> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let text = std::fs::read_to_string(root.join("scenarios/paper-2.toml")).map_err(|e| e.to_string())?;
+    let cut = text.find("[scenario.delays]").ok_or("paper-2 has a [scenario.delays] table")?;
+    let head = text[..cut].replace("name = \"paper-2\"", "name = \"paper-2-fitted-link\"");
+    let file = format!("{head}{tables}");
+    ScenarioFile::parse(&root.join("scenarios/fitted.toml"), &file).map_err(|e| format!("{e}\n{file}"))
+}
+
+fn both(report: &linkfit::FitReport) -> String {
+    format!("{}\n{}", report.scenario_toml().expect("scenario"), report.sweep_toml().expect("sweep"))
+}
+
+fn draws(d: Distribution, n: usize) -> Vec<f64> {
+    let mut line = DelayLine::new(Direction::ControllerToPlant, DirectionProfile::with_delay(d, 5))
+        .expect("a valid profile");
+    (0..n).map(|k| line.sample_delay_at(k as u64 * 50_000_000)).collect()
+}
+
+#[test]
+fn each_replayable_kind_loads_as_a_scenario_and_a_sweep_family() {
+    let regime = Distribution::Regime {
+        states: vec![
+            RegimeState {
+                delay: Distribution::Lognormal { mu: -3.5, sigma: 0.2 },
+                mean_dwell: Dwell::Messages(80.0),
+            },
+            RegimeState {
+                delay: Distribution::Uniform { min_s: 0.08, max_s: 0.3 },
+                mean_dwell: Dwell::Messages(20.0),
+            },
+        ]
+        .into(),
+    };
+    for (truth, kind) in [
+        (Distribution::Gamma { shape: 8.0, scale_s: 0.02 }, Kind::Gamma),
+        (Distribution::Lognormal { mu: -3.0, sigma: 0.4 }, Kind::Lognormal),
+        (Distribution::Pareto { scale_s: 0.02, shape: 2.5 }, Kind::Pareto),
+        (regime, Kind::Regime),
+    ] {
+        let x = draws(truth, 5000);
+        let options = FitOptions { kinds: vec![kind], ..FitOptions::default() };
+        let report = fit(&x, &options).expect("a fit");
+        let tables = both(&report);
+        let file = scenario_with(&tables).unwrap_or_else(|e| panic!("{kind:?}: {e}"));
+        let delays = file.scenario.delays.as_ref().expect("delays");
+        assert_eq!(delays.kind.as_deref(), Some(kind.name()), "{tables}");
+        let sweep = file.sweep.as_ref().expect("a sweep");
+        assert_eq!(sweep.families[0].kind, kind.name());
+        assert_eq!(sweep.families[0].name(), format!("fit-{}", kind.name()));
+    }
+}
+
+#[test]
+fn a_recorded_irtt_trace_imports_fits_and_loads_with_its_losses_and_dwell_in_seconds() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/irtt-loopback.json");
+    let text = std::fs::read_to_string(&path).expect("the fixture");
+    let trace = import(&text, &ImportOptions::new(Format::Irtt)).expect("imported").trace;
+    let options = FitOptions { rate_hz: trace.provenance.rate_hz, ..FitOptions::default() };
+    let report = fit(&trace.delays_s, &options).expect("a fit");
+    let file = scenario_with(&both(&report)).unwrap_or_else(|e| panic!("{e}"));
+    let delays = file.scenario.delays.expect("delays");
+    assert_eq!(delays.loss_probability, Some(5.0 / 199.0));
+    if let Some(states) = delays.states {
+        assert!(states.iter().all(|s| s.mean_dwell_s.is_some() && s.mean_dwell_messages.is_none()));
+    }
+}
