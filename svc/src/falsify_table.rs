@@ -2,7 +2,7 @@
 //! `falsify::table`'s): the checks that need the file's `[sweep]`, and the search spaces the two
 //! tables describe.
 //!
-//! `families` names `[sweep]` families (absent: all of them); each becomes a space of its ranged
+//! `families` names `[sweep]` families (absent: all of them that have a range); each becomes a space of its ranged
 //! parameters ([`falsify::Space::family`]: the dims in the order `Family::table` draws them, a
 //! point's table drawn with the search's process seed and clipped at `max_delay_s`), and
 //! `[falsify.signal]` one more ([`falsify::Space::signal`]).
@@ -27,8 +27,11 @@ pub fn validate(table: &FalsifyTable, sweep: Option<&SweepSection>) -> Result<()
             if f.kind == "traces" {
                 return Err((field, format!("{name:?} is a folder of traces: it has no parameters to search")));
             }
+            if !has_ranges(f) {
+                return Err((field, format!("{name:?} has no range [min, max]: it is one process, nothing to search")));
+            }
         }
-    } else if table.signal.is_none() && families.iter().all(|f| f.kind == "traces") {
+    } else if table.signal.is_none() && !families.iter().any(has_ranges) {
         return Err((
             "falsify".into(),
             "nothing to search: no [sweep] family with parameters and no [falsify.signal]".into(),
@@ -38,19 +41,24 @@ pub fn validate(table: &FalsifyTable, sweep: Option<&SweepSection>) -> Result<()
 }
 
 /// The spaces of a validated `table`: the families' (in the table's order, else `[sweep]`'s,
-/// `traces` families left out), then the signal's. `process_seed` seeds every family's process.
+/// those without a range left out: a fixed process or a folder of traces), then the signal's. `process_seed` seeds every family's process.
 pub fn spaces(table: &FalsifyTable, sweep: Option<&SweepSection>, process_seed: u64) -> Vec<Space> {
     let families = sweep.map_or(&[][..], |s| &s.families[..]);
     let clip = table.max_delay_s.or(sweep.and_then(|s| s.max_delay_s)).unwrap_or(delay::MAX_DELAY_S);
     let chosen: Vec<&Family> = match &table.families {
         Some(names) => names.iter().filter_map(|n| families.iter().find(|f| f.name() == n)).collect(),
-        None => families.iter().filter(|f| f.kind != "traces").collect(),
+        None => families.iter().filter(|f| has_ranges(f)).collect(),
     };
     let mut spaces: Vec<Space> = chosen.into_iter().map(|f| family_space(f, process_seed, clip)).collect();
     if let Some(signal) = &table.signal {
         spaces.push(Space::signal(signal));
     }
     spaces
+}
+
+/// Whether `family` has a parameter to search (a range; not a folder of traces).
+fn has_ranges(family: &Family) -> bool {
+    family.kind != "traces" && family_space(family, 0, 1.0).dims.iter().any(|d| d.hi > d.lo)
 }
 
 /// The space of `family`'s ranged parameters.
@@ -123,6 +131,9 @@ mod tests {
         let traces: SweepSection = parse("[[families]]\nkind = \"traces\"\ndir = \"t\"\n");
         assert_eq!(bad("families = [\"traces\"]", Some(&traces)), "falsify.families[0]");
         assert_eq!(bad("budget = 5", Some(&traces)), "falsify");
+        let fixed: SweepSection = parse("[[families]]\nkind = \"uniform\"\nmin_s = 0.0\nmax_s = 0.33\n");
+        assert_eq!(bad("families = [\"uniform\"]", Some(&fixed)), "falsify.families[0]");
+        assert_eq!(bad("budget = 5", Some(&fixed)), "falsify");
         let table: FalsifyTable = parse("families = [\"bursts\"]\nmax_delay_s = 0.2");
         assert_eq!(validate(&table, Some(&sweep)), Ok(()));
         let spaces = spaces(&table, Some(&sweep), 3);
