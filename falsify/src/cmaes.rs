@@ -40,7 +40,13 @@ pub struct CmaesSettings {
 
 impl Default for CmaesSettings {
     fn default() -> Self {
-        Self { population: None, sigma0: crate::table::DEFAULT_SIGMA0, tol_x: 1e-11, tol_fun: 1e-12, start_at_centre: false }
+        Self {
+            population: None,
+            sigma0: crate::table::DEFAULT_SIGMA0,
+            tol_x: 1e-11,
+            tol_fun: 1e-12,
+            start_at_centre: false,
+        }
     }
 }
 
@@ -202,7 +208,8 @@ impl Cmaes {
         let run = &mut self.run;
         let p = run.p.clone();
         let n = self.n as f64;
-        let ys: Vec<DVector<f64>> = order[..p.mu].iter().map(|&i| (&self.asked[i] - &run.mean) / run.sigma).collect();
+        let ys: Vec<DVector<f64>> =
+            order[..p.mu].iter().map(|&i| (&self.asked[i] - &run.mean) / run.sigma).collect();
         let mut y_w = DVector::zeros(self.n);
         for (w, y) in p.weights.iter().zip(&ys) {
             y_w += *w * y;
@@ -210,7 +217,8 @@ impl Cmaes {
         run.mean += run.sigma * &y_w;
         // C^{-1/2} y_w = B D^{-1} B^T y_w.
         let c_inv_sqrt_yw = &run.b * (run.b.transpose() * &y_w).component_div(&run.d);
-        run.p_sigma = (1.0 - p.c_sigma) * &run.p_sigma + (p.c_sigma * (2.0 - p.c_sigma) * p.mu_eff).sqrt() * c_inv_sqrt_yw;
+        run.p_sigma = (1.0 - p.c_sigma) * &run.p_sigma
+            + (p.c_sigma * (2.0 - p.c_sigma) * p.mu_eff).sqrt() * c_inv_sqrt_yw;
         run.generation += 1;
         let ps_norm = run.p_sigma.norm();
         let h_sigma = ps_norm / (1.0 - (1.0 - p.c_sigma).powi(2 * run.generation as i32)).sqrt()
@@ -278,7 +286,8 @@ mod tests {
 
     #[test]
     fn fold_reflects_at_the_faces() {
-        for (x, y) in [(0.3, 0.3), (1.2, 0.8), (-0.25, 0.25), (2.1, 0.1), (-1.5, 0.5), (1.0, 1.0), (0.0, 0.0)] {
+        for (x, y) in [(0.3, 0.3), (1.2, 0.8), (-0.25, 0.25), (2.1, 0.1), (-1.5, 0.5), (1.0, 1.0), (0.0, 0.0)]
+        {
             assert!((fold(x) - y).abs() < 1e-12, "fold({x}) = {}, not {y}", fold(x));
         }
     }

@@ -29,7 +29,11 @@ pub struct RunFacts {
 impl RunFacts {
     /// The clearance part of the score, m.
     pub fn clearance_m(&self) -> f64 {
-        let c = if self.ground_depth_m > 0.0 { self.min_clearance_m.min(-self.ground_depth_m) } else { self.min_clearance_m };
+        let c = if self.ground_depth_m > 0.0 {
+            self.min_clearance_m.min(-self.ground_depth_m)
+        } else {
+            self.min_clearance_m
+        };
         // A collision is an entry, at negative clearance: keep the sign even for a contact
         // recorded as 0 deep.
         if self.collided { c.min(-f64::MIN_POSITIVE) } else { c }
@@ -75,7 +79,13 @@ impl Property {
 mod tests {
     use super::*;
 
-    fn run(reached: bool, collided: bool, min_clearance_m: f64, ground_depth_m: f64, distance: f64) -> RunFacts {
+    fn run(
+        reached: bool,
+        collided: bool,
+        min_clearance_m: f64,
+        ground_depth_m: f64,
+        distance: f64,
+    ) -> RunFacts {
         RunFacts { reached, collided, min_clearance_m, ground_depth_m, distance_to_goal_m: distance }
     }
 

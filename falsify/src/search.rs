@@ -188,7 +188,11 @@ impl Search {
     }
 
     fn to_space(&self, unit: &[f64]) -> Vec<f64> {
-        self.dims.iter().zip(unit).map(|(d, u)| if d.hi > d.lo { d.lo + (d.hi - d.lo) * u } else { d.lo }).collect()
+        self.dims
+            .iter()
+            .zip(unit)
+            .map(|(d, u)| if d.hi > d.lo { d.lo + (d.hi - d.lo) * u } else { d.lo })
+            .collect()
     }
 
     /// The scores of the last batch asked, in order (lower is better, `< 0` a failure; NaN

@@ -100,7 +100,12 @@ impl Space {
     /// The delay of each cycle of a run of `scenario` at `point`, s.
     pub fn delays(&self, point: &[f64], scenario: &Scenario) -> Result<Vec<f64>, String> {
         if point.len() != self.dims.len() {
-            return Err(format!("a point of {} has {} coordinates, not {}", self.name, self.dims.len(), point.len()));
+            return Err(format!(
+                "a point of {} has {} coordinates, not {}",
+                self.name,
+                self.dims.len(),
+                point.len()
+            ));
         }
         match &self.kind {
             Kind::Signal(spec) => {
@@ -141,9 +146,7 @@ fn knots(spec: &SignalTable, point: &[f64]) -> Vec<(f64, f64)> {
         match spec.interpolation {
             Interpolation::Constant => (1..k).map(|i| spec.duration_s * i as f64 / k as f64).collect(),
             Interpolation::Linear if k == 1 => vec![0.0],
-            Interpolation::Linear => {
-                (0..k).map(|i| spec.duration_s * i as f64 / (k - 1) as f64).collect()
-            }
+            Interpolation::Linear => (0..k).map(|i| spec.duration_s * i as f64 / (k - 1) as f64).collect(),
         }
     };
     times.sort_by(f64::total_cmp);
@@ -176,7 +179,11 @@ pub fn max_cycles(scenario: &Scenario) -> usize {
 
 /// One delay per cycle of a run of `scenario`: `delay_at(t_k)` at each send time, clipped to
 /// `[0, clip_s]` (NaN: 0), `t_{k+1} = t_k + max(min_cycle_s, d_k)`.
-pub fn trace_at_send_times(scenario: &Scenario, clip_s: f64, mut delay_at: impl FnMut(u64) -> f64) -> Vec<f64> {
+pub fn trace_at_send_times(
+    scenario: &Scenario,
+    clip_s: f64,
+    mut delay_at: impl FnMut(u64) -> f64,
+) -> Vec<f64> {
     let cycle_ns = delay::s_to_ns(scenario.min_cycle_s).unwrap_or(0);
     let mut t_ns = 0u64;
     (0..max_cycles(scenario))
@@ -194,7 +201,14 @@ mod tests {
     use super::*;
 
     fn spec(points: u32, interpolation: Interpolation, free_times: bool) -> SignalTable {
-        SignalTable { points, interpolation, duration_s: 10.0, min_delay_s: 0.0, max_delay_s: 0.4, free_times }
+        SignalTable {
+            points,
+            interpolation,
+            duration_s: 10.0,
+            min_delay_s: 0.0,
+            max_delay_s: 0.4,
+            free_times,
+        }
     }
 
     #[test]
@@ -208,7 +222,13 @@ mod tests {
         assert_eq!(d.len(), max_cycles(&scenario));
         let mut t = 0.0;
         for (k, dk) in d.iter().take(100).enumerate() {
-            let want = if t < 2.0 - 1e-9 { 0.05 } else if t < 3.0 - 1e-9 { 0.3 } else { 0.1 };
+            let want = if t < 2.0 - 1e-9 {
+                0.05
+            } else if t < 3.0 - 1e-9 {
+                0.3
+            } else {
+                0.1
+            };
             assert_eq!(*dk, want, "cycle {k} at {t} s");
             t += dk.max(scenario.min_cycle_s);
         }

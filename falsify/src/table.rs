@@ -232,7 +232,8 @@ mod tests {
         assert_eq!((t.method, t.property, t.budget_or_default()), (Method::Cmaes, Property::Collision, 300));
         let s = t.signal.expect("a signal");
         assert_eq!((s.interpolation, s.min_delay_s, s.free_times), (Interpolation::Constant, 0.0, true));
-        let t = table("method = \"random\"\nproperty = \"collision_or_miss\"\nbudget = 50\nfamilies = [\"a\"]");
+        let t =
+            table("method = \"random\"\nproperty = \"collision_or_miss\"\nbudget = 50\nfamilies = [\"a\"]");
         assert_eq!((t.method, t.property, t.budget), (Method::Random, Property::CollisionOrMiss, Some(50)));
         let t = table("property = { clearance_below_m = 0.05 }\nfamilies = [\"a\"]");
         assert_eq!(t.property, Property::ClearanceBelowM(0.05));

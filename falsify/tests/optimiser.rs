@@ -8,9 +8,16 @@ fn unit_dims(n: usize) -> Vec<Dim> {
 
 /// Runs CMA-ES on `f` over `dims` until `f < target` (a "failure" of `f - target`); returns the
 /// runs it took and the best value.
-fn minimise(dims: &[Dim], f: impl Fn(&[f64]) -> f64, target: f64, budget: u64, seed: u64) -> (Option<u64>, f64) {
+fn minimise(
+    dims: &[Dim],
+    f: impl Fn(&[f64]) -> f64,
+    target: f64,
+    budget: u64,
+    seed: u64,
+) -> (Option<u64>, f64) {
     // Tolerances far below the targets: a restart only when a run has converged.
-    let settings = SearchSettings { tol_x: 1e-12, tol_fun: 1e-14, ..SearchSettings::new(Method::Cmaes, budget, seed) };
+    let settings =
+        SearchSettings { tol_x: 1e-12, tol_fun: 1e-14, ..SearchSettings::new(Method::Cmaes, budget, seed) };
     let r = search(dims, &settings, |batch| batch.iter().map(|x| f(x) - target).collect(), |_| {});
     (r.runs_to_failure(), r.best.map_or(f64::INFINITY, |b| b.score + target))
 }
@@ -78,7 +85,8 @@ fn random_search_stays_in_the_box_and_cmaes_beats_it_on_the_sphere() {
 
 /// The points of every batch of a search whose scores are `f` of the points.
 fn trail(method: Method, seed: u64, population: Option<usize>) -> Vec<Vec<f64>> {
-    let settings = SearchSettings { population, stop_at_failure: false, ..SearchSettings::new(method, 200, seed) };
+    let settings =
+        SearchSettings { population, stop_at_failure: false, ..SearchSettings::new(method, 200, seed) };
     let mut points = Vec::new();
     search(
         &unit_dims(3),
@@ -110,7 +118,12 @@ fn a_search_stops_at_its_first_failure_and_reports_the_run() {
     // Fails (score < 0) once x0 > 0.9.
     let settings = SearchSettings::new(Method::Random, 1000, 2);
     let mut progress = Vec::new();
-    let r = search(&unit_dims(2), &settings, |b| b.iter().map(|x| 0.9 - x[0]).collect(), |g| progress.push(g.clone()));
+    let r = search(
+        &unit_dims(2),
+        &settings,
+        |b| b.iter().map(|x| 0.9 - x[0]).collect(),
+        |g| progress.push(g.clone()),
+    );
     let first = r.first_failure.clone().expect("a failure");
     assert!(first.point[0] > 0.9 && first.score < 0.0);
     // The batch holding it is the last one flown; the best so far never rises.

@@ -52,7 +52,8 @@ fn method(name: &str) -> anyhow::Result<Method> {
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let file = ScenarioFile::load(&args.file)?;
-    let table = file.falsify.clone().ok_or_else(|| anyhow::anyhow!("{}: no [falsify] table", args.file.display()))?;
+    let table =
+        file.falsify.clone().ok_or_else(|| anyhow::anyhow!("{}: no [falsify] table", args.file.display()))?;
     let methods: Vec<Method> = args.methods.iter().map(|m| method(m)).collect::<Result<_, _>>()?;
     let mode = crate::mode(file.run.modes[0].name()).map_err(anyhow::Error::msg)?;
     let budget = args.budget.unwrap_or(table.budget_or_default());
@@ -91,11 +92,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                     &space.dims,
                     &settings,
                     |batch| {
-                        par_map(batch, args.jobs, |p| match evaluate(&space, &file.scenario, mode, table.property, p) {
-                            Ok(e) => e.score,
-                            Err(e) => {
-                                eprintln!("  {name} {} seed {seed}: {e}", m.name());
-                                f64::NAN
+                        par_map(batch, args.jobs, |p| {
+                            match evaluate(&space, &file.scenario, mode, table.property, p) {
+                                Ok(e) => e.score,
+                                Err(e) => {
+                                    eprintln!("  {name} {} seed {seed}: {e}", m.name());
+                                    f64::NAN
+                                }
                             }
                         })
                     },

@@ -22,13 +22,22 @@ pub fn validate(table: &FalsifyTable, sweep: Option<&SweepSection>) -> Result<()
             let field = format!("falsify.families[{i}]");
             let Some(f) = families.iter().find(|f| f.name() == name) else {
                 let known: Vec<&str> = families.iter().map(Family::name).collect();
-                return Err((field, format!("{name:?} is no family of [sweep] (it has: {})", known.join(", "))));
+                return Err((
+                    field,
+                    format!("{name:?} is no family of [sweep] (it has: {})", known.join(", ")),
+                ));
             };
             if f.kind == "traces" {
-                return Err((field, format!("{name:?} is a folder of traces: it has no parameters to search")));
+                return Err((
+                    field,
+                    format!("{name:?} is a folder of traces: it has no parameters to search"),
+                ));
             }
             if !has_ranges(f) {
-                return Err((field, format!("{name:?} has no range [min, max]: it is one process, nothing to search")));
+                return Err((
+                    field,
+                    format!("{name:?} has no range [min, max]: it is one process, nothing to search"),
+                ));
             }
         }
     } else if table.signal.is_none() && !families.iter().any(has_ranges) {
@@ -123,7 +132,10 @@ mod tests {
     fn families_must_be_the_sweeps_and_have_parameters() {
         let sweep: SweepSection = parse(SWEEP);
         let bad = |text: &str, sweep: Option<&SweepSection>| {
-            validate(&parse(text), sweep).err().map(|(field, _)| field).unwrap_or_else(|| panic!("accepted: {text}"))
+            validate(&parse(text), sweep)
+                .err()
+                .map(|(field, _)| field)
+                .unwrap_or_else(|| panic!("accepted: {text}"))
         };
         assert_eq!(bad("families = [\"gamma\", \"uniform\"]", Some(&sweep)), "falsify.families[1]");
         assert_eq!(bad("families = [\"gamma\"]", None), "falsify.families[0]");
