@@ -45,7 +45,11 @@ fn a_search_over_real_runs_repeats_bit_for_bit_whatever_the_threads() {
     let scenario = Scenario::paper_2();
     let space = signal();
     let run = |jobs: usize| {
-        let settings = SearchSettings { population: Some(3), ..SearchSettings::new(Method::Cmaes, 6, 4) };
+        let settings = SearchSettings {
+            population: Some(3),
+            stop_at_failure: false,
+            ..SearchSettings::new(Method::Cmaes, 6, 4)
+        };
         search(
             &space.dims,
             &settings,
