@@ -106,7 +106,7 @@ impl SearchResult {
 #[derive(Debug, Clone)]
 enum Optimiser {
     Cmaes(Box<Cmaes>),
-    Random { rng: ChaCha8Rng, batch: usize },
+    Random { rng: Box<ChaCha8Rng>, batch: usize },
 }
 
 /// A search in progress (ask/tell).
@@ -139,7 +139,7 @@ impl Search {
                 settings.seed,
             ))),
             Method::Random => Optimiser::Random {
-                rng: ChaCha8Rng::seed_from_u64(settings.seed),
+                rng: Box::new(ChaCha8Rng::seed_from_u64(settings.seed)),
                 batch: settings.population.unwrap_or_else(|| default_population(n)).max(1),
             },
         };
