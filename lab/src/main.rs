@@ -11,6 +11,7 @@ mod delay_diagnose;
 mod delay_probe;
 mod delay_robustness;
 mod eval_bits;
+mod falsify_bench;
 mod fixed_instances;
 mod fmt;
 mod fresh;
@@ -55,6 +56,8 @@ enum Aid {
     Fresh(fresh::Args),
     /// Solver settings compared on the same problems (the paper loops' instances).
     FixedInstances(fixed_instances::Args),
+    /// Falsification (CMA-ES) against random search on a scenario file's `[falsify]` spaces.
+    Falsify(falsify_bench::Args),
     /// PANOC's progress on one inner problem of a loop solve.
     InnerTrace(inner_trace::Args),
     /// What one PANOC iteration costs in the multi-stage paper loops.
@@ -102,6 +105,7 @@ fn main() -> anyhow::Result<()> {
         Aid::Cycles(a) => cycles::run(&a),
         Aid::Fresh(a) => fresh::run(&a),
         Aid::FixedInstances(a) => fixed_instances::run(&a),
+        Aid::Falsify(a) => falsify_bench::run(&a),
         Aid::InnerTrace(a) => inner_trace::run(&a),
         Aid::IterProfile => iter_profile::run(),
         Aid::Paper(a) => paper::run(&a),

@@ -6,6 +6,7 @@
 //! ([`scenario_file`]) behind `--scenario FILE`; and mutual TLS for servers and clients
 //! ([`tls`]: the flags, the checked files, the server's config and the client's endpoint).
 
+pub mod falsify_table;
 pub mod scenario_file;
 pub mod streams;
 pub mod sweep_table;

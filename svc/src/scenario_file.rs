@@ -174,6 +174,9 @@ pub struct ScenarioFile {
     /// The delay families of `hilbench sweep` (optional; see `sweep_table`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sweep: Option<crate::sweep_table::SweepSection>,
+    /// What `hilbench falsify` searches (optional; see `falsify_table`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub falsify: Option<falsify::FalsifyTable>,
 }
 
 /// A file that cannot be used, with where and why.
@@ -235,7 +238,7 @@ impl ScenarioFile {
         scenario.fail_safe = false;
         scenario.continue_after_collision = false;
         scenario.solver = None;
-        let file = ScenarioFile { run, scenario, sweep: None };
+        let file = ScenarioFile { run, scenario, sweep: None, falsify: None };
         let text = toml::to_string(&file).map_err(|e| format!("cannot write the scenario as TOML: {e}"))?;
         Ok(format!("# The scenario as flown (overrides applied, traces inline).\n{text}"))
     }
@@ -310,6 +313,9 @@ impl ScenarioFile {
         }
         if let Some(sweep) = &self.sweep {
             sweep.validate()?;
+        }
+        if let Some(falsify) = &self.falsify {
+            crate::falsify_table::validate(falsify, self.sweep.as_ref())?;
         }
         let s = &self.scenario;
         // The controller's options beyond the paper come from `[run]`, which overwrites them.
