@@ -225,6 +225,7 @@ fn two_lockstep_runs_of_the_python_controller_with_one_seed_are_identical() {
 
 #[test]
 fn in_real_time_the_python_controller_streams_and_reaches_the_open_field_goal() {
+    let _turn = hilbench_tests::CPU_HEAVY.blocking_lock();
     let run = fly_in(TimeMode::RealTime, &open_field(), &python_controller(), ExternalSettings::default())
         .unwrap_or_else(|e| panic!("{e}"));
     let s = &run.summary;

@@ -863,6 +863,7 @@ async fn watch_an_attack(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_attacker_on_another_port_gets_nothing_changes_nothing_and_is_counted_while_the_setpoints_stay_on_the_vehicle()
  {
+    let _turn = hilbench_tests::CPU_HEAVY.lock().await;
     let (gateway, port) = start_gateway(&Scenario::paper_2()).await;
     let args = [port.to_string(), "10".into(), "2".into(), "8".into()].to_vec();
     let (r, status) = watch_an_attack(gateway.addr, args).await;
@@ -892,6 +893,7 @@ async fn an_attacker_on_another_port_gets_nothing_changes_nothing_and_is_counted
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_signed_link_locks_to_the_vehicle_with_the_key_though_another_key_and_unsigned_frames_came_first() {
+    let _turn = hilbench_tests::CPU_HEAVY.lock().await;
     let key = [0x5au8; 32];
     let (gateway, port) =
         start_gateway_with(&Scenario::paper_2(), Some(mavbridge::SigningKey::new(key)), |_| {}).await;
@@ -918,7 +920,7 @@ async fn allow_client_limits_vehicle_control_to_the_named_certificates_and_the_r
     use hilbench_svc::tls::TlsFiles;
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("gateway-allow-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    hilbench::certs::write_dir(&dir, &[]).expect("certificates");
+    hilbench::commands::certs::write_dir(&dir, &[]).expect("certificates");
     let tls = TlsFiles { ca: None, ..TlsFiles::in_dir(&dir, "gateway") }.load().expect("the gateway's TLS");
     let (gateway, _) = start_gateway_with(&Scenario::paper_2(), None, |c| {
         c.tls = tls;
@@ -963,6 +965,7 @@ async fn allow_client_limits_vehicle_control_to_the_named_certificates_and_the_r
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn mavsim_signing_with_the_gateways_key_is_served_and_with_another_key_is_never_locked_to() {
+    let _turn = hilbench_tests::CPU_HEAVY.lock().await;
     let scenario = Scenario::paper_2();
     let key = mavbridge::SigningKey::new([0x21; 32]);
     for (vehicle_key, served) in [(key.clone(), true), (mavbridge::SigningKey::new([0x22; 32]), false)] {
