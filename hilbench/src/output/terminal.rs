@@ -125,6 +125,15 @@ pub fn print_sweep(v: &serde_json::Value, dir: &std::path::Path) {
             format!("{}/{}", f(&a["path_length_m"]["p50"]), f(&a["path_length_m"]["p95"])),
         );
     }
+    println!();
+    let p = &v["failure_probability"];
+    for (what, key) in [("collisions", "collision"), ("missed goals", "missed"), ("any failure", "any")] {
+        println!("{}", failure_text(what, &p[key]));
+    }
+    for name in families.iter().filter_map(|n| n.as_str()) {
+        let p = &v["families"][name]["failure_probability"];
+        println!("  {name}: {}", failure_text("any failure", &p["any"]));
+    }
     let t = &v["timing"];
     if let (Some(wall), Some(rate)) = (t["wall_time_s"].as_f64(), t["runs_per_s"].as_f64()) {
         println!();
@@ -137,4 +146,25 @@ pub fn print_sweep(v: &serde_json::Value, dir: &std::path::Path) {
     }
     println!("Report: {}", dir.join("report.md").display());
     println!("Summary: {}", dir.join("sweep.json").display());
+}
+
+/// One failure probability in words, e.g. "collisions: 0 of 1,600 runs, P < 0.19 % (95 %)"
+/// (`what`: "collisions"; `p`: an entry of a sweep's `failure_probability`).
+pub fn failure_text(what: &str, p: &serde_json::Value) -> String {
+    let (Some(k), Some(n), Some(lower), Some(upper), Some(level)) = (
+        p["failures"].as_u64(),
+        p["runs"].as_u64(),
+        p["lower"].as_f64(),
+        p["upper"].as_f64(),
+        p["level"].as_f64(),
+    ) else {
+        return format!("{what}: no run flew");
+    };
+    let percent = |x: f64| format!("{:.2} %", 100.0 * x);
+    let level = format!("{:.0} %", 100.0 * level);
+    if k == 0 {
+        format!("{what}: 0 of {n} runs, P < {} ({level})", percent(upper))
+    } else {
+        format!("{what}: {k} of {n} runs, P in [{}, {}] ({level})", percent(lower), percent(upper))
+    }
 }

@@ -231,6 +231,22 @@ fn report(meta: &Meta, v: &Value, rows: &[&RunRow], figures: &[PathBuf], dir: &P
     let _ = writeln!(out, "{}\n", line("**all**", v));
     let _ = writeln!(
         out,
+        "How sure (two-sided Clopper-Pearson intervals at {:.0} %, from the runs that flew):\n",
+        100.0 * stats::CONFIDENCE
+    );
+    for (name, a) in meta.families.iter().map(|n| (n.as_str(), &v["families"][n])).chain([("all", v)]) {
+        let p = &a["failure_probability"];
+        let _ = writeln!(
+            out,
+            "- {name}: {}; {}; {}",
+            crate::output::terminal::failure_text("collisions", &p["collision"]),
+            crate::output::terminal::failure_text("missed goals", &p["missed"]),
+            crate::output::terminal::failure_text("any failure", &p["any"])
+        );
+    }
+    let _ = writeln!(out);
+    let _ = writeln!(
+        out,
         "Solve time (ms, over runs): median of the runs' medians {}, 99th percentile of their 99th percentiles {}, max {}.\n",
         f(&v["solve_ms"]["p50"]),
         f(&v["solve_ms"]["p99"]),

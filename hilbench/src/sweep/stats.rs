@@ -62,7 +62,12 @@ impl RunRow {
         let s = &flown.summary;
         let mut solve_ms: Vec<f64> = flown.rows.iter().map(|r| r.solve_ms).collect();
         let stat = |v: &mut Vec<f64>, p: f64| (!v.is_empty()).then(|| percentile(v, p));
-        let flown_delays = &plan.delays_s[..flown.rows.len().min(plan.delays_s.len())];
+        // A lost message (a trace's `lost`) has no delay: it is left out of the delays' numbers.
+        let flown_delays: Vec<f64> = plan.delays_s[..flown.rows.len().min(plan.delays_s.len())]
+            .iter()
+            .copied()
+            .filter(|d| !delay::is_lost(*d))
+            .collect();
         let outcome = s.outcome();
         let first = s.collisions.first();
         let (fail_time_s, fail_position_m, what) = match outcome {
@@ -316,6 +321,38 @@ pub fn aggregate(rows: &[&RunRow]) -> Value {
         "path_length_m": { "p50": pct(&path, 50.0), "p95": pct(&path, 95.0) },
         "time_to_goal_s": { "p50": pct(&time, 50.0), "p95": pct(&time, 95.0) },
         "solve_ms": { "p50": pct(&p50s, 50.0), "p99": pct(&p99s, 99.0), "max": max },
+        "failure_probability": failure_probability(rows),
+    })
+}
+
+/// Confidence level of the failure probabilities' intervals.
+pub const CONFIDENCE: f64 = 0.95;
+
+/// The probability of each kind of failure (a collision, a missed goal, either) estimated from
+/// the runs that flew (errors and time-outs are not outcomes), with its two-sided
+/// Clopper-Pearson interval at [`CONFIDENCE`]: `{failures, runs, rate, lower, upper, level}`,
+/// `null` without a run.
+pub fn failure_probability(rows: &[&RunRow]) -> Value {
+    let flown =
+        rows.iter().filter(|r| matches!(r.outcome.as_str(), "reached" | "collided" | "missed")).count();
+    let of = |failed: &dyn Fn(&str) -> bool| -> Value {
+        let failures = rows.iter().filter(|r| failed(&r.outcome)).count() as u64;
+        match linkfit::clopper_pearson(failures, flown as u64, CONFIDENCE) {
+            Ok(i) => json!({
+                "failures": failures,
+                "runs": flown,
+                "rate": i.rate,
+                "lower": i.lower,
+                "upper": i.upper,
+                "level": i.level,
+            }),
+            Err(_) => Value::Null,
+        }
+    };
+    json!({
+        "collision": of(&|o| o == "collided"),
+        "missed": of(&|o| o == "missed"),
+        "any": of(&|o| o == "collided" || o == "missed"),
     })
 }
 
@@ -387,5 +424,54 @@ mod tests {
         assert_eq!(v["families"]["gamma"]["runs"], 100);
         assert_eq!(merge_rows(vec![rows[1].clone(), rows[0].clone()], &[]).map(|r| r[0].run), Ok(0));
         assert!(merge_rows(vec![rows[1].clone(), rows[1].clone()], &[]).is_err());
+    }
+
+    #[test]
+    fn failure_probabilities_are_clopper_pearson_intervals_over_the_runs_that_flew() {
+        // 0 collisions in 1,600 runs: the exact 95 % upper end is 1 - 0.025^(1/1600)
+        // (scipy's binomtest(0, 1600).proportion_ci('exact'): 0.0023028939...); errors and
+        // time-outs are not runs that flew.
+        let mut rows: Vec<RunRow> = (0..1600).map(|i| row(i, "reached", 1.0)).collect();
+        rows.push(row(1600, "error", 1.0));
+        rows.push(row(1601, "timeout", 1.0));
+        let refs: Vec<&RunRow> = rows.iter().collect();
+        let p = failure_probability(&refs);
+        assert_eq!(
+            (p["collision"]["failures"].as_u64(), p["collision"]["runs"].as_u64()),
+            (Some(0), Some(1600))
+        );
+        let upper = p["collision"]["upper"].as_f64().expect("an upper end");
+        assert!((upper - (1.0 - 0.025f64.powf(1.0 / 1600.0))).abs() < 1e-12, "{upper}");
+        assert_eq!(p["collision"]["lower"], 0.0);
+        assert_eq!(
+            crate::output::terminal::failure_text("collisions", &p["collision"]),
+            "collisions: 0 of 1600 runs, P < 0.23 % (95 %)"
+        );
+        // 3 collisions and 1 missed goal in 120 runs: "any" counts both.
+        let rows: Vec<RunRow> = (0..120)
+            .map(|i| {
+                row(
+                    i,
+                    if i < 3 {
+                        "collided"
+                    } else if i == 3 {
+                        "missed"
+                    } else {
+                        "reached"
+                    },
+                    1.0,
+                )
+            })
+            .collect();
+        let refs: Vec<&RunRow> = rows.iter().collect();
+        let p = failure_probability(&refs);
+        assert_eq!(p["any"]["failures"], 4);
+        let (lower, upper) = (
+            p["collision"]["lower"].as_f64().expect("a lower end"),
+            p["collision"]["upper"].as_f64().expect("an upper end"),
+        );
+        assert!(lower > 0.0 && lower < 0.025 && upper > 0.025 && upper < 0.1, "[{lower}, {upper}]");
+        // No run flew: no estimate.
+        assert_eq!(failure_probability(&[])["any"], Value::Null);
     }
 }
