@@ -68,6 +68,9 @@ pub enum Command {
     Certs(CertsArgs),
     /// Merge the output directories of a sweep's shards into the sweep.json of the whole.
     SweepMerge(SweepMergeArgs),
+    /// A real link's delays: import them (ping, irtt, a CSV column), look at them, fit them
+    /// (docs/links.md).
+    Trace(TraceArgs),
 }
 
 // The flags of `hilbench reproduce`.
@@ -160,6 +163,65 @@ pub struct RunArgs {
     /// MCAP files) while it flies in real time; ADDR defaults to 127.0.0.1:8765.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
     pub foxglove_ws: Option<std::net::SocketAddr>,
+}
+
+// The flags of `hilbench trace`.
+#[derive(clap::Args, Debug)]
+pub struct TraceArgs {
+    #[command(subcommand)]
+    pub command: TraceCommand,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum TraceCommand {
+    /// Read a measurement of a link into a trace file: one delay in s per line, `lost` for a
+    /// lost probe, the provenance in comment lines.
+    Import {
+        /// The measurement: ping's output, irtt's JSON (`irtt client -o`), or a CSV.
+        file: PathBuf,
+        /// What FILE is.
+        #[arg(long, value_parser = ["ping", "irtt", "csv"])]
+        format: String,
+        /// The trace file to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// csv: the column, by its header name (default: the only column).
+        #[arg(long)]
+        column: Option<String>,
+        /// csv: the values' unit (default: the column name's suffix, e.g. rtt_ms, else s).
+        #[arg(long, value_parser = ["s", "ms", "us"])]
+        unit: Option<String>,
+        /// Skip a bad line and count it, instead of stopping there with its number.
+        #[arg(long)]
+        skip_bad: bool,
+    },
+    /// Count, losses, percentiles, the share above a threshold, autocorrelation, spike runs.
+    Stats {
+        /// A trace file.
+        file: PathBuf,
+        /// The share of delays above this, s (e.g. the scenario tree's largest sampling time).
+        #[arg(long, value_name = "S", value_parser = seconds)]
+        threshold_s: Option<f64>,
+        /// Print the statistics as JSON.
+        #[arg(long)]
+        json: bool,
+        /// Draw the time series, the histogram and the ECDF into DIR (PNG and SVG).
+        #[arg(long, value_name = "DIR")]
+        plot: Option<PathBuf>,
+    },
+    /// Fit Gamma, lognormal, Pareto, Weibull and a two-state regime by maximum likelihood,
+    /// ranked by AIC and KS distance, with 95 % intervals; prints the best law's
+    /// [scenario.delays] table and a [[sweep.families]] table around it.
+    Fit {
+        /// A trace file.
+        file: PathBuf,
+        /// Seed of the bootstrap (the same file and seed give the same numbers).
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Draw the data with the fitted densities into DIR (PNG and SVG).
+        #[arg(long, value_name = "DIR")]
+        plot: Option<PathBuf>,
+    },
 }
 
 // The flags of `hilbench certs`.

@@ -23,6 +23,7 @@ fn main() -> anyhow::Result<()> {
         Command::Sweep(args) => commands::sweep::sweep(args, &opts)?,
         Command::SweepMerge(args) => commands::sweep_merge::sweep_merge(args, &opts)?,
         Command::Certs(args) => commands::certs::certs(args, &opts)?,
+        Command::Trace(args) => commands::trace::trace(args, &opts)?,
     };
     if exit != Exit::Success {
         std::process::exit(exit.code());

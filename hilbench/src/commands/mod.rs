@@ -6,6 +6,7 @@ pub mod reproduce;
 pub mod run;
 pub mod sweep;
 pub mod sweep_merge;
+pub mod trace;
 
 use std::path::PathBuf;
 use std::time::Instant;
