@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 
 use crate::drive::{Driver, TimeMode, grpc, in_process};
-use crate::run::{Batch, FinishedRun, Job};
+use crate::run::{Batch, FinishedRun, Job, RunFailure};
 
 /// How often a real-time run without a terminal says it is still flying.
 const HEARTBEAT: Duration = Duration::from_secs(5);
@@ -120,6 +120,42 @@ pub fn fly_all(jobs: &[Job], driver: &Driver, progress: bool) -> anyhow::Result<
     })
 }
 
+/// A driver's run of a job that can fail part-way.
+trait Flown {
+    fn finished(self, job: Job, error: Option<String>) -> FinishedRun;
+}
+
+impl Flown for grpc::GrpcRun {
+    fn finished(self, job: Job, error: Option<String>) -> FinishedRun {
+        grpc::GrpcRun::finished(self, job, error)
+    }
+}
+
+impl Flown for crate::drive::external::ExternalRun {
+    fn finished(self, job: Job, error: Option<String>) -> FinishedRun {
+        crate::drive::external::ExternalRun::finished(self, job, error)
+    }
+}
+
+/// A spawned driver's result for `job` (`what` flew): the run, or the error with the part
+/// that flew, or the task's failure. (The error holds the partial run: once per run, not a hot
+/// path, so it is not boxed.)
+#[allow(clippy::result_large_err)]
+fn settle<R: Flown>(
+    job: &Job,
+    what: &str,
+    task: Result<Result<R, RunFailure<R>>, String>,
+) -> Result<FinishedRun, (String, Option<FinishedRun>)> {
+    match task {
+        Ok(Ok(run)) => Ok(run.finished(job.clone(), None)),
+        Ok(Err(f)) => {
+            let e = format!("{what}: {:#}", f.error);
+            Err((e.clone(), f.partial.map(|p| p.finished(job.clone(), Some(e)))))
+        }
+        Err(failed) => Err((format!("{what}: {failed}"), None)),
+    }
+}
+
 /// One run, or its error (`what` failed: ...) with the part that flew, if any. Each driver's
 /// run is a task of its own: a panic in it is this run's error.
 async fn fly(job: &Job, driver: &Driver) -> Result<FinishedRun, (String, Option<FinishedRun>)> {
@@ -133,14 +169,7 @@ async fn fly(job: &Job, driver: &Driver) -> Result<FinishedRun, (String, Option<
                 let settings = grpc::GrpcSettings::default();
                 grpc::run_against(&task_job.scenario, task_job.mode, &settings, &endpoints).await
             });
-            match task.await {
-                Ok(Ok(run)) => Ok(run.finished(job.clone(), None)),
-                Ok(Err(f)) => {
-                    let e = format!("{what}: {:#}", f.error);
-                    Err((e.clone(), f.partial.map(|p| p.finished(job.clone(), Some(e)))))
-                }
-                Err(join) => Err((format!("{what}: {}", failed(join)), None)),
-            }
+            settle(job, &what, task.await.map_err(failed))
         }
         Driver::External(controller) => {
             let what = format!("{name} with an external controller");
@@ -149,14 +178,7 @@ async fn fly(job: &Job, driver: &Driver) -> Result<FinishedRun, (String, Option<
                 tokio::spawn(
                     async move { crate::drive::external::run_external(&scenario, &controller).await },
                 );
-            match task.await {
-                Ok(Ok(run)) => Ok(run.finished(job.clone(), None)),
-                Ok(Err(f)) => {
-                    let e = format!("{what}: {:#}", f.error);
-                    Err((e.clone(), f.partial.map(|p| p.finished(job.clone(), Some(e)))))
-                }
-                Err(join) => Err((format!("{what}: {}", failed(join)), None)),
-            }
+            settle(job, &what, task.await.map_err(failed))
         }
         Driver::InProcess => {
             let what = format!("{name} with {}", job.mode.name());
