@@ -1,9 +1,15 @@
 //! Flying jobs: [`fly_all`] runs every [`Job`] in order with one [`Driver`], on a runtime of its
 //! own that also watches for Ctrl-C, and gives back each [`FinishedRun`] (the failed one kept as
-//! far as it flew). `hilbench reproduce`, `run`, `sweep` (one job per run) and `falsify` all fly
-//! through here, so whatever a driver gains, every command gains.
+//! far as it flew). `hilbench reproduce`, `run`, `sweep` and `falsify` (one job per run,
+//! [`fly_one`], with a time limit) all fly through here, so whatever a driver gains, every
+//! command gains.
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
 use std::time::{Duration, Instant};
+
+use mpc::RunSummary;
 
 use anyhow::Context;
 
@@ -120,18 +126,82 @@ pub fn fly_all(jobs: &[Job], driver: &Driver, progress: bool) -> anyhow::Result<
     })
 }
 
+/// A run as flown: its summary and per-cycle rows.
+#[derive(Debug, Clone)]
+pub struct Flight {
+    pub summary: RunSummary,
+    pub rows: Vec<crate::run::CycleRow>,
+}
+
+/// What became of one run of [`fly_one`].
+#[derive(Debug, Clone)]
+pub enum RunFate {
+    Flown(Box<Flight>),
+    /// The run stopped with an error (a trace that ran out, a service that failed, ...).
+    Failed(String),
+    /// The run took longer than the time limit; its thread is left to finish on its own.
+    TimedOut(Duration),
+    /// Ctrl-C.
+    Interrupted,
+}
+
+/// Flies `job` as `hilbench run` does ([`fly_all`] with one job), on a thread of its own so
+/// that a run that hangs past `timeout` is given up (and counted) while the caller goes on.
+pub fn fly_one(job: &Job, driver: &Driver, timeout: Duration) -> RunFate {
+    let (tx, rx) = mpsc::channel();
+    let (job, driver) = (job.clone(), driver.clone());
+    let spawned = std::thread::Builder::new().name("hilbench-one-run".into()).spawn(move || {
+        let _ = tx.send(fly_all(&[job], &driver, false));
+    });
+    if let Err(e) = spawned {
+        return RunFate::Failed(format!("cannot start the run's thread: {e}"));
+    }
+    match rx.recv_timeout(timeout) {
+        Ok(Ok(mut batch)) => {
+            if batch.interrupted {
+                return RunFate::Interrupted;
+            }
+            if let Some(e) = batch.error {
+                return RunFate::Failed(e);
+            }
+            match batch.runs.pop() {
+                Some(run) => RunFate::Flown(Box::new(Flight { summary: run.summary, rows: run.rows })),
+                None => RunFate::Failed("the run ended without a summary".into()),
+            }
+        }
+        Ok(Err(e)) => RunFate::Failed(format!("{e:#}")),
+        Err(mpsc::RecvTimeoutError::Timeout) => RunFate::TimedOut(timeout),
+        Err(mpsc::RecvTimeoutError::Disconnected) => RunFate::Failed("the run's thread panicked".into()),
+    }
+}
+
+/// Sets `stop` at the first Ctrl-C (SIGINT), from a thread named `thread`. The runs in flight
+/// see it too ([`fly_all`] listens for it) and end as interrupted.
+pub fn watch_ctrl_c(stop: Arc<AtomicBool>, thread: &str) {
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build();
+    if let Ok(runtime) = runtime {
+        let _ = std::thread::Builder::new().name(thread.into()).spawn(move || {
+            runtime.block_on(async {
+                if tokio::signal::ctrl_c().await.is_ok() {
+                    stop.store(true, Ordering::Relaxed);
+                }
+            });
+        });
+    }
+}
+
 /// A driver's run of a job that can fail part-way.
-trait Flown {
+trait DriverRun {
     fn finished(self, job: Job, error: Option<String>) -> FinishedRun;
 }
 
-impl Flown for grpc::GrpcRun {
+impl DriverRun for grpc::GrpcRun {
     fn finished(self, job: Job, error: Option<String>) -> FinishedRun {
         grpc::GrpcRun::finished(self, job, error)
     }
 }
 
-impl Flown for crate::drive::external::ExternalRun {
+impl DriverRun for crate::drive::external::ExternalRun {
     fn finished(self, job: Job, error: Option<String>) -> FinishedRun {
         crate::drive::external::ExternalRun::finished(self, job, error)
     }
@@ -141,7 +211,7 @@ impl Flown for crate::drive::external::ExternalRun {
 /// that flew, or the task's failure. (The error holds the partial run: once per run, not a hot
 /// path, so it is not boxed.)
 #[allow(clippy::result_large_err)]
-fn settle<R: Flown>(
+fn settle<R: DriverRun>(
     job: &Job,
     what: &str,
     task: Result<Result<R, RunFailure<R>>, String>,

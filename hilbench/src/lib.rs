@@ -19,5 +19,6 @@ pub mod output;
 pub mod panics;
 pub mod progress;
 pub mod run;
+pub mod shrink;
 pub mod sweep;
 pub use hilbench_svc::scenario_file;

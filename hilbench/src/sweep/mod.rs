@@ -1,8 +1,9 @@
 //! `hilbench sweep FILE`: N closed-loop runs of a scenario file, each under a delay process
 //! drawn from the file's `[sweep]` table ([`draw`]), flown in lockstep the way `hilbench run`
-//! flies a run ([`fly`] is `fly::fly_all` with one job, so whatever driver `run` gains, a
+//! flies a run (`fly::fly_one`, `fly::fly_all` with one job, so whatever driver `run` gains, a
 //! sweep gains), on worker threads; outcomes as distributions ([`stats`]), failures written as
-//! replayable traces and optionally shrunk ([`shrink`]), sharded and merged ([`stats::merge`]).
+//! replayable traces and optionally shrunk (`crate::shrink`), sharded and merged
+//! ([`stats::merge`]).
 //!
 //! Scheduling is the simplest that fills the cores: `--jobs` threads take the next (run,
 //! controller) pair from a shared counter; each run is independent, so the order in which they
@@ -11,7 +12,6 @@
 pub mod draw;
 pub mod output;
 pub mod plots;
-pub mod shrink;
 pub mod stats;
 
 use std::ops::Range;
@@ -22,11 +22,12 @@ use std::time::{Duration, Instant};
 
 use hilbench_svc::sweep_table::SweepSection;
 use mav::Scenario;
-use mpc::{ControllerMode, RunSummary};
+use mpc::ControllerMode;
 
 use crate::drive::Driver;
-use crate::fly::fly_all;
-use crate::run::{CycleRow, Job};
+use crate::fly::{RunFate, fly_one, watch_ctrl_c};
+use crate::run::Job;
+use crate::shrink::{self, Rerun};
 use draw::RunPlan;
 use stats::RunRow;
 
@@ -72,56 +73,6 @@ impl Sweep {
     }
 }
 
-/// A run as flown: its summary and per-cycle rows.
-#[derive(Debug, Clone)]
-pub struct Flown {
-    pub summary: RunSummary,
-    pub rows: Vec<CycleRow>,
-}
-
-/// What became of one run.
-#[derive(Debug, Clone)]
-pub enum RunFate {
-    Flown(Box<Flown>),
-    /// The run stopped with an error (a trace that ran out, a service that failed, ...).
-    Failed(String),
-    /// The run took longer than the time limit; its thread is left to finish on its own.
-    TimedOut(Duration),
-    /// Ctrl-C.
-    Interrupted,
-}
-
-/// Flies `scenario` with `mode` as `hilbench run` does (`fly::fly_all` with one job), on a
-/// thread of its own so that a run that hangs past `timeout` is given up (and counted) while
-/// the sweep goes on.
-pub fn fly(scenario: &Scenario, mode: ControllerMode, driver: &Driver, timeout: Duration) -> RunFate {
-    let (tx, rx) = mpsc::channel();
-    let (job, driver) = (Job { scenario: scenario.clone(), mode }, driver.clone());
-    let spawned = std::thread::Builder::new().name("hilbench-sweep-run".into()).spawn(move || {
-        let _ = tx.send(fly_all(&[job], &driver, false));
-    });
-    if let Err(e) = spawned {
-        return RunFate::Failed(format!("cannot start the run's thread: {e}"));
-    }
-    match rx.recv_timeout(timeout) {
-        Ok(Ok(mut batch)) => {
-            if batch.interrupted {
-                return RunFate::Interrupted;
-            }
-            if let Some(e) = batch.error {
-                return RunFate::Failed(e);
-            }
-            match batch.runs.pop() {
-                Some(run) => RunFate::Flown(Box::new(Flown { summary: run.summary, rows: run.rows })),
-                None => RunFate::Failed("the run ended without a summary".into()),
-            }
-        }
-        Ok(Err(e)) => RunFate::Failed(format!("{e:#}")),
-        Err(mpsc::RecvTimeoutError::Timeout) => RunFate::TimedOut(timeout),
-        Err(mpsc::RecvTimeoutError::Disconnected) => RunFate::Failed("the run's thread panicked".into()),
-    }
-}
-
 /// One finished (run, controller): its row, and the trace written for a failure.
 #[derive(Debug, Clone)]
 pub struct Done {
@@ -145,7 +96,7 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
     let items: Vec<(u64, ControllerMode)> =
         sweep.indices().flat_map(|i| sweep.modes.iter().map(move |m| (i, *m))).collect();
     let stop = Arc::new(AtomicBool::new(false));
-    watch_ctrl_c(Arc::clone(&stop));
+    watch_ctrl_c(Arc::clone(&stop), "hilbench-sweep-ctrl-c");
     let next = AtomicUsize::new(0);
     let (tx, rx) = mpsc::channel::<Option<Done>>();
     let mut done = Vec::with_capacity(items.len());
@@ -157,7 +108,7 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
             s.spawn(move || {
                 while !stop.load(Ordering::Relaxed) {
                     let Some(&(index, mode)) = items.get(next.fetch_add(1, Ordering::Relaxed)) else { break };
-                    let result = one(sweep, index, mode);
+                    let result = one(sweep, index, mode, stop);
                     if result.is_none() {
                         stop.store(true, Ordering::Relaxed);
                     }
@@ -210,7 +161,7 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
 
 /// Run `index` with `mode`: drawn, flown, its row, its failure's trace (shrunk when asked).
 /// `None`: Ctrl-C.
-fn one(sweep: &Sweep, index: u64, mode: ControllerMode) -> Option<Done> {
+fn one(sweep: &Sweep, index: u64, mode: ControllerMode, stop: &AtomicBool) -> Option<Done> {
     let started = Instant::now();
     let plan = match sweep.plan(index) {
         Ok(plan) => plan,
@@ -219,8 +170,8 @@ fn one(sweep: &Sweep, index: u64, mode: ControllerMode) -> Option<Done> {
             return Some(Done { row, failure: None });
         }
     };
-    let scenario = plan.scenario(&sweep.scenario);
-    let flight = fly(&scenario, mode, &sweep.driver, sweep.run_timeout);
+    let job = Job { scenario: plan.scenario(&sweep.scenario), mode };
+    let flight = fly_one(&job, &sweep.driver, sweep.run_timeout);
     let wall_s = started.elapsed().as_secs_f64();
     let row = match &flight {
         RunFate::Interrupted => return None,
@@ -235,24 +186,21 @@ fn one(sweep: &Sweep, index: u64, mode: ControllerMode) -> Option<Done> {
     };
     let failure = match &flight {
         _ if row.outcome == "reached" => None,
-        RunFate::Flown(f) if sweep.shrink => shrink::shrink(sweep, &plan, mode, f),
-        RunFate::Flown(f) => Some(shrink::FailureTrace::unshrunk(&plan, f)),
-        _ => Some(shrink::FailureTrace::whole(&plan)),
+        RunFate::Flown(f) if sweep.shrink => {
+            let rerun = Rerun {
+                scenario: &sweep.scenario,
+                trace_name: format!("sweep-run-{index}"),
+                mode,
+                driver: &sweep.driver,
+                timeout: sweep.run_timeout,
+                stop,
+            };
+            let want = f.summary.outcome();
+            let fails = |f: &crate::fly::Flight| f.summary.outcome() == want;
+            Some(shrink::shrink(&rerun, sweep.shrink_runs, &plan.delays_s, f, &fails))
+        }
+        RunFate::Flown(f) => Some(shrink::FailureTrace::unshrunk(&plan.delays_s, f)),
+        _ => Some(shrink::FailureTrace::whole(&plan.delays_s)),
     };
     Some(Done { row, failure })
-}
-
-/// Sets `stop` at the first Ctrl-C (SIGINT). The runs in flight see it too (`fly_all` listens
-/// for it) and end as interrupted.
-fn watch_ctrl_c(stop: Arc<AtomicBool>) {
-    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build();
-    if let Ok(runtime) = runtime {
-        let _ = std::thread::Builder::new().name("hilbench-sweep-ctrl-c".into()).spawn(move || {
-            runtime.block_on(async {
-                if tokio::signal::ctrl_c().await.is_ok() {
-                    stop.store(true, Ordering::Relaxed);
-                }
-            });
-        });
-    }
 }

@@ -14,8 +14,8 @@ use mpc::ControllerMode;
 use mpc::record::percentile;
 use serde_json::{Value, json};
 
-use super::Flown;
 use super::draw::RunPlan;
+use crate::fly::Flight;
 
 /// One (run, controller) of a sweep: a line of `runs.csv`.
 #[derive(Debug, Clone, PartialEq)]
@@ -58,7 +58,7 @@ pub const CSV_HEADER: &str = "run,controller,family,params,outcome,collided_grou
 
 impl RunRow {
     /// The row of a run that flew.
-    pub fn of_flight(run: u64, mode: ControllerMode, plan: &RunPlan, flown: &Flown, wall_s: f64) -> Self {
+    pub fn of_flight(run: u64, mode: ControllerMode, plan: &RunPlan, flown: &Flight, wall_s: f64) -> Self {
         let s = &flown.summary;
         let mut solve_ms: Vec<f64> = flown.rows.iter().map(|r| r.solve_ms).collect();
         let stat = |v: &mut Vec<f64>, p: f64| (!v.is_empty()).then(|| percentile(v, p));

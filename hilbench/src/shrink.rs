@@ -1,20 +1,27 @@
 //! A failing run's delays as a trace that replays the failure (`hilbench run FILE
-//! --delay-trace failures/<run>.csv`), and `--shrink`: the trace made smaller while the run
-//! still fails the same way, as proptest shrinks a failing case.
+//! --delay-trace failures/<run>.csv`), and shrinking: the trace made smaller while the run
+//! still fails the same way, as proptest shrinks a failing case. `hilbench sweep --shrink`
+//! shrinks each failure, `hilbench falsify` the worst run it found.
 //!
 //! The trace of a failure is the delays of the cycles it flew (the rest were never used), so
 //! replaying it flies the same run to the bit. Shrinking then tries, in this order, each within
 //! a budget of reruns: deleting chunks of delays (halves, quarters, ... single delays: a shorter
 //! trace), setting chunks to zero (fewer bursts, smaller delays), and rounding every delay to
-//! the millisecond. A candidate is kept when its run fails with the same outcome (`collided`
-//! or `missed`); a candidate the run outlasts ends in an error and is not kept. After each kept
-//! candidate the trace is cut to the cycles that run flew. The result is the trace of the last
-//! kept run, so its replay is that run.
+//! the millisecond. A candidate is kept when its run still fails (the caller says what failing
+//! is: the same outcome for a sweep, the property for a falsifier); a candidate the run
+//! outlasts ends in an error and is not kept. After each kept candidate the trace is cut to the
+//! cycles that run flew. The result is the trace of the last kept run, so its replay is that
+//! run.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use mav::Scenario;
 use mpc::ControllerMode;
 
-use super::draw::RunPlan;
-use super::{Flown, RunFate, Sweep, fly};
+use crate::drive::Driver;
+use crate::fly::{Flight, RunFate, fly_one};
+use crate::run::Job;
 
 /// A failure's trace, and the numbers its replay gives.
 #[derive(Debug, Clone, PartialEq)]
@@ -22,8 +29,8 @@ pub struct FailureTrace {
     pub delays_s: Vec<f64>,
     /// Delays of the failing run as flown (before shrinking).
     pub original_len: usize,
-    /// `Some` after `--shrink`: reruns spent, and whether shrinking ran to its end (rather
-    /// than to its budget).
+    /// `Some` after shrinking: reruns spent, and whether shrinking ran to its end (rather than
+    /// to its budget).
     pub shrink: Option<(u64, bool)>,
     /// What replaying the trace gives (`None` for an error or a time-out: the whole trace the
     /// run had is written, it is not a replay of a finished run).
@@ -42,10 +49,10 @@ pub struct Replay {
 }
 
 impl Replay {
-    fn of(flown: &Flown) -> Self {
+    pub fn of(flown: &Flight) -> Self {
         let s = &flown.summary;
         Self {
-            outcome: outcome(flown).name().to_string(),
+            outcome: s.outcome().name().to_string(),
             end_reason: s.end_reason.name().to_string(),
             cycles: s.cycles,
             min_clearance_m: s.min_clearance_m,
@@ -55,16 +62,12 @@ impl Replay {
     }
 }
 
-fn outcome(flown: &Flown) -> mpc::RunOutcome {
-    flown.summary.outcome()
-}
-
 impl FailureTrace {
-    /// The delays of the cycles a failed run flew.
-    pub fn unshrunk(plan: &RunPlan, flown: &Flown) -> Self {
-        let n = flown.rows.len().min(plan.delays_s.len());
+    /// The delays (of `delays_s`, the run's trace) of the cycles a failed run flew.
+    pub fn unshrunk(delays_s: &[f64], flown: &Flight) -> Self {
+        let n = flown.rows.len().min(delays_s.len());
         Self {
-            delays_s: plan.delays_s[..n].to_vec(),
+            delays_s: delays_s[..n].to_vec(),
             original_len: n,
             shrink: None,
             replay: Some(Replay::of(flown)),
@@ -72,13 +75,8 @@ impl FailureTrace {
     }
 
     /// Every delay a run had (one that stopped with an error or timed out).
-    pub fn whole(plan: &RunPlan) -> Self {
-        Self {
-            delays_s: plan.delays_s.clone(),
-            original_len: plan.delays_s.len(),
-            shrink: None,
-            replay: None,
-        }
+    pub fn whole(delays_s: &[f64]) -> Self {
+        Self { delays_s: delays_s.to_vec(), original_len: delays_s.len(), shrink: None, replay: None }
     }
 
     /// The trace file's text (`delay::parse_trace`'s format), `header` as comment lines.
@@ -95,33 +93,63 @@ impl FailureTrace {
     }
 }
 
-/// `--shrink` of a failed run (`flown`, under `plan`).
-pub fn shrink(sweep: &Sweep, plan: &RunPlan, mode: ControllerMode, flown: &Flown) -> Option<FailureTrace> {
-    let want = outcome(flown);
-    let mut best = FailureTrace::unshrunk(plan, flown);
-    let budget = sweep.shrink_runs;
+/// How a candidate trace is flown: `scenario` with the trace (named `trace_name`) as its round
+/// trip, the controller `mode`, through `driver`, each rerun within `timeout`; none once
+/// `stop` is set (Ctrl-C: shrinking ends within a run, keeping what it had).
+pub struct Rerun<'a> {
+    pub scenario: &'a Scenario,
+    pub trace_name: String,
+    pub mode: ControllerMode,
+    pub driver: &'a Driver,
+    pub timeout: Duration,
+    pub stop: &'a AtomicBool,
+}
+
+impl Rerun<'_> {
+    /// The scenario flown with `delays_s` as its round trip (not looping).
+    pub fn scenario_with(&self, delays_s: Vec<f64>) -> Scenario {
+        let mut s = self.scenario.clone();
+        s.delays = Some(delay::DelaysTable::trace(&self.trace_name, delays_s, false));
+        s
+    }
+}
+
+/// Shrinks the trace `delays_s` of the failed run `flown`, within `budget` reruns; a candidate
+/// is kept when its run `fails`.
+pub fn shrink(
+    rerun: &Rerun<'_>,
+    budget: u64,
+    delays_s: &[f64],
+    flown: &Flight,
+    fails: &dyn Fn(&Flight) -> bool,
+) -> FailureTrace {
+    let mut best = FailureTrace::unshrunk(delays_s, flown);
     let mut reruns = 0u64;
-    // The candidate's run if it fails as the original did, and the trace cut to what it flew.
-    let mut attempt = |delays: Vec<f64>, reruns: &mut u64| -> Option<(Vec<f64>, Flown)> {
+    // The candidate's run if it still fails, and the trace cut to what it flew.
+    let mut attempt = |delays: Vec<f64>, reruns: &mut u64| -> Option<(Vec<f64>, Flight)> {
+        if rerun.stop.load(Ordering::Relaxed) {
+            return None;
+        }
         *reruns += 1;
-        let candidate = RunPlan { delays_s: delays, ..plan.clone() };
-        match fly(&candidate.scenario(&sweep.scenario), mode, &sweep.driver, sweep.run_timeout) {
-            RunFate::Flown(f) if outcome(&f) == want => {
-                let mut d = candidate.delays_s;
+        let job = Job { scenario: rerun.scenario_with(delays.clone()), mode: rerun.mode };
+        match fly_one(&job, rerun.driver, rerun.timeout) {
+            RunFate::Flown(f) if fails(&f) => {
+                let mut d = delays;
                 d.truncate(f.rows.len());
                 Some((d, *f))
             }
             _ => None,
         }
     };
-    let complete = shrink_with(&mut best, budget, &mut reruns, &mut attempt);
+    let complete =
+        shrink_with(&mut best, budget, &mut reruns, &mut attempt) && !rerun.stop.load(Ordering::Relaxed);
     best.shrink = Some((reruns, complete));
-    Some(best)
+    best
 }
 
 /// Flies a candidate trace (counting the rerun): the trace cut to what its run flew, and the
 /// run, when it fails as the original did.
-type Attempt<'a> = dyn FnMut(Vec<f64>, &mut u64) -> Option<(Vec<f64>, Flown)> + 'a;
+type Attempt<'a> = dyn FnMut(Vec<f64>, &mut u64) -> Option<(Vec<f64>, Flight)> + 'a;
 
 /// The passes of [`shrink`] over `best` (kept up to date), at most `budget` attempts; true when
 /// they ran to their end.
@@ -185,7 +213,7 @@ fn shrink_with(best: &mut FailureTrace, budget: u64, reruns: &mut u64, attempt: 
 mod tests {
     use super::*;
 
-    fn flown(cycles: usize, collided: bool) -> Flown {
+    fn flown(cycles: usize, collided: bool) -> Flight {
         let scenario = mav::Scenario::paper_2();
         let sim = mav::PlantSim::new(&scenario, mav::SimSettings::default()).expect("a plant");
         let mut summary =
@@ -210,12 +238,12 @@ mod tests {
             reason: String::new(),
             cost_gap: None,
         };
-        Flown { summary, rows: vec![row; cycles] }
+        Flight { summary, rows: vec![row; cycles] }
     }
 
     /// A stand-in for the closed loop: the run "collides" at the first cycle after two delays
     /// of at least 0.3 s in a row, and flies on (to a time limit) otherwise.
-    fn model(delays: &[f64]) -> Option<(Vec<f64>, Flown)> {
+    fn model(delays: &[f64]) -> Option<(Vec<f64>, Flight)> {
         let at = delays.windows(2).position(|w| w[0] >= 0.3 && w[1] >= 0.3)?;
         let cycles = at + 2;
         Some((delays[..cycles].to_vec(), flown(cycles, true)))
