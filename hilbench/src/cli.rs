@@ -71,6 +71,89 @@ pub enum Command {
     /// A real link's delays: import them (ping, irtt, a CSV column), look at them, fit them
     /// (docs/links.md).
     Trace(TraceArgs),
+    /// Search the delays of a scenario file's [falsify] spaces for a run that fails its
+    /// property (a collision, a missed goal, a clearance below X) with CMA-ES, or random
+    /// search as the baseline; the worst run's trace shrunk and replayable (docs/falsify.md).
+    Falsify(FalsifyArgs),
+}
+
+/// `--method`: how a search picks its runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum MethodArg {
+    /// CMA-ES with restarts.
+    Cmaes,
+    /// Uniform random points of the same space: the baseline.
+    Random,
+}
+
+impl MethodArg {
+    pub fn method(self) -> falsify::Method {
+        match self {
+            MethodArg::Cmaes => falsify::Method::Cmaes,
+            MethodArg::Random => falsify::Method::Random,
+        }
+    }
+}
+
+// The flags of `hilbench falsify`.
+#[derive(clap::Args, Debug)]
+pub struct FalsifyArgs {
+    /// The scenario file, with a [falsify] table (and the [sweep] families it names).
+    pub file: PathBuf,
+    /// Runs per search (default: the file's `falsify.budget`, else 300).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+    pub budget: Option<u64>,
+    /// Methods, each a search of every space with the same budget and seed (comma-separated;
+    /// `cmaes,random` draws the optimiser beside its baseline; default: the file's
+    /// `falsify.method`).
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub method: Vec<MethodArg>,
+    /// Search only these spaces: a [sweep] family's name, or `signal` (repeat or
+    /// comma-separate; default: every space of the [falsify] table).
+    #[arg(long, value_name = "NAME", value_delimiter = ',')]
+    pub space: Vec<String>,
+    /// Seed of the searches and of the families' delay processes (default: the file's
+    /// `falsify.seed`, else `scenario.seed`).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Runs flown at once (default: every core).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
+    pub jobs: Option<u64>,
+    /// The bench's controller to fly (default: the first of the file's `run.modes`).
+    #[arg(long, value_enum)]
+    pub mode: Option<ModeArg>,
+    /// Search for your own controller's failures: a command line that speaks the Plant API as
+    /// a client at $HILBENCH_PLANT_ADDR (as `hilbench run --controller-cmd`), started for each
+    /// run (docs/external-controller.md).
+    #[arg(long, value_name = "CMD", value_parser = command_line, conflicts_with_all = ["mode", "grpc"])]
+    pub controller_cmd: Option<String>,
+    /// Fly each run over the services (plant, netem, controller on loopback) instead of in
+    /// process: the same numbers, slower.
+    #[arg(long)]
+    pub grpc: bool,
+    /// With --grpc: the services' links over mutual TLS.
+    #[command(flatten)]
+    pub tls: TlsArgs,
+    /// Search on after the first failure, to the budget (a lower score, a worse failure).
+    #[arg(long)]
+    pub whole_budget: bool,
+    /// Reruns to shrink the worst failing run's trace (default: the file's
+    /// `sweep.shrink_runs`, else 150).
+    #[arg(long, value_name = "N", conflicts_with = "no_shrink")]
+    pub shrink_runs: Option<u64>,
+    /// Write the worst run's trace as it flew, unshrunk.
+    #[arg(long)]
+    pub no_shrink: bool,
+    /// A run that takes longer than this (wall clock) is scored as the worst, and the search
+    /// goes on (default: the file's `sweep.run_timeout_s`, else 300).
+    #[arg(long, value_name = "S", value_parser = seconds)]
+    pub run_timeout_s: Option<f64>,
+    /// Output directory (default: runs/falsify-<unix time>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Print falsify.json on stdout instead of the table.
+    #[arg(long)]
+    pub json: bool,
 }
 
 // The flags of `hilbench reproduce`.

@@ -14,6 +14,7 @@
 pub mod cli;
 pub mod commands;
 pub mod drive;
+pub mod falsification;
 pub mod fly;
 pub mod output;
 pub mod panics;

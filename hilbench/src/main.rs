@@ -1,11 +1,13 @@
 //! `hilbench`: the bench's command line. `hilbench reproduce` runs the paper's three scenarios
 //! with the standard and the multi-stage NMPC in paper mode, over real gRPC (plant, netem and
 //! controller on loopback) or in process, and prints the paper's tables beside what this bench
-//! measures; `run`, `sweep`, `sweep-merge` and `certs` are the rest (see `--help`).
+//! measures; `run`, `sweep`, `sweep-merge`, `falsify`, `trace` and `certs` are the rest (see
+//! `--help`).
 //!
 //! This file parses the command line, dispatches to `hilbench::commands`, and is the only
 //! place that ends the process: exit 0 (every run without a collision), 1 (an error, anyhow's),
-//! 2 (a usage error, clap's), 3 (a run collided), 130 (Ctrl-C, after what finished was written).
+//! 2 (a usage error, clap's), 3 (a run collided; `falsify`: a run failed the property), 130
+//! (Ctrl-C, after what finished was written).
 
 use std::time::Instant;
 
@@ -24,6 +26,7 @@ fn main() -> anyhow::Result<()> {
         Command::SweepMerge(args) => commands::sweep_merge::sweep_merge(args, &opts)?,
         Command::Certs(args) => commands::certs::certs(args, &opts)?,
         Command::Trace(args) => commands::trace::trace(args, &opts)?,
+        Command::Falsify(args) => commands::falsify::falsify(args, &opts)?,
     };
     if exit != Exit::Success {
         std::process::exit(exit.code());

@@ -93,10 +93,10 @@ fn run_is_plain_data_and_outputs_never_fly() {
     let graph = imports();
     let run: Vec<_> = graph["run"].iter().filter(|m| *m != "scenario_file").collect();
     assert!(run.is_empty(), "run imports {run:?}");
-    for flying in ["drive", "fly", "commands", "sweep"] {
+    for flying in ["drive", "fly", "commands", "sweep", "falsification", "shrink"] {
         assert!(!graph["output"].contains(flying), "output imports {flying}");
     }
-    for above in ["output", "fly", "commands", "sweep", "cli"] {
+    for above in ["output", "fly", "commands", "sweep", "falsification", "shrink", "cli"] {
         assert!(!graph["drive"].contains(above), "drive imports {above}");
     }
 }

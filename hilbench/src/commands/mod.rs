@@ -2,6 +2,7 @@
 //! `sweep` and `output`, and returns how the process should end ([`Exit`]); only `main` exits.
 
 pub mod certs;
+pub mod falsify;
 pub mod reproduce;
 pub mod run;
 pub mod sweep;
@@ -24,6 +25,8 @@ pub enum Exit {
     Success,
     /// A run collided (3): a result scripts must be able to tell from both success and error.
     Collision,
+    /// `falsify` found a run that fails the property (3, as a collision).
+    Falsified,
     /// Ctrl-C, after what had finished was written (130, the shells' 128 + SIGINT).
     Interrupted,
 }
@@ -32,7 +35,7 @@ impl Exit {
     pub fn code(self) -> i32 {
         match self {
             Exit::Success => 0,
-            Exit::Collision => 3,
+            Exit::Collision | Exit::Falsified => 3,
             Exit::Interrupted => 130,
         }
     }

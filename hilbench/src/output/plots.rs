@@ -10,6 +10,7 @@
 //! helpers the two path figures share (`paths.rs`), and the styling and axis helpers every
 //! figure uses (`style.rs`). This file lists the figures of a set of runs and writes them.
 
+pub mod convergence;
 mod delays;
 mod inputs;
 pub(crate) mod paths;

@@ -168,3 +168,48 @@ pub fn failure_text(what: &str, p: &serde_json::Value) -> String {
         format!("{what}: {k} of {n} runs, P in [{}, {}] ({level})", percent(lower), percent(upper))
     }
 }
+
+/// The table of `hilbench falsify` (from falsify.json's value) and where its files are.
+pub fn print_falsify(v: &serde_json::Value, dir: &std::path::Path) {
+    println!();
+    println!(
+        "{} ({}) with {}, property {}, budget {}, seed {}:",
+        v["scenario"].as_str().unwrap_or(""),
+        v["file"].as_str().unwrap_or(""),
+        v["controller"].as_str().unwrap_or(""),
+        v["property"].as_str().unwrap_or(""),
+        v["budget"],
+        v["seed"]
+    );
+    println!();
+    println!(
+        "{:<12} {:<7} {:>6} {:>14} {:>14} {:>7}  worst run's trace",
+        "space", "method", "runs", "first failure", "best [m]", "errors"
+    );
+    for s in v["searches"].as_array().into_iter().flatten() {
+        let first = s["first_failure_run"].as_u64().map_or("none".to_string(), |r| format!("run {r}"));
+        // JSON has no infinity: a best run with no obstacle near and no miss scores +inf.
+        let best = match (s["best"]["score_m"].as_f64(), s["best"].is_object()) {
+            (Some(b), _) => format!("{b:+.4}"),
+            (None, true) => "+inf".to_string(),
+            (None, false) => "-".to_string(),
+        };
+        let trace = s["worst_trace"]["file"].as_str().unwrap_or("-");
+        println!(
+            "{:<12} {:<7} {:>6} {:>14} {:>14} {:>7}  {trace}",
+            s["space"].as_str().unwrap_or(""),
+            s["method"].as_str().unwrap_or(""),
+            s["runs"].to_string(),
+            first,
+            best,
+            s["errors"].to_string(),
+        );
+    }
+    println!();
+    if v["found"].as_bool() == Some(true) {
+        println!("A run failed the property: replay its trace with the command in its header.");
+    } else {
+        println!("No run failed the property within the budget.");
+    }
+    println!("falsify.json, runs.csv, report.md and the traces are in {}", dir.display());
+}

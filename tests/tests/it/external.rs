@@ -204,6 +204,51 @@ fn a_sweep_of_the_python_controller_under_twenty_delay_processes_reaches_every_g
     assert_ne!(path_m["p50"], path_m["p95"], "{path_m}");
 }
 
+/// `hilbench falsify --controller-cmd`: every run of the search is the Python controller's,
+/// scored from the plant's truth, and the worst run's trace names the command that replays it.
+#[test]
+fn a_falsification_of_the_python_controller_flies_and_scores_every_run_and_names_its_replay() {
+    let out = TempDir::new("external-test-falsify");
+    let open_field =
+        std::fs::read_to_string(repo("examples/python-controller/open-field.toml")).expect("open-field.toml");
+    let file = out.join("open-field-falsify.toml");
+    let table = "\n[falsify]\nbudget = 4\nseed = 2\nproperty = \"collision_or_miss\"\n\
+                 [falsify.signal]\npoints = 2\nduration_s = 6.0\nmax_delay_s = 0.33\n";
+    std::fs::write(&file, format!("{open_field}{table}")).expect("write the file");
+    let controller = python_controller();
+    let run = Command::new(hilbench_tests::service_binary("hilbench"))
+        .args(["falsify", file.to_str().expect("utf-8"), "--space", "signal", "--whole-budget"])
+        .args([
+            "--controller-cmd",
+            &controller,
+            "--jobs",
+            "2",
+            "--no-shrink",
+            "--quiet",
+            "--no-plots",
+            "--out",
+        ])
+        .arg(out.join("out"))
+        .stdin(Stdio::null())
+        .output()
+        .expect("hilbench runs");
+    assert!(matches!(run.status.code(), Some(0 | 3)), "{}", String::from_utf8_lossy(&run.stderr));
+    let v: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("out").join("falsify.json")).expect("falsify.json"),
+    )
+    .expect("JSON");
+    assert_eq!((v["controller"].as_str(), v["driver"].as_str()), (Some("external"), Some("external")), "{v}");
+    let search = &v["searches"][0];
+    assert_eq!((search["runs"].as_u64(), search["errors"].as_u64()), (Some(4), Some(0)), "{search}");
+    // Reached in an open field: no obstacle, so an infinite clearance (null in JSON).
+    assert!(
+        ["reached", "missed", "collided"].contains(&search["best"]["outcome"].as_str().unwrap_or("")),
+        "{search}"
+    );
+    let replay = search["worst_trace"]["replay_command"].as_str().expect("a replay command");
+    assert!(replay.contains("--controller-cmd") && replay.contains("controller.py"), "{replay}");
+}
+
 #[test]
 fn two_lockstep_runs_of_the_python_controller_with_one_seed_are_identical() {
     let scenario = open_field();

@@ -1,0 +1,132 @@
+//! `hilbench falsify FILE`: search the file's `[falsify]` spaces for a run that fails the
+//! property; falsify.json, runs.csv, the worst runs' traces, report.md.
+
+use anyhow::Context;
+
+use super::{Exit, Options};
+use crate::cli::FalsifyArgs;
+use crate::drive::external::{ExternalController, ExternalSettings};
+use crate::drive::services::Endpoints;
+use crate::drive::{Driver, TimeMode};
+use crate::falsification::{Falsification, execute, output};
+use crate::scenario_file::ScenarioFile;
+
+pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
+    let spec = ScenarioFile::load(&args.file)?;
+    let table = spec.falsify.clone().with_context(|| {
+        format!(
+            "{}: no [falsify] table (the spaces to search and the property; see docs/falsify.md)",
+            args.file.display()
+        )
+    })?;
+    anyhow::ensure!(
+        spec.run.time_mode == TimeMode::Lockstep,
+        "{}: a falsification flies in lockstep (run.time_mode is real-time)",
+        args.file.display()
+    );
+    let mode = match args.mode {
+        Some(m) => match m.modes()[..] {
+            [one] => crate::run::controller_mode(one),
+            _ => anyhow::bail!("--mode: one controller per falsification (nmpc or multistage, not both)"),
+        },
+        None => crate::run::controller_mode(spec.run.modes[0]),
+    };
+    let seed = args.seed.or(table.seed).unwrap_or(spec.scenario.seed);
+    let mut spaces = hilbench_svc::falsify_table::spaces(&table, spec.sweep.as_ref(), seed);
+    if !args.space.is_empty() {
+        let names: Vec<String> = spaces.iter().map(|s| s.name.clone()).collect();
+        if let Some(unknown) = args.space.iter().find(|s| !names.contains(s)) {
+            anyhow::bail!("--space: `{unknown}` is none of the file's spaces ({})", names.join(", "));
+        }
+        spaces.retain(|s| args.space.contains(&s.name));
+    }
+    let methods = if args.method.is_empty() {
+        vec![table.method]
+    } else {
+        let mut m: Vec<falsify::Method> = args.method.iter().map(|m| m.method()).collect();
+        m.dedup();
+        m
+    };
+    let jobs =
+        args.jobs.map_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()), |j| j as usize);
+    let driver = match &args.controller_cmd {
+        Some(command) => Driver::External(ExternalController {
+            command: command.clone(),
+            time_mode: TimeMode::Lockstep,
+            settings: ExternalSettings::default(),
+        }),
+        None if args.tls.given() && !args.grpc => {
+            anyhow::bail!("the TLS flags need --grpc (a falsification flies in process otherwise)")
+        }
+        None if args.grpc => {
+            Driver::Services(Endpoints { tls: args.tls.load()?.into(), ..Endpoints::default() })
+        }
+        None => Driver::InProcess,
+    };
+    let sweep = spec.sweep.as_ref();
+    let falsification = Falsification {
+        file: args.file.clone(),
+        spaces,
+        methods,
+        property: table.property,
+        budget: args.budget.unwrap_or(table.budget_or_default()),
+        seed,
+        whole_budget: args.whole_budget,
+        population: table.population.map(|p| p as usize),
+        sigma0: table.sigma0.unwrap_or(falsify::table::DEFAULT_SIGMA0),
+        mode,
+        controller_cmd: args.controller_cmd.clone(),
+        jobs,
+        driver,
+        run_timeout: std::time::Duration::from_secs_f64(
+            args.run_timeout_s
+                .or(sweep.and_then(|s| s.run_timeout_s))
+                .unwrap_or(hilbench_svc::sweep_table::DEFAULT_RUN_TIMEOUT_S),
+        ),
+        shrink_runs: if args.no_shrink {
+            0
+        } else {
+            args.shrink_runs
+                .or(sweep.and_then(|s| s.shrink_runs))
+                .unwrap_or(hilbench_svc::sweep_table::DEFAULT_SHRINK_RUNS)
+        },
+        scenario: spec.scenario,
+    };
+    let dir = args.out.unwrap_or_else(|| crate::output::default_out_dir("falsify-"));
+    // The output directory before the first run: a search that cannot write loses nothing.
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let show = !args.json && !opts.quiet;
+    if show {
+        eprintln!(
+            "falsify {}: {} space(s) x {} method(s), {} runs each at most, property {}",
+            falsification.file.display(),
+            falsification.spaces.len(),
+            falsification.methods.len(),
+            falsification.budget,
+            falsification.property.name()
+        );
+    }
+    let mut progress = |space: &str, method: falsify::Method, g: &falsify::Generation| {
+        if show {
+            eprintln!(
+                "  {space} {:<6} {:>5} runs  best {:+.4} m{}",
+                method.name(),
+                g.runs,
+                g.best,
+                if g.best < 0.0 { "  (failed)" } else { "" }
+            );
+        }
+    };
+    let result = execute(&falsification, &mut progress);
+    let summary = output::write(&dir, &falsification, &result, opts.plots)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else if show {
+        crate::output::terminal::print_falsify(&summary, &dir);
+    }
+    if result.interrupted {
+        eprintln!("interrupted: what had flown is in {}", dir.join("falsify.json").display());
+        return Ok(Exit::Interrupted);
+    }
+    Ok(if result.found() { Exit::Falsified } else { Exit::Success })
+}

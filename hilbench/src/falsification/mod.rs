@@ -1,0 +1,297 @@
+//! `hilbench falsify FILE`: search the file's `[falsify]` spaces for a run that fails its
+//! property, with the `falsify` crate's optimiser (CMA-ES, or random search as the baseline),
+//! each run flown the way `hilbench run` flies one (`fly::fly_one`, so in process, over gRPC or
+//! with an external controller alike), a batch's runs on `--jobs` threads; the worst run's
+//! trace shrunk (`crate::shrink`) and written for `hilbench run --delay-trace` ([`output`]).
+//!
+//! A search is `falsify::Search` (ask a batch, fly it, tell its scores): **the same seed gives
+//! the same search, bit for bit, whatever `--jobs`**, since the points of a batch do not
+//! depend on the order its runs finish in.
+
+pub mod output;
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use falsify::{Dim, Method, Property, RunFacts, Search, SearchResult, SearchSettings, Space};
+use mav::Scenario;
+use mpc::ControllerMode;
+
+use crate::drive::Driver;
+use crate::fly::{Flight, RunFate, fly_one, watch_ctrl_c};
+use crate::run::Job;
+use crate::shrink::{self, FailureTrace, Rerun};
+
+/// Everything a falsification needs, flags applied.
+#[derive(Debug, Clone)]
+pub struct Falsification {
+    /// The scenario file (named in the outputs and in the replay command).
+    pub file: PathBuf,
+    pub scenario: Scenario,
+    /// The spaces searched, one search per space and method.
+    pub spaces: Vec<Space>,
+    pub methods: Vec<Method>,
+    pub property: Property,
+    /// Runs per search.
+    pub budget: u64,
+    /// Seed of every search (and of the families' delay processes).
+    pub seed: u64,
+    /// Search on after the first failure, to the budget.
+    pub whole_budget: bool,
+    /// CMA-ES's first population (and random search's batch), and first step.
+    pub population: Option<usize>,
+    pub sigma0: f64,
+    pub mode: ControllerMode,
+    /// The external controller's command line, when it flies one (for the replay command).
+    pub controller_cmd: Option<String>,
+    pub jobs: usize,
+    pub driver: Driver,
+    pub run_timeout: Duration,
+    /// Reruns to shrink the worst run's trace (0: not shrunk).
+    pub shrink_runs: u64,
+}
+
+/// One run of a search.
+#[derive(Debug, Clone)]
+pub struct Evaluation {
+    /// From 1, in the order the search asked for it.
+    pub run: u64,
+    /// In the space's units, one value per dim.
+    pub point: Vec<f64>,
+    /// The robustness (m, `< 0`: the property fails); NaN for a run that did not finish.
+    pub score: f64,
+    /// reached, collided, missed, error, timeout.
+    pub outcome: String,
+    /// Why a run did not finish (its error), else empty.
+    pub error: String,
+    pub cycles: u64,
+    pub min_clearance_m: Option<f64>,
+    pub end_time_s: Option<f64>,
+    pub wall_s: f64,
+}
+
+/// The run with the lowest score, and its trace (shrunk when it fails and shrinking is on).
+#[derive(Debug, Clone)]
+pub struct Worst {
+    pub run: u64,
+    pub score: f64,
+    pub trace: FailureTrace,
+}
+
+/// One search: a space, a method, what it flew and found.
+#[derive(Debug, Clone)]
+pub struct SearchRecord {
+    pub space: String,
+    pub dims: Vec<Dim>,
+    pub method: Method,
+    pub result: SearchResult,
+    /// Every run flown, in run order (those of a batch cut by Ctrl-C included).
+    pub evaluations: Vec<Evaluation>,
+    pub worst: Option<Worst>,
+    pub interrupted: bool,
+    pub wall_time_s: f64,
+}
+
+impl SearchRecord {
+    /// Runs that did not finish (an error or a time-out): scored as the worst.
+    pub fn errors(&self) -> usize {
+        self.evaluations.iter().filter(|e| e.score.is_nan()).count()
+    }
+
+    /// The first run that failed the property, among all runs flown.
+    pub fn first_failure(&self) -> Option<&Evaluation> {
+        self.evaluations.iter().find(|e| e.score < 0.0)
+    }
+}
+
+/// What a falsification gives back.
+#[derive(Debug, Clone)]
+pub struct FalsifyResult {
+    pub searches: Vec<SearchRecord>,
+    pub interrupted: bool,
+    pub wall_time_s: f64,
+}
+
+impl FalsifyResult {
+    /// Whether some search found a run that fails the property.
+    pub fn found(&self) -> bool {
+        self.searches.iter().any(|s| s.first_failure().is_some())
+    }
+}
+
+/// A point flown: its evaluation, and its delays and flight (kept for the worst run's trace).
+struct PointRun {
+    evaluation: Evaluation,
+    delays_s: Vec<f64>,
+    flight: Option<Box<Flight>>,
+    interrupted: bool,
+}
+
+impl Falsification {
+    fn settings(&self, method: Method) -> SearchSettings {
+        SearchSettings {
+            stop_at_failure: !self.whole_budget,
+            population: self.population,
+            sigma0: self.sigma0,
+            ..SearchSettings::new(method, self.budget, self.seed)
+        }
+    }
+
+    fn rerun<'a>(&'a self, space: &Space, stop: &'a AtomicBool) -> Rerun<'a> {
+        Rerun {
+            stop,
+            scenario: &self.scenario,
+            trace_name: format!("falsify-{}", space.name),
+            mode: self.mode,
+            driver: &self.driver,
+            timeout: self.run_timeout,
+        }
+    }
+
+    /// The score of a flown run.
+    pub fn score(&self, flight: &Flight) -> f64 {
+        self.property.robustness(&RunFacts::of(&flight.summary, &self.scenario))
+    }
+
+    /// Flies `point` of `space` as run `run`.
+    fn fly_point(&self, space: &Space, run: u64, point: &[f64], stop: &AtomicBool) -> PointRun {
+        let started = Instant::now();
+        let mut evaluation = Evaluation {
+            run,
+            point: point.to_vec(),
+            score: f64::NAN,
+            outcome: "error".into(),
+            error: String::new(),
+            cycles: 0,
+            min_clearance_m: None,
+            end_time_s: None,
+            wall_s: 0.0,
+        };
+        let delays_s = match space.delays(point, &self.scenario) {
+            Ok(d) => d,
+            Err(e) => {
+                evaluation.error = e;
+                return PointRun { evaluation, delays_s: Vec::new(), flight: None, interrupted: false };
+            }
+        };
+        let job = Job { scenario: self.rerun(space, stop).scenario_with(delays_s.clone()), mode: self.mode };
+        let fate = fly_one(&job, &self.driver, self.run_timeout);
+        evaluation.wall_s = started.elapsed().as_secs_f64();
+        let mut flight = None;
+        let mut interrupted = false;
+        match fate {
+            RunFate::Flown(f) => {
+                let s = &f.summary;
+                evaluation.score = self.score(&f);
+                evaluation.outcome = s.outcome().name().to_string();
+                evaluation.cycles = s.cycles;
+                evaluation.min_clearance_m = Some(s.min_clearance_m);
+                evaluation.end_time_s = Some(s.end_time_s);
+                flight = Some(f);
+            }
+            RunFate::Failed(e) => evaluation.error = e,
+            RunFate::TimedOut(limit) => {
+                evaluation.outcome = "timeout".into();
+                evaluation.error =
+                    format!("the run took longer than the per-run time limit of {} s", limit.as_secs_f64());
+            }
+            RunFate::Interrupted => interrupted = true,
+        }
+        PointRun { evaluation, delays_s, flight, interrupted }
+    }
+}
+
+/// Runs every search (each space, each method) in turn; `progress` sees each search's batches
+/// (`space`, `method`, the batch's generation).
+pub fn execute(
+    f: &Falsification,
+    progress: &mut dyn FnMut(&str, Method, &falsify::Generation),
+) -> FalsifyResult {
+    let started = Instant::now();
+    let stop = Arc::new(AtomicBool::new(false));
+    watch_ctrl_c(Arc::clone(&stop), "hilbench-falsify-ctrl-c");
+    let mut searches = Vec::new();
+    let mut interrupted = false;
+    'spaces: for space in &f.spaces {
+        for &method in &f.methods {
+            let record = search_one(f, space, method, &stop, progress);
+            interrupted |= record.interrupted;
+            searches.push(record);
+            if interrupted {
+                break 'spaces;
+            }
+        }
+    }
+    FalsifyResult { searches, interrupted, wall_time_s: started.elapsed().as_secs_f64() }
+}
+
+/// One search of `space` with `method`, to its budget, its first failure or Ctrl-C; then the
+/// worst run's trace.
+fn search_one(
+    f: &Falsification,
+    space: &Space,
+    method: Method,
+    stop: &AtomicBool,
+    progress: &mut dyn FnMut(&str, Method, &falsify::Generation),
+) -> SearchRecord {
+    let started = Instant::now();
+    let mut search = Search::new(&space.dims, &f.settings(method));
+    let mut evaluations: Vec<Evaluation> = Vec::new();
+    // The worst run so far: its evaluation's score, run, delays and flight.
+    let mut worst: Option<(f64, u64, Vec<f64>, Box<Flight>)> = None;
+    let mut interrupted = false;
+    while !search.done() {
+        if stop.load(Ordering::Relaxed) {
+            interrupted = true;
+            break;
+        }
+        let batch = search.ask();
+        let first = evaluations.len() as u64 + 1;
+        let numbered: Vec<(u64, Vec<f64>)> = (first..).zip(batch).collect();
+        let flown = falsify::in_process::par_map(&numbered, f.jobs, |(run, point)| {
+            if stop.load(Ordering::Relaxed) {
+                return None;
+            }
+            Some(f.fly_point(space, *run, point, stop))
+        });
+        let cut = flown.iter().any(|p| p.as_ref().is_none_or(|p| p.interrupted));
+        let mut scores = Vec::with_capacity(flown.len());
+        for p in flown.into_iter().flatten().filter(|p| !p.interrupted) {
+            let score = p.evaluation.score;
+            scores.push(score);
+            if let Some(flight) = p.flight
+                && worst.as_ref().is_none_or(|(s, ..)| score < *s)
+            {
+                worst = Some((score, p.evaluation.run, p.delays_s, flight));
+            }
+            evaluations.push(p.evaluation);
+        }
+        if cut {
+            // The batch's finished runs are kept; the optimiser is not told a partial batch.
+            interrupted = true;
+            break;
+        }
+        progress(&space.name, method, search.tell(&scores));
+    }
+    let worst = worst.map(|(score, run, delays_s, flight)| {
+        let trace = if score < 0.0 && f.shrink_runs > 0 {
+            let fails = |flight: &Flight| f.score(flight) < 0.0;
+            shrink::shrink(&f.rerun(space, stop), f.shrink_runs, &delays_s, &flight, &fails)
+        } else {
+            FailureTrace::unshrunk(&delays_s, &flight)
+        };
+        Worst { run, score, trace }
+    });
+    SearchRecord {
+        space: space.name.clone(),
+        dims: space.dims.clone(),
+        method,
+        result: search.finish(),
+        evaluations,
+        worst,
+        interrupted,
+        wall_time_s: started.elapsed().as_secs_f64(),
+    }
+}

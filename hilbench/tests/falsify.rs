@@ -1,0 +1,199 @@
+//! `hilbench falsify` as a user runs it: a collision of the plan-check controller found within
+//! a budget and its trace replayed by `hilbench run --delay-trace`; the same seed giving the
+//! same search whatever `--jobs`; the stable keys of falsify.json; bad input refused before
+//! anything flies.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+fn hilbench(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_hilbench")).args(args).output().expect("hilbench runs")
+}
+
+fn repo(path: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(path).display().to_string()
+}
+
+/// paper-2 with the plan-check controller: its `[falsify]` table searches a three-level signal
+/// and the `[sweep]` families for a collision.
+fn plan_check() -> String {
+    repo("scenarios/sweeps/paper-2-delays-plan-check.toml")
+}
+
+fn out_dir(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8")
+}
+
+fn json_of(path: &Path) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())))
+        .expect("JSON")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// falsify.json without its wall-clock keys.
+fn without_timing(mut v: Value) -> Value {
+    fn strip(v: &mut Value) {
+        match v {
+            Value::Object(o) => {
+                o.remove("timing");
+                o.remove("wall_time_s");
+                o.values_mut().for_each(strip);
+            }
+            Value::Array(a) => a.iter_mut().for_each(strip),
+            _ => {}
+        }
+    }
+    strip(&mut v);
+    v
+}
+
+#[test]
+fn falsify_finds_a_collision_of_the_plan_check_controller_and_its_shrunk_trace_replays_it() {
+    let out = out_dir("falsify-plan-check");
+    let file = plan_check();
+    let run = hilbench(&[
+        "falsify",
+        &file,
+        "--space",
+        "signal",
+        "--method",
+        "random",
+        "--budget",
+        "80",
+        "--seed",
+        "1",
+        "--jobs",
+        "2",
+        "--shrink-runs",
+        "12",
+        "--no-plots",
+        "--quiet",
+        "--out",
+        s(&out),
+    ]);
+    assert_eq!(run.status.code(), Some(3), "a failure found exits 3: {}", stderr(&run));
+    let v = json_of(&out.join("falsify.json"));
+    assert_eq!(v["schema"], "hilbench-falsify/1");
+    assert_eq!((v["found"].as_bool(), v["property"].as_str()), (Some(true), Some("collision")), "{v}");
+    let search = &v["searches"][0];
+    assert_eq!((search["space"].as_str(), search["method"].as_str()), (Some("signal"), Some("random")));
+    let first = search["first_failure_run"].as_u64().expect("a failure");
+    assert_eq!(
+        search["runs"].as_u64(),
+        search["generations"].as_array().and_then(|g| g.last()).and_then(|g| g["runs"].as_u64()),
+        "the last batch holds every run"
+    );
+    assert!(first <= search["runs"].as_u64().expect("runs"), "{search}");
+    let best = search["best"]["score_m"].as_f64().expect("a best score");
+    assert!(best < 0.0, "a collision scores below zero: {best}");
+    assert_eq!(search["best"]["point"].as_object().map(|p| p.len()), Some(5), "3 levels and 2 switches");
+    // The worst run's trace, shrunk, replays a collision with the numbers falsify.json gives.
+    let worst = &search["worst_trace"];
+    assert!(worst["shrink_reruns"].as_u64() > Some(0), "{worst}");
+    assert!(worst["delays"].as_u64() <= worst["original_delays"].as_u64(), "{worst}");
+    let trace = out.join(worst["file"].as_str().expect("a trace file"));
+    let header = std::fs::read_to_string(&trace).expect("the trace");
+    assert!(header.contains("# replay: hilbench run"), "{header}");
+    let replay = out_dir("falsify-plan-check-replay");
+    let again = hilbench(&[
+        "run",
+        &file,
+        "--in-process",
+        "--mode",
+        "multistage",
+        "--no-plots",
+        "--no-mcap",
+        "--quiet",
+        "--delay-trace",
+        s(&trace),
+        "--out",
+        s(&replay),
+    ]);
+    assert_eq!(again.status.code(), Some(3), "a collision again: {}", stderr(&again));
+    let r = &json_of(&replay.join("summary.json"))["runs"][0];
+    for key in ["min_clearance_m", "cycles", "end_reason", "path_length_m"] {
+        assert_eq!(r[key], worst["replay"][key], "{key} of {}", trace.display());
+    }
+    // Every run is a row of runs.csv.
+    let csv = std::fs::read_to_string(out.join("runs.csv")).expect("runs.csv");
+    assert_eq!(csv.lines().count() as u64 - 1, search["runs"].as_u64().expect("runs"));
+    assert!(out.join("report.md").exists());
+}
+
+#[test]
+fn the_same_seed_gives_the_same_cmaes_search_whatever_the_jobs() {
+    let file = plan_check();
+    let mut seen = Vec::new();
+    for jobs in ["1", "2"] {
+        let out = out_dir(&format!("falsify-determinism-{jobs}"));
+        let run = hilbench(&[
+            "falsify",
+            &file,
+            "--space",
+            "gamma",
+            "--budget",
+            "14",
+            "--seed",
+            "7",
+            "--jobs",
+            jobs,
+            "--whole-budget",
+            "--no-shrink",
+            "--quiet",
+            "--out",
+            s(&out),
+        ]);
+        assert!(matches!(run.status.code(), Some(0 | 3)), "{}", stderr(&run));
+        let v = json_of(&out.join("falsify.json"));
+        assert_eq!(v["searches"][0]["runs"], 14, "--whole-budget flies the budget: {v}");
+        assert_eq!(v["searches"][0]["dims"][0]["name"], "shape");
+        let csv = std::fs::read_to_string(out.join("runs.csv")).expect("runs.csv");
+        // Without the wall-clock column.
+        let csv: Vec<String> = csv
+            .lines()
+            .map(|l| {
+                l.split(',')
+                    .enumerate()
+                    .filter(|(i, _)| *i != 8)
+                    .map(|(_, c)| c)
+                    .collect::<Vec<_>>()
+                    .join(",")
+            })
+            .collect();
+        assert!(out.join("plots/falsify-convergence-gamma.svg").exists(), "the convergence plot");
+        seen.push((without_timing(v), csv));
+    }
+    assert_eq!(seen[0], seen[1], "--jobs 1 and --jobs 2 give one search");
+}
+
+#[test]
+fn bad_flags_and_files_without_a_falsify_table_are_refused_before_anything_flies() {
+    let out = out_dir("falsify-refused");
+    let file = plan_check();
+    let cases: [(&[&str], &str); 5] = [
+        (&["falsify", &file, "--space", "nope"], "`nope` is none of the file's spaces"),
+        (&["falsify", &repo("scenarios/paper-2.toml")], "no [falsify] table"),
+        (&["falsify", &file, "--budget", "0"], "--budget"),
+        (&["falsify", &file, "--mode", "both"], "one controller per falsification"),
+        (&["falsify", &file, "--method", "annealing"], "--method"),
+    ];
+    for (args, want) in cases {
+        let mut args = args.to_vec();
+        args.extend(["--quiet", "--out", s(&out)]);
+        let run = hilbench(&args);
+        assert!(matches!(run.status.code(), Some(1 | 2)), "{args:?}: {run:?}");
+        assert!(stderr(&run).contains(want), "{args:?}: {}", stderr(&run));
+        assert!(!out.join("falsify.json").exists(), "{args:?} flew");
+    }
+}
