@@ -166,6 +166,17 @@ impl Cmaes {
         Self { n, settings, rng, run, asked: Vec::new(), restarts: 0, last_stop: None }
     }
 
+    /// A search of `[0, 1]^n` whose first run's mean is `mean` (e.g. the best of a warm-up of
+    /// random points), seeded with `seed`.
+    pub fn new_at(mean: &[f64], settings: CmaesSettings, seed: u64) -> Self {
+        let n = mean.len().max(1);
+        let rng = ChaCha8Rng::seed_from_u64(seed);
+        let mean = DVector::from_fn(n, |i, _| mean.get(i).copied().unwrap_or(0.5).clamp(0.0, 1.0));
+        let lambda = settings.population.unwrap_or_else(|| default_population(n)).max(2);
+        let run = Run::new(mean, settings.sigma0, lambda);
+        Self { n, settings, rng, run, asked: Vec::new(), restarts: 0, last_stop: None }
+    }
+
     /// The population of the current run.
     pub fn population(&self) -> usize {
         self.run.p.lambda

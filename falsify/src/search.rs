@@ -39,6 +39,10 @@ pub struct SearchSettings {
     /// CMA-ES restarts when its recent best scores lie within this (the score's units, m):
     /// default 1e-6.
     pub tol_fun: f64,
+    /// CMA-ES first flies this many uniformly drawn points (random search's first points, for
+    /// the same seed) and starts its first run at the best of them; 0: at a uniformly drawn
+    /// point, unflown.
+    pub warmup: usize,
 }
 
 impl SearchSettings {
@@ -52,6 +56,7 @@ impl SearchSettings {
             sigma0: crate::table::DEFAULT_SIGMA0,
             tol_x: 1e-4,
             tol_fun: 1e-6,
+            warmup: 0,
         }
     }
 }
@@ -106,7 +111,17 @@ impl SearchResult {
 #[derive(Debug, Clone)]
 enum Optimiser {
     Cmaes(Box<Cmaes>),
-    Random { rng: Box<ChaCha8Rng>, batch: usize },
+    /// CMA-ES's warm-up: random points until `left` is 0, then CMA-ES at the best of them.
+    WarmUp {
+        rng: Box<ChaCha8Rng>,
+        batch: usize,
+        left: usize,
+        best: Option<(f64, Vec<f64>)>,
+    },
+    Random {
+        rng: Box<ChaCha8Rng>,
+        batch: usize,
+    },
 }
 
 /// A search in progress (ask/tell).
@@ -126,22 +141,20 @@ impl Search {
     /// A search of the box `dims` (an empty box has one point).
     pub fn new(dims: &[Dim], settings: &SearchSettings) -> Self {
         let n = dims.len().max(1);
+        let batch = settings.population.unwrap_or_else(|| default_population(n)).max(1);
         let optimiser = match settings.method {
-            Method::Cmaes => Optimiser::Cmaes(Box::new(Cmaes::new(
-                n,
-                CmaesSettings {
-                    population: settings.population,
-                    sigma0: settings.sigma0,
-                    tol_x: settings.tol_x,
-                    tol_fun: settings.tol_fun,
-                    ..CmaesSettings::default()
-                },
-                settings.seed,
-            ))),
-            Method::Random => Optimiser::Random {
+            Method::Cmaes if settings.warmup > 0 => Optimiser::WarmUp {
                 rng: Box::new(ChaCha8Rng::seed_from_u64(settings.seed)),
-                batch: settings.population.unwrap_or_else(|| default_population(n)).max(1),
+                batch,
+                left: settings.warmup,
+                best: None,
             },
+            Method::Cmaes => {
+                Optimiser::Cmaes(Box::new(Cmaes::new(n, cmaes_settings(settings), settings.seed)))
+            }
+            Method::Random => {
+                Optimiser::Random { rng: Box::new(ChaCha8Rng::seed_from_u64(settings.seed)), batch }
+            }
         };
         Self {
             dims: dims.to_vec(),
@@ -177,6 +190,10 @@ impl Search {
         let n = self.dims.len().max(1);
         let mut batch = match &mut self.optimiser {
             Optimiser::Cmaes(c) => c.ask(),
+            Optimiser::WarmUp { rng, batch, left: warm, .. } => {
+                let k = (*batch).min(*warm).min(left);
+                (0..k).map(|_| (0..n).map(|_| rng.random::<f64>()).collect()).collect()
+            }
             Optimiser::Random { rng, batch } => {
                 (0..(*batch).min(left)).map(|_| (0..n).map(|_| rng.random::<f64>()).collect()).collect()
             }
@@ -221,6 +238,21 @@ impl Search {
                 }
                 (Some(c.step()), c.population())
             }
+            Optimiser::WarmUp { batch, left, best, .. } => {
+                let population = *batch;
+                for (u, &score) in asked.iter().zip(scores) {
+                    if best.as_ref().is_none_or(|(b, _)| key(score) < *b) {
+                        *best = Some((key(score), u.clone()));
+                    }
+                }
+                *left = left.saturating_sub(asked.len());
+                if *left == 0 {
+                    let start = best.take().map_or_else(|| vec![0.5; self.dims.len().max(1)], |(_, u)| u);
+                    let cmaes = Cmaes::new_at(&start, cmaes_settings(&self.settings), self.settings.seed);
+                    self.optimiser = Optimiser::Cmaes(Box::new(cmaes));
+                }
+                (None, population)
+            }
             Optimiser::Random { batch, .. } => (None, *batch),
         };
         let best = self.result.best.as_ref().map_or(f64::INFINITY, |b| key(b.score));
@@ -244,6 +276,17 @@ impl Search {
     /// The result.
     pub fn finish(self) -> SearchResult {
         self.result
+    }
+}
+
+/// CMA-ES's settings of a search's.
+fn cmaes_settings(settings: &SearchSettings) -> CmaesSettings {
+    CmaesSettings {
+        population: settings.population,
+        sigma0: settings.sigma0,
+        tol_x: settings.tol_x,
+        tol_fun: settings.tol_fun,
+        ..CmaesSettings::default()
     }
 }
 

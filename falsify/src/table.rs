@@ -11,6 +11,7 @@
 //! max_delay_s = 0.33          # a family's delays clipped here (default: [sweep]'s)
 //! population = 8              # CMA-ES's population (default 4 + 3 ln n)
 //! sigma0 = 0.3                # CMA-ES's first step, a fraction of each range (default 0.3)
+//! warmup = 16                 # CMA-ES first flies 16 random points, starts at the best (default 0)
 //!
 //! [falsify.signal]            # a segment-wise delay signal over the run's time
 //! points = 3                  # control points (1 to 8)
@@ -141,6 +142,10 @@ pub struct FalsifyTable {
     /// CMA-ES's first step, as a fraction of each range (default [`DEFAULT_SIGMA0`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sigma0: Option<f64>,
+    /// CMA-ES first flies this many random points (random search's first, for the same seed)
+    /// and starts at the best of them (default 0: at a random point, unflown).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub warmup: Option<u64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub signal: Option<SignalTable>,
 }
@@ -171,6 +176,9 @@ impl FalsifyTable {
             && !(s.is_finite() && s > 0.0 && s <= 1.0)
         {
             return bad("sigma0", "must be in (0, 1] (a fraction of each range)");
+        }
+        if self.warmup.is_some_and(|w| w > 1_000_000) {
+            return bad("warmup", "must be at most 1000000 runs");
         }
         if let Some(families) = &self.families {
             for (i, name) in families.iter().enumerate() {
@@ -251,6 +259,7 @@ mod tests {
         assert_eq!(field_of(&format!("population = 1\n{SIGNAL}")), "falsify.population");
         assert_eq!(field_of(&format!("sigma0 = 1.5\n{SIGNAL}")), "falsify.sigma0");
         assert_eq!(field_of(&format!("sigma0 = nan\n{SIGNAL}")), "falsify.sigma0");
+        assert_eq!(field_of(&format!("warmup = 2000000\n{SIGNAL}")), "falsify.warmup");
         assert_eq!(field_of("families = [\"a\", \"a\"]"), "falsify.families[1]");
         assert_eq!(field_of("families = []"), "falsify.families");
         let signal = |body: &str| format!("[signal]\n{body}");

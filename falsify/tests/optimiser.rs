@@ -133,3 +133,35 @@ fn a_search_stops_at_its_first_failure_and_reports_the_run() {
     assert_eq!(r.runs_to_failure(), Some(first.run));
     assert_eq!(progress.last().map(|g| g.best), r.best.map(|b| b.score));
 }
+
+#[test]
+fn a_warmed_up_cmaes_flies_random_searchs_first_points_then_refines_the_best_of_them() {
+    let dims = unit_dims(3);
+    let points = |method: Method, warmup: usize| {
+        let settings = SearchSettings {
+            stop_at_failure: false,
+            warmup,
+            tol_x: 1e-12,
+            tol_fun: 1e-14,
+            ..SearchSettings::new(method, 400, 9)
+        };
+        let mut seen = Vec::new();
+        let r = search(
+            &dims,
+            &settings,
+            |batch| {
+                seen.extend(batch.iter().cloned());
+                batch.iter().map(|x| sphere(0.8)(x)).collect()
+            },
+            |_| {},
+        );
+        (seen, r.best.expect("a best").score)
+    };
+    let (random, _) = points(Method::Random, 0);
+    let (warm, best) = points(Method::Cmaes, 40);
+    assert_eq!(warm[..40], random[..40], "the warm-up is random search's first 40 points");
+    assert_ne!(warm[40..80], random[40..80], "then CMA-ES");
+    // From the best warm-up point CMA-ES converges on the sphere's minimum.
+    assert!(best < 1e-6, "{best}");
+    assert_eq!(points(Method::Cmaes, 40).0, warm, "deterministic");
+}

@@ -134,6 +134,10 @@ pub struct FalsifyArgs {
     /// With --grpc: the services' links over mutual TLS.
     #[command(flatten)]
     pub tls: TlsArgs,
+    /// CMA-ES first flies N random points (random search's first N, for the same seed) and
+    /// starts at the best of them (default: the file's `falsify.warmup`, else 0).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(0..=1_000_000))]
+    pub warmup: Option<u64>,
     /// Search on after the first failure, to the budget (a lower score, a worse failure).
     #[arg(long)]
     pub whole_budget: bool,

@@ -37,6 +37,13 @@ pub struct Args {
     /// Search on after the first failure (the whole budget).
     #[arg(long, env = "WHOLE_BUDGET", value_parser = clap::builder::BoolishValueParser::new())]
     whole_budget: bool,
+    /// CMA-ES's warm-up: random points flown before its first generation (default: the file's
+    /// `falsify.warmup`, else the search's default).
+    #[arg(long, env = "WARMUP")]
+    warmup: Option<usize>,
+    /// CMA-ES's first step, a fraction of each range (default: the file's `falsify.sigma0`).
+    #[arg(long, env = "SIGMA0")]
+    sigma0: Option<f64>,
     /// Print each search's convergence: the best score after each batch.
     #[arg(long, env = "VERBOSE", value_parser = clap::builder::BoolishValueParser::new())]
     verbose: bool,
@@ -84,9 +91,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 let settings = SearchSettings {
                     stop_at_failure: !args.whole_budget,
                     population: table.population.map(|p| p as usize),
-                    sigma0: table.sigma0.unwrap_or(falsify::table::DEFAULT_SIGMA0),
+                    sigma0: args.sigma0.or(table.sigma0).unwrap_or(falsify::table::DEFAULT_SIGMA0),
                     ..SearchSettings::new(m, budget, seed)
                 };
+                let warmup = args.warmup.or(table.warmup.map(|w| w as usize)).unwrap_or(settings.warmup);
+                let settings = SearchSettings { warmup, ..settings };
                 let one = Instant::now();
                 let r = search(
                     &space.dims,

@@ -74,6 +74,7 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
         whole_budget: args.whole_budget,
         population: table.population.map(|p| p as usize),
         sigma0: table.sigma0.unwrap_or(falsify::table::DEFAULT_SIGMA0),
+        warmup: args.warmup.or(table.warmup).unwrap_or(0) as usize,
         mode,
         controller_cmd: args.controller_cmd.clone(),
         jobs,

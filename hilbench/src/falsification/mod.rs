@@ -43,6 +43,8 @@ pub struct Falsification {
     /// CMA-ES's first population (and random search's batch), and first step.
     pub population: Option<usize>,
     pub sigma0: f64,
+    /// CMA-ES's warm-up: random points flown before its first generation.
+    pub warmup: usize,
     pub mode: ControllerMode,
     /// The external controller's command line, when it flies one (for the replay command).
     pub controller_cmd: Option<String>,
@@ -135,6 +137,7 @@ impl Falsification {
             stop_at_failure: !self.whole_budget,
             population: self.population,
             sigma0: self.sigma0,
+            warmup: self.warmup,
             ..SearchSettings::new(method, self.budget, self.seed)
         }
     }

@@ -115,6 +115,7 @@ pub fn falsify_json(f: &Falsification, result: &FalsifyResult) -> Value {
         "seed": f.seed,
         "methods": f.methods.iter().map(|m| m.name()).collect::<Vec<_>>(),
         "whole_budget": f.whole_budget,
+        "warmup": f.warmup,
         "found": result.found(),
         "interrupted": result.interrupted,
         "searches": result.searches.iter().map(|s| search_json(f, s)).collect::<Vec<_>>(),
