@@ -586,18 +586,22 @@ mod tests {
     fn every_file_in_scenarios_is_valid() {
         let mut n = 0;
         let mut sweeps = 0;
-        for dir in [repo_root().join("scenarios"), repo_root().join("scenarios/sweeps")] {
+        let mut falsify = 0;
+        let dirs = ["scenarios", "scenarios/sweeps", "scenarios/fields", "scenarios/falsify"];
+        for dir in dirs.map(|d| repo_root().join(d)) {
             for entry in std::fs::read_dir(&dir).expect("scenarios/") {
                 let path = entry.expect("entry").path();
                 if path.extension().is_some_and(|e| e == "toml") {
                     let file = ScenarioFile::load(&path).unwrap_or_else(|e| panic!("{e}"));
                     n += 1;
                     sweeps += usize::from(file.sweep.is_some());
+                    falsify += usize::from(file.falsify.is_some());
                 }
             }
         }
         assert!(n >= 8, "{n} scenario files");
         assert!(sweeps >= 4, "{sweeps} sweep files");
+        assert!(falsify >= 4, "{falsify} files with a [falsify] table");
     }
 
     /// paper-3 with one line replaced (1-based `line` of the file holding `old`).
