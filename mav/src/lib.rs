@@ -23,5 +23,7 @@ pub use sim::{
     PlantSample, PlantSim, SimError, SimSettings, WATCHDOG_BRAKE_PERIOD_NS, WatchdogAction,
 };
 
+/// The format of a refused value in messages (defined in `delay`).
+pub use delay::Number;
 /// The bench's one pair of time conversions (defined in `delay`, the crate below this one).
 pub use delay::{NS_PER_S, ns_to_s, s_to_ns};
