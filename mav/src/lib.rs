@@ -15,8 +15,8 @@ pub mod sim;
 pub use geometry::{Cylinder, GROUND_INDEX};
 pub use model::{Dynamics, Input, InputBounds, MavModel, ModelParams, State, euler_step, rk4_step};
 pub use scenario::{
-    MAX_ABS_ANGLE_RAD, MAX_ABS_POSITION_M, MAX_ABS_VELOCITY_MPS, MAX_COEFFICIENT, MAX_OBSTACLE_SIZE_M,
-    PAPER_DELAY_GAMMA, PanocSolver, Scenario, ScenarioError,
+    MAX_ABS_ANGLE_RAD, MAX_ABS_POSITION_M, MAX_ABS_VELOCITY_MPS, MAX_COEFFICIENT, MAX_CYCLE_S,
+    MAX_OBSTACLE_SIZE_M, MIN_CYCLE_S, PAPER_DELAY_GAMMA, PanocSolver, Scenario, ScenarioError,
 };
 pub use sim::{
     AppliedCommand, CollisionEvent, CollisionKind, CommandMeta, Contacts, DEFAULT_WATCHDOG_TIMEOUT_NS,

@@ -29,6 +29,13 @@ pub const MAX_ABS_ANGLE_RAD: f64 = std::f64::consts::FRAC_PI_2;
 pub const MAX_OBSTACLE_SIZE_M: f64 = 1.0e3;
 /// Largest cost weight and model parameter.
 pub const MAX_COEFFICIENT: f64 = 1.0e9;
+/// Shortest `min_cycle_s`, s: the plant's integration step (`SimSettings::default()`, 1 ms).
+/// In real time the plant's state moves once a step, so a shorter cycle would only sample the
+/// same state again, and the fail-safe check brakes over its horizon in cycles of at least this
+/// (a `min_cycle_s` of 1e-300 made it loop for ever: `t + 1e-300 == t`).
+pub const MIN_CYCLE_S: f64 = 1.0e-3;
+/// Longest `min_cycle_s`, s.
+pub const MAX_CYCLE_S: f64 = 3600.0;
 
 fn invalid(field: impl Into<String>, reason: impl Into<String>) -> ScenarioError {
     ScenarioError::Invalid { field: field.into(), reason: reason.into() }
@@ -407,8 +414,14 @@ impl Scenario {
             return Err(invalid("delay_window", "must be in 2..=100000"));
         }
         self.network()?;
-        if !positive(self.min_cycle_s) || self.min_cycle_s > 3600.0 {
-            return Err(invalid("min_cycle_s", "must be in (0, 3600] s"));
+        if !(self.min_cycle_s.is_finite() && (MIN_CYCLE_S..=MAX_CYCLE_S).contains(&self.min_cycle_s)) {
+            return Err(invalid(
+                "min_cycle_s",
+                format!(
+                    "must be in [{MIN_CYCLE_S}, {MAX_CYCLE_S}] s (at least the plant's 1 ms integration step), got {}",
+                    delay::Number(self.min_cycle_s)
+                ),
+            ));
         }
         if !positive(self.goal_tolerance_m) || self.goal_tolerance_m > MAX_ABS_POSITION_M {
             return Err(invalid("goal_tolerance_m", format!("must be in (0, {MAX_ABS_POSITION_M}] m")));
@@ -507,6 +520,23 @@ mod tests {
         assert_eq!(field(&s), "sampling_times_s[4]");
         for name in Scenario::BUILT_IN {
             assert_eq!(Scenario::by_name(name).expect("built in").validate(), Ok(()), "{name}");
+        }
+    }
+
+    #[test]
+    fn min_cycle_s_below_the_plants_step_or_huge_is_refused_and_shown_short() {
+        let cycle = |min_cycle_s| Scenario { min_cycle_s, ..Scenario::paper_2() }.validate();
+        assert_eq!(MIN_CYCLE_S, crate::ns_to_s(crate::SimSettings::default().step_ns));
+        assert_eq!(cycle(MIN_CYCLE_S), Ok(()));
+        assert_eq!(cycle(MAX_CYCLE_S), Ok(()));
+        for bad in [1e-6, 1e-300, 0.0, -0.05, 3601.0, 1e300, f64::NAN, f64::INFINITY] {
+            match cycle(bad) {
+                Err(ScenarioError::Invalid { field, reason }) => {
+                    assert_eq!(field, "min_cycle_s", "{bad}");
+                    assert!(reason.len() < 160, "{bad}: {reason}");
+                }
+                other => panic!("{bad}: {other:?}"),
+            }
         }
     }
 
