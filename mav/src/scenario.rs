@@ -36,6 +36,34 @@ pub const MAX_COEFFICIENT: f64 = 1.0e9;
 pub const MIN_CYCLE_S: f64 = 1.0e-3;
 /// Longest `min_cycle_s`, s.
 pub const MAX_CYCLE_S: f64 = 3600.0;
+/// Longest scenario name, characters.
+pub const MAX_NAME_CHARS: usize = 64;
+
+/// Checks that `name` is an identifier: 1 to [`MAX_NAME_CHARS`] ASCII letters, digits, `-`,
+/// `_`, `.` and `+`, starting with a letter or digit. Names become file names
+/// (`<name>-<controller>.csv`, `<name>.scenario.toml`), so a `/`, a `..`, a space or a control
+/// character is refused rather than written. The reason says what was found.
+pub fn check_name(name: &str) -> Result<(), String> {
+    let allowed = |c: char| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.' | '+');
+    let shown = || {
+        let mut s: String = name.chars().take(MAX_NAME_CHARS + 1).collect();
+        if s.len() < name.len() {
+            s.push_str("...");
+        }
+        format!("{s:?}")
+    };
+    if name.is_empty() || name.chars().count() > MAX_NAME_CHARS {
+        return Err(format!("must be 1 to {MAX_NAME_CHARS} characters, got {}", shown()));
+    }
+    if !name.starts_with(|c: char| c.is_ascii_alphanumeric()) || !name.chars().all(allowed) {
+        return Err(format!(
+            "must be an identifier (letters, digits, `-`, `_`, `.`, `+`, starting with a letter or \
+             digit; it names files), got {}",
+            shown()
+        ));
+    }
+    Ok(())
+}
 
 fn invalid(field: impl Into<String>, reason: impl Into<String>) -> ScenarioError {
     ScenarioError::Invalid { field: field.into(), reason: reason.into() }
@@ -277,6 +305,7 @@ impl Scenario {
 
     /// Checks every field; the error names the first bad one.
     pub fn validate(&self) -> Result<(), ScenarioError> {
+        check_name(&self.name).map_err(|reason| invalid("name", reason))?;
         self.model.validate().map_err(|f| invalid(format!("model.{f}"), "must be finite and positive"))?;
         let m = &self.model;
         for (name, v) in [
@@ -521,6 +550,23 @@ mod tests {
         for name in Scenario::BUILT_IN {
             assert_eq!(Scenario::by_name(name).expect("built in").validate(), Ok(()), "{name}");
         }
+    }
+
+    #[test]
+    fn a_name_that_is_not_an_identifier_is_refused_since_names_become_file_names() {
+        let named = |name: &str| Scenario { name: name.into(), ..Scenario::paper_2() }.validate();
+        for bad in ["../../escape", "a/b", "..", ".hidden", "", "a b", "tab\there", "x\u{7}", "é", "a\\b"] {
+            assert!(
+                matches!(named(bad), Err(ScenarioError::Invalid { field, .. }) if field == "name"),
+                "{bad:?} accepted"
+            );
+        }
+        assert!(named(&"a".repeat(MAX_NAME_CHARS + 1)).is_err());
+        for good in ["paper-2", "slalom_4", "wifi.trace", "paper-2+floor+compensation", "X1"] {
+            assert_eq!(named(good), Ok(()), "{good:?}");
+        }
+        let e = named("../../escape").expect_err("refused").to_string();
+        assert!(e.contains("identifier") && e.contains("\"../../escape\""), "{e}");
     }
 
     #[test]

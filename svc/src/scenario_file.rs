@@ -330,9 +330,6 @@ impl ScenarioFile {
         if let Some((key, _)) = RUN_KEYS.iter().zip(set).find(|(_, set)| *set) {
             return Err((format!("scenario.{key}"), format!("belongs in [run] (run.{key})")));
         }
-        if s.name.is_empty() || s.name.len() > 64 || s.name.chars().any(|c| c.is_control()) {
-            return Err(("scenario.name".into(), "must be 1 to 64 printable characters".into()));
-        }
         if let Err(e) = s.validate() {
             return Err(match e {
                 ScenarioError::Invalid { field, reason } => (format!("scenario.{field}"), reason),
@@ -659,6 +656,16 @@ mod tests {
         let (text, line) = edited("q_u = [20.0, 20.0, 20.0]", "q_u = [20.0, -1.0, 20.0]");
         let e = error_of(&text);
         assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("scenario.q_u[1]")), "{e}");
+    }
+
+    #[test]
+    fn a_name_with_a_path_in_it_is_refused_with_its_line() {
+        for bad in ["../../escape", "a/b", "with space"] {
+            let (text, line) = edited("name = \"paper-3\"", &format!("name = {bad:?}"));
+            let e = error_of(&text);
+            assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("scenario.name")), "{bad}: {e}");
+            assert!(e.message.contains("identifier"), "{e}");
+        }
     }
 
     #[test]
