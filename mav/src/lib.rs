@@ -7,6 +7,7 @@
 //! of plant time), so the same code runs in real time, in lockstep and inside tests.
 
 pub mod command;
+mod exact;
 pub mod geometry;
 pub mod model;
 pub mod scenario;

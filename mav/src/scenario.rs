@@ -84,14 +84,19 @@ pub struct Scenario {
     #[serde(default)]
     pub obstacles: Vec<Cylinder>,
     /// Initial state `[px, py, pz, vx, vy, vz, phi, theta]`.
+    #[serde(deserialize_with = "crate::exact::array")]
     pub start: [f64; 8],
     /// Goal position, m.
+    #[serde(deserialize_with = "crate::exact::array")]
     pub goal_m: [f64; 3],
     /// State weights, diagonal of `Qx`.
+    #[serde(deserialize_with = "crate::exact::array")]
     pub q_x: [f64; 8],
     /// Input weights, diagonal of `Qu`.
+    #[serde(deserialize_with = "crate::exact::array")]
     pub q_u: [f64; 3],
     /// Input-rate weights, diagonal of `Qdu`.
+    #[serde(deserialize_with = "crate::exact::array")]
     pub q_du: [f64; 3],
     /// Prediction horizon `N`.
     pub horizon: usize,
@@ -102,6 +107,7 @@ pub struct Scenario {
     /// Scenario weights used when the run has no delays.
     pub nominal_weights: Vec<f64>,
     /// Gamma prior `(shape, scale_s)` used until the delay window is usable.
+    #[serde(deserialize_with = "crate::exact::pair")]
     pub prior_gamma: (f64, f64),
     /// Size of the delay window `n_max`.
     pub delay_window: usize,

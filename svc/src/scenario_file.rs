@@ -669,6 +669,48 @@ mod tests {
     }
 
     #[test]
+    fn arrays_too_long_or_too_short_are_refused_naming_the_field_the_line_and_the_length() {
+        // (the line replaced, its replacement, the field, the length found).
+        let cases = [
+            (
+                "start = [3.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]",
+                "start = [3.2, 0, 0, 0, 0, 0, 0, 0, 9]",
+                "scenario.start",
+                9,
+            ),
+            (
+                "start = [3.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]",
+                "start = [3.2, 0, 0, 0, 0, 0, 0]",
+                "scenario.start",
+                7,
+            ),
+            ("goal_m = [3.2, 5.0, 1.0]", "goal_m = [3.2, 5.0, 1.0, 0.0, 0.0]", "scenario.goal_m", 5),
+            ("q_u = [20.0, 20.0, 20.0]", "q_u = [20.0, 20.0, 20.0, 20.0]", "scenario.q_u", 4),
+            ("q_x = [12.5, 12.5, 20.0, 30.0, 30.0, 10.0, 20.0, 20.0]", "q_x = [12.5]", "scenario.q_x", 1),
+            ("q_du = [40.0, 165.0, 165.0]", "q_du = [40.0, 165.0]", "scenario.q_du", 2),
+            ("prior_gamma = [12.0, 0.015]", "prior_gamma = [12.0, 0.015, 3.0]", "scenario.prior_gamma", 3),
+            (
+                "min = [0.0, -0.17453292519943295, -0.17453292519943295]",
+                "min = [0.0, -0.17, -0.17, 5.0]",
+                "scenario.bounds.min",
+                4,
+            ),
+            (
+                "max = [19.62, 0.17453292519943295, 0.17453292519943295]",
+                "max = [19.62, 0.17, 0.17, 1.0]",
+                "scenario.bounds.max",
+                4,
+            ),
+        ];
+        for (old, new, field, len) in cases {
+            let (text, line) = edited(old, new);
+            let e = error_of(&text);
+            assert_eq!((e.line, e.field.as_deref()), (Some(line), Some(field)), "{new}: {e}");
+            assert!(e.message.contains(&format!("invalid length {len}")), "{new}: {e}");
+        }
+    }
+
+    #[test]
     fn bad_delays_are_refused_with_their_line_and_key() {
         // (table replacing paper-3's `kind = "none"`, the key named, its line below `kind`).
         let cases = [
