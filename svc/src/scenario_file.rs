@@ -208,12 +208,13 @@ impl std::error::Error for FileError {}
 impl ScenarioFile {
     /// Reads, parses and validates `path`.
     pub fn load(path: &Path) -> Result<Self, FileError> {
-        let text = std::fs::read_to_string(path).map_err(|e| FileError {
-            path: path.to_path_buf(),
-            line: None,
-            field: None,
-            message: format!("cannot read: {e}"),
-        })?;
+        let text = crate::user_file::read_text(path, crate::user_file::MAX_SCENARIO_FILE_BYTES, "a scenario")
+            .map_err(|e| FileError {
+                path: path.to_path_buf(),
+                line: None,
+                field: None,
+                message: e.reason,
+            })?;
         Self::parse(path, &text)
     }
 
@@ -378,7 +379,8 @@ pub fn scenario_arg(arg: &str) -> Result<Scenario, String> {
 
 /// The delays of a trace file (`delay::parse_trace`'s format), or why not, naming the file.
 pub fn read_trace(path: &Path) -> Result<Vec<f64>, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let text = crate::user_file::read_text(path, crate::user_file::MAX_TRACE_FILE_BYTES, "a trace")
+        .map_err(|e| e.to_string())?;
     delay::parse_trace(&text).map_err(|e| format!("{}: {e}", path.display()))
 }
 
@@ -708,6 +710,21 @@ mod tests {
             assert_eq!((e.line, e.field.as_deref()), (Some(line), Some(field)), "{new}: {e}");
             assert!(e.message.contains(&format!("invalid length {len}")), "{new}: {e}");
         }
+    }
+
+    #[test]
+    fn a_trace_that_is_a_device_a_fifo_or_a_folder_of_devices_is_refused_naming_it() {
+        let (text, line) = edited("kind = \"none\"", "kind = \"trace\"\nfile = \"/dev/zero\"");
+        let e = error_of(&text);
+        assert_eq!((e.line, e.field.as_deref()), (Some(line + 1), Some("scenario.delays.file")), "{e}");
+        assert!(e.message.contains("/dev/zero") && e.message.contains("not a regular file"), "{e}");
+        let (base, _) = edited("kind = \"none\"", "kind = \"none\"");
+        let sweep = "\n[sweep]\nruns = 10\n\n[[sweep.families]]\nkind = \"traces\"\ndir = \"/dev\"\n";
+        let e = error_of(&format!("{base}{sweep}"));
+        assert_eq!(e.field.as_deref(), Some("sweep.families[0].dir"), "{e}");
+        assert!(e.message.contains("/dev/") && e.message.contains("regular file"), "{e}");
+        let e = ScenarioFile::load(Path::new("/dev/zero")).expect_err("a device");
+        assert!(e.to_string().starts_with("/dev/zero: not a regular file"), "{e}");
     }
 
     #[test]
