@@ -337,6 +337,9 @@ impl ScenarioFile {
                 other => ("scenario".into(), other.to_string()),
             });
         }
+        if self.sweep.is_some() {
+            crate::sweep_table::check_run_cycles(s)?;
+        }
         // The services name scenarios: a file that takes a built-in name must hold it exactly,
         // but for what `hilbench reproduce` overrides in a built-in (its seed, which only the
         // network's draws use, and whether a run goes on after a collision), so that the
@@ -661,16 +664,6 @@ mod tests {
     }
 
     #[test]
-    fn a_name_with_a_path_in_it_is_refused_with_its_line() {
-        for bad in ["../../escape", "a/b", "with space"] {
-            let (text, line) = edited("name = \"paper-3\"", &format!("name = {bad:?}"));
-            let e = error_of(&text);
-            assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("scenario.name")), "{bad}: {e}");
-            assert!(e.message.contains("identifier"), "{e}");
-        }
-    }
-
-    #[test]
     fn arrays_too_long_or_too_short_are_refused_naming_the_field_the_line_and_the_length() {
         // (the line replaced, its replacement, the field, the length found).
         let cases = [
@@ -710,6 +703,31 @@ mod tests {
             assert_eq!((e.line, e.field.as_deref()), (Some(line), Some(field)), "{new}: {e}");
             assert!(e.message.contains(&format!("invalid length {len}")), "{new}: {e}");
         }
+    }
+
+    #[test]
+    fn a_name_with_a_path_in_it_is_refused_with_its_line() {
+        for bad in ["../../escape", "a/b", "with space"] {
+            let (text, line) = edited("name = \"paper-3\"", &format!("name = {bad:?}"));
+            let e = error_of(&text);
+            assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("scenario.name")), "{bad}: {e}");
+            assert!(e.message.contains("identifier"), "{e}");
+        }
+    }
+
+    #[test]
+    fn a_sweep_whose_runs_would_draw_more_than_the_cycle_cap_is_refused_naming_max_duration_s() {
+        let sweep = "\n[sweep]\nruns = 10\n\n[[sweep.families]]\nkind = \"none\"\n";
+        // A day at the shortest cycle: 86,400,002 delays per run (691 MB), refused.
+        let (day, _) = edited("max_duration_s = 60.0", "max_duration_s = 86400.0");
+        let text = day.replacen("min_cycle_s = 0.05", "min_cycle_s = 0.001", 1);
+        let line = text.lines().position(|l| l.starts_with("max_duration_s")).expect("the line") + 1;
+        let e = error_of(&format!("{text}{sweep}"));
+        assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("scenario.max_duration_s")), "{e}");
+        assert!(e.message.contains(&crate::sweep_table::MAX_RUN_CYCLES.to_string()), "{e}");
+        // The same scenario without a sweep is a valid (long) run.
+        let renamed = text.replacen("name = \"paper-3\"", "name = \"paper-3-day\"", 1);
+        ScenarioFile::parse(Path::new("x.toml"), &renamed).unwrap_or_else(|e| panic!("{e}"));
     }
 
     #[test]

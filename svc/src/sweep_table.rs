@@ -384,7 +384,40 @@ impl FamilyChoice {
     }
 }
 
+/// Most runs one sweep process flies (its shard's, with `--shard`): every run's row is kept
+/// until the sweep ends (a few hundred bytes each), so `--runs 100000000` asked for 50 GB up
+/// front and aborted. A larger campaign is split into shards (`--shard I/K`) and merged.
+pub const MAX_RUNS: u64 = 1_000_000;
+/// Most cycles a run of a sweep may have (`max_duration_s / min_cycle_s`, plus 2): each run's
+/// delays are drawn into a trace of that many values before it flies (8 bytes each, 8 MB at
+/// the cap, per run in flight). A scenario of a day at 1 ms cycles asked for 691 GB.
+pub const MAX_RUN_CYCLES: u64 = 1_000_000;
 
+/// The most cycles a run of `scenario` can have, plus 2: the length of a sweep run's drawn
+/// trace (`t_{k+1} >= t_k + min_cycle_s`, so at most `max_duration_s / min_cycle_s` cycles
+/// start before the time limit).
+pub fn run_cycles(scenario: &mav::Scenario) -> u64 {
+    let cycle_ns = delay::s_to_ns(scenario.min_cycle_s).unwrap_or(1).max(1);
+    let limit_ns = delay::s_to_ns(scenario.max_duration_s).unwrap_or(u64::MAX);
+    (limit_ns / cycle_ns).saturating_add(2)
+}
+
+/// Refuses a scenario whose sweep runs would have more than [`MAX_RUN_CYCLES`] cycles:
+/// `(field path, reason)`.
+pub fn check_run_cycles(scenario: &mav::Scenario) -> Result<(), (String, String)> {
+    let cycles = run_cycles(scenario);
+    if cycles > MAX_RUN_CYCLES {
+        return Err((
+            "scenario.max_duration_s".into(),
+            format!(
+                "a sweep's run may have at most {MAX_RUN_CYCLES} cycles (max_duration_s / min_cycle_s), \
+                 this one {cycles} ({} s / {} s): shorten max_duration_s or lengthen min_cycle_s",
+                scenario.max_duration_s, scenario.min_cycle_s
+            ),
+        ));
+    }
+    Ok(())
+}
 
 /// The trace files of a `traces` family's folder, sorted: every entry must be a regular file
 /// (or a link to one) of at most [`crate::user_file::MAX_TRACE_FILE_BYTES`], at most [`MAX_TRACE_DIR_FILES`] of
