@@ -337,7 +337,7 @@ impl ScenarioFile {
                 other => ("scenario".into(), other.to_string()),
             });
         }
-        if self.sweep.is_some() {
+        if self.sweep.is_some() || self.falsify.is_some() {
             crate::sweep_table::check_run_cycles(s)?;
         }
         // The services name scenarios: a file that takes a built-in name must hold it exactly,
@@ -725,6 +725,16 @@ mod tests {
         let e = error_of(&format!("{text}{sweep}"));
         assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("scenario.max_duration_s")), "{e}");
         assert!(e.message.contains(&crate::sweep_table::MAX_RUN_CYCLES.to_string()), "{e}");
+        // `hilbench falsify` draws its runs' traces up front as a sweep does: the same cap.
+        let path = repo_root().join("scenarios/sweeps/paper-2-delays-plan-check.toml");
+        let falsify = std::fs::read_to_string(&path).expect("a file with [falsify]");
+        let sweep_at = falsify.find("\n[sweep]").expect("[sweep]");
+        let falsify_at = falsify.find("\n[falsify]").expect("[falsify]");
+        let falsify = format!("{}{}", &falsify[..sweep_at], &falsify[falsify_at..])
+            .replacen("max_duration_s = 60.0", "max_duration_s = 86400.0", 1)
+            .replacen("min_cycle_s = 0.05", "min_cycle_s = 0.001", 1);
+        let e = error_of(&falsify);
+        assert_eq!(e.field.as_deref(), Some("scenario.max_duration_s"), "{e}");
         // The same scenario without a sweep is a valid (long) run.
         let renamed = text.replacen("name = \"paper-3\"", "name = \"paper-3-day\"", 1);
         ScenarioFile::parse(Path::new("x.toml"), &renamed).unwrap_or_else(|e| panic!("{e}"));

@@ -402,7 +402,8 @@ pub fn run_cycles(scenario: &mav::Scenario) -> u64 {
     (limit_ns / cycle_ns).saturating_add(2)
 }
 
-/// Refuses a scenario whose sweep runs would have more than [`MAX_RUN_CYCLES`] cycles:
+/// Refuses a scenario whose sweep or falsification runs (`hilbench falsify` draws each run's
+/// trace up front too) would have more than [`MAX_RUN_CYCLES`] cycles:
 /// `(field path, reason)`.
 pub fn check_run_cycles(scenario: &mav::Scenario) -> Result<(), (String, String)> {
     let cycles = run_cycles(scenario);
@@ -410,8 +411,9 @@ pub fn check_run_cycles(scenario: &mav::Scenario) -> Result<(), (String, String)
         return Err((
             "scenario.max_duration_s".into(),
             format!(
-                "a sweep's run may have at most {MAX_RUN_CYCLES} cycles (max_duration_s / min_cycle_s), \
-                 this one {cycles} ({} s / {} s): shorten max_duration_s or lengthen min_cycle_s",
+                "a run of a sweep or a falsification may have at most {MAX_RUN_CYCLES} cycles \
+                 (max_duration_s / min_cycle_s), this one {cycles} ({} s / {} s): shorten \
+                 max_duration_s or lengthen min_cycle_s",
                 scenario.max_duration_s, scenario.min_cycle_s
             ),
         ));
