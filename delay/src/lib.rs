@@ -72,3 +72,39 @@ pub fn delay_ns(delay_s: f64) -> u64 {
     let s = if delay_s.is_nan() { 0.0 } else { delay_s.clamp(0.0, MAX_DELAY_S) };
     s_to_ns(s).unwrap_or(0)
 }
+
+/// A number as the bench's refusals show it: as Rust prints it (`0.05`, `3600`) when that is
+/// short, in e-notation when its magnitude would take more than a few digits (`1e300`, not
+/// the 301 digits of `{}`; `1e-300`, not 300 zeros). The one such format of every message
+/// that echoes a value it refuses (`mav`, `proto`, the services re-use it).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Number(pub f64);
+
+impl std::fmt::Display for Number {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let v = self.0;
+        if v.is_finite() && v != 0.0 && !(1e-6..1e15).contains(&v.abs()) {
+            write!(f, "{v:e}")
+        } else {
+            write!(f, "{v}")
+        }
+    }
+}
+
+#[cfg(test)]
+mod number_tests {
+    use super::Number;
+
+    #[test]
+    fn huge_and_tiny_numbers_are_shown_in_e_notation_and_the_rest_as_written() {
+        assert_eq!(Number(1e300).to_string(), "1e300");
+        assert_eq!(Number(-1e300).to_string(), "-1e300");
+        assert_eq!(Number(1e-300).to_string(), "1e-300");
+        assert_eq!(Number(f64::MAX).to_string().len(), "1.7976931348623157e308".len());
+        assert_eq!(Number(0.05).to_string(), "0.05");
+        assert_eq!(Number(3600.0).to_string(), "3600");
+        assert_eq!(Number(0.0).to_string(), "0");
+        assert_eq!(Number(f64::NAN).to_string(), "NaN");
+        assert_eq!(Number(f64::INFINITY).to_string(), "inf");
+    }
+}

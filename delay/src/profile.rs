@@ -138,19 +138,25 @@ impl Distribution {
         let field = |name: &str| format!("{prefix}.{}.{name}", self.kind());
         let nonneg = |name: &str, v: f64| -> Result<(), ProfileError> {
             if !v.is_finite() || v < 0.0 {
-                return Err(ProfileError::new(field(name), format!("must be finite and >= 0, got {v}")));
+                return Err(ProfileError::new(
+                    field(name),
+                    format!("must be finite and >= 0, got {}", crate::Number(v)),
+                ));
             }
             if v > MAX_DELAY_S {
                 return Err(ProfileError::new(
                     field(name),
-                    format!("must be at most {MAX_DELAY_S} s, got {v}"),
+                    format!("must be at most {MAX_DELAY_S} s, got {}", crate::Number(v)),
                 ));
             }
             Ok(())
         };
         let positive = |name: &str, v: f64| -> Result<(), ProfileError> {
             if !v.is_finite() || v <= 0.0 {
-                return Err(ProfileError::new(field(name), format!("must be finite and > 0, got {v}")));
+                return Err(ProfileError::new(
+                    field(name),
+                    format!("must be finite and > 0, got {}", crate::Number(v)),
+                ));
             }
             Ok(())
         };
@@ -162,7 +168,11 @@ impl Distribution {
                 if max_s < min_s {
                     return Err(ProfileError::new(
                         field("max_s"),
-                        format!("must be >= min_s ({min_s}), got {max_s}"),
+                        format!(
+                            "must be >= min_s ({}), got {}",
+                            crate::Number(*min_s),
+                            crate::Number(*max_s)
+                        ),
                     ));
                 }
                 Ok(())
@@ -191,13 +201,13 @@ impl Distribution {
                 if !mu.is_finite() || *mu > MAX_DELAY_S.ln() {
                     return Err(ProfileError::new(
                         field("mu"),
-                        format!("must be finite and <= ln({MAX_DELAY_S}), got {mu}"),
+                        format!("must be finite and <= ln({MAX_DELAY_S}), got {}", crate::Number(*mu)),
                     ));
                 }
                 if !sigma.is_finite() || *sigma < 0.0 {
                     return Err(ProfileError::new(
                         field("sigma"),
-                        format!("must be finite and >= 0, got {sigma}"),
+                        format!("must be finite and >= 0, got {}", crate::Number(*sigma)),
                     ));
                 }
                 Ok(())
@@ -257,7 +267,10 @@ impl Distribution {
                         let unit = if least == 1.0 { "at least 1 (message)" } else { "> 0" };
                         return Err(ProfileError::new(
                             format!("{at}.{name}"),
-                            format!("must be finite, {unit} and at most {MAX_MEAN_DWELL:e}, got {mean}"),
+                            format!(
+                                "must be finite, {unit} and at most {MAX_MEAN_DWELL:e}, got {}",
+                                crate::Number(mean)
+                            ),
                         ));
                     }
                 }
@@ -322,7 +335,10 @@ impl DirectionProfile {
             ("duplicate_probability", self.duplicate_probability),
         ] {
             if !p.is_finite() || !(0.0..=1.0).contains(&p) {
-                return Err(ProfileError::new(field, format!("must be a probability in [0, 1], got {p}")));
+                return Err(ProfileError::new(
+                    field,
+                    format!("must be a probability in [0, 1], got {}", crate::Number(p)),
+                ));
             }
         }
         Ok(())

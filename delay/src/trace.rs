@@ -299,12 +299,15 @@ pub fn parse_trace_file(text: &str) -> Result<TraceFile, TraceError> {
             reason: format!("`{content}` is not a number of seconds (nor `lost`)"),
         })?;
         if !v.is_finite() || v < 0.0 {
-            return Err(TraceError::Line { line, reason: format!("delay must be finite and >= 0, got {v}") });
+            return Err(TraceError::Line {
+                line,
+                reason: format!("delay must be finite and >= 0, got {}", crate::Number(v)),
+            });
         }
         if v > crate::MAX_DELAY_S {
             return Err(TraceError::Line {
                 line,
-                reason: format!("delay must be at most {} s, got {v}", crate::MAX_DELAY_S),
+                reason: format!("delay must be at most {} s, got {}", crate::MAX_DELAY_S, crate::Number(v)),
             });
         }
         out.delays_s.push(v);

@@ -320,8 +320,13 @@ pub struct CertsArgs {
     pub out: PathBuf,
     /// A host name or IP address every certificate also names (repeat the flag); each names
     /// its service (plant, netem, ...), localhost, 127.0.0.1 and ::1 anyway.
-    #[arg(long, value_name = "NAME")]
+    #[arg(long, value_name = "NAME", value_parser = crate::commands::certs::san_name)]
     pub san: Vec<String>,
+    /// How long the CA and the certificates are valid, days from now (they are valid from an
+    /// hour ago).
+    #[arg(long, value_name = "N", default_value_t = crate::commands::certs::DEFAULT_DAYS,
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(crate::commands::certs::MAX_DAYS)))]
+    pub days: u32,
 }
 
 // The flags of `hilbench sweep-merge`.

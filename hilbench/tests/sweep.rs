@@ -303,6 +303,19 @@ fn bad_flags_and_sweep_tables_are_refused_before_anything_runs() {
 }
 
 #[test]
+fn a_sweep_of_more_runs_than_one_process_holds_is_refused_naming_runs_before_allocating_them() {
+    // `--runs 100000000` aborted allocating 50 GB (exit 134). Refused at once, with the way out.
+    let out = out_dir("sweep-too-many-runs");
+    let started = std::time::Instant::now();
+    let run = hilbench(&["sweep", &long_delays(), "--out", s(&out), "--runs", "100000000"]);
+    assert_eq!(run.status.code(), Some(1), "{run:?}");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("--runs 100000000") && stderr.contains("--shard"), "{stderr}");
+    assert!(!out.exists(), "something ran");
+    assert!(started.elapsed() < std::time::Duration::from_secs(30), "{:?}", started.elapsed());
+}
+
+#[test]
 fn ctrl_c_writes_the_runs_that_finished_marks_the_sweep_interrupted_and_exits_130() {
     let out = out_dir("sweep-interrupted");
     let child = Command::new(env!("CARGO_BIN_EXE_hilbench"))

@@ -62,6 +62,46 @@ fn certs_writes_a_ca_and_an_identity_per_service_and_never_overwrites() {
 }
 
 #[test]
+fn certs_are_valid_for_days_from_now_and_empty_or_spaced_names_are_refused() {
+    let days = |dir: &Path, name: &str| -> (i64, i64) {
+        let pem = std::fs::read(dir.join(format!("{name}.pem"))).expect("certificate");
+        let (_, pem) = x509_parser::pem::parse_x509_pem(&pem).expect("PEM");
+        let cert = pem.parse_x509().expect("X.509");
+        let now =
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).expect("after 1970").as_secs()
+                as i64;
+        let v = cert.validity();
+        (v.not_before.timestamp() - now, v.not_after.timestamp() - now)
+    };
+    // The default: a year, not 1975 to 4096.
+    let dir = certs("tls-certs-validity");
+    for name in ["ca", "plant", "hilbench"] {
+        let (before, after) = days(&dir, name);
+        assert!((-3700..=-3500).contains(&before), "{name}: valid from {before} s from now");
+        assert!((365 * 86_400 - 100..=365 * 86_400 + 100).contains(&after), "{name}: until {after} s");
+    }
+    let dir = out_dir("tls-certs-days");
+    let made = hilbench(&["certs", "--out", path(&dir), "--days", "30"]);
+    assert!(made.status.success(), "{made:?}");
+    let (_, after) = days(&dir, "netem");
+    assert!((30 * 86_400 - 100..=30 * 86_400 + 100).contains(&after), "until {after} s");
+    for args in [
+        vec!["--san", ""],
+        vec!["--san", "my host"],
+        vec!["--san", "ok.example", "--san", "a/b"],
+        vec!["--days", "0"],
+        vec!["--days", "100000"],
+    ] {
+        let dir = out_dir("tls-certs-refused");
+        let run = hilbench(&[&["certs", "--out", path(&dir)], &args[..]].concat());
+        assert_eq!(run.status.code(), Some(2), "{args:?}: {run:?}");
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert!(stderr.contains(args[args.len() - 2]), "{args:?}: {stderr}");
+        assert!(!dir.exists(), "{args:?}: written");
+    }
+}
+
+#[test]
 fn reproduce_paper_2_over_mutual_tls_gives_the_plaintext_numbers() {
     let tls = certs("tls-reproduce-certs");
     let (plain, secure) = (out_dir("tls-reproduce-plaintext"), out_dir("tls-reproduce-mtls"));

@@ -76,8 +76,10 @@ impl ModelParams {
 #[serde(deny_unknown_fields)]
 pub struct InputBounds {
     /// `[T_min, phi_min, theta_min]`.
+    #[serde(deserialize_with = "crate::exact::array")]
     pub min: [f64; 3],
     /// `[T_max, phi_max, theta_max]`.
+    #[serde(deserialize_with = "crate::exact::array")]
     pub max: [f64; 3],
 }
 

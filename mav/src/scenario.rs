@@ -29,6 +29,41 @@ pub const MAX_ABS_ANGLE_RAD: f64 = std::f64::consts::FRAC_PI_2;
 pub const MAX_OBSTACLE_SIZE_M: f64 = 1.0e3;
 /// Largest cost weight and model parameter.
 pub const MAX_COEFFICIENT: f64 = 1.0e9;
+/// Shortest `min_cycle_s`, s: the plant's integration step (`SimSettings::default()`, 1 ms).
+/// In real time the plant's state moves once a step, so a shorter cycle would only sample the
+/// same state again, and the fail-safe check brakes over its horizon in cycles of at least this
+/// (a `min_cycle_s` of 1e-300 made it loop for ever: `t + 1e-300 == t`).
+pub const MIN_CYCLE_S: f64 = 1.0e-3;
+/// Longest `min_cycle_s`, s.
+pub const MAX_CYCLE_S: f64 = 3600.0;
+/// Longest scenario name, characters.
+pub const MAX_NAME_CHARS: usize = 64;
+
+/// Checks that `name` is an identifier: 1 to [`MAX_NAME_CHARS`] ASCII letters, digits, `-`,
+/// `_`, `.` and `+`, starting with a letter or digit. Names become file names
+/// (`<name>-<controller>.csv`, `<name>.scenario.toml`), so a `/`, a `..`, a space or a control
+/// character is refused rather than written. The reason says what was found.
+pub fn check_name(name: &str) -> Result<(), String> {
+    let allowed = |c: char| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.' | '+');
+    let shown = || {
+        let mut s: String = name.chars().take(MAX_NAME_CHARS + 1).collect();
+        if s.len() < name.len() {
+            s.push_str("...");
+        }
+        format!("{s:?}")
+    };
+    if name.is_empty() || name.chars().count() > MAX_NAME_CHARS {
+        return Err(format!("must be 1 to {MAX_NAME_CHARS} characters, got {}", shown()));
+    }
+    if !name.starts_with(|c: char| c.is_ascii_alphanumeric()) || !name.chars().all(allowed) {
+        return Err(format!(
+            "must be an identifier (letters, digits, `-`, `_`, `.`, `+`, starting with a letter or \
+             digit; it names files), got {}",
+            shown()
+        ));
+    }
+    Ok(())
+}
 
 fn invalid(field: impl Into<String>, reason: impl Into<String>) -> ScenarioError {
     ScenarioError::Invalid { field: field.into(), reason: reason.into() }
@@ -49,14 +84,19 @@ pub struct Scenario {
     #[serde(default)]
     pub obstacles: Vec<Cylinder>,
     /// Initial state `[px, py, pz, vx, vy, vz, phi, theta]`.
+    #[serde(deserialize_with = "crate::exact::array")]
     pub start: [f64; 8],
     /// Goal position, m.
+    #[serde(deserialize_with = "crate::exact::array")]
     pub goal_m: [f64; 3],
     /// State weights, diagonal of `Qx`.
+    #[serde(deserialize_with = "crate::exact::array")]
     pub q_x: [f64; 8],
     /// Input weights, diagonal of `Qu`.
+    #[serde(deserialize_with = "crate::exact::array")]
     pub q_u: [f64; 3],
     /// Input-rate weights, diagonal of `Qdu`.
+    #[serde(deserialize_with = "crate::exact::array")]
     pub q_du: [f64; 3],
     /// Prediction horizon `N`.
     pub horizon: usize,
@@ -67,6 +107,7 @@ pub struct Scenario {
     /// Scenario weights used when the run has no delays.
     pub nominal_weights: Vec<f64>,
     /// Gamma prior `(shape, scale_s)` used until the delay window is usable.
+    #[serde(deserialize_with = "crate::exact::pair")]
     pub prior_gamma: (f64, f64),
     /// Size of the delay window `n_max`.
     pub delay_window: usize,
@@ -270,6 +311,7 @@ impl Scenario {
 
     /// Checks every field; the error names the first bad one.
     pub fn validate(&self) -> Result<(), ScenarioError> {
+        check_name(&self.name).map_err(|reason| invalid("name", reason))?;
         self.model.validate().map_err(|f| invalid(format!("model.{f}"), "must be finite and positive"))?;
         let m = &self.model;
         for (name, v) in [
@@ -407,8 +449,14 @@ impl Scenario {
             return Err(invalid("delay_window", "must be in 2..=100000"));
         }
         self.network()?;
-        if !positive(self.min_cycle_s) || self.min_cycle_s > 3600.0 {
-            return Err(invalid("min_cycle_s", "must be in (0, 3600] s"));
+        if !(self.min_cycle_s.is_finite() && (MIN_CYCLE_S..=MAX_CYCLE_S).contains(&self.min_cycle_s)) {
+            return Err(invalid(
+                "min_cycle_s",
+                format!(
+                    "must be in [{MIN_CYCLE_S}, {MAX_CYCLE_S}] s (at least the plant's 1 ms integration step), got {}",
+                    delay::Number(self.min_cycle_s)
+                ),
+            ));
         }
         if !positive(self.goal_tolerance_m) || self.goal_tolerance_m > MAX_ABS_POSITION_M {
             return Err(invalid("goal_tolerance_m", format!("must be in (0, {MAX_ABS_POSITION_M}] m")));
@@ -507,6 +555,40 @@ mod tests {
         assert_eq!(field(&s), "sampling_times_s[4]");
         for name in Scenario::BUILT_IN {
             assert_eq!(Scenario::by_name(name).expect("built in").validate(), Ok(()), "{name}");
+        }
+    }
+
+    #[test]
+    fn a_name_that_is_not_an_identifier_is_refused_since_names_become_file_names() {
+        let named = |name: &str| Scenario { name: name.into(), ..Scenario::paper_2() }.validate();
+        for bad in ["../../escape", "a/b", "..", ".hidden", "", "a b", "tab\there", "x\u{7}", "é", "a\\b"] {
+            assert!(
+                matches!(named(bad), Err(ScenarioError::Invalid { field, .. }) if field == "name"),
+                "{bad:?} accepted"
+            );
+        }
+        assert!(named(&"a".repeat(MAX_NAME_CHARS + 1)).is_err());
+        for good in ["paper-2", "slalom_4", "wifi.trace", "paper-2+floor+compensation", "X1"] {
+            assert_eq!(named(good), Ok(()), "{good:?}");
+        }
+        let e = named("../../escape").expect_err("refused").to_string();
+        assert!(e.contains("identifier") && e.contains("\"../../escape\""), "{e}");
+    }
+
+    #[test]
+    fn min_cycle_s_below_the_plants_step_or_huge_is_refused_and_shown_short() {
+        let cycle = |min_cycle_s| Scenario { min_cycle_s, ..Scenario::paper_2() }.validate();
+        assert_eq!(MIN_CYCLE_S, crate::ns_to_s(crate::SimSettings::default().step_ns));
+        assert_eq!(cycle(MIN_CYCLE_S), Ok(()));
+        assert_eq!(cycle(MAX_CYCLE_S), Ok(()));
+        for bad in [1e-6, 1e-300, 0.0, -0.05, 3601.0, 1e300, f64::NAN, f64::INFINITY] {
+            match cycle(bad) {
+                Err(ScenarioError::Invalid { field, reason }) => {
+                    assert_eq!(field, "min_cycle_s", "{bad}");
+                    assert!(reason.len() < 160, "{bad}: {reason}");
+                }
+                other => panic!("{bad}: {other:?}"),
+            }
         }
     }
 

@@ -39,6 +39,14 @@ use crate::error::MpcError;
 /// is down rather than slow (the plant's watchdog takes over).
 pub const MAX_COVERED_DELAY_S: f64 = 3.0;
 
+/// Most braking cycles one flight of the check flies: a backstop that no setting or scenario
+/// can get past, however short its cycle (a `min_cycle_s` of 1e-300 made `t + min_cycle_s ==
+/// t`, and the loop spun for ever). Validated settings never reach it: `horizon_s` at most
+/// [`MAX_HORIZON_S`] over cycles of at least `mav::MIN_CYCLE_S` is 60,000 cycles.
+pub const MAX_BRAKING_CYCLES: usize = 100_000;
+/// Longest `horizon_s` of the check, s.
+pub const MAX_HORIZON_S: f64 = 60.0;
+
 /// Settings of the fail-safe check (validated with the safety layer's settings).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -106,14 +114,14 @@ impl BrakingCheck {
         if !(self.max_delay_s.is_finite() && self.max_delay_s >= 0.0) {
             return bad("braking_check.max_delay_s", "must be finite and >= 0");
         }
-        if !(self.min_cycle_s.is_finite() && self.min_cycle_s > 0.0) {
-            return bad("braking_check.min_cycle_s", "must be finite and > 0");
+        if !(self.min_cycle_s.is_finite() && self.min_cycle_s >= mav::MIN_CYCLE_S) {
+            return bad("braking_check.min_cycle_s", "must be finite and at least mav::MIN_CYCLE_S (1 ms)");
         }
         if self.delay_samples < 2 {
             return bad("braking_check.delay_samples", "must be >= 2 (both ends of the range)");
         }
-        if !(self.horizon_s.is_finite() && self.horizon_s > 0.0) {
-            return bad("braking_check.horizon_s", "must be finite and > 0");
+        if !(self.horizon_s.is_finite() && self.horizon_s > 0.0 && self.horizon_s <= MAX_HORIZON_S) {
+            return bad("braking_check.horizon_s", "must be finite, > 0 and at most MAX_HORIZON_S (60 s)");
         }
         if !(self.step_s.is_finite() && self.step_s > 0.0 && self.step_s <= self.horizon_s) {
             return bad("braking_check.step_s", "must be finite, > 0 and <= horizon_s");
@@ -336,7 +344,8 @@ impl FailSafe {
         let (mut link, mut landed_at_s, end_s) = (fork.link, fork.landed_at_s, fork.end_s);
         brakes.clear();
         let mut next_sample_s = period_s;
-        while out.finite {
+        let mut cycles = 0;
+        while out.finite && cycles < MAX_BRAKING_CYCLES {
             let landing_s = brakes.front().map(|(at, _)| *at).filter(|at| *at <= next_sample_s);
             let event_s = landing_s.unwrap_or(next_sample_s);
             if event_s > end_s {
@@ -357,6 +366,7 @@ impl FailSafe {
                 landed_at_s = landed_at_s.max(link.t + d_next_s);
                 brakes.push_back((landed_at_s, brake));
                 next_sample_s += period_s;
+                cycles += 1;
             }
         }
     }
@@ -388,7 +398,10 @@ impl FailSafe {
         let t_min_s = self.check.min_cycle_s;
         let (mut link, mut sample_s) = *fork;
         let end_s = sample_s + self.check.horizon_s;
-        while sample_s < end_s && out.finite {
+        for _ in 0..MAX_BRAKING_CYCLES {
+            if !(sample_s < end_s && out.finite) {
+                break;
+            }
             let brake =
                 braking_command(&self.model.params, &self.bounds, &link.x.into(), self.brake_gain_per_s);
             self.run_until(&mut link, sample_s + d_next_s, out);

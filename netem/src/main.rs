@@ -79,8 +79,12 @@ async fn main() -> anyhow::Result<()> {
 /// (serde's with their line).
 fn load_profile_file(path: &std::path::Path, seed: u64) -> anyhow::Result<delay::NetworkProfile> {
     let shown = path.display();
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("--profile-file {shown}: cannot read"))?;
+    let text = hilbench_svc::user_file::read_text(
+        path,
+        hilbench_svc::user_file::MAX_SCENARIO_FILE_BYTES,
+        "a profile",
+    )
+    .map_err(|e| anyhow::anyhow!("--profile-file {e}"))?;
     let table: delay::DelaysTable =
         toml::from_str(&text).map_err(|e| anyhow::anyhow!("--profile-file {shown}: {e}"))?;
     let dir = path.parent().unwrap_or(std::path::Path::new("."));

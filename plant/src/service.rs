@@ -333,7 +333,11 @@ impl pb::plant_server::Plant for PlantService {
         if start[2] < scenario.ground_z_m {
             return Err(FieldError::new(
                 "initial_state.x[2]",
-                format!("is below the ground (ground_z_m = {} m), got {} m", scenario.ground_z_m, start[2]),
+                format!(
+                    "is below the ground (ground_z_m = {} m), got {} m",
+                    scenario.ground_z_m,
+                    mav::Number(start[2])
+                ),
             )
             .into());
         }

@@ -11,6 +11,7 @@ pub mod scenario_file;
 pub mod streams;
 pub mod sweep_table;
 pub mod tls;
+pub mod user_file;
 
 use std::future::Future;
 use std::net::SocketAddr;

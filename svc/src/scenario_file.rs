@@ -208,12 +208,13 @@ impl std::error::Error for FileError {}
 impl ScenarioFile {
     /// Reads, parses and validates `path`.
     pub fn load(path: &Path) -> Result<Self, FileError> {
-        let text = std::fs::read_to_string(path).map_err(|e| FileError {
-            path: path.to_path_buf(),
-            line: None,
-            field: None,
-            message: format!("cannot read: {e}"),
-        })?;
+        let text = crate::user_file::read_text(path, crate::user_file::MAX_SCENARIO_FILE_BYTES, "a scenario")
+            .map_err(|e| FileError {
+                path: path.to_path_buf(),
+                line: None,
+                field: None,
+                message: e.reason,
+            })?;
         Self::parse(path, &text)
     }
 
@@ -330,14 +331,14 @@ impl ScenarioFile {
         if let Some((key, _)) = RUN_KEYS.iter().zip(set).find(|(_, set)| *set) {
             return Err((format!("scenario.{key}"), format!("belongs in [run] (run.{key})")));
         }
-        if s.name.is_empty() || s.name.len() > 64 || s.name.chars().any(|c| c.is_control()) {
-            return Err(("scenario.name".into(), "must be 1 to 64 printable characters".into()));
-        }
         if let Err(e) = s.validate() {
             return Err(match e {
                 ScenarioError::Invalid { field, reason } => (format!("scenario.{field}"), reason),
                 other => ("scenario".into(), other.to_string()),
             });
+        }
+        if self.sweep.is_some() || self.falsify.is_some() {
+            crate::sweep_table::check_run_cycles(s)?;
         }
         // The services name scenarios: a file that takes a built-in name must hold it exactly,
         // but for what `hilbench reproduce` overrides in a built-in (its seed, which only the
@@ -381,7 +382,8 @@ pub fn scenario_arg(arg: &str) -> Result<Scenario, String> {
 
 /// The delays of a trace file (`delay::parse_trace`'s format), or why not, naming the file.
 pub fn read_trace(path: &Path) -> Result<Vec<f64>, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let text = crate::user_file::read_text(path, crate::user_file::MAX_TRACE_FILE_BYTES, "a trace")
+        .map_err(|e| e.to_string())?;
     delay::parse_trace(&text).map_err(|e| format!("{}: {e}", path.display()))
 }
 
@@ -663,6 +665,98 @@ mod tests {
         let (text, line) = edited("q_u = [20.0, 20.0, 20.0]", "q_u = [20.0, -1.0, 20.0]");
         let e = error_of(&text);
         assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("scenario.q_u[1]")), "{e}");
+    }
+
+    #[test]
+    fn arrays_too_long_or_too_short_are_refused_naming_the_field_the_line_and_the_length() {
+        // (the line replaced, its replacement, the field, the length found).
+        let cases = [
+            (
+                "start = [3.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]",
+                "start = [3.2, 0, 0, 0, 0, 0, 0, 0, 9]",
+                "scenario.start",
+                9,
+            ),
+            (
+                "start = [3.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]",
+                "start = [3.2, 0, 0, 0, 0, 0, 0]",
+                "scenario.start",
+                7,
+            ),
+            ("goal_m = [3.2, 5.0, 1.0]", "goal_m = [3.2, 5.0, 1.0, 0.0, 0.0]", "scenario.goal_m", 5),
+            ("q_u = [20.0, 20.0, 20.0]", "q_u = [20.0, 20.0, 20.0, 20.0]", "scenario.q_u", 4),
+            ("q_x = [12.5, 12.5, 20.0, 30.0, 30.0, 10.0, 20.0, 20.0]", "q_x = [12.5]", "scenario.q_x", 1),
+            ("q_du = [40.0, 165.0, 165.0]", "q_du = [40.0, 165.0]", "scenario.q_du", 2),
+            ("prior_gamma = [12.0, 0.015]", "prior_gamma = [12.0, 0.015, 3.0]", "scenario.prior_gamma", 3),
+            (
+                "min = [0.0, -0.17453292519943295, -0.17453292519943295]",
+                "min = [0.0, -0.17, -0.17, 5.0]",
+                "scenario.bounds.min",
+                4,
+            ),
+            (
+                "max = [19.62, 0.17453292519943295, 0.17453292519943295]",
+                "max = [19.62, 0.17, 0.17, 1.0]",
+                "scenario.bounds.max",
+                4,
+            ),
+        ];
+        for (old, new, field, len) in cases {
+            let (text, line) = edited(old, new);
+            let e = error_of(&text);
+            assert_eq!((e.line, e.field.as_deref()), (Some(line), Some(field)), "{new}: {e}");
+            assert!(e.message.contains(&format!("invalid length {len}")), "{new}: {e}");
+        }
+    }
+
+    #[test]
+    fn a_name_with_a_path_in_it_is_refused_with_its_line() {
+        for bad in ["../../escape", "a/b", "with space"] {
+            let (text, line) = edited("name = \"paper-3\"", &format!("name = {bad:?}"));
+            let e = error_of(&text);
+            assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("scenario.name")), "{bad}: {e}");
+            assert!(e.message.contains("identifier"), "{e}");
+        }
+    }
+
+    #[test]
+    fn a_sweep_whose_runs_would_draw_more_than_the_cycle_cap_is_refused_naming_max_duration_s() {
+        let sweep = "\n[sweep]\nruns = 10\n\n[[sweep.families]]\nkind = \"none\"\n";
+        // A day at the shortest cycle: 86,400,002 delays per run (691 MB), refused.
+        let (day, _) = edited("max_duration_s = 60.0", "max_duration_s = 86400.0");
+        let text = day.replacen("min_cycle_s = 0.05", "min_cycle_s = 0.001", 1);
+        let line = text.lines().position(|l| l.starts_with("max_duration_s")).expect("the line") + 1;
+        let e = error_of(&format!("{text}{sweep}"));
+        assert_eq!((e.line, e.field.as_deref()), (Some(line), Some("scenario.max_duration_s")), "{e}");
+        assert!(e.message.contains(&crate::sweep_table::MAX_RUN_CYCLES.to_string()), "{e}");
+        // `hilbench falsify` draws its runs' traces up front as a sweep does: the same cap.
+        let path = repo_root().join("scenarios/sweeps/paper-2-delays-plan-check.toml");
+        let falsify = std::fs::read_to_string(&path).expect("a file with [falsify]");
+        let sweep_at = falsify.find("\n[sweep]").expect("[sweep]");
+        let falsify_at = falsify.find("\n[falsify]").expect("[falsify]");
+        let falsify = format!("{}{}", &falsify[..sweep_at], &falsify[falsify_at..])
+            .replacen("max_duration_s = 60.0", "max_duration_s = 86400.0", 1)
+            .replacen("min_cycle_s = 0.05", "min_cycle_s = 0.001", 1);
+        let e = error_of(&falsify);
+        assert_eq!(e.field.as_deref(), Some("scenario.max_duration_s"), "{e}");
+        // The same scenario without a sweep is a valid (long) run.
+        let renamed = text.replacen("name = \"paper-3\"", "name = \"paper-3-day\"", 1);
+        ScenarioFile::parse(Path::new("x.toml"), &renamed).unwrap_or_else(|e| panic!("{e}"));
+    }
+
+    #[test]
+    fn a_trace_that_is_a_device_a_fifo_or_a_folder_of_devices_is_refused_naming_it() {
+        let (text, line) = edited("kind = \"none\"", "kind = \"trace\"\nfile = \"/dev/zero\"");
+        let e = error_of(&text);
+        assert_eq!((e.line, e.field.as_deref()), (Some(line + 1), Some("scenario.delays.file")), "{e}");
+        assert!(e.message.contains("/dev/zero") && e.message.contains("not a regular file"), "{e}");
+        let (base, _) = edited("kind = \"none\"", "kind = \"none\"");
+        let sweep = "\n[sweep]\nruns = 10\n\n[[sweep.families]]\nkind = \"traces\"\ndir = \"/dev\"\n";
+        let e = error_of(&format!("{base}{sweep}"));
+        assert_eq!(e.field.as_deref(), Some("sweep.families[0].dir"), "{e}");
+        assert!(e.message.contains("/dev/") && e.message.contains("regular file"), "{e}");
+        let e = ScenarioFile::load(Path::new("/dev/zero")).expect_err("a device");
+        assert!(e.to_string().starts_with("/dev/zero: not a regular file"), "{e}");
     }
 
     #[test]

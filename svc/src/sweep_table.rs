@@ -29,6 +29,7 @@
 
 use std::path::Path;
 
+use crate::user_file::{MAX_TRACE_DIR_BYTES, MAX_TRACE_DIR_FILES};
 use delay::DelaysTable;
 
 /// A parameter of a family: one value for every run, or a range drawn uniformly per run.
@@ -383,6 +384,75 @@ impl FamilyChoice {
     }
 }
 
+/// Most runs one sweep process flies (its shard's, with `--shard`): every run's row is kept
+/// until the sweep ends (a few hundred bytes each), so `--runs 100000000` asked for 50 GB up
+/// front and aborted. A larger campaign is split into shards (`--shard I/K`) and merged.
+pub const MAX_RUNS: u64 = 1_000_000;
+/// Most cycles a run of a sweep may have (`max_duration_s / min_cycle_s`, plus 2): each run's
+/// delays are drawn into a trace of that many values before it flies (8 bytes each, 8 MB at
+/// the cap, per run in flight). A scenario of a day at 1 ms cycles asked for 691 GB.
+pub const MAX_RUN_CYCLES: u64 = 1_000_000;
+
+/// The most cycles a run of `scenario` can have, plus 2: the length of a sweep run's drawn
+/// trace (`t_{k+1} >= t_k + min_cycle_s`, so at most `max_duration_s / min_cycle_s` cycles
+/// start before the time limit).
+pub fn run_cycles(scenario: &mav::Scenario) -> u64 {
+    let cycle_ns = delay::s_to_ns(scenario.min_cycle_s).unwrap_or(1).max(1);
+    let limit_ns = delay::s_to_ns(scenario.max_duration_s).unwrap_or(u64::MAX);
+    (limit_ns / cycle_ns).saturating_add(2)
+}
+
+/// Refuses a scenario whose sweep or falsification runs (`hilbench falsify` draws each run's
+/// trace up front too) would have more than [`MAX_RUN_CYCLES`] cycles:
+/// `(field path, reason)`.
+pub fn check_run_cycles(scenario: &mav::Scenario) -> Result<(), (String, String)> {
+    let cycles = run_cycles(scenario);
+    if cycles > MAX_RUN_CYCLES {
+        return Err((
+            "scenario.max_duration_s".into(),
+            format!(
+                "a run of a sweep or a falsification may have at most {MAX_RUN_CYCLES} cycles \
+                 (max_duration_s / min_cycle_s), this one {cycles} ({} s / {} s): shorten \
+                 max_duration_s or lengthen min_cycle_s",
+                scenario.max_duration_s, scenario.min_cycle_s
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The trace files of a `traces` family's folder, sorted: every entry must be a regular file
+/// (or a link to one) of at most [`crate::user_file::MAX_TRACE_FILE_BYTES`], at most [`MAX_TRACE_DIR_FILES`] of
+/// them, [`MAX_TRACE_DIR_BYTES`] in all. A folder such as `/dev` is refused at its first device
+/// rather than read.
+fn trace_folder(folder: &Path) -> Result<Vec<std::path::PathBuf>, String> {
+    let shown = folder.display();
+    let meta = std::fs::metadata(folder).map_err(|e| format!("{shown}: {e}"))?;
+    if !meta.is_dir() {
+        return Err(format!("{shown}: not a directory"));
+    }
+    let mut files = Vec::new();
+    let mut bytes = 0u64;
+    for entry in std::fs::read_dir(folder).map_err(|e| format!("{shown}: {e}"))? {
+        let path = entry.map_err(|e| format!("{shown}: {e}"))?.path();
+        if files.len() == MAX_TRACE_DIR_FILES {
+            return Err(format!("{shown}: more than {MAX_TRACE_DIR_FILES} files"));
+        }
+        let meta = std::fs::metadata(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        crate::user_file::check_regular(&meta).map_err(|e| format!("{}: {e}", path.display()))?;
+        bytes = bytes.saturating_add(meta.len());
+        if bytes > MAX_TRACE_DIR_BYTES {
+            return Err(format!("{shown}: more than {} MiB of trace files", MAX_TRACE_DIR_BYTES >> 20));
+        }
+        files.push(path);
+    }
+    files.sort();
+    if files.is_empty() {
+        return Err(format!("{shown}: holds no trace file"));
+    }
+    Ok(files)
+}
+
 impl SweepSection {
     /// `(field path, reason)` of the first bad key, paths under `sweep`.
     pub fn validate(&self) -> Result<(), (String, String)> {
@@ -425,8 +495,8 @@ impl SweepSection {
         Ok(())
     }
 
-    /// Reads every `traces` family's folder (relative to `dir`, the scenario file's) with
-    /// `read_trace`; errors as `(field path, reason)`.
+    /// Reads every `traces` family's folder (relative to `dir`, the scenario file's; see
+    /// [`trace_folder`]) with `read_trace`; errors as `(field path, reason)`.
     pub fn load_traces(
         &mut self,
         dir: &Path,
@@ -436,14 +506,7 @@ impl SweepSection {
             let Some(folder) = f.dir.as_deref().filter(|_| f.kind == "traces") else { continue };
             let field = format!("sweep.families[{i}].dir");
             let folder = dir.join(folder);
-            let entries = std::fs::read_dir(&folder)
-                .map_err(|e| (field.clone(), format!("{}: {e}", folder.display())))?;
-            let mut files: Vec<_> =
-                entries.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.is_file()).collect();
-            files.sort();
-            if files.is_empty() {
-                return Err((field, format!("{}: holds no trace file", folder.display())));
-            }
+            let files = trace_folder(&folder).map_err(|e| (field.clone(), e))?;
             f.traces = files
                 .iter()
                 .map(|p| read_trace(p).map(|d| (p.display().to_string(), d)))

@@ -129,8 +129,8 @@ impl TlsFiles {
 /// Why a TLS set-up was refused at start-up (each names the flag at fault).
 #[derive(Debug, thiserror::Error)]
 pub enum TlsError {
-    #[error("{flag} {}: cannot read it: {error}", path.display())]
-    Read { flag: &'static str, path: PathBuf, error: std::io::Error },
+    #[error("{flag} {}: {reason}", path.display())]
+    Read { flag: &'static str, path: PathBuf, reason: String },
     #[error("{flag} {}: {what}", path.display())]
     Pem { flag: &'static str, path: PathBuf, what: String },
     #[error("{given} needs {missing}")]
@@ -319,8 +319,15 @@ pub fn is_tls_refusal(e: &(dyn std::error::Error + 'static)) -> bool {
     false
 }
 
+/// A certificate or key file: a regular file of at most `user_file::MAX_PEM_FILE_BYTES`
+/// (`--tls-cert /dev/zero` read until memory ran out).
 fn read(flag: &'static str, path: &Path) -> Result<Vec<u8>, TlsError> {
-    std::fs::read(path).map_err(|error| TlsError::Read { flag, path: path.to_path_buf(), error })
+    use crate::user_file::{MAX_PEM_FILE_BYTES, read_bytes};
+    read_bytes(path, MAX_PEM_FILE_BYTES, "PEM").map_err(|e| TlsError::Read {
+        flag,
+        path: e.path,
+        reason: e.reason,
+    })
 }
 
 /// The file's bytes, when it holds one or more PEM certificates and nothing unreadable.
@@ -386,6 +393,11 @@ mod tests {
             (TlsFiles { key: at("b-key.pem"), ..identity.clone() }, "with --tls-key"),
             (TlsFiles { client_ca: at("garbage.pem"), ..identity.clone() }, "--tls-client-ca"),
             (TlsFiles { ca: at("a-key.pem"), ..TlsFiles::default() }, "--tls-ca"),
+            // A device is refused before it is read (it used to be read until memory ran out).
+            (
+                TlsFiles { ca: Some(PathBuf::from("/dev/zero")), ..TlsFiles::default() },
+                "--tls-ca /dev/zero: not a regular file",
+            ),
         ];
         for (files, expected) in cases {
             let why = error(files.clone());

@@ -71,6 +71,7 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
         scenario: spec.scenario,
         table,
     };
+    check_runs(&sweep, args.runs.is_some())?;
     let dir = args.out.unwrap_or_else(|| crate::output::default_out_dir("sweep-"));
     // The output directory before the first run: a sweep that cannot write loses nothing.
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
@@ -95,4 +96,20 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
     }
     // A sweep's failures are its findings, in sweep.json: the command itself succeeded.
     Ok(Exit::Success)
+}
+
+/// Refuses a sweep whose process would fly more than `sweep_table::MAX_RUNS` runs (its shard's
+/// with `--shard`), naming where the number came from, before anything is allocated or flown.
+fn check_runs(sweep: &Sweep, from_flag: bool) -> anyhow::Result<()> {
+    let max = hilbench_svc::sweep_table::MAX_RUNS;
+    let here = sweep.indices().end - sweep.indices().start;
+    let source =
+        if from_flag { "--runs".to_string() } else { format!("{}: sweep.runs", sweep.file.display()) };
+    anyhow::ensure!(
+        here <= max,
+        "{source} {}: {here} runs in this process, more than the {max} one sweep process flies (each \
+         run's row is kept until the end); split it into shards (--shard I/K) and merge them",
+        sweep.runs
+    );
+    Ok(())
 }

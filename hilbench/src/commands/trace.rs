@@ -130,18 +130,10 @@ pub fn trace(args: TraceArgs, opts: &Options) -> anyhow::Result<Exit> {
     }
 }
 
-/// A regular file's text, at most [`MAX_FILE_BYTES`], named in every error.
+/// A regular file's text, at most [`MAX_FILE_BYTES`], named in every error (the bench's one
+/// reader of user files, `hilbench_svc::user_file::read_text`).
 fn read(path: &Path) -> anyhow::Result<String> {
-    let meta = std::fs::metadata(path).with_context(|| format!("cannot read {}", path.display()))?;
-    anyhow::ensure!(meta.is_file(), "{}: not a regular file", path.display());
-    anyhow::ensure!(
-        meta.len() <= MAX_FILE_BYTES,
-        "{}: {} bytes, more than the {} MiB a trace may hold",
-        path.display(),
-        meta.len(),
-        MAX_FILE_BYTES >> 20
-    );
-    std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))
+    Ok(hilbench_svc::user_file::read_text(path, MAX_FILE_BYTES, "a trace or an import")?)
 }
 
 /// A trace file (`delay`'s format: losses and provenance included).

@@ -56,6 +56,9 @@ pub const CONTROLLER_NAME: &str = "external";
 const TAIL_LINES: usize = 20;
 /// The longest line kept, characters.
 const TAIL_LINE_CHARS: usize = 400;
+/// The most bytes of one line of the controller's output held while it is read (enough for
+/// [`TAIL_LINE_CHARS`] characters of UTF-8): the rest of a longer line is skipped.
+const LINE_CAP_BYTES: usize = 4 * TAIL_LINE_CHARS;
 /// Lockstep: after the controller's exit, how long the plant's stream may stay quiet before
 /// what it produced is taken as complete.
 const DRAIN_QUIET: Duration = Duration::from_millis(200);
@@ -602,13 +605,126 @@ impl Drop for Process {
     }
 }
 
+/// Reads the controller's `output` into `tail`, a line at a time, holding at most
+/// [`LINE_CAP_BYTES`] of a line: a longer line is kept up to the cap, marked as cut, and the
+/// rest of it skipped up to its end (an unterminated 300 MB line used to be buffered whole).
+/// Bytes that are not UTF-8 are shown replaced, and the reading goes on.
 async fn keep_tail(output: impl AsyncRead + Unpin, tail: Arc<Mutex<VecDeque<String>>>) {
-    let mut lines = BufReader::new(output).lines();
-    while let Ok(Some(line)) = lines.next_line().await {
-        let mut tail = tail.lock().unwrap_or_else(PoisonError::into_inner);
-        if tail.len() == TAIL_LINES {
-            tail.pop_front();
+    let mut reader = BufReader::new(output);
+    let mut line = Vec::with_capacity(LINE_CAP_BYTES);
+    // Past the cap of the current line: skipping to its end.
+    let mut skipping = false;
+    loop {
+        let chunk = match reader.fill_buf().await {
+            Ok(chunk) if !chunk.is_empty() => chunk,
+            _ => break,
+        };
+        let newline = chunk.iter().position(|b| *b == b'\n');
+        let part = newline.unwrap_or(chunk.len());
+        if !skipping {
+            let take = part.min(LINE_CAP_BYTES - line.len());
+            line.extend_from_slice(&chunk[..take]);
+            if take < part {
+                push_line(&tail, &line, true);
+                line.clear();
+                skipping = true;
+            }
         }
-        tail.push_back(line.chars().take(TAIL_LINE_CHARS).collect());
+        reader.consume(part + usize::from(newline.is_some()));
+        if newline.is_some() {
+            if !skipping {
+                push_line(&tail, &line, false);
+            }
+            line.clear();
+            skipping = false;
+        }
+    }
+    if !line.is_empty() && !skipping {
+        push_line(&tail, &line, false);
+    }
+}
+
+/// Adds a line of output to `tail` (dropping its oldest beyond [`TAIL_LINES`]), at most
+/// [`TAIL_LINE_CHARS`] of it, saying when it was cut (`over_cap`: longer than
+/// [`LINE_CAP_BYTES`]).
+fn push_line(tail: &Mutex<VecDeque<String>>, bytes: &[u8], over_cap: bool) {
+    let text = String::from_utf8_lossy(bytes);
+    let text = text.strip_suffix('\r').unwrap_or(&text);
+    let mut kept: String = text.chars().take(TAIL_LINE_CHARS).collect();
+    if over_cap || kept.len() < text.len() {
+        let limit = if over_cap {
+            format!("{LINE_CAP_BYTES} bytes")
+        } else {
+            format!("{TAIL_LINE_CHARS} characters")
+        };
+        kept.push_str(&format!(" [line cut: longer than {limit}]"));
+    }
+    let mut tail = tail.lock().unwrap_or_else(PoisonError::into_inner);
+    if tail.len() == TAIL_LINES {
+        tail.pop_front();
+    }
+    tail.push_back(kept);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn an_unterminated_line_is_cut_at_the_cap_and_said_to_be_without_waiting_for_its_end() {
+        use tokio::io::AsyncWriteExt;
+        let tail = Arc::new(Mutex::new(VecDeque::new()));
+        // 8 MiB without a newline from a writer that stays open (a controller still printing).
+        let (mut writer, reader) = tokio::io::duplex(64 << 10);
+        let reading = tokio::spawn(keep_tail(reader, tail.clone()));
+        let writing = tokio::spawn(async move {
+            let block = vec![b'x'; 64 << 10];
+            for _ in 0..128 {
+                if writer.write_all(&block).await.is_err() {
+                    return;
+                }
+            }
+            writer.write_all(b"\nnext line\n").await.ok();
+            std::future::pending::<()>().await;
+        });
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(20);
+        let lines = loop {
+            let lines: Vec<String> =
+                tail.lock().unwrap_or_else(PoisonError::into_inner).iter().cloned().collect();
+            if lines.len() >= 2 || tokio::time::Instant::now() > deadline {
+                break lines;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        };
+        reading.abort();
+        writing.abort();
+        assert_eq!(lines.len(), 2, "{:?}", lines.iter().map(|l| l.len()).collect::<Vec<_>>());
+        assert!(lines[0].starts_with(&"x".repeat(TAIL_LINE_CHARS)), "{}", lines[0]);
+        assert!(
+            lines[0].ends_with(&format!("[line cut: longer than {LINE_CAP_BYTES} bytes]")),
+            "{}",
+            lines[0]
+        );
+        assert_eq!(lines[1], "next line");
+    }
+
+    #[tokio::test]
+    async fn lines_are_kept_as_printed_and_a_long_one_says_it_was_cut() {
+        let tail = Arc::new(Mutex::new(VecDeque::new()));
+        let long = "y".repeat(TAIL_LINE_CHARS + 5);
+        let text = format!("first\r\nnot utf-8 \u{fffd}\n{long}\nlast without newline");
+        let mut bytes = text.into_bytes();
+        bytes.extend_from_slice(b"\xff");
+        keep_tail(&bytes[..], tail.clone()).await;
+        let lines: Vec<String> =
+            tail.lock().unwrap_or_else(PoisonError::into_inner).iter().cloned().collect();
+        assert_eq!(lines[0], "first");
+        assert_eq!(lines[1], "not utf-8 \u{fffd}");
+        assert!(
+            lines[2].ends_with(&format!("[line cut: longer than {TAIL_LINE_CHARS} characters]")),
+            "{}",
+            lines[2]
+        );
+        assert_eq!(lines[3], "last without newline\u{fffd}");
     }
 }

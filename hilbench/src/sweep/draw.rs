@@ -11,7 +11,7 @@
 //! failure is written as, and what `--shrink` shrinks.
 
 use delay::{DelayLine, DelaysTable, Direction};
-use hilbench_svc::sweep_table::{Family, FamilyChoice, SweepSection};
+use hilbench_svc::sweep_table::{self, Family, FamilyChoice, SweepSection};
 use mav::Scenario;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -51,11 +51,12 @@ impl RunPlan {
     }
 }
 
-/// The most cycles a run of `scenario` can have, plus one.
+/// The most cycles a run of `scenario` can have, plus 2 (`sweep_table::run_cycles`), capped at
+/// `sweep_table::MAX_RUN_CYCLES`: a scenario file with a `[sweep]` table is refused beyond it,
+/// and a scenario that did not come through the loader is not drawn past it.
 pub fn max_cycles(scenario: &Scenario) -> usize {
-    let cycle_ns = delay::s_to_ns(scenario.min_cycle_s).unwrap_or(1).max(1);
-    let limit_ns = delay::s_to_ns(scenario.max_duration_s).unwrap_or(u64::MAX);
-    usize::try_from(limit_ns / cycle_ns).unwrap_or(usize::MAX).saturating_add(2)
+    let cycles = sweep_table::run_cycles(scenario).min(sweep_table::MAX_RUN_CYCLES);
+    usize::try_from(cycles).unwrap_or(usize::MAX)
 }
 
 /// Run `index` of a sweep of `scenario` with `seed`.

@@ -93,21 +93,26 @@ pub struct SweepResult {
 /// Flies every run of the shard on `sweep.jobs` threads. `bar` counts finished runs.
 pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> SweepResult {
     let started = Instant::now();
-    let items: Vec<(u64, ControllerMode)> =
-        sweep.indices().flat_map(|i| sweep.modes.iter().map(move |m| (i, *m))).collect();
+    // The (run, controller) pairs, by their number: nothing is allocated per run up front.
+    let (runs, per_run) = (sweep.indices(), sweep.modes.len().max(1));
+    let total = usize::try_from(runs.end - runs.start).unwrap_or(usize::MAX).saturating_mul(per_run);
+    let item = |k: usize| -> Option<(u64, ControllerMode)> {
+        let mode = *sweep.modes.get(k % per_run)?;
+        (k < total).then(|| (runs.start + (k / per_run) as u64, mode))
+    };
     let stop = Arc::new(AtomicBool::new(false));
     watch_ctrl_c(Arc::clone(&stop), "hilbench-sweep-ctrl-c");
     let next = AtomicUsize::new(0);
     let (tx, rx) = mpsc::channel::<Option<Done>>();
-    let mut done = Vec::with_capacity(items.len());
+    let mut done = Vec::with_capacity(total.min(4096));
     let mut interrupted = false;
     std::thread::scope(|s| {
         for _ in 0..sweep.jobs.max(1) {
             let tx = tx.clone();
-            let (items, next, stop) = (&items, &next, &stop);
+            let (item, next, stop) = (&item, &next, &stop);
             s.spawn(move || {
                 while !stop.load(Ordering::Relaxed) {
-                    let Some(&(index, mode)) = items.get(next.fetch_add(1, Ordering::Relaxed)) else { break };
+                    let Some((index, mode)) = item(next.fetch_add(1, Ordering::Relaxed)) else { break };
                     let result = one(sweep, index, mode, stop);
                     if result.is_none() {
                         stop.store(true, Ordering::Relaxed);
@@ -133,7 +138,7 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
                 eprintln!(
                     "  sweep: {} of {} runs in {elapsed:.0} s ({:.1} runs/s)",
                     done.len(),
-                    items.len(),
+                    total,
                     done.len() as f64 / elapsed.max(1e-9)
                 );
             }
@@ -153,7 +158,7 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
             }
         }
     });
-    interrupted |= stop.load(Ordering::Relaxed) && done.len() < items.len();
+    interrupted |= stop.load(Ordering::Relaxed) && done.len() < total;
     let order = |m: &str| sweep.modes.iter().position(|x| x.name() == m).unwrap_or(usize::MAX);
     done.sort_by_key(|a| (a.row.run, order(&a.row.controller)));
     SweepResult { done, interrupted, wall_time_s: started.elapsed().as_secs_f64() }

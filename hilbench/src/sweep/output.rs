@@ -338,6 +338,12 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
         rows.extend(stats::from_csv(&csv).map_err(|e| anyhow::anyhow!("{}: {e}", csv_path.display()))?);
         for failure in v["failures"].as_array().into_iter().flatten() {
             if let Some(trace) = failure["trace_file"].as_str() {
+                anyhow::ensure!(
+                    is_failure_trace(trace),
+                    "{}: trace_file {trace:?} is not {FAILURES_DIR}/<file> (a shard's failures are copied \
+                     from its {FAILURES_DIR}/ only)",
+                    path.display()
+                );
                 let to = out.join(trace);
                 if let Some(parent) = to.parent() {
                     std::fs::create_dir_all(parent)
@@ -370,7 +376,40 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
     Ok(summary)
 }
 
+/// A failure's `trace_file` as a sweep writes it: `failures/<file>`, one plain name below
+/// [`FAILURES_DIR`]. A shard's sweep.json is input to `sweep-merge`: `../../x` there copied a
+/// file from outside the shard to outside `--out`.
+fn is_failure_trace(trace: &str) -> bool {
+    use std::path::Component;
+    let mut parts = Path::new(trace).components();
+    matches!(parts.next(), Some(Component::Normal(d)) if d == FAILURES_DIR)
+        && matches!(parts.next(), Some(Component::Normal(_)))
+        && parts.next().is_none()
+}
+
 fn finish_without_scenario(dir: &Path, meta: &Meta, rows: &[&RunRow], summary: &Value) -> anyhow::Result<()> {
     write_file(&dir.join("sweep.json"), &serde_json::to_string_pretty(summary)?)?;
     write_file(&dir.join("report.md"), &report(meta, summary, rows, &[], dir))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sweep_merge_copies_a_failure_trace_only_from_below_failures() {
+        assert!(is_failure_trace("failures/3.csv"));
+        assert!(is_failure_trace("failures/12-multistage.csv"));
+        for bad in [
+            "../../escape.csv",
+            "failures/../../x.csv",
+            "/etc/passwd",
+            "failures",
+            "failures/a/b.csv",
+            "x/3.csv",
+            "",
+        ] {
+            assert!(!is_failure_trace(bad), "{bad:?}");
+        }
+    }
 }

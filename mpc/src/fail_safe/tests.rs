@@ -91,6 +91,38 @@ fn a_longer_delay_reaches_further() {
 }
 
 #[test]
+fn a_cycle_too_short_to_move_time_neither_passes_validation_nor_spins_the_check() {
+    // 1e-300 s: `t + min_cycle_s == t`, and the braking loops used to spin for ever (the
+    // controller sat at cycle 1 ignoring SIGTERM); 1e-6 s: 5 million cycles per flight.
+    for min_cycle_s in [1e-300, 1e-6] {
+        let check = BrakingCheck {
+            min_cycle_s,
+            max_delay_s: 0.0,
+            stop_speed_mps: 0.0,
+            plant_watchdog_s: None,
+            ..BrakingCheck::default()
+        };
+        assert!(check.validate().is_err(), "{min_cycle_s}");
+        let p = ModelParams::default();
+        let fs = FailSafe::new(check, p, InputBounds::paper(p.gravity_mps2), vec![], 1.0);
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let x0 = [0.0, 0.0, 1.0, 0.0, 2.0, 0.0, 0.0, 0.0];
+            let hover = [9.81, 0.0, 0.0];
+            let lockstep = fs.envelope(&x0, &hover, &hover);
+            let real_time = fs.envelope_real_time(&x0, &hover, &[], &hover);
+            let _ = tx.send((lockstep, real_time));
+        });
+        let done = rx.recv_timeout(std::time::Duration::from_secs(60));
+        assert!(done.is_ok(), "min_cycle_s = {min_cycle_s:e}: the check did not finish in 60 s");
+    }
+    let shortest = BrakingCheck { min_cycle_s: mav::MIN_CYCLE_S, ..BrakingCheck::default() };
+    assert_eq!(shortest.validate(), Ok(()));
+    let long = BrakingCheck { horizon_s: 1e9, ..BrakingCheck::default() };
+    assert!(long.validate().is_err());
+}
+
+#[test]
 fn the_check_widens_to_the_longest_delay_measured_never_narrows_below_the_tree_and_caps() {
     let base = BrakingCheck::default();
     assert_eq!(base.covering(0.33, None).max_delay_s, 0.33);

@@ -51,7 +51,9 @@ pub const MAX_THRUST_MPS2: f64 = 1000.0;
 /// command): finite, thrust in `[0, MAX_THRUST_MPS2]`, roll and pitch in `(-pi/2, pi/2)` rad.
 /// `field` is the path of the `ControlInput`; the result is `[thrust, roll, pitch]`.
 pub fn check_input(field: &str, u: &pb::ControlInput) -> Result<[f64; 3], FieldError> {
-    let range = |f: &str, v: f64, range: &str| FieldError::new(f, format!("must be in {range}, got {v}"));
+    let range = |f: &str, v: f64, range: &str| {
+        FieldError::new(f, format!("must be in {range}, got {}", delay::Number(v)))
+    };
     let thrust_field = format!("{field}.thrust_mps2");
     let thrust = finite(&thrust_field, u.thrust_mps2)?;
     if !(0.0..=MAX_THRUST_MPS2).contains(&thrust) {
@@ -70,7 +72,11 @@ pub fn check_input(field: &str, u: &pb::ControlInput) -> Result<[f64; 3], FieldE
 
 /// A finite number, or an error naming `field`.
 pub fn finite(field: &str, v: f64) -> Result<f64, FieldError> {
-    if v.is_finite() { Ok(v) } else { Err(FieldError::new(field, format!("must be finite, got {v}"))) }
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(FieldError::new(field, format!("must be finite, got {}", delay::Number(v))))
+    }
 }
 
 /// Exactly `N` finite numbers, or an error naming `field` (and the index of a bad element).

@@ -25,7 +25,7 @@ pub const MAX_ADVANCE_NS: u64 = 3_600 * 1_000_000_000;
 const STATE_NAMES: [&str; 8] = ["px", "py", "pz", "vx", "vy", "vz", "phi", "theta"];
 
 fn out_of_range(field: &str, v: f64, range: &str) -> FieldError {
-    FieldError::new(field, format!("must be in {range}, got {v}"))
+    FieldError::new(field, format!("must be in {range}, got {}", delay::Number(v)))
 }
 
 // ---------------------------------------------------------------------------------------------

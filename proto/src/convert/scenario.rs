@@ -217,6 +217,45 @@ mod tests {
     }
 
     #[test]
+    fn wire_arrays_of_another_length_and_names_with_paths_are_invalid_arguments_naming_the_field() {
+        let refused = |m: &pb::Scenario| -> (String, String) {
+            let e = scenario_choice("scenario", "", "definition", Some(m)).map(|_| ()).expect_err("refused");
+            let status = tonic::Status::from(e.clone());
+            assert_eq!(status.code(), tonic::Code::InvalidArgument, "{e}");
+            (e.field, e.reason)
+        };
+        let good = pb::Scenario::from(&Scenario::paper_2());
+        let mut m = good.clone();
+        if let Some(start) = m.start.as_mut() {
+            start.x.push(0.0);
+        }
+        assert_eq!(refused(&m), ("definition.start.x".into(), "must hold exactly 8 values, got 9".into()));
+        let mut m = good.clone();
+        m.goal_m.extend([0.0, 0.0]);
+        assert_eq!(refused(&m).0, "definition.goal_m");
+        let mut m = good.clone();
+        m.q_u.push(1.0);
+        assert_eq!(refused(&m), ("definition.q_u".into(), "must hold exactly 3 values, got 4".into()));
+        let mut m = good.clone();
+        m.q_du.truncate(2);
+        assert_eq!(refused(&m).0, "definition.q_du");
+        for name in ["../../escape", "a/b", "x y"] {
+            let mut m = good.clone();
+            m.name = name.into();
+            assert_eq!(refused(&m).0, "definition.name", "{name}");
+        }
+        let mut m = good.clone();
+        m.min_cycle_s = 1e-300;
+        assert_eq!(refused(&m).0, "definition.min_cycle_s");
+        // A huge value is echoed short, not as 301 digits.
+        let mut m = good.clone();
+        m.min_cycle_s = 1e300;
+        let (field, reason) = refused(&m);
+        assert_eq!(field, "definition.min_cycle_s");
+        assert!(reason.contains("1e300") && reason.len() < 160, "{reason}");
+    }
+
+    #[test]
     fn a_bad_scenario_is_refused_with_the_path_of_the_field() {
         let field = |m: &pb::Scenario| {
             scenario_choice("scenario", "", "definition", Some(m)).map(|_| ()).map_err(|e| e.field)

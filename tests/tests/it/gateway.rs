@@ -920,7 +920,8 @@ async fn allow_client_limits_vehicle_control_to_the_named_certificates_and_the_r
     use hilbench_svc::tls::TlsFiles;
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("gateway-allow-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    hilbench::commands::certs::write_dir(&dir, &[]).expect("certificates");
+    hilbench::commands::certs::write_dir(&dir, &[], hilbench::commands::certs::DEFAULT_DAYS)
+        .expect("certificates");
     let tls = TlsFiles { ca: None, ..TlsFiles::in_dir(&dir, "gateway") }.load().expect("the gateway's TLS");
     let (gateway, _) = start_gateway_with(&Scenario::paper_2(), None, |c| {
         c.tls = tls;

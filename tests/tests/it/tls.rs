@@ -23,7 +23,8 @@ use tonic_health::pb::health_client::HealthClient;
 fn certificates(name: &str) -> PathBuf {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("tls-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    hilbench::commands::certs::write_dir(&dir, &[]).expect("certificates");
+    hilbench::commands::certs::write_dir(&dir, &[], hilbench::commands::certs::DEFAULT_DAYS)
+        .expect("certificates");
     dir
 }
 
