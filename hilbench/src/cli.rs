@@ -415,6 +415,12 @@ pub struct SweepArgs {
     /// (default: the file's `sweep.run_timeout_s`, else 300).
     #[arg(long, value_name = "S", value_parser = seconds)]
     pub run_timeout_s: Option<f64>,
+    /// Keep drawing runs (0, 1, 2, ...: run i is still run i) until the 95 % Clopper-Pearson
+    /// upper bound on the failure probability (a collision or a missed goal) is below P for
+    /// every controller, or a run fails, or --runs runs have flown (default 100000, not the
+    /// file's sweep.runs); sweep.json's until_bound says which and how many runs it took.
+    #[arg(long, value_name = "P", value_parser = probability, conflicts_with = "shard")]
+    pub until_bound: Option<f64>,
     /// Print sweep.json on stdout instead of the table.
     #[arg(long)]
     pub json: bool,
@@ -444,6 +450,15 @@ fn seconds(s: &str) -> Result<f64, String> {
     let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a number of seconds"))?;
     if !(v.is_finite() && v > 0.0 && v <= 86_400.0) {
         return Err(format!("must be in (0, 86400] s, got {s}"));
+    }
+    Ok(v)
+}
+
+/// `--until-bound`: a probability in (0, 1).
+fn probability(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a probability"))?;
+    if !(v > 0.0 && v < 1.0) {
+        return Err(format!("must be in (0, 1), e.g. 0.01 for 1 %, got {s}"));
     }
     Ok(v)
 }
