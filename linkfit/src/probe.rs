@@ -421,5 +421,21 @@ pub fn directions(exchanges: &[Exchange], window_ns: u64) -> Option<Directions> 
     Some(Directions { up_s, down_s, offsets, clamped })
 }
 
+/// `YYYY-MM-DDTHH:MM:SSZ` of `unix_s` seconds since 1970 (UTC): a recording's `when`.
+pub fn iso8601_utc(unix_s: u64) -> String {
+    let (days, rem) = ((unix_s / 86_400) as i64, unix_s % 86_400);
+    // Howard Hinnant's days-to-civil.
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!("{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z", rem / 3600, rem % 3600 / 60, rem % 60)
+}
+
 #[cfg(test)]
 mod tests;

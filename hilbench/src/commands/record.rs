@@ -274,19 +274,7 @@ fn progress(origin: Instant, l: &Ledger, since: usize) {
 
 /// `YYYY-MM-DDTHH:MM:SSZ` of a wall-clock time (UTC).
 fn iso8601(t: std::time::SystemTime) -> String {
-    let secs = t.duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
-    let (days, rem) = ((secs / 86_400) as i64, secs % 86_400);
-    // Howard Hinnant's days-to-civil.
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    format!("{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z", rem / 3600, rem % 3600 / 60, rem % 60)
+    probe::iso8601_utc(t.duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs()))
 }
 
 /// `hilbench trace echo`: answers probes on `listen` until Ctrl-C.
@@ -317,14 +305,4 @@ pub fn echo(listen: &str, quiet: bool) -> anyhow::Result<Exit> {
     }
     // Ctrl-C is how an echo ends.
     Ok(Exit::Success)
-}
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn iso8601_is_utc_civil_time() {
-        let t = std::time::UNIX_EPOCH + std::time::Duration::from_secs(1_795_833_460);
-        assert_eq!(super::iso8601(t), "2026-11-28T02:37:40Z");
-        assert_eq!(super::iso8601(std::time::UNIX_EPOCH), "1970-01-01T00:00:00Z");
-    }
 }

@@ -125,6 +125,13 @@ fn the_two_directions_come_back_through_a_drifting_clock_offset() {
     assert_eq!(directions(&plain, 10_000 * ms), None);
 }
 
+#[test]
+fn iso8601_is_utc_civil_time() {
+    assert_eq!(iso8601_utc(1_795_833_460), "2026-11-28T02:37:40Z");
+    assert_eq!(iso8601_utc(0), "1970-01-01T00:00:00Z");
+    assert_eq!(iso8601_utc(951_782_400), "2000-02-29T00:00:00Z");
+}
+
 proptest! {
     #[test]
     fn any_probe_reads_back(seq in any::<u64>(), sent in any::<u64>(), bytes in HEADER_BYTES..=MAX_PROBE_BYTES,
