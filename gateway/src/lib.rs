@@ -48,7 +48,17 @@ pub struct GatewayConfig {
     /// The client certificates (common names) that may call VehicleControl (`--allow-client`;
     /// empty: any client the TLS set-up lets in).
     pub allow_clients: Vec<String>,
+    /// `--record-link FILE`: the `TIMESYNC` round trips of the vehicle link as a delay trace
+    /// (the requests then go at [`RECORD_LINK_TIMESYNC_PERIOD_NS`]).
+    pub record_link: Option<std::path::PathBuf>,
 }
+
+/// The `TIMESYNC` request period while `--record-link` records, ns (10 Hz).
+pub const RECORD_LINK_TIMESYNC_PERIOD_NS: u64 = 100_000_000;
+
+/// Requests `mavbridge`'s `TimeSync` keeps waiting for their answer: an answer later than this
+/// many request periods is not taken, so `--record-link` counts it lost.
+const TIMESYNC_OUTSTANDING: u64 = 8;
 
 impl GatewayConfig {
     /// Listening on `mavlink`, paper-1, the defaults of [`BridgeSettings`].
@@ -64,6 +74,7 @@ impl GatewayConfig {
             tls: hilbench_svc::tls::Tls::plaintext(),
             signing_key: None,
             allow_clients: Vec::new(),
+            record_link: None,
         }
     }
 }
@@ -146,7 +157,11 @@ pub async fn serve_with_link(
     if config.stream_buffer == 0 {
         return Err(GatewayError::Count("stream_buffer"));
     }
-    let bridge = Bridge::new(config.scenario.clone(), config.bridge, 0, 1)?;
+    let mut settings = config.bridge;
+    if config.record_link.is_some() {
+        settings.timesync_period_ns = settings.timesync_period_ns.min(RECORD_LINK_TIMESYNC_PERIOD_NS);
+    }
+    let bridge = Bridge::new(config.scenario.clone(), settings, 0, 1)?;
     let service = GatewayService::new(
         bridge,
         link.clone(),
@@ -154,6 +169,14 @@ pub async fn serve_with_link(
         config.stream_buffer,
         config.allow_clients.clone(),
     );
+    if let Some(path) = &config.record_link {
+        let timeout_ns = TIMESYNC_OUTSTANDING * settings.timesync_period_ns;
+        service.record_link(
+            path.clone(),
+            timeout_ns,
+            format!("MAVLink {} (the vehicle link)", config.mavlink),
+        );
+    }
     const NAMES: [&str; 2] =
         [PlantServer::<GatewayService>::NAME, VehicleControlServer::<GatewayService>::NAME];
     let server = GrpcServer::new(listener, true, &config.tls, &NAMES).await?;
@@ -222,6 +245,7 @@ pub async fn serve_with_link(
         })
     };
 
+    let service_for_record = service.clone();
     let signal = {
         let service = service.clone();
         async move {
@@ -262,6 +286,7 @@ pub async fn serve_with_link(
         }
     }
     let _ = scheduler.join();
+    service_for_record.finish_link_record();
     result?;
     tracing::info!("gateway stopped");
     Ok(())

@@ -65,6 +65,11 @@ struct Args {
     /// the TLS set-up lets in.
     #[arg(long, value_name = "NAME")]
     allow_client: Vec<String>,
+    /// Record the vehicle link's round trips (MAVLink TIMESYNC, sent at 10 Hz while
+    /// recording) into FILE as a delay trace (docs/links.md): one round trip in s per request,
+    /// `lost` for one unanswered within 0.8 s; written every 10 s and at shutdown.
+    #[arg(long, value_name = "FILE")]
+    record_link: Option<std::path::PathBuf>,
     /// StreamState streams served at once; one more is refused with RESOURCE_EXHAUSTED.
     #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
     max_streams: usize,
@@ -94,6 +99,7 @@ fn config(args: &Args) -> anyhow::Result<GatewayConfig> {
         );
     }
     config.allow_clients = args.allow_client.clone();
+    config.record_link = args.record_link.clone();
     config.bridge.validate().map_err(|e| match e {
         mavbridge::BridgeError::Thrust(t) => anyhow::anyhow!("--hover-thrust: {t}"),
         mavbridge::BridgeError::Setting("start_tolerance_m", r) => {

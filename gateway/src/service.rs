@@ -70,6 +70,40 @@ struct Inner {
     /// Gateway time of the last reboot warning, and the reboots not logged since.
     reboot_logged_ns: Option<u64>,
     reboots_unlogged: u64,
+    /// `--record-link`: the `TIMESYNC` exchanges, written as a delay trace.
+    link_record: Option<LinkRecord>,
+}
+
+/// How often `--record-link`'s file is written again while the gateway runs, ns.
+const LINK_RECORD_EVERY_NS: u64 = 10_000_000_000;
+
+/// `--record-link`: each `TIMESYNC` request the gateway sends is a probe, its answer from the
+/// vehicle the reply (matched by the echoed `ts1`, which is the gateway's send time).
+pub(crate) struct LinkRecord {
+    ledger: linkfit::probe::Ledger,
+    path: std::path::PathBuf,
+    provenance: delay::Provenance,
+    written_ns: u64,
+}
+
+impl LinkRecord {
+    /// The trace of what is settled so far (`None`: nothing yet).
+    fn text(
+        exchanges: &[linkfit::probe::Exchange],
+        provenance: &delay::Provenance,
+        losses: u64,
+    ) -> Option<String> {
+        let mut p = provenance.clone();
+        p.losses = Some(losses);
+        delay::write_trace(&linkfit::probe::round_trips_s(exchanges), &p).ok()
+    }
+}
+
+/// Writes `text` to `path`, logging a failure (the gateway goes on serving).
+fn write_link_record(path: &std::path::Path, text: &str) {
+    if let Err(e) = std::fs::write(path, text) {
+        tracing::error!("--record-link {}: cannot write it: {e}", path.display());
+    }
 }
 
 pub(crate) struct Shared {
@@ -213,6 +247,7 @@ impl GatewayService {
                     warned_not_flown: false,
                     reboot_logged_ns: None,
                     reboots_unlogged: 0,
+                    link_record: None,
                 }),
                 origin: Instant::now(),
                 link,
@@ -233,6 +268,58 @@ impl GatewayService {
             Some(NotServing::HeartbeatLost)
         } else {
             inner.bridge.awaiting_reset().map(|_| NotServing::Rebooted)
+        }
+    }
+
+    /// Records the `TIMESYNC` round trips into `path` (`gateway --record-link`), an exchange
+    /// unanswered within `timeout_ns` as lost; `source` names the link.
+    pub fn record_link(&self, path: std::path::PathBuf, timeout_ns: u64, source: String) {
+        let mut inner = self.shared.lock();
+        let period_ns = inner.bridge.settings().timesync_period_ns;
+        let unix_s =
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+        let provenance = delay::Provenance {
+            source: Some(source),
+            when: Some(linkfit::probe::iso8601_utc(unix_s)),
+            rate_hz: Some(1e9 / period_ns as f64),
+            // A MAVLink 2 TIMESYNC frame: 10 header, 16 payload, 2 checksum bytes.
+            probe_bytes: Some(28),
+            losses: Some(0),
+            tool: Some(format!(
+                "hilbench gateway {} --record-link (MAVLink TIMESYNC)",
+                env!("CARGO_PKG_VERSION")
+            )),
+            other: vec![("timeout_s".into(), (timeout_ns as f64 * 1e-9).to_string())],
+        };
+        let now = self.shared.now_ns();
+        inner.link_record = Some(LinkRecord {
+            ledger: linkfit::probe::Ledger::new(timeout_ns),
+            path,
+            provenance,
+            written_ns: now,
+        });
+    }
+
+    /// Writes `--record-link`'s file with every exchange settled (at shutdown): the requests
+    /// still waiting within their timeout are left out.
+    pub fn finish_link_record(&self) {
+        let now = self.shared.now_ns();
+        let Some(record) = self.shared.lock().link_record.take() else { return };
+        let (exchanges, counts, _) = record.ledger.finish(now);
+        match LinkRecord::text(&exchanges, &record.provenance, counts.lost) {
+            Some(text) => {
+                write_link_record(&record.path, &text);
+                tracing::info!(
+                    exchanges = exchanges.len(),
+                    lost = counts.lost,
+                    "--record-link: TIMESYNC round trips written to {}",
+                    record.path.display()
+                );
+            }
+            None => tracing::warn!(
+                "--record-link {}: no TIMESYNC exchange settled, nothing written",
+                record.path.display()
+            ),
         }
     }
 
@@ -293,6 +380,11 @@ impl GatewayService {
             if let Some(sample) = &event.sample {
                 publish(&mut inner, sample);
             }
+            if let (Some((sent_ns, _)), Some(record)) = (event.timesync_answer, inner.link_record.as_mut())
+                && let Some(seq) = record.ledger.waiting_sent_at(sent_ns)
+            {
+                record.ledger.answer(seq, now, None);
+            }
             let answered = match (event.ack, event.param) {
                 (Some((command, result)), _) => Some((Awaited::Ack(command), Answer::Ack(result))),
                 (None, Some((name, value))) => Some((Awaited::Param(name), Answer::Param(value))),
@@ -318,13 +410,36 @@ impl GatewayService {
     pub(crate) fn poll(&self) -> u64 {
         let now = self.shared.now_ns();
         let mut out = Vec::new();
-        let next = {
+        let (next, to_write) = {
             let mut inner = self.shared.lock();
             inner.bridge.poll(now, &mut out);
-            inner.bridge.next_due_ns()
+            let mut to_write = None;
+            // Before a vehicle's heartbeat locked the link there is no link to measure: the
+            // requests then go nowhere (udpin) and are not probes.
+            let locked = inner.bridge.vehicle().is_some();
+            if let Some(record) = inner.link_record.as_mut().filter(|_| locked) {
+                for m in &out {
+                    if let MavMessage::TIMESYNC(t) = m
+                        && t.tc1 == 0
+                    {
+                        record.ledger.send(t.ts1 as u64);
+                    }
+                }
+                record.ledger.settle(now);
+                if now.saturating_sub(record.written_ns) >= LINK_RECORD_EVERY_NS {
+                    record.written_ns = now;
+                    let lost = record.ledger.counts().lost;
+                    to_write = LinkRecord::text(record.ledger.settled(), &record.provenance, lost)
+                        .map(|text| (record.path.clone(), text));
+                }
+            }
+            (inner.bridge.next_due_ns(), to_write)
         };
         for m in &out {
             self.shared.send(m);
+        }
+        if let Some((path, text)) = to_write {
+            write_link_record(&path, &text);
         }
         next
     }

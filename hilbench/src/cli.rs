@@ -282,6 +282,44 @@ pub enum TraceCommand {
         #[arg(long)]
         skip_bad: bool,
     },
+    /// Record a live link: probes at a rate to an echo on the far side (`hilbench trace echo`,
+    /// or any UDP echo), the round trip of each into a trace file, a probe without a reply as
+    /// `lost`, the provenance in comment lines; a progress line every 5 s; Ctrl-C writes what
+    /// was recorded. Against `trace echo`, --out-directions writes the two one-way delays too.
+    Record {
+        /// The echo, HOST:PORT (UDP).
+        #[arg(long, value_name = "HOST:PORT")]
+        target: String,
+        /// Probes per second (the controller's rate or more: 20 for the paper's 50 ms).
+        #[arg(long, value_name = "HZ", default_value_t = 50.0, value_parser = rate_hz)]
+        rate_hz: f64,
+        /// How long to record, s.
+        #[arg(long, value_name = "S", default_value_t = 300.0, value_parser = seconds)]
+        duration_s: f64,
+        /// The trace file to write: one round trip in s per probe, `lost` for a lost one.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write the one-way delays as PREFIX-up.csv (here to the echo) and
+        /// PREFIX-down.csv (back), the clocks' offset estimated from the probes with the
+        /// shortest round trips (the far side must be `hilbench trace echo`).
+        #[arg(long, value_name = "PREFIX")]
+        out_directions: Option<PathBuf>,
+        /// Bytes of each probe (the UDP payload; the echo answers with as many).
+        #[arg(long, value_name = "N", default_value_t = 64,
+              value_parser = clap::value_parser!(u64).range(40..=1472))]
+        probe_bytes: u64,
+        /// A probe with no reply within this long is lost, s.
+        #[arg(long, value_name = "S", default_value_t = 2.0, value_parser = seconds)]
+        timeout_s: f64,
+    },
+    /// Answer `trace record`'s probes until Ctrl-C: the far side of a recording (e.g. on the
+    /// vehicle's companion computer). It answers only probes, each with as many bytes, and
+    /// stamps its receive and send times so that the recorder can split the round trip.
+    Echo {
+        /// Address to listen on, HOST:PORT (UDP; 0.0.0.0:PORT for every interface).
+        #[arg(long, value_name = "HOST:PORT")]
+        listen: String,
+    },
     /// Count, losses, percentiles, the share above a threshold, autocorrelation, spike runs.
     Stats {
         /// A trace file.
@@ -386,6 +424,12 @@ pub struct SweepArgs {
     /// (default: the file's `sweep.run_timeout_s`, else 300).
     #[arg(long, value_name = "S", value_parser = seconds)]
     pub run_timeout_s: Option<f64>,
+    /// Keep drawing runs (0, 1, 2, ...: run i is still run i) until the 95 % Clopper-Pearson
+    /// upper bound on the failure probability (a collision or a missed goal) is below P for
+    /// every controller, or a run fails, or --runs runs have flown (default 100000, not the
+    /// file's sweep.runs); sweep.json's until_bound says which and how many runs it took.
+    #[arg(long, value_name = "P", value_parser = probability, conflicts_with = "shard")]
+    pub until_bound: Option<f64>,
     /// Print sweep.json on stdout instead of the table.
     #[arg(long)]
     pub json: bool,
@@ -415,6 +459,24 @@ fn seconds(s: &str) -> Result<f64, String> {
     let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a number of seconds"))?;
     if !(v.is_finite() && v > 0.0 && v <= 86_400.0) {
         return Err(format!("must be in (0, 86400] s, got {s}"));
+    }
+    Ok(v)
+}
+
+/// `--until-bound`: a probability in (0, 1).
+fn probability(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a probability"))?;
+    if !(v > 0.0 && v < 1.0) {
+        return Err(format!("must be in (0, 1), e.g. 0.01 for 1 %, got {s}"));
+    }
+    Ok(v)
+}
+
+/// `--rate-hz`: probes per second, in (0, 10000].
+fn rate_hz(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a number of probes per second"))?;
+    if !(v.is_finite() && v > 0.0 && v <= 10_000.0) {
+        return Err(format!("must be in (0, 10000] Hz, got {s}"));
     }
     Ok(v)
 }

@@ -335,3 +335,92 @@ fn ctrl_c_writes_the_runs_that_finished_marks_the_sweep_interrupted_and_exits_13
     assert!(runs < 5000, "{runs} runs");
     assert_eq!(rows_of(&out).len() as u64, runs);
 }
+
+/// The long-delays file with only its short family (the paper's controller reaches the goal).
+fn short_delays(dir: &Path) -> String {
+    let text = std::fs::read_to_string(long_delays()).expect("the file");
+    let text = text
+        .replace("name = \"long\"\n", "name = \"long\"\nweight = 0.0\n")
+        .replace("name = \"short\"\nweight = 0.0\n", "name = \"short\"\n");
+    std::fs::create_dir_all(dir).expect("a dir");
+    let path = dir.join("short.toml");
+    std::fs::write(&path, text).expect("write");
+    s(&path).to_string()
+}
+
+#[test]
+fn until_bound_stops_at_the_first_run_count_that_decides_whatever_the_jobs() {
+    let dir = out_dir("until-bound");
+    let file = short_delays(&dir);
+    // 0 failures in n runs: the 95 % upper bound 1 - 0.025^(1/n) is below 0.3 from n = 11.
+    let mut sweeps = Vec::new();
+    for jobs in ["1", "3"] {
+        let out = dir.join(format!("jobs-{jobs}"));
+        let run = hilbench(&[
+            "sweep",
+            &file,
+            "--until-bound",
+            "0.3",
+            "--jobs",
+            jobs,
+            "--no-plots",
+            "--out",
+            s(&out),
+        ]);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert!(run.status.success(), "{stderr}");
+        assert!(
+            stderr.contains(
+                "until-bound: after 11 runs without a failure the failure probability is below 30.000 %"
+            ),
+            "{stderr}"
+        );
+        let v = json_of(&out.join("sweep.json"));
+        assert_eq!(v["until_bound"]["stopped"], "below", "{v}");
+        assert_eq!(
+            (v["until_bound"]["runs"].as_u64(), v["runs"].as_u64(), v["runs_planned"].as_u64()),
+            (Some(11), Some(11), Some(11))
+        );
+        assert!(v["failure_probability"]["any"]["upper"].as_f64().expect("upper") < 0.3);
+        assert_eq!(rows_of(&out).iter().map(|r| r.run).collect::<Vec<_>>(), (0..11).collect::<Vec<_>>());
+        sweeps.push(v);
+    }
+    let strip = |v: &Value| {
+        let mut v = without_timing(v.clone());
+        v["until_bound"]["runs_left_out"] = Value::Null;
+        v
+    };
+    assert_eq!(strip(&sweeps[0]), strip(&sweeps[1]), "the same sweep with 1 and 3 jobs");
+
+    // A failing run stops it: the long delays' run 0 collides.
+    let out = dir.join("failing");
+    let run = hilbench(&[
+        "sweep",
+        &long_delays(),
+        "--until-bound",
+        "0.3",
+        "--jobs",
+        "2",
+        "--no-plots",
+        "--out",
+        s(&out),
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let v = json_of(&out.join("sweep.json"));
+    assert_eq!(
+        (v["until_bound"]["stopped"].as_str(), v["until_bound"]["failed_run"].as_u64()),
+        (Some("failure"), Some(0)),
+        "{v}"
+    );
+    assert_eq!(rows_of(&out).len(), 1);
+
+    // A cap the bound cannot be reached within is refused before anything flies.
+    let out = dir.join("capped");
+    let run = hilbench(&["sweep", &file, "--until-bound", "0.01", "--runs", "100", "--out", s(&out)]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("only after 368 runs, more than the cap of 100"), "{stderr}");
+    assert!(!out.join("sweep.json").exists());
+    let refused = hilbench(&["sweep", &file, "--until-bound", "1.5", "--out", s(&out)]);
+    assert_eq!(refused.status.code(), Some(2));
+}

@@ -80,3 +80,153 @@ fn a_bad_line_is_refused_with_its_number_or_skipped_and_counted() {
     assert_eq!(text.lines().filter(|l| !l.starts_with('#') && *l != "delay_s").count(), 3, "{text}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `trace echo` on a loopback port (a free one, found by binding and letting go), killed on drop.
+struct Echo {
+    child: std::process::Child,
+    addr: String,
+}
+
+impl Echo {
+    fn start() -> Self {
+        let port =
+            std::net::UdpSocket::bind("127.0.0.1:0").expect("a port").local_addr().expect("addr").port();
+        let addr = format!("127.0.0.1:{port}");
+        let child = Command::new(env!("CARGO_BIN_EXE_hilbench"))
+            .args(["trace", "echo", "--listen", &addr])
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .expect("echo starts");
+        std::thread::sleep(std::time::Duration::from_millis(300));
+        Self { child, addr }
+    }
+}
+
+impl Drop for Echo {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+#[test]
+fn a_recording_over_loopback_against_trace_echo_loses_nothing_and_splits_the_round_trip() {
+    let dir = temp("record");
+    let echo = Echo::start();
+    let out = dir.join("link.csv");
+    let prefix = dir.join("link");
+    let result = hilbench(&[
+        "trace",
+        "record",
+        "--target",
+        &echo.addr,
+        "--rate-hz",
+        "200",
+        "--duration-s",
+        "2",
+        "--out",
+        &out.display().to_string(),
+        "--out-directions",
+        &prefix.display().to_string(),
+        "--probe-bytes",
+        "200",
+    ]);
+    assert!(result.status.success(), "{}", String::from_utf8_lossy(&result.stderr));
+    let rtt = delay::parse_trace_file(&std::fs::read_to_string(&out).expect("the trace")).expect("a trace");
+    assert_eq!(rtt.delays_s.len(), 400);
+    assert_eq!((rtt.losses(), rtt.provenance.losses), (0, Some(0)));
+    assert_eq!((rtt.provenance.rate_hz, rtt.provenance.probe_bytes), (Some(200.0), Some(200)));
+    assert_eq!(rtt.provenance.source.as_deref(), Some(echo.addr.as_str()));
+    assert!(rtt.delays_s.iter().all(|d| *d > 0.0 && *d < 0.1), "{:?}", rtt.delays_s);
+    let read = |name: &str| {
+        let path = dir.join(format!("link-{name}.csv"));
+        delay::parse_trace_file(&std::fs::read_to_string(&path).expect("a direction")).expect("a trace")
+    };
+    let (up, down) = (read("up"), read("down"));
+    assert_eq!((up.delays_s.len(), down.delays_s.len()), (400, 400));
+    // The legs add up to the round trip (to the clamping of a leg below zero, which loopback's
+    // microsecond jitter can cause).
+    for ((u, d), r) in up.delays_s.iter().zip(&down.delays_s).zip(&rtt.delays_s) {
+        assert!((u + d - r).abs() < 50e-6, "{u} + {d} vs {r}");
+    }
+    // The file is a scenario's trace as it is.
+    hilbench::scenario_file::ScenarioFile::load(&write_scenario(&dir, "link.csv")).expect("loads");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// paper-2 with its delays replaced by the trace `file`.
+fn write_scenario(dir: &Path, file: &str) -> PathBuf {
+    let paper_2 =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/paper-2.toml"))
+            .expect("paper-2");
+    let start = paper_2.find("[scenario.delays]").expect("paper-2's delays");
+    let end = paper_2[start + 1..].find("\n[").map_or(paper_2.len(), |i| start + 1 + i);
+    let text = format!(
+        "{}[scenario.delays]\nkind = \"trace\"\nfile = \"{file}\"\nlooping = true\n{}",
+        &paper_2[..start],
+        &paper_2[end..]
+    )
+    .replace("name = \"paper-2\"", "name = \"recorded-link\"");
+    let path = dir.join("recorded.toml");
+    std::fs::write(&path, text).expect("write");
+    path
+}
+
+#[test]
+fn a_plain_echo_gives_the_round_trips_and_ctrl_c_keeps_what_was_recorded() {
+    let dir = temp("plain-echo");
+    // A UDP echo that returns every datagram as it is (socat's, a router's).
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").expect("a socket");
+    let addr = socket.local_addr().expect("addr").to_string();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 2048];
+        while let Ok((n, from)) = socket.recv_from(&mut buf) {
+            let _ = socket.send_to(&buf[..n], from);
+        }
+    });
+    let out = dir.join("plain.csv");
+    let child = Command::new(env!("CARGO_BIN_EXE_hilbench"))
+        .args(["trace", "record", "--target", &addr, "--rate-hz", "100", "--duration-s", "60"])
+        .args(["--out", &out.display().to_string(), "--out-directions", &dir.join("d").display().to_string()])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("record starts");
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let signal = Command::new("kill").args(["-INT", &child.id().to_string()]).status().expect("kill runs");
+    assert!(signal.success());
+    let result = child.wait_with_output().expect("record ends");
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert_eq!(result.status.code(), Some(130), "{stderr}");
+    assert!(stderr.contains("does not stamp its replies"), "{stderr}");
+    let rtt = delay::parse_trace_file(&std::fs::read_to_string(&out).expect("the trace")).expect("a trace");
+    assert!((100..=200).contains(&rtt.delays_s.len()), "{}", rtt.delays_s.len());
+    assert_eq!(rtt.losses(), 0);
+    assert!(!dir.join("d-up.csv").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_target_where_nothing_answers_writes_nothing_and_says_why() {
+    let dir = temp("silent");
+    let port = std::net::UdpSocket::bind("127.0.0.1:0").expect("a port").local_addr().expect("addr").port();
+    let out = dir.join("none.csv");
+    let result = hilbench(&[
+        "trace",
+        "record",
+        "--target",
+        &format!("127.0.0.1:{port}"),
+        "--rate-hz",
+        "50",
+        "--duration-s",
+        "0.2",
+        "--timeout-s",
+        "0.2",
+        "--out",
+        &out.display().to_string(),
+    ]);
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert_eq!(result.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("none of 10 probes was answered") && stderr.contains("trace echo"), "{stderr}");
+    assert!(!out.exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}

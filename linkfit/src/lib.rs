@@ -13,12 +13,15 @@
 //!   autocorrelation, runs of spikes.
 //! - [`fit`]: Gamma, lognormal, Pareto, Weibull and a two-state regime, ranked by AIC and KS,
 //!   with 95 % intervals; the best as a `[scenario.delays]` and a `[[sweep.families]]` table.
+//! - [`probe`]: recording a live link: the probe datagram, matching replies, losses, the two
+//!   directions from the clock offset.
 //! - [`confidence`]: the Clopper–Pearson interval of a failure rate and the `--until-bound`
 //!   stopping rule.
 
 pub mod confidence;
 pub mod fit;
 pub mod import;
+pub mod probe;
 pub mod stats;
 
 pub use confidence::{RateInterval, UntilBound, clopper_pearson, runs_needed, until_bound};

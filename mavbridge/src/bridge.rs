@@ -255,6 +255,9 @@ pub struct Event {
     pub param: Option<(String, f32)>,
     /// A message to send back (an answer to the vehicle's `TIMESYNC` request).
     pub reply: Option<MavMessage>,
+    /// This message answered our `TIMESYNC` request sent at gateway time `.0` (its `ts1`),
+    /// ns, with round trip `.1`, ns (what `gateway --record-link` records).
+    pub timesync_answer: Option<(u64, u64)>,
     /// This message confirmed that the vehicle rebooted (once per reboot).
     pub reboot: Option<Reboot>,
     /// This heartbeat locked the link to its sender: where to send from now on.
@@ -468,8 +471,11 @@ impl Bridge {
                     // The vehicle asks: answer with our clock.
                     event.reply =
                         Some(MavMessage::TIMESYNC(TIMESYNC_DATA { tc1: now_ns as i64, ts1: t.ts1 }));
-                } else if self.timesync.on_answer(t.tc1, t.ts1, now_ns).is_none() {
-                    self.counters.timesync_refused += 1;
+                } else {
+                    match self.timesync.on_answer(t.tc1, t.ts1, now_ns) {
+                        Some(rtt) => event.timesync_answer = Some((t.ts1 as u64, rtt)),
+                        None => self.counters.timesync_refused += 1,
+                    }
                 }
             }
             MavMessage::COMMAND_ACK(a) => event.ack = Some((a.command, a.result)),

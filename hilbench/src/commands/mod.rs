@@ -3,6 +3,7 @@
 
 pub mod certs;
 pub mod falsify;
+pub mod record;
 pub mod reproduce;
 pub mod run;
 pub mod sweep;

@@ -10,7 +10,7 @@ use crate::drive::services::Endpoints;
 use crate::drive::{Driver, TimeMode};
 use crate::output::terminal;
 use crate::scenario_file::ScenarioFile;
-use crate::sweep::{Sweep, execute, output};
+use crate::sweep::{Sweep, execute, output, until};
 
 pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
     let spec = ScenarioFile::load(&args.file)?;
@@ -20,7 +20,9 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
             args.file.display()
         )
     })?;
-    let runs = args.runs.or(table.runs).with_context(|| {
+    // --until-bound: --runs is the cap, the file's number of runs does not apply.
+    let cap = args.until_bound.map(|_| args.runs.unwrap_or(crate::sweep::until::MAX_RUNS));
+    let runs = cap.or(args.runs).or(table.runs).with_context(|| {
         format!(
             "--runs: how many runs? (give --runs N, or `runs` in the [sweep] table of {})",
             args.file.display()
@@ -70,6 +72,7 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
         shrink_runs: table.shrink_runs.unwrap_or(hilbench_svc::sweep_table::DEFAULT_SHRINK_RUNS),
         scenario: spec.scenario,
         table,
+        batch: None,
     };
     check_runs(&sweep, args.runs.is_some())?;
     let dir = args.out.unwrap_or_else(|| crate::output::default_out_dir("sweep-"));
@@ -78,13 +81,22 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
     let show = !args.json && !opts.quiet;
     let items = (sweep.indices().end - sweep.indices().start) * sweep.modes.len() as u64;
     let bar = crate::progress::bar_with_eta(items, "runs", show);
-    let result = execute(&sweep, &bar, show);
+    let (result, sweep) = match args.until_bound {
+        None => (execute(&sweep, &bar, show), sweep),
+        Some(bound) => {
+            let (result, runs) = until::execute_until(&sweep, bound, &bar, show)?;
+            (result, Sweep { runs, ..sweep })
+        }
+    };
     bar.finish_and_clear();
     let summary = output::write(&dir, &sweep, &result, opts.plots)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else if show {
         terminal::print_sweep(&summary, &dir);
+    }
+    if let (Some(until), false) = (&result.until_bound, opts.quiet) {
+        eprintln!("{}", until::say(until));
     }
     if result.interrupted {
         eprintln!(

@@ -1,5 +1,5 @@
 //! `hilbench trace import|stats|fit`: a real link's delays brought in (ping, irtt, a CSV
-//! column), looked at, and fitted, as the `linkfit` crate does it (docs/links.md).
+//! column; `record` and `echo` are in [`super::record`]), looked at, and fitted, as the `linkfit` crate does it (docs/links.md).
 
 use std::path::{Path, PathBuf};
 
@@ -42,6 +42,19 @@ pub fn trace(args: TraceArgs, opts: &Options) -> anyhow::Result<Exit> {
             }
             Ok(Exit::Success)
         }
+        TraceCommand::Record { target, rate_hz, duration_s, out, out_directions, probe_bytes, timeout_s } => {
+            let spec = super::record::RecordSpec {
+                target,
+                rate_hz,
+                duration_s,
+                out,
+                out_directions,
+                probe_bytes: probe_bytes as usize,
+                timeout_s,
+            };
+            super::record::record(&spec, opts.quiet)
+        }
+        TraceCommand::Echo { listen } => super::record::echo(&listen, opts.quiet),
         TraceCommand::Stats { file, threshold_s, json, plot } => {
             let trace = read_trace(&file)?;
             let options = StatsOptions { threshold_s, ..StatsOptions::default() };

@@ -13,6 +13,7 @@ pub mod draw;
 pub mod output;
 pub mod plots;
 pub mod stats;
+pub mod until;
 
 use std::ops::Range;
 use std::path::PathBuf;
@@ -53,11 +54,16 @@ pub struct Sweep {
     pub run_timeout: Duration,
     pub shrink: bool,
     pub shrink_runs: u64,
+    /// Fly these runs instead of the shard's (a batch of `--until-bound`, [`until`]).
+    pub batch: Option<Range<u64>>,
 }
 
 impl Sweep {
     /// The run indices of this shard: the i-th of k contiguous slices of `0..runs`.
     pub fn indices(&self) -> Range<u64> {
+        if let Some(batch) = &self.batch {
+            return batch.clone();
+        }
         match self.shard {
             None => 0..self.runs,
             Some((i, k)) => {
@@ -88,6 +94,9 @@ pub struct SweepResult {
     pub done: Vec<Done>,
     pub interrupted: bool,
     pub wall_time_s: f64,
+    /// `--until-bound`: the rule, how many runs it took and why it stopped (sweep.json's
+    /// `until_bound`).
+    pub until_bound: Option<serde_json::Value>,
 }
 
 /// Flies every run of the shard on `sweep.jobs` threads. `bar` counts finished runs.
@@ -161,7 +170,7 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
     interrupted |= stop.load(Ordering::Relaxed) && done.len() < total;
     let order = |m: &str| sweep.modes.iter().position(|x| x.name() == m).unwrap_or(usize::MAX);
     done.sort_by_key(|a| (a.row.run, order(&a.row.controller)));
-    SweepResult { done, interrupted, wall_time_s: started.elapsed().as_secs_f64() }
+    SweepResult { done, interrupted, wall_time_s: started.elapsed().as_secs_f64(), until_bound: None }
 }
 
 /// Run `index` with `mode`: drawn, flown, its row, its failure's trace (shrunk when asked).

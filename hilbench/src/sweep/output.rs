@@ -160,7 +160,10 @@ pub fn write(dir: &Path, sweep: &Sweep, result: &SweepResult, plots: bool) -> an
         "run_wall_s": run_wall_s,
         "solver_s": solver_s,
     });
-    let summary = sweep_json(&meta, &rows, failures, result.interrupted, timing);
+    let mut summary = sweep_json(&meta, &rows, failures, result.interrupted, timing);
+    if let Some(until) = &result.until_bound {
+        summary["until_bound"] = until.clone();
+    }
     finish(dir, &meta, &rows, &summary, &sweep.scenario, plots)?;
     Ok(summary)
 }

@@ -430,7 +430,11 @@ async fn guided_nogps_is_refused_naming_guid_options_when_arducopter_would_read_
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn pymavlink_as_the_autopilot_sees_setpoints_at_50_hz_heartbeats_no_unasked_command_and_the_hover_hold_after_silence()
  {
-    let (gateway, port) = start_gateway(&Scenario::paper_2()).await;
+    // The gateway records its link's TIMESYNC round trips (--record-link) meanwhile.
+    let record = std::env::temp_dir().join(format!("gateway-record-link-{}.csv", std::process::id()));
+    let path = record.clone();
+    let (gateway, port) =
+        start_gateway_with(&Scenario::paper_2(), None, |c| c.record_link = Some(path)).await;
     let yaw = 0.5;
     let script = tokio::task::spawn_blocking(move || {
         hilbench_tests::python::run_script(
@@ -503,6 +507,18 @@ async fn pymavlink_as_the_autopilot_sees_setpoints_at_50_hz_heartbeats_no_unaske
     assert!(status.clock_offset_from_timesync, "{status:?}");
     assert!(status.watchdog_holds >= 1, "{status:?}");
     gateway.stop().await.expect("gateway stops cleanly");
+    // pymavlink answered every TIMESYNC request (10 Hz while recording) over loopback.
+    let trace = delay::parse_trace_file(&std::fs::read_to_string(&record).expect("--record-link's file"))
+        .expect("a trace file");
+    let _ = std::fs::remove_file(&record);
+    assert!(trace.delays_s.len() >= 10, "{trace:?}");
+    // The requests after the script stopped answering (its last second at most) may be lost.
+    let answered_phase = &trace.delays_s[..trace.delays_s.len() - 10];
+    assert!(answered_phase.iter().all(|d| !delay::is_lost(*d)), "{trace:?}");
+    assert_eq!(trace.provenance.losses, Some(trace.losses() as u64), "{trace:?}");
+    assert_eq!(trace.provenance.rate_hz, Some(10.0));
+    assert!(trace.provenance.tool.as_deref().is_some_and(|t| t.contains("TIMESYNC")), "{trace:?}");
+    assert!(answered_phase.iter().all(|d| *d > 0.0 && *d < 0.5), "{trace:?}");
 }
 
 /// The services a server's reflection (v1) lists.
