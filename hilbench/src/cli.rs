@@ -358,12 +358,12 @@ pub struct CertsArgs {
     pub out: PathBuf,
     /// A host name or IP address every certificate also names (repeat the flag); each names
     /// its service (plant, netem, ...), localhost, 127.0.0.1 and ::1 anyway.
-    #[arg(long, value_name = "NAME", value_parser = crate::commands::certs::san_name)]
+    #[arg(long, value_name = "NAME", value_parser = san_name)]
     pub san: Vec<String>,
     /// How long the CA and the certificates are valid, days from now (they are valid from an
     /// hour ago).
-    #[arg(long, value_name = "N", default_value_t = crate::commands::certs::DEFAULT_DAYS,
-          value_parser = clap::value_parser!(u32).range(1..=i64::from(crate::commands::certs::MAX_DAYS)))]
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_DAYS,
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_DAYS)))]
     pub days: u32,
 }
 
@@ -433,6 +433,33 @@ pub struct SweepArgs {
     /// Print sweep.json on stdout instead of the table.
     #[arg(long)]
     pub json: bool,
+}
+
+/// Default validity of the certificates, days (`--days`).
+pub const DEFAULT_DAYS: u32 = 365;
+/// Longest validity `--days` may ask for, days (ten years).
+pub const MAX_DAYS: u32 = 3650;
+
+/// A name `--san` may add: an IP address, or a DNS name (labels of letters, digits and `-`,
+/// separated by dots, a leading `*.` allowed, at most 253 characters). An empty name, or one
+/// with a space, would be written into every certificate and match nothing.
+pub fn san_name(name: &str) -> Result<String, String> {
+    if name.parse::<std::net::IpAddr>().is_ok() {
+        return Ok(name.to_string());
+    }
+    let host = name.strip_prefix("*.").unwrap_or(name);
+    let label_ok = |l: &str| {
+        (1..=63).contains(&l.len())
+            && l.chars().all(|c| c.is_ascii_alphanumeric() || c == '-')
+            && !l.starts_with('-')
+            && !l.ends_with('-')
+    };
+    if name.len() > 253 || host.is_empty() || !host.split('.').all(label_ok) {
+        return Err(format!(
+            "{name:?} is neither an IP address nor a DNS name (letters, digits and `-` between dots)"
+        ));
+    }
+    Ok(name.to_string())
 }
 
 /// `--shard I/K`.

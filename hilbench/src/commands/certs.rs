@@ -22,10 +22,7 @@ use rcgen::{
 /// What `hilbench certs` makes a certificate for: the servers, and hilbench as a client.
 pub const IDENTITIES: [&str; 5] = ["plant", "netem", "controller", "gateway", "hilbench"];
 
-/// Default validity of the certificates, days (`--days`).
-pub const DEFAULT_DAYS: u32 = 365;
-/// Longest validity `--days` may ask for, days (ten years).
-pub const MAX_DAYS: u32 = 3650;
+pub use crate::cli::{DEFAULT_DAYS, MAX_DAYS, san_name};
 /// How long before it is made a certificate is already valid.
 const BACKDATE: Duration = Duration::from_secs(3600);
 
@@ -73,28 +70,6 @@ impl Validity {
         params.not_after = at(self.not_after)?;
         Ok(())
     }
-}
-
-/// A name `--san` may add: an IP address, or a DNS name (labels of letters, digits and `-`,
-/// separated by dots, a leading `*.` allowed, at most 253 characters). An empty name, or one
-/// with a space, would be written into every certificate and match nothing.
-pub fn san_name(name: &str) -> Result<String, String> {
-    if name.parse::<std::net::IpAddr>().is_ok() {
-        return Ok(name.to_string());
-    }
-    let host = name.strip_prefix("*.").unwrap_or(name);
-    let label_ok = |l: &str| {
-        (1..=63).contains(&l.len())
-            && l.chars().all(|c| c.is_ascii_alphanumeric() || c == '-')
-            && !l.starts_with('-')
-            && !l.ends_with('-')
-    };
-    if name.len() > 253 || host.is_empty() || !host.split('.').all(label_ok) {
-        return Err(format!(
-            "{name:?} is neither an IP address nor a DNS name (letters, digits and `-` between dots)"
-        ));
-    }
-    Ok(name.to_string())
 }
 
 /// One identity: its certificate and private key, PEM.
