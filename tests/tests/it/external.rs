@@ -208,6 +208,8 @@ fn a_sweep_of_the_python_controller_under_twenty_delay_processes_reaches_every_g
 /// scored from the plant's truth, and the worst run's trace names the command that replays it.
 #[test]
 fn a_falsification_of_the_python_controller_flies_and_scores_every_run_and_names_its_replay() {
+    // Two controllers at once: not beside the real-time tests, which need the cores on time.
+    let _turn = hilbench_tests::CPU_HEAVY.blocking_lock();
     let out = TempDir::new("external-test-falsify");
     let open_field =
         std::fs::read_to_string(repo("examples/python-controller/open-field.toml")).expect("open-field.toml");
