@@ -5,9 +5,7 @@ use anyhow::Context;
 
 use super::{Exit, Options};
 use crate::cli::FalsifyArgs;
-use crate::drive::external::{ExternalController, ExternalSettings};
-use crate::drive::services::Endpoints;
-use crate::drive::{Driver, TimeMode};
+use crate::drive::TimeMode;
 use crate::falsification::{Falsification, execute, output};
 use crate::scenario_file::ScenarioFile;
 
@@ -47,22 +45,8 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
         m.dedup();
         m
     };
-    let jobs =
-        args.jobs.map_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()), |j| j as usize);
-    let driver = match &args.controller_cmd {
-        Some(command) => Driver::External(ExternalController {
-            command: command.clone(),
-            time_mode: TimeMode::Lockstep,
-            settings: ExternalSettings::default(),
-        }),
-        None if args.tls.given() && !args.grpc => {
-            anyhow::bail!("the TLS flags need --grpc (a falsification flies in process otherwise)")
-        }
-        None if args.grpc => {
-            Driver::Services(Endpoints { tls: args.tls.load()?.into(), ..Endpoints::default() })
-        }
-        None => Driver::InProcess,
-    };
+    let jobs = super::jobs_or_cores(args.jobs);
+    let driver = super::lockstep_driver(args.controller_cmd.clone(), args.grpc, &args.tls, "falsification")?;
     let sweep = spec.sweep.as_ref();
     let falsification = Falsification {
         file: args.file.clone(),

@@ -101,6 +101,39 @@ fn fly_and_write(
     Ok(Ok(Written { batch, summary, dir, show }))
 }
 
+/// The driver of a command of many lockstep runs (`sweep`, `falsify`, named `what` in the
+/// error): the external controller `controller_cmd`, the services on loopback with `--grpc`
+/// (over TLS when its flags are given), or in process.
+fn lockstep_driver(
+    controller_cmd: Option<String>,
+    grpc: bool,
+    tls: &crate::cli::TlsArgs,
+    what: &str,
+) -> anyhow::Result<Driver> {
+    use crate::drive::TimeMode;
+    use crate::drive::external::{ExternalController, ExternalSettings};
+    Ok(match controller_cmd {
+        Some(command) => Driver::External(ExternalController {
+            command,
+            time_mode: TimeMode::Lockstep,
+            settings: ExternalSettings::default(),
+        }),
+        None if tls.given() && !grpc => {
+            anyhow::bail!("the TLS flags need --grpc (a {what} flies in process otherwise)")
+        }
+        None if grpc => Driver::Services(crate::drive::services::Endpoints {
+            tls: tls.load()?.into(),
+            ..Default::default()
+        }),
+        None => Driver::InProcess,
+    })
+}
+
+/// `--jobs`, else every core.
+fn jobs_or_cores(jobs: Option<u64>) -> usize {
+    jobs.map_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()), |j| j as usize)
+}
+
 /// The exit of a command whose runs all finished.
 fn exit_of(batch: &Batch) -> Exit {
     if batch.any_collided() { Exit::Collision } else { Exit::Success }

@@ -5,9 +5,7 @@ use anyhow::Context;
 
 use super::{Exit, Options};
 use crate::cli::SweepArgs;
-use crate::drive::external::{ExternalController, ExternalSettings};
-use crate::drive::services::Endpoints;
-use crate::drive::{Driver, TimeMode};
+use crate::drive::TimeMode;
 use crate::output::terminal;
 use crate::scenario_file::ScenarioFile;
 use crate::sweep::{Sweep, execute, output, until};
@@ -39,22 +37,8 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
         "{}: a sweep flies in lockstep (run.time_mode is real-time)",
         args.file.display()
     );
-    let jobs =
-        args.jobs.map_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()), |j| j as usize);
-    let driver = match args.controller_cmd {
-        Some(command) => Driver::External(ExternalController {
-            command,
-            time_mode: TimeMode::Lockstep,
-            settings: ExternalSettings::default(),
-        }),
-        None if args.tls.given() && !args.grpc => {
-            anyhow::bail!("the TLS flags need --grpc (a sweep flies in process otherwise)")
-        }
-        None if args.grpc => {
-            Driver::Services(Endpoints { tls: args.tls.load()?.into(), ..Endpoints::default() })
-        }
-        None => Driver::InProcess,
-    };
+    let jobs = super::jobs_or_cores(args.jobs);
+    let driver = super::lockstep_driver(args.controller_cmd, args.grpc, &args.tls, "sweep")?;
     let sweep = Sweep {
         file: args.file.clone(),
         seed: args.seed.or(table.seed).unwrap_or(spec.scenario.seed),
