@@ -3,38 +3,17 @@
 //! same search whatever `--jobs`; the stable keys of falsify.json; bad input refused before
 //! anything flies.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use serde_json::Value;
 
-fn hilbench(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_hilbench")).args(args).output().expect("hilbench runs")
-}
-
-fn repo(path: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(path).display().to_string()
-}
+mod common;
+use common::{hilbench, json_of, out_dir, repo, s};
 
 /// paper-2 with the plan-check controller: its `[falsify]` table searches a three-level signal
 /// and the `[sweep]` families for a collision.
 fn plan_check() -> String {
     repo("scenarios/sweeps/paper-2-delays-plan-check.toml")
-}
-
-fn out_dir(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().expect("utf-8")
-}
-
-fn json_of(path: &Path) -> Value {
-    serde_json::from_str(&std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())))
-        .expect("JSON")
 }
 
 fn stderr(o: &Output) -> String {

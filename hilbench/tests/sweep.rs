@@ -2,39 +2,19 @@
 //! the outputs and their keys, run i flown again alone, a failure's trace replayed (shrunk or
 //! not), shards merged, the services' numbers, bad input refused before anything runs.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::path::Path;
+use std::process::Command;
 
 use hilbench::sweep::stats::{RunRow, from_csv};
 use serde_json::Value;
 
-fn hilbench(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_hilbench")).args(args).output().expect("hilbench runs")
-}
-
-fn repo(path: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(path).display().to_string()
-}
+mod common;
+use common::{hilbench, json_of, out_dir, repo, s};
 
 /// Long delays: the paper's controller collides within a few cycles (runs 0, 1, 3) or misses
 /// the goal (run 2).
 fn long_delays() -> String {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/sweep-long-delays.toml").display().to_string()
-}
-
-fn out_dir(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().expect("utf-8")
-}
-
-fn json_of(path: &Path) -> Value {
-    serde_json::from_str(&std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())))
-        .expect("JSON")
 }
 
 fn rows_of(dir: &Path) -> Vec<RunRow> {

@@ -5,6 +5,7 @@
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
 
 /// Writes `dir/<name>.toml`: `scenarios/paper-2.toml` with each `(from, to)` replaced (each must
 /// occur, so that a changed shipped file fails the test instead of silently flying paper-2).
@@ -39,4 +40,32 @@ pub fn csv_without_solve_times(path: &Path) -> String {
         })
         .collect::<Vec<_>>()
         .join("\n")
+}
+
+/// `hilbench ARGS` to its end.
+pub fn hilbench(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_hilbench")).args(args).output().expect("hilbench runs")
+}
+
+/// A path of the repository, as text.
+pub fn repo(path: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(path).display().to_string()
+}
+
+/// An emptied directory `name` under the tests' temporary directory.
+pub fn out_dir(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+/// A path as a flag's text.
+pub fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8")
+}
+
+/// The JSON file at `path`.
+pub fn json_of(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())))
+        .expect("JSON")
 }
