@@ -416,10 +416,18 @@ pub struct SweepArgs {
     /// for each run, judged from the plant's truth (docs/external-controller.md).
     #[arg(long, value_name = "CMD", value_parser = command_line, conflicts_with = "mode")]
     pub controller_cmd: Option<String>,
-    /// Shrink each failing run's delay trace to a smaller one that still fails
-    /// (failures/<run>.csv).
+    /// After the runs, shrink each failing run's delay trace to a smaller one that still fails
+    /// (failures/<run>.csv); says first what it may cost.
     #[arg(long)]
     pub shrink: bool,
+    /// Reruns one failure's shrinking may spend (default: the file's `sweep.shrink_runs`,
+    /// else 150).
+    #[arg(long, value_name = "N", requires = "shrink")]
+    pub shrink_runs: Option<u64>,
+    /// Reruns the shrinking of all the failures may spend, shared out evenly in run order
+    /// (default: the file's `sweep.shrink_total_runs`, else 1500).
+    #[arg(long, value_name = "N", requires = "shrink")]
+    pub shrink_total_runs: Option<u64>,
     /// A run that takes longer than this (wall clock) is a failure, and the sweep goes on
     /// (default: the file's `sweep.run_timeout_s`, else 300).
     #[arg(long, value_name = "S", value_parser = seconds)]

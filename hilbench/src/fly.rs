@@ -46,11 +46,7 @@ pub fn fly_all(jobs: &[Job], driver: &Driver, progress: bool) -> anyhow::Result<
     let real_time = driver.time_mode() == TimeMode::RealTime;
     for job in jobs {
         let name = &job.scenario.name;
-        // The controller flown: the job's mode, or the external controller.
-        let controller = match driver {
-            Driver::External(_) => crate::drive::external::CONTROLLER_NAME,
-            _ => job.mode.name(),
-        };
+        let controller = driver.controller_name(job.mode);
         bar.set_message(format!("{name} with {controller}"));
         let mut ctrl_c = ctrl_c_rx.clone();
         if *ctrl_c.borrow_and_update() {
@@ -131,6 +127,27 @@ pub fn fly_all(jobs: &[Job], driver: &Driver, progress: bool) -> anyhow::Result<
 pub struct Flight {
     pub summary: RunSummary,
     pub rows: Vec<crate::run::CycleRow>,
+    /// Delays the run drew from its round trip by its end: one per cycle for the bench's
+    /// controller, netem's count of commands delayed for an external one (which can have
+    /// several in flight, and draws for commands it never sees applied). `None`: unknown.
+    pub delays_drawn: Option<usize>,
+}
+
+impl Flight {
+    /// The flight of a finished run.
+    pub fn of(run: FinishedRun) -> Self {
+        let delays_drawn = match &run.external {
+            Some(facts) => facts.commands_delayed.and_then(|n| usize::try_from(n).ok()),
+            None => Some(run.rows.len()),
+        };
+        Self { summary: run.summary, rows: run.rows, delays_drawn }
+    }
+
+    /// How many of the `available` delays a replay of this run needs: those it drew (all of
+    /// them when that is unknown).
+    pub fn delays_needed(&self, available: usize) -> usize {
+        self.delays_drawn.map_or(available, |n| n.min(available))
+    }
 }
 
 /// What became of one run of [`fly_one`].
@@ -165,7 +182,7 @@ pub fn fly_one(job: &Job, driver: &Driver, timeout: Duration) -> RunFate {
                 return RunFate::Failed(e);
             }
             match batch.runs.pop() {
-                Some(run) => RunFate::Flown(Box::new(Flight { summary: run.summary, rows: run.rows })),
+                Some(run) => RunFate::Flown(Box::new(Flight::of(run))),
                 None => RunFate::Failed("the run ended without a summary".into()),
             }
         }

@@ -46,3 +46,13 @@ pub fn bar_with_eta(len: u64, unit: &str, show: bool) -> ProgressBar {
     }
     bar
 }
+
+/// A rough duration for an estimate: `40 s`, `12 min`, `3.5 h`.
+pub fn duration_text(seconds: f64) -> String {
+    match seconds {
+        s if !s.is_finite() => "an unknown time".into(),
+        s if s < 90.0 => format!("{s:.0} s"),
+        s if s < 90.0 * 60.0 => format!("{:.0} min", s / 60.0),
+        s => format!("{:.1} h", s / 3600.0),
+    }
+}

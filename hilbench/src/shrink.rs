@@ -63,9 +63,9 @@ impl Replay {
 }
 
 impl FailureTrace {
-    /// The delays (of `delays_s`, the run's trace) of the cycles a failed run flew.
+    /// The delays (of `delays_s`, the run's trace) a failed run drew.
     pub fn unshrunk(delays_s: &[f64], flown: &Flight) -> Self {
-        let n = flown.rows.len().min(delays_s.len());
+        let n = flown.delays_needed(delays_s.len());
         Self {
             delays_s: delays_s[..n].to_vec(),
             original_len: n,
@@ -77,6 +77,29 @@ impl FailureTrace {
     /// Every delay a run had (one that stopped with an error or timed out).
     pub fn whole(delays_s: &[f64]) -> Self {
         Self { delays_s: delays_s.to_vec(), original_len: delays_s.len(), shrink: None, replay: None }
+    }
+
+    /// The lines of a trace file's header that say what the trace is (whole, cut or shrunk)
+    /// and what its replay gives, then the command `replay` that replays it.
+    pub fn provenance(&self, replay: &str) -> Vec<String> {
+        let mut lines = vec![match (self.shrink, &self.replay) {
+            (Some((reruns, complete)), _) => format!(
+                "shrunk from {} to {} delays in {reruns} reruns{}",
+                self.original_len,
+                self.delays_s.len(),
+                if complete { "" } else { " (budget used up or interrupted)" }
+            ),
+            (None, Some(_)) => "the delays the run drew up to its end".into(),
+            (None, None) => "every delay the run had".into(),
+        }];
+        if let Some(r) = &self.replay {
+            lines.push(format!(
+                "its replay: {} ({}) after {} cycles at {:.3} s, min clearance {:.4} m",
+                r.outcome, r.end_reason, r.cycles, r.end_time_s, r.min_clearance_m
+            ));
+        }
+        lines.push(format!("replay: {replay}"));
+        lines
     }
 
     /// The trace file's text (`delay::parse_trace`'s format), `header` as comment lines.
@@ -91,6 +114,21 @@ impl FailureTrace {
         }
         out
     }
+}
+
+/// The command that flies `file` again with the trace `trace`: with the external controller
+/// `controller_cmd` when there is one, else the bench's controller `mode` (its name).
+pub fn replay_command(file: &str, controller_cmd: Option<&str>, mode: &str, trace: &str) -> String {
+    let who = match controller_cmd {
+        Some(cmd) => format!("--controller-cmd {}", shell_quote(cmd)),
+        None => format!("--mode {mode}"),
+    };
+    format!("hilbench run {file} {who} --delay-trace {trace}")
+}
+
+/// `text` as one word for a POSIX shell.
+pub fn shell_quote(text: &str) -> String {
+    format!("'{}'", text.replace('\'', r"'\''"))
 }
 
 /// How a candidate trace is flown: `scenario` with the trace (named `trace_name`) as its round
@@ -114,16 +152,34 @@ impl Rerun<'_> {
     }
 }
 
-/// Shrinks the trace `delays_s` of the failed run `flown`, within `budget` reruns; a candidate
-/// is kept when its run `fails`.
+/// Which passes shrinking tries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Passes {
+    /// Delete, zero, round.
+    All,
+    /// Zero and round only: for a run that missed its goal at its time limit, which drew a
+    /// delay for every cycle up to it, a shorter trace runs out before the limit (an error,
+    /// never kept), so each deletion would cost a whole run for nothing.
+    KeepLength,
+}
+
+impl Passes {
+    /// The passes for a failure whose outcome is named `outcome` (`RunOutcome::name`).
+    pub fn for_outcome(outcome: &str) -> Self {
+        if outcome == mpc::RunOutcome::Missed.name() { Passes::KeepLength } else { Passes::All }
+    }
+}
+
+/// Shrinks `failure` (a failed run's [`FailureTrace::unshrunk`]) within `budget` reruns; a
+/// candidate is kept when its run `fails`.
 pub fn shrink(
     rerun: &Rerun<'_>,
     budget: u64,
-    delays_s: &[f64],
-    flown: &Flight,
+    failure: FailureTrace,
+    passes: Passes,
     fails: &dyn Fn(&Flight) -> bool,
 ) -> FailureTrace {
-    let mut best = FailureTrace::unshrunk(delays_s, flown);
+    let mut best = failure;
     let mut reruns = 0u64;
     // The candidate's run if it still fails, and the trace cut to what it flew.
     let mut attempt = |delays: Vec<f64>, reruns: &mut u64| -> Option<(Vec<f64>, Flight)> {
@@ -135,14 +191,14 @@ pub fn shrink(
         match fly_one(&job, rerun.driver, rerun.timeout) {
             RunFate::Flown(f) if fails(&f) => {
                 let mut d = delays;
-                d.truncate(f.rows.len());
+                d.truncate(f.delays_needed(d.len()));
                 Some((d, *f))
             }
             _ => None,
         }
     };
-    let complete =
-        shrink_with(&mut best, budget, &mut reruns, &mut attempt) && !rerun.stop.load(Ordering::Relaxed);
+    let complete = shrink_with(&mut best, budget, passes, &mut reruns, &mut attempt)
+        && !rerun.stop.load(Ordering::Relaxed);
     best.shrink = Some((reruns, complete));
     best
 }
@@ -153,7 +209,13 @@ type Attempt<'a> = dyn FnMut(Vec<f64>, &mut u64) -> Option<(Vec<f64>, Flight)> +
 
 /// The passes of [`shrink`] over `best` (kept up to date), at most `budget` attempts; true when
 /// they ran to their end.
-fn shrink_with(best: &mut FailureTrace, budget: u64, reruns: &mut u64, attempt: &mut Attempt<'_>) -> bool {
+fn shrink_with(
+    best: &mut FailureTrace,
+    budget: u64,
+    passes: Passes,
+    reruns: &mut u64,
+    attempt: &mut Attempt<'_>,
+) -> bool {
     let mut keep = |best: &mut FailureTrace, candidate: Vec<f64>, reruns: &mut u64| -> Option<bool> {
         if *reruns >= budget {
             return None;
@@ -168,7 +230,7 @@ fn shrink_with(best: &mut FailureTrace, budget: u64, reruns: &mut u64, attempt: 
         })
     };
     // Shorter: delete chunks.
-    let mut size = best.delays_s.len() / 2;
+    let mut size = if passes == Passes::All { best.delays_s.len() / 2 } else { 0 };
     while size >= 1 {
         let mut i = 0;
         while i < best.delays_s.len() {
@@ -225,6 +287,7 @@ mod tests {
             t_s: 0.0,
             state: [0.0; 8],
             command: [0.0; 3],
+            command_seq: 0,
             known_delay_s: 0.0,
             injected_delay_s: None,
             weights: vec![],
@@ -238,7 +301,7 @@ mod tests {
             reason: String::new(),
             cost_gap: None,
         };
-        Flight { summary, rows: vec![row; cycles] }
+        Flight { summary, rows: vec![row; cycles], delays_drawn: Some(cycles) }
     }
 
     /// A stand-in for the closed loop: the run "collides" at the first cycle after two delays
@@ -259,7 +322,7 @@ mod tests {
         let mut best =
             FailureTrace { delays_s: cut, original_len: 52, shrink: None, replay: Some(Replay::of(&f)) };
         let mut reruns = 0;
-        let complete = shrink_with(&mut best, 1000, &mut reruns, &mut |d, r| {
+        let complete = shrink_with(&mut best, 1000, Passes::All, &mut reruns, &mut |d, r| {
             *r += 1;
             model(&d)
         });
@@ -271,11 +334,48 @@ mod tests {
         let mut early =
             FailureTrace { delays_s: cut, original_len: 52, shrink: None, replay: Some(Replay::of(&f)) };
         let mut reruns = 0;
-        assert!(!shrink_with(&mut early, 5, &mut reruns, &mut |d, r| {
+        assert!(!shrink_with(&mut early, 5, Passes::All, &mut reruns, &mut |d, r| {
             *r += 1;
             model(&d)
         }));
         assert_eq!(reruns, 5);
         assert!(model(&early.delays_s).is_some() && early.delays_s.len() <= 52);
+    }
+
+    #[test]
+    fn a_missed_run_is_shrunk_without_deleting_delays() {
+        // A stand-in for a run that misses its goal at its time limit: it needs all 40 delays
+        // (a shorter trace runs out first) and misses while any delay is at least 0.2 s.
+        let model = |d: &[f64]| {
+            (d.len() == 40 && d.iter().any(|x| *x >= 0.2)).then(|| (d.to_vec(), flown(40, false)))
+        };
+        let mut delays: Vec<f64> = (0..40).map(|k| 0.05 + 0.001 * k as f64).collect();
+        delays[17] = 0.25;
+        let (_, f) = model(&delays).expect("misses");
+        let mut best =
+            FailureTrace { delays_s: delays, original_len: 40, shrink: None, replay: Some(Replay::of(&f)) };
+        let mut tried = Vec::new();
+        let complete = shrink_with(&mut best, 1000, Passes::KeepLength, &mut 0, &mut |d, r| {
+            *r += 1;
+            tried.push(d.len());
+            model(&d)
+        });
+        assert!(complete);
+        assert!(tried.iter().all(|n| *n == 40), "a candidate was shortened: {tried:?}");
+        let mut want = vec![0.0; 40];
+        want[17] = 0.25;
+        assert_eq!(best.delays_s, want);
+    }
+
+    #[test]
+    fn a_failure_trace_keeps_the_delays_an_external_run_drew_beyond_its_applied_commands() {
+        // An external controller's run: 5 commands applied, 7 delayed by netem by the end (two
+        // in flight): the trace keeps 7, or the replay would run out before the end.
+        let mut f = flown(5, true);
+        f.delays_drawn = Some(7);
+        let delays: Vec<f64> = (0..20).map(|k| 0.01 * k as f64).collect();
+        assert_eq!(FailureTrace::unshrunk(&delays, &f).delays_s, delays[..7].to_vec());
+        f.delays_drawn = None;
+        assert_eq!(FailureTrace::unshrunk(&delays, &f).delays_s.len(), 20, "unknown: every delay");
     }
 }

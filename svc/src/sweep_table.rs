@@ -340,6 +340,8 @@ fn join(path: &str, key: &str) -> String {
 pub const DEFAULT_RUN_TIMEOUT_S: f64 = 300.0;
 /// The default number of reruns `--shrink` may spend on one failure.
 pub const DEFAULT_SHRINK_RUNS: u64 = 150;
+/// The default number of reruns `--shrink` may spend on all the failures of a sweep process.
+pub const DEFAULT_SHRINK_TOTAL_RUNS: u64 = 1500;
 
 /// The `[sweep]` table.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -360,6 +362,9 @@ pub struct SweepSection {
     /// Reruns `--shrink` may spend on one failure.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shrink_runs: Option<u64>,
+    /// Reruns `--shrink` may spend on all the failures of a sweep process (its shard's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shrink_total_runs: Option<u64>,
     /// How run `i` picks its family.
     #[serde(default, skip_serializing_if = "FamilyChoice::is_default")]
     pub family_choice: FamilyChoice,

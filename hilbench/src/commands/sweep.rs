@@ -8,7 +8,7 @@ use crate::cli::SweepArgs;
 use crate::drive::TimeMode;
 use crate::output::terminal;
 use crate::scenario_file::ScenarioFile;
-use crate::sweep::{Sweep, execute, output, until};
+use crate::sweep::{Sweep, execute, output, shrink_failures, until};
 
 pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
     let spec = ScenarioFile::load(&args.file)?;
@@ -53,7 +53,14 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
                 .unwrap_or(hilbench_svc::sweep_table::DEFAULT_RUN_TIMEOUT_S),
         ),
         shrink: args.shrink,
-        shrink_runs: table.shrink_runs.unwrap_or(hilbench_svc::sweep_table::DEFAULT_SHRINK_RUNS),
+        shrink_runs: args
+            .shrink_runs
+            .or(table.shrink_runs)
+            .unwrap_or(hilbench_svc::sweep_table::DEFAULT_SHRINK_RUNS),
+        shrink_total_runs: args
+            .shrink_total_runs
+            .or(table.shrink_total_runs)
+            .unwrap_or(hilbench_svc::sweep_table::DEFAULT_SHRINK_TOTAL_RUNS),
         scenario: spec.scenario,
         table,
         batch: None,
@@ -65,7 +72,7 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
     let show = !args.json && !opts.quiet;
     let items = (sweep.indices().end - sweep.indices().start) * sweep.modes.len() as u64;
     let bar = crate::progress::bar_with_eta(items, "runs", show);
-    let (result, sweep) = match args.until_bound {
+    let (mut result, sweep) = match args.until_bound {
         None => (execute(&sweep, &bar, show), sweep),
         Some(bound) => {
             let (result, runs) = until::execute_until(&sweep, bound, &bar, show)?;
@@ -73,6 +80,11 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
         }
     };
     bar.finish_and_clear();
+    if sweep.shrink && !result.interrupted {
+        let spent = shrink_failures(&sweep, &mut result, !opts.quiet);
+        result.interrupted |= spent.interrupted;
+        result.shrinking = Some(spent);
+    }
     let summary = output::write(&dir, &sweep, &result, opts.plots)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);

@@ -35,6 +35,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, anyhow, bail};
 use hilbench_proto::pb;
+use hilbench_proto::pb::netem_control_client::NetemControlClient;
 use hilbench_proto::pb::plant_client::PlantClient;
 use mav::{PlantSample, Scenario, ns_to_s};
 use mpc::{ControllerMode, RunEnd, RunSummary};
@@ -196,6 +197,8 @@ struct ExternalFlight<'a> {
     judge: Judge,
     delay_profile: DelayProfileInForce,
     exit: Option<String>,
+    /// netem's count of commands delayed, asked when the end was judged.
+    commands_delayed: Option<u64>,
     setup_s: f64,
     /// Stopping the controller's process, s (part of the run's teardown).
     stop_s: f64,
@@ -214,6 +217,7 @@ impl<'a> ExternalFlight<'a> {
             judge: Judge::new(scenario),
             delay_profile,
             exit: None,
+            commands_delayed: None,
             setup_s: 0.0,
             stop_s: 0.0,
             episode_started: None,
@@ -320,6 +324,10 @@ impl<'a> ExternalFlight<'a> {
             }
         }
         let episode_s = episode_started.elapsed().as_secs_f64();
+        // Before the controller is stopped: every command sent before the end has had its delay
+        // drawn by now (the plant stepped to the end while netem advanced it for a command
+        // already delayed), so the count is never short of what a replay needs.
+        self.commands_delayed = commands_delayed(netem_addr, deadline).await;
         let stopping = Instant::now();
         if exited.is_none() {
             self.exit = Some(process.stop(settings.stop_grace).await);
@@ -348,6 +356,7 @@ impl<'a> ExternalFlight<'a> {
             command: self.controller.command.clone(),
             exit: self.exit.clone().unwrap_or_else(|| "killed by the bench".to_string()),
             commands_applied: self.judge.rows.len() as u64,
+            commands_delayed: self.commands_delayed,
             commands_saturated: self.judge.saturated,
             plant_steps_judged: self.judge.steps,
             plant_steps_missed: self.judge.missed,
@@ -361,6 +370,17 @@ impl<'a> ExternalFlight<'a> {
         let episode_s = self.episode_started.map_or(0.0, |t| t.elapsed().as_secs_f64());
         Some(self.run(summary, last, episode_s))
     }
+}
+
+/// netem's commands sent (each drew a delay), or `None` when it cannot be asked (summary.json
+/// then says `null`, and a failure's trace keeps every delay the run had).
+async fn commands_delayed(netem_addr: &str, deadline: Instant) -> Option<u64> {
+    let asked = async {
+        let mut control = NetemControlClient::new(connect(netem_addr, deadline).await?);
+        let stats = control.get_stats(pb::GetStatsRequest {}).await.context("netem GetStats")?.into_inner();
+        anyhow::Ok(stats.controller_to_plant.map_or(0, |d| d.sent))
+    };
+    asked.await.ok()
 }
 
 fn faults_of(last: &PlantSample) -> RunFaults {
@@ -442,6 +462,7 @@ impl Judge {
                 t_s: ns_to_s(sample.time_ns),
                 state: sample.state.into(),
                 command: applied.input.into(),
+                command_seq: applied.meta.command_seq,
                 known_delay_s: ns_to_s(round_trip_ns),
                 injected_delay_s: None,
                 weights: Vec::new(),

@@ -281,7 +281,8 @@ fn search_one(
     let worst = worst.map(|(score, run, delays_s, flight)| {
         let trace = if score < 0.0 && f.shrink_runs > 0 {
             let fails = |flight: &Flight| f.score(flight) < 0.0;
-            shrink::shrink(&f.rerun(space, stop), f.shrink_runs, &delays_s, &flight, &fails)
+            let failure = FailureTrace::unshrunk(&delays_s, &flight);
+            shrink::shrink(&f.rerun(space, stop), f.shrink_runs, failure, shrink::Passes::All, &fails)
         } else {
             FailureTrace::unshrunk(&delays_s, &flight)
         };

@@ -26,24 +26,17 @@ pub fn trace_file(record: &SearchRecord) -> String {
 
 /// The controller flown, as the outputs name it.
 fn controller(f: &Falsification) -> String {
-    match &f.controller_cmd {
-        Some(_) => crate::drive::external::CONTROLLER_NAME.to_string(),
-        None => f.mode.name().to_string(),
-    }
+    crate::drive::controller_name(f.controller_cmd.as_deref(), f.mode).to_string()
 }
 
 /// The command that flies a trace of this falsification again.
 pub fn replay_command(f: &Falsification, trace: &str) -> String {
-    let who = match &f.controller_cmd {
-        Some(cmd) => format!("--controller-cmd {}", shell_quote(cmd)),
-        None => format!("--mode {}", f.mode.name()),
-    };
-    format!("hilbench run {} {who} --delay-trace {trace}", f.file.display())
-}
-
-/// `text` as one word for a POSIX shell.
-fn shell_quote(text: &str) -> String {
-    format!("'{}'", text.replace('\'', r"'\''"))
+    crate::shrink::replay_command(
+        &f.file.display().to_string(),
+        f.controller_cmd.as_deref(),
+        f.mode.name(),
+        trace,
+    )
 }
 
 /// The run with the lowest score (NaN the worst; the first on ties).
@@ -182,22 +175,7 @@ pub fn write(dir: &Path, f: &Falsification, result: &FalsifyResult, plots: bool)
             ),
             format!("property {} {failed}: robustness {:.6} m", f.property.name(), worst.score),
         ];
-        match t.shrink {
-            Some((reruns, complete)) => header.push(format!(
-                "shrunk from {} to {} delays in {reruns} reruns{}",
-                t.original_len,
-                t.delays_s.len(),
-                if complete { "" } else { " (budget used up or interrupted)" }
-            )),
-            None => header.push("the delays of the cycles the run flew".into()),
-        }
-        if let Some(r) = &t.replay {
-            header.push(format!(
-                "its replay: {} ({}) after {} cycles at {:.3} s, min clearance {:.4} m",
-                r.outcome, r.end_reason, r.cycles, r.end_time_s, r.min_clearance_m
-            ));
-        }
-        header.push(format!("replay: {}", replay_command(f, "<this file>")));
+        header.extend(t.provenance(&replay_command(f, "<this file>")));
         write_file(&path, &t.to_text(&header))?;
     }
     let summary = falsify_json(f, result);

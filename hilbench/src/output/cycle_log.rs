@@ -81,6 +81,7 @@ mod tests {
             t_s: 0.35,
             state: [0.0; 8],
             command: [9.81, 0.0, 0.0],
+            command_seq: 8,
             known_delay_s: 0.0,
             injected_delay_s: None,
             weights: vec![1.0],

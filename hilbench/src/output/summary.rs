@@ -150,6 +150,7 @@ mod tests {
             t_s: k as f64 * 0.1,
             state: [px, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
             command: [9.81, 0.0, 0.0],
+            command_seq: k + 1,
             known_delay_s: delay_s,
             injected_delay_s: Some(delay_s),
             weights: vec![1.0],

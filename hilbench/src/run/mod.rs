@@ -245,6 +245,13 @@ pub struct ExternalFacts {
     /// Commands the plant applied, as seen at its steps (one replaced within a step is not
     /// seen); the CSV has a row for each.
     pub commands_applied: u64,
+    /// Commands netem drew a delay for by the end of the run (`NetemControl.GetStats`'s
+    /// commands sent, asked as soon as the end is judged): each took one entry of a trace, so
+    /// a failure's trace keeps this many to replay. It can exceed the commands sent before the
+    /// end (the controller steps on until it is stopped), never fall short of them; commands
+    /// still in flight at the end are among them, and not in `commands_applied`. `None` when
+    /// netem could not be asked.
+    pub commands_delayed: Option<u64>,
     /// Of them, commands the plant clipped at its actuator limits.
     pub commands_saturated: u64,
     /// Plant steps judged (samples of the plant's stream up to the end of the run).
@@ -262,6 +269,8 @@ pub struct CycleRow {
     pub t_s: f64,
     pub state: [f64; 8],
     pub command: [f64; 3],
+    /// The command's sequence number (`Command.command_seq`).
+    pub command_seq: u64,
     /// The round-trip delay the controller knew at this cycle (that of the previous command,
     /// measured from plant stamps), s; 0 before the first measurement.
     pub known_delay_s: f64,
@@ -294,6 +303,7 @@ pub fn rows_of(records: &[CycleRecord]) -> Vec<CycleRow> {
             t_s: r.t_s(),
             state: r.state,
             command: r.command,
+            command_seq: r.command_seq,
             known_delay_s: r.known_delay_s.unwrap_or(0.0),
             injected_delay_s: r.injected_delay_s,
             weights: r.weights.clone(),

@@ -53,7 +53,10 @@ pub struct Sweep {
     pub driver: Driver,
     pub run_timeout: Duration,
     pub shrink: bool,
+    /// Reruns one failure's shrinking may spend.
     pub shrink_runs: u64,
+    /// Reruns the shrinking of all the failures may spend, shared out in run order.
+    pub shrink_total_runs: u64,
     /// Fly these runs instead of the shard's (a batch of `--until-bound`, [`until`]).
     pub batch: Option<Range<u64>>,
 }
@@ -71,6 +74,11 @@ impl Sweep {
                 at(i)..at(i + 1)
             }
         }
+    }
+
+    /// The controllers flown, as the outputs name them (`modes` order).
+    pub fn controllers(&self) -> Vec<String> {
+        self.modes.iter().map(|m| self.driver.controller_name(*m).to_string()).collect()
     }
 
     /// Run `index`'s delays.
@@ -97,6 +105,8 @@ pub struct SweepResult {
     /// `--until-bound`: the rule, how many runs it took and why it stopped (sweep.json's
     /// `until_bound`).
     pub until_bound: Option<serde_json::Value>,
+    /// `--shrink`: what shrinking the failures spent ([`shrink_failures`]).
+    pub shrinking: Option<ShrinkSpent>,
 }
 
 /// Flies every run of the shard on `sweep.jobs` threads. `bar` counts finished runs.
@@ -122,7 +132,7 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
             s.spawn(move || {
                 while !stop.load(Ordering::Relaxed) {
                     let Some((index, mode)) = item(next.fetch_add(1, Ordering::Relaxed)) else { break };
-                    let result = one(sweep, index, mode, stop);
+                    let result = one(sweep, index, mode);
                     if result.is_none() {
                         stop.store(true, Ordering::Relaxed);
                     }
@@ -168,19 +178,25 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
         }
     });
     interrupted |= stop.load(Ordering::Relaxed) && done.len() < total;
-    let order = |m: &str| sweep.modes.iter().position(|x| x.name() == m).unwrap_or(usize::MAX);
+    let order = |m: &str| sweep.controllers().iter().position(|x| x == m).unwrap_or(usize::MAX);
     done.sort_by_key(|a| (a.row.run, order(&a.row.controller)));
-    SweepResult { done, interrupted, wall_time_s: started.elapsed().as_secs_f64(), until_bound: None }
+    SweepResult {
+        done,
+        interrupted,
+        wall_time_s: started.elapsed().as_secs_f64(),
+        until_bound: None,
+        shrinking: None,
+    }
 }
 
-/// Run `index` with `mode`: drawn, flown, its row, its failure's trace (shrunk when asked).
-/// `None`: Ctrl-C.
-fn one(sweep: &Sweep, index: u64, mode: ControllerMode, stop: &AtomicBool) -> Option<Done> {
+/// Run `index` with `mode`: drawn, flown, its row, its failure's trace. `None`: Ctrl-C.
+fn one(sweep: &Sweep, index: u64, mode: ControllerMode) -> Option<Done> {
     let started = Instant::now();
+    let controller = sweep.driver.controller_name(mode);
     let plan = match sweep.plan(index) {
         Ok(plan) => plan,
         Err(e) => {
-            let row = RunRow::of_error(index, mode, "", "", "error", &e, 0.0);
+            let row = RunRow::of_error(index, controller, "", "", "error", &e, 0.0);
             return Some(Done { row, failure: None });
         }
     };
@@ -189,32 +205,135 @@ fn one(sweep: &Sweep, index: u64, mode: ControllerMode, stop: &AtomicBool) -> Op
     let wall_s = started.elapsed().as_secs_f64();
     let row = match &flight {
         RunFate::Interrupted => return None,
-        RunFate::Flown(f) => RunRow::of_flight(index, mode, &plan, f, wall_s),
+        RunFate::Flown(f) => RunRow::of_flight(index, controller, &plan, f, wall_s),
         RunFate::Failed(e) => {
-            RunRow::of_error(index, mode, &plan.family, &plan.params_text(), "error", e, wall_s)
+            RunRow::of_error(index, controller, &plan.family, &plan.params_text(), "error", e, wall_s)
         }
         RunFate::TimedOut(limit) => {
             let e = format!("the run took longer than the per-run time limit of {} s", limit.as_secs_f64());
-            RunRow::of_error(index, mode, &plan.family, &plan.params_text(), "timeout", &e, wall_s)
+            RunRow::of_error(index, controller, &plan.family, &plan.params_text(), "timeout", &e, wall_s)
         }
     };
     let failure = match &flight {
         _ if row.outcome == "reached" => None,
-        RunFate::Flown(f) if sweep.shrink => {
-            let rerun = Rerun {
-                scenario: &sweep.scenario,
-                trace_name: format!("sweep-run-{index}"),
-                mode,
-                driver: &sweep.driver,
-                timeout: sweep.run_timeout,
-                stop,
-            };
-            let want = f.summary.outcome();
-            let fails = |f: &crate::fly::Flight| f.summary.outcome() == want;
-            Some(shrink::shrink(&rerun, sweep.shrink_runs, &plan.delays_s, f, &fails))
-        }
         RunFate::Flown(f) => Some(shrink::FailureTrace::unshrunk(&plan.delays_s, f)),
         _ => Some(shrink::FailureTrace::whole(&plan.delays_s)),
     };
     Some(Done { row, failure })
+}
+
+/// What shrinking the failures of a sweep spent (sweep.json's `shrinking`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ShrinkSpent {
+    /// Failures whose run flew to an end and so could be shrunk.
+    pub failures: usize,
+    /// Of them, those given a budget (the total ran out for the rest).
+    pub shrunk: usize,
+    pub reruns: u64,
+    pub per_failure_budget: u64,
+    pub total_budget: u64,
+    pub wall_time_s: f64,
+    pub interrupted: bool,
+}
+
+/// The reruns each of `n` failures may spend, in run order: an even share of `total`, at most
+/// `per_failure` each (the first `total % n` get one more); independent of how many threads
+/// shrink, so a sweep's traces do not depend on `--jobs`.
+pub fn shrink_budgets(n: usize, per_failure: u64, total: u64) -> Vec<u64> {
+    let n64 = n.max(1) as u64;
+    (0..n as u64).map(|i| (total / n64 + u64::from(i < total % n64)).min(per_failure)).collect()
+}
+
+/// After the runs: shrinks each failure of `result` that flew to its end (a collision, or a
+/// goal missed), in run order, within [`shrink_budgets`], on `sweep.jobs` threads. Says first
+/// what it may cost; Ctrl-C ends it within a run, keeping what was shrunk.
+pub fn shrink_failures(sweep: &Sweep, result: &mut SweepResult, show: bool) -> ShrinkSpent {
+    let started = Instant::now();
+    let todo: Vec<usize> = (0..result.done.len())
+        .filter(|&i| {
+            let d = &result.done[i];
+            d.failure.as_ref().is_some_and(|f| f.replay.is_some())
+        })
+        .collect();
+    let budgets = shrink_budgets(todo.len(), sweep.shrink_runs, sweep.shrink_total_runs);
+    let planned: u64 = budgets.iter().sum();
+    let shrunk = budgets.iter().filter(|b| **b > 0).count();
+    if show && !todo.is_empty() {
+        let walls: Vec<f64> = todo.iter().map(|&i| result.done[i].row.wall_s).collect();
+        let run_s = walls.iter().sum::<f64>() / walls.len() as f64;
+        let jobs = sweep.jobs.clamp(1, todo.len());
+        eprintln!(
+            "shrinking {} failure(s) on {jobs} job(s): at most {planned} reruns ({} each at most, {} in all \
+             at most), about {} at {run_s:.2} s a run; Ctrl-C keeps what is shrunk so far",
+            todo.len(),
+            sweep.shrink_runs,
+            sweep.shrink_total_runs,
+            crate::progress::duration_text(planned as f64 * run_s / jobs as f64),
+        );
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    watch_ctrl_c(Arc::clone(&stop), "hilbench-shrink-ctrl-c");
+    let next = AtomicUsize::new(0);
+    let (tx, rx) = mpsc::channel::<(usize, shrink::FailureTrace)>();
+    std::thread::scope(|s| {
+        for _ in 0..sweep.jobs.clamp(1, todo.len().max(1)) {
+            let tx = tx.clone();
+            let (next, stop, todo, budgets, done) = (&next, &stop, &todo, &budgets, &result.done);
+            s.spawn(move || {
+                while !stop.load(Ordering::Relaxed) {
+                    let k = next.fetch_add(1, Ordering::Relaxed);
+                    let (Some(&i), Some(&budget)) = (todo.get(k), budgets.get(k)) else { break };
+                    let d = &done[i];
+                    let Some(mut failure) = d.failure.clone() else { continue };
+                    if budget == 0 {
+                        // The total budget ran out before this failure: said, not shrunk.
+                        failure.shrink = Some((0, false));
+                        if tx.send((i, failure)).is_err() {
+                            break;
+                        }
+                        continue;
+                    }
+                    let Some(mode) = sweep
+                        .modes
+                        .iter()
+                        .copied()
+                        .find(|m| sweep.driver.controller_name(*m) == d.row.controller)
+                    else {
+                        continue;
+                    };
+                    let rerun = Rerun {
+                        scenario: &sweep.scenario,
+                        trace_name: format!("sweep-run-{}", d.row.run),
+                        mode,
+                        driver: &sweep.driver,
+                        timeout: sweep.run_timeout,
+                        stop,
+                    };
+                    let want = d.row.outcome.clone();
+                    let fails = |f: &crate::fly::Flight| f.summary.outcome().name() == want;
+                    let passes = shrink::Passes::for_outcome(&want);
+                    let shrunk = shrink::shrink(&rerun, budget, failure, passes, &fails);
+                    if tx.send((i, shrunk)).is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+        drop(tx);
+    });
+    let mut reruns = 0;
+    for (i, shrunk) in rx {
+        reruns += shrunk.shrink.map_or(0, |(r, _)| r);
+        result.done[i].failure = Some(shrunk);
+    }
+    let interrupted = stop.load(Ordering::Relaxed);
+    ShrinkSpent {
+        failures: todo.len(),
+        shrunk,
+        reruns,
+        per_failure_budget: sweep.shrink_runs,
+        total_budget: sweep.shrink_total_runs,
+        wall_time_s: started.elapsed().as_secs_f64(),
+        interrupted,
+    }
 }

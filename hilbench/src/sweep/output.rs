@@ -25,6 +25,8 @@ pub struct Meta {
     /// `i/K`, or none for a whole sweep.
     pub shard: Option<String>,
     pub controllers: Vec<String>,
+    /// The external controller's command line, when the sweep flew one.
+    pub controller_cmd: Option<String>,
     pub families: Vec<String>,
     pub transport: String,
     pub shrink: bool,
@@ -38,7 +40,8 @@ impl Meta {
             seed: sweep.seed,
             runs_planned: sweep.runs,
             shard: sweep.shard.map(|(i, k)| format!("{i}/{k}")),
-            controllers: sweep.modes.iter().map(|m| m.name().to_string()).collect(),
+            controllers: sweep.controllers(),
+            controller_cmd: sweep.driver.controller_cmd().map(str::to_string),
             families: sweep.table.families.iter().map(|f| f.name().to_string()).collect(),
             transport: sweep.driver.name().to_string(),
             shrink: sweep.shrink,
@@ -76,6 +79,7 @@ pub fn sweep_json(
     v["runs_planned"] = json!(meta.runs_planned);
     v["shard"] = json!(meta.shard);
     v["controllers"] = json!(meta.controllers);
+    v["controller_cmd"] = json!(meta.controller_cmd);
     v["family_order"] = json!(meta.families);
     v["transport"] = json!(meta.transport);
     v["time_mode"] = json!("lockstep");
@@ -133,20 +137,12 @@ pub fn write(dir: &Path, sweep: &Sweep, result: &SweepResult, plots: bool) -> an
                 ),
                 format!("family {} ({}): {}", r.family, r.params, r.what),
             ];
-            match f.shrink {
-                Some((reruns, complete)) => header.push(format!(
-                    "shrunk from {} to {} delays in {reruns} reruns{}",
-                    f.original_len,
-                    f.delays_s.len(),
-                    if complete { "" } else { " (budget used up)" }
-                )),
-                None if f.replay.is_some() => header.push("the delays of the cycles the run flew".into()),
-                None => header.push("every delay the run had".into()),
-            }
-            header.push(format!(
-                "replay: hilbench run {} --mode {} --delay-trace <this file>",
-                meta.file, r.controller
-            ));
+            header.extend(f.provenance(&crate::shrink::replay_command(
+                &meta.file,
+                meta.controller_cmd.as_deref(),
+                &r.controller,
+                "<this file>",
+            )));
             write_file(&folder.join(failure_file(r.run, &r.controller, controllers)), &f.to_text(&header))?;
         }
         failures.push(failure_json(d, &meta));
@@ -164,6 +160,7 @@ pub fn write(dir: &Path, sweep: &Sweep, result: &SweepResult, plots: bool) -> an
     if let Some(until) = &result.until_bound {
         summary["until_bound"] = until.clone();
     }
+    summary["shrinking"] = json!(result.shrinking);
     finish(dir, &meta, &rows, &summary, &sweep.scenario, plots)?;
     Ok(summary)
 }
@@ -319,6 +316,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
                 .with_context(|| format!("{}: no `runs_planned`", path.display()))?,
             shard: None,
             controllers: strings("controllers"),
+            controller_cmd: v["controller_cmd"].as_str().map(String::from),
             families: strings("family_order"),
             transport: v["transport"].as_str().unwrap_or_default().to_string(),
             shrink: v["shrink"] == true,

@@ -10,7 +10,6 @@
 
 use std::fmt::Write as _;
 
-use mpc::ControllerMode;
 use mpc::record::percentile;
 use serde_json::{Value, json};
 
@@ -58,12 +57,12 @@ pub const CSV_HEADER: &str = "run,controller,family,params,outcome,collided_grou
 
 impl RunRow {
     /// The row of a run that flew.
-    pub fn of_flight(run: u64, mode: ControllerMode, plan: &RunPlan, flown: &Flight, wall_s: f64) -> Self {
+    pub fn of_flight(run: u64, controller: &str, plan: &RunPlan, flown: &Flight, wall_s: f64) -> Self {
         let s = &flown.summary;
         let mut solve_ms: Vec<f64> = flown.rows.iter().map(|r| r.solve_ms).collect();
         let stat = |v: &mut Vec<f64>, p: f64| (!v.is_empty()).then(|| percentile(v, p));
         // A lost message (a trace's `lost`) has no delay: it is left out of the delays' numbers.
-        let flown_delays: Vec<f64> = plan.delays_s[..flown.rows.len().min(plan.delays_s.len())]
+        let flown_delays: Vec<f64> = plan.delays_s[..flown.delays_needed(plan.delays_s.len())]
             .iter()
             .copied()
             .filter(|d| !delay::is_lost(*d))
@@ -91,7 +90,7 @@ impl RunRow {
         };
         Self {
             run,
-            controller: mode.name().to_string(),
+            controller: controller.to_string(),
             family: plan.family.clone(),
             params: plan.params_text(),
             outcome: outcome.name().to_string(),
@@ -120,7 +119,7 @@ impl RunRow {
     /// The row of a run that did not fly to its end (`outcome` `error` or `timeout`).
     pub fn of_error(
         run: u64,
-        mode: ControllerMode,
+        controller: &str,
         family: &str,
         params: &str,
         outcome: &str,
@@ -129,7 +128,7 @@ impl RunRow {
     ) -> Self {
         Self {
             run,
-            controller: mode.name().to_string(),
+            controller: controller.to_string(),
             family: family.to_string(),
             params: params.to_string(),
             outcome: outcome.to_string(),
@@ -386,8 +385,7 @@ mod tests {
     use super::*;
 
     fn row(run: u64, outcome: &str, clearance: f64) -> RunRow {
-        let mut r =
-            RunRow::of_error(run, ControllerMode::Multistage, "gamma", "shape=1.5;x=2", outcome, "", 0.25);
+        let mut r = RunRow::of_error(run, "multistage", "gamma", "shape=1.5;x=2", outcome, "", 0.25);
         r.min_clearance_m = Some(clearance);
         r.path_length_m = Some(5.0 + run as f64);
         r.time_to_goal_s = Some(10.0);

@@ -98,7 +98,7 @@ pub fn execute_until(
     show: bool,
 ) -> anyhow::Result<(SweepResult, u64)> {
     let need = check(bound, sweep.runs)?;
-    let modes: Vec<String> = sweep.modes.iter().map(|m| m.name().to_string()).collect();
+    let modes = sweep.controllers();
     let jobs = sweep.jobs.max(1) as u64;
     let mut done: Vec<Done> = Vec::new();
     let (mut next, mut wall_time_s) = (0u64, 0.0);
@@ -142,7 +142,7 @@ pub fn execute_until(
         "any": by_controller,
     });
     let interrupted = stopped == Stopped::Interrupted;
-    Ok((SweepResult { done, interrupted, wall_time_s, until_bound: Some(until) }, n))
+    Ok((SweepResult { done, interrupted, wall_time_s, until_bound: Some(until), shrinking: None }, n))
 }
 
 /// The terminal's line about `sweep.json`'s `until_bound`.

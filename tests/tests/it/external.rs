@@ -204,6 +204,70 @@ fn a_sweep_of_the_python_controller_under_twenty_delay_processes_reaches_every_g
     assert_ne!(path_m["p50"], path_m["p95"], "{path_m}");
 }
 
+/// A sweep of the Python controller that collides (paper-1, straight into a cylinder): runs.csv
+/// names the controller `external`, sweep.json its command, and each failure's trace (as flown,
+/// and shrunk) replays the collision with the command its header names: it holds every delay
+/// netem drew by the end, commands in flight included, so the replay never runs out first.
+#[test]
+fn an_external_controllers_sweep_failure_replays_as_written_shrunk_or_not_with_the_command_it_names() {
+    let _turn = hilbench_tests::CPU_HEAVY.blocking_lock();
+    let out = TempDir::new("external-test-sweep-replay");
+    let paper_1 = std::fs::read_to_string(repo("scenarios/paper-1.toml")).expect("paper-1.toml");
+    let file = out.join("paper-1-sweep.toml");
+    // Delays long against the controller's 20 Hz: several commands are in flight at the end.
+    let table = "\n[sweep]\nruns = 1\nseed = 3\nshrink_runs = 12\n\n[[sweep.families]]\nkind = \"uniform\"\n\
+                 min_s = 0.05\nmax_s = 0.2\n";
+    std::fs::write(&file, format!("{paper_1}{table}")).expect("write the file");
+    let file = file.display().to_string();
+    let controller = python_controller();
+    for shrink in [false, true] {
+        let dir = out.join(if shrink { "shrunk" } else { "flown" });
+        let mut args = vec!["sweep", &file, "--controller-cmd", &controller, "--jobs", "1"];
+        if shrink {
+            args.push("--shrink");
+        }
+        let run = Command::new(hilbench_tests::service_binary("hilbench"))
+            .args(&args)
+            .args(["--quiet", "--no-plots", "--out"])
+            .arg(&dir)
+            .stdin(Stdio::null())
+            .output()
+            .expect("hilbench runs");
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        let sweep: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("sweep.json")).expect("sweep.json"))
+                .expect("JSON");
+        assert_eq!(sweep["controllers"], serde_json::json!(["external"]), "{sweep}");
+        assert_eq!(sweep["controller_cmd"].as_str(), Some(controller.as_str()));
+        let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("runs.csv");
+        assert!(csv.lines().nth(1).is_some_and(|l| l.starts_with("0,external,")), "{csv}");
+        let failure = &sweep["failures"][0];
+        assert_eq!(failure["outcome"], "collided", "{sweep}");
+        if shrink {
+            assert!(failure["shrink"]["reruns"].as_u64().is_some_and(|r| r > 0), "{failure}");
+            assert!(sweep["shrinking"]["reruns"].as_u64().is_some_and(|r| r > 0), "{sweep}");
+        }
+        let replayed = &failure["replay"];
+        let trace = dir.join(failure["trace_file"].as_str().expect("a trace"));
+        let text = std::fs::read_to_string(&trace).expect("the trace");
+        let replay_line = text.lines().find(|l| l.starts_with("# replay:")).expect("a replay line");
+        assert!(
+            replay_line.contains("--controller-cmd") && replay_line.contains("controller.py"),
+            "{replay_line}"
+        );
+        // The replay, as its header says: the same collision at the same plant time.
+        let again = out.join(if shrink { "replay-shrunk" } else { "replay-flown" });
+        let trace = trace.display().to_string();
+        let (code, stderr, summary) =
+            hilbench(&["run", &file, "--controller-cmd", &controller, "--delay-trace", &trace], &again);
+        assert_eq!(code, Some(3), "the replay collides: {stderr}");
+        let run = &summary["runs"][0];
+        assert_eq!(run["end_reason"], "collided", "{run}");
+        assert_eq!(run["end_time_s"], replayed["end_time_s"], "{run} against {replayed}");
+        assert_eq!(run["cycles"], replayed["cycles"], "{run} against {replayed}");
+    }
+}
+
 /// `hilbench falsify --controller-cmd`: every run of the search is the Python controller's,
 /// scored from the plant's truth, and the worst run's trace names the command that replays it.
 #[test]
