@@ -25,7 +25,7 @@ use mpc::CycleRecord;
 use schemars::JsonSchema;
 use serde::Serialize;
 
-use crate::run::Batch;
+use crate::run::{Batch, CycleRow};
 
 /// The frame of the scene, the plan and the poses.
 pub const WORLD_FRAME: &str = "world";
@@ -202,21 +202,8 @@ impl Channels {
             }),
             t,
         );
-        let (lo, hi) = (scenario.bounds.min, scenario.bounds.max);
         self.command.log_with_time(
-            &Json(CommandMsg {
-                cycle: record.cycle,
-                command_seq: record.command_seq,
-                thrust_mps2: record.command[0],
-                roll_rad: record.command[1],
-                pitch_rad: record.command[2],
-                thrust_min_mps2: lo[0],
-                thrust_max_mps2: hi[0],
-                roll_min_rad: lo[1],
-                roll_max_rad: hi[1],
-                pitch_min_rad: lo[2],
-                pitch_max_rad: hi[2],
-            }),
+            &Json(command_msg(scenario, record.cycle, record.command_seq, &record.command)),
             t,
         );
         let sampling_times_s = match record.weights.len() {
@@ -252,10 +239,54 @@ impl Channels {
         );
     }
 
+    /// A command the plant applied, seen from the plant (an external controller's run: no
+    /// plan, no solve): the vehicle's pose and state at that step, and the command.
+    pub fn applied(&self, scenario: &Scenario, row: &CycleRow) {
+        let t = mav::s_to_ns(row.t_s).unwrap_or(0);
+        self.tf.log_with_time(&frame_transform(t, &row.state), t);
+        self.pose.log_with_time(&pose_in_frame(t, &row.state), t);
+        let s = &row.state;
+        self.state.log_with_time(
+            &Json(StateMsg {
+                cycle: row.cycle,
+                t_s: row.t_s,
+                px_m: s[0],
+                py_m: s[1],
+                pz_m: s[2],
+                vx_mps: s[3],
+                vy_mps: s[4],
+                vz_mps: s[5],
+                roll_rad: s[6],
+                pitch_rad: s[7],
+                watchdog_hover: false,
+            }),
+            t,
+        );
+        self.command.log_with_time(&Json(command_msg(scenario, row.cycle, row.command_seq, &row.command)), t);
+    }
+
     /// The vehicle where the run ended (the plant's last state, at its time): the last pose.
     pub fn final_pose(&self, time_ns: u64, state: &[f64; 8]) {
         self.tf.log_with_time(&frame_transform(time_ns, state), time_ns);
         self.pose.log_with_time(&pose_in_frame(time_ns, state), time_ns);
+    }
+}
+
+/// The `/command` message of `command` (with the scenario's input bounds).
+fn command_msg(scenario: &Scenario, cycle: u64, command_seq: u64, command: &[f64; 3]) -> CommandMsg {
+    let (lo, hi) = (scenario.bounds.min, scenario.bounds.max);
+    CommandMsg {
+        cycle,
+        command_seq,
+        thrust_mps2: command[0],
+        roll_rad: command[1],
+        pitch_rad: command[2],
+        thrust_min_mps2: lo[0],
+        thrust_max_mps2: hi[0],
+        roll_min_rad: lo[1],
+        roll_max_rad: hi[1],
+        pitch_min_rad: lo[2],
+        pitch_max_rad: hi[2],
     }
 }
 
@@ -420,13 +451,15 @@ pub fn mcap_path(dir: &Path, scenario: &str, controller: &str) -> PathBuf {
     dir.join(format!("{scenario}-{controller}.mcap"))
 }
 
-/// Writes one run as an MCAP file: the scene, every cycle, and the plant's last state as the
-/// last pose (at `end_time_ns`).
+/// Writes one run as an MCAP file: the scene, every cycle (the bench's controller's
+/// `records`; for a run without them, an external controller's, the commands the plant
+/// `applied`), and the plant's last state as the last pose (at `end_time_ns`).
 pub fn write_mcap(
     path: &Path,
     scenario: &Scenario,
     controller: &str,
     records: &[CycleRecord],
+    applied: &[CycleRow],
     end: Option<(u64, [f64; 8])>,
 ) -> anyhow::Result<()> {
     let ctx = Context::new();
@@ -450,6 +483,11 @@ pub fn write_mcap(
     for record in records {
         channels.cycle(scenario, record);
     }
+    if records.is_empty() {
+        for row in applied {
+            channels.applied(scenario, row);
+        }
+    }
     if let Some((time_ns, state)) = end {
         channels.final_pose(time_ns, &state);
     }
@@ -466,7 +504,7 @@ pub fn write_batch(dir: &Path, batch: &Batch) -> anyhow::Result<Vec<PathBuf>> {
         let end =
             run.error.is_none().then(|| (mav::s_to_ns(summary.end_time_s).unwrap_or(0), summary.final_state));
         let path = mcap_path(dir, &summary.scenario, &summary.controller);
-        write_mcap(&path, &run.job.scenario, &summary.controller, &run.records, end)?;
+        write_mcap(&path, &run.job.scenario, &summary.controller, &run.records, &run.rows, end)?;
         paths.push(path);
     }
     Ok(paths)
