@@ -67,12 +67,19 @@ struct Inner {
     /// Commands arrive while the vehicle does not fly them (armed, in its external mode), and
     /// that was logged.
     warned_not_flown: bool,
+    /// Gateway time of the last Arm, Disarm or SetMode the vehicle accepted: its heartbeat says
+    /// so up to a heartbeat period later, and until then "does not fly them" would be wrong.
+    accepted_command_ns: Option<u64>,
     /// Gateway time of the last reboot warning, and the reboots not logged since.
     reboot_logged_ns: Option<u64>,
     reboots_unlogged: u64,
     /// `--record-link`: the `TIMESYNC` exchanges, written as a delay trace.
     link_record: Option<LinkRecord>,
 }
+
+/// How long after an accepted Arm or SetMode the vehicle's heartbeat may still show the state
+/// before it, ns: a heartbeat period (1 Hz) and its travel, with margin.
+const HEARTBEAT_LAG_NS: u64 = 2_500_000_000;
 
 /// How often `--record-link`'s file is written again while the gateway runs, ns.
 const LINK_RECORD_EVERY_NS: u64 = 10_000_000_000;
@@ -245,6 +252,7 @@ impl GatewayService {
                     overflow_dropped: 0,
                     send_errors: 0,
                     warned_not_flown: false,
+                    accepted_command_ns: None,
                     reboot_logged_ns: None,
                     reboots_unlogged: 0,
                     link_record: None,
@@ -509,6 +517,7 @@ impl GatewayService {
     ) -> Result<Response<pb::VehicleCommandResponse>, Status> {
         match self.request(Awaited::Ack(command), &msg).await? {
             Some(Answer::Ack(MavResult::MAV_RESULT_ACCEPTED)) => {
+                self.shared.lock().accepted_command_ns = Some(self.shared.now_ns());
                 Ok(Response::new(pb::VehicleCommandResponse {
                     result: format!("{:?}", MavResult::MAV_RESULT_ACCEPTED),
                 }))
@@ -651,7 +660,10 @@ impl pb::plant_server::Plant for GatewayService {
             self.serving(&inner, now)?;
             // Said once per spell: a controller flying a vehicle that ignores it would otherwise
             // only see the states not follow.
-            let flies = inner.bridge.flies_setpoints();
+            // Right after an accepted Arm or SetMode the last heartbeat is older than the
+            // change: the vehicle is given a heartbeat's lag before it is said not to fly them.
+            let lagging = inner.accepted_command_ns.is_some_and(|t| now.saturating_sub(t) < HEARTBEAT_LAG_NS);
+            let flies = inner.bridge.flies_setpoints() || lagging;
             if !flies && !inner.warned_not_flown {
                 let status = inner.bridge.status(now);
                 tracing::warn!(

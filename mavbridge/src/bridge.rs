@@ -175,6 +175,9 @@ pub struct VehicleStatus {
     pub armed: bool,
     pub custom_mode: u32,
     pub mode: String,
+    /// Armed and in the mode that flies setpoints, by the last heartbeat
+    /// ([`Bridge::flies_setpoints`]).
+    pub flies_setpoints: bool,
     /// `SYS_STATUS.voltage_battery`, V (`None`: unknown).
     pub battery_voltage_v: Option<f64>,
     /// `SYS_STATUS.battery_remaining`, percent (`None`: unknown).
@@ -891,6 +894,7 @@ impl Bridge {
             } else {
                 "unknown".into()
             },
+            flies_setpoints: self.flies_setpoints(),
             battery_voltage_v: self.battery_voltage_v,
             battery_remaining_pct: self.battery_remaining_pct,
             clock_offset_ns: self.timesync.offset_ns(),

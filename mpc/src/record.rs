@@ -320,6 +320,35 @@ pub fn decision_counts(records: &[CycleRecord]) -> BTreeMap<String, u64> {
 /// A path shorter than this means the vehicle never left its start, m.
 const NEVER_MOVED_M: f64 = 0.05;
 
+/// Cycles in a row that [`sinking_under_hover`] needs.
+const SINKING_CYCLES: usize = 5;
+/// A vertical speed below this is sinking, m/s.
+const SINKING_MPS: f64 = -0.3;
+
+/// The vehicle sinking for [`SINKING_CYCLES`] sampled cycles in a row while each command asked
+/// for at least hover (the thrust's vertical part at least gravity): what a vehicle does whose
+/// hover thrust is not the one the gateway maps `T = g` to. The model's plant cannot do it
+/// (its thrust is the model's), so on a simulated plant this finding never appears.
+fn sinking_under_hover(records: &[CycleRecord]) -> Option<String> {
+    let g = mav::ModelParams::default().gravity_mps2;
+    let mut streak = 0;
+    for r in records {
+        let [t, roll, pitch] = r.command;
+        let lifts = t * roll.cos() * pitch.cos() >= g;
+        streak = if lifts && r.state[5] < SINKING_MPS { streak + 1 } else { 0 };
+        if streak == SINKING_CYCLES {
+            return Some(format!(
+                "the vehicle sank ({:.2} m/s at {:.2} s) while {SINKING_CYCLES} commands in a row asked \
+                 for at least hover thrust: a vehicle does this when its hover thrust is not the \
+                 gateway's --hover-thrust (docs/gateway.md, \"What to check first\")",
+                r.state[5],
+                r.t_s()
+            ));
+        }
+    }
+    None
+}
+
 /// The findings of [`RunSummary::explanation`], from the records and the plant's last sample.
 pub fn explain(records: &[CycleRecord], last: &PlantSample, reached: bool) -> Vec<String> {
     let mut out = Vec::new();
@@ -358,6 +387,9 @@ pub fn explain(records: &[CycleRecord], last: &PlantSample, reached: bool) -> Ve
     }
     if !reached && last.path_length_m < NEVER_MOVED_M {
         out.push(format!("the vehicle never left its start (path {:.2} m)", last.path_length_m));
+    }
+    if let Some(sink) = sinking_under_hover(records) {
+        out.push(sink);
     }
     if let Some(r) = records.iter().find(|r| r.watchdog_hover) {
         let n = records.iter().filter(|r| r.watchdog_hover).count();
@@ -426,5 +458,58 @@ pub fn summarize(
                 depth_m: c.depth_m,
             })
             .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A cycle at `t_s` that sent `command` from a state sinking at `vz_mps`.
+    fn cycle(k: u64, vz_mps: f64, command: [f64; 3]) -> CycleRecord {
+        let mut state = [0.0; 8];
+        state[2] = 1.0;
+        state[5] = vz_mps;
+        CycleRecord {
+            cycle: k,
+            sample_time_ns: k * 50_000_000,
+            state,
+            watchdog_hover: false,
+            command,
+            command_seq: k + 1,
+            known_delay_s: None,
+            injected_delay_s: None,
+            weights: vec![],
+            solve: SolveStats {
+                status: SolveStatus::Converged,
+                iterations: 1,
+                solve_ms: 0.1,
+                cost: 0.0,
+                constraint_violation: 0.0,
+                min_clearance_m: f64::INFINITY,
+            },
+            decision: None,
+            best_effort: false,
+            reason: String::new(),
+            cost_gap: None,
+            predictions: vec![],
+        }
+    }
+
+    #[test]
+    fn sinking_while_commanded_at_least_hover_points_at_the_hover_thrust_and_sinking_on_less_does_not() {
+        let hover = [9.9, 0.0, 0.0];
+        let sinking: Vec<CycleRecord> = (0..8).map(|k| cycle(k, -0.5 - 0.1 * k as f64, hover)).collect();
+        let said = sinking_under_hover(&sinking).expect("a finding");
+        assert!(said.contains("--hover-thrust") && said.contains("0.20 s"), "{said}");
+        // Commanded below hover (the controller asked to descend): no finding.
+        let descending: Vec<CycleRecord> = (0..8).map(|k| cycle(k, -0.5, [8.0, 0.0, 0.0])).collect();
+        assert_eq!(sinking_under_hover(&descending), None);
+        // Four cycles in a row are not enough; a tilt that takes the vertical part under g neither.
+        let short: Vec<CycleRecord> =
+            (0..8).map(|k| cycle(k, if k == 4 { 0.0 } else { -0.5 }, hover)).collect();
+        assert_eq!(sinking_under_hover(&short), None);
+        let tilted: Vec<CycleRecord> = (0..8).map(|k| cycle(k, -0.5, [9.9, 0.3, 0.0])).collect();
+        assert_eq!(sinking_under_hover(&tilted), None);
     }
 }

@@ -36,6 +36,7 @@ use hilbench_proto::pb;
 use hilbench_proto::pb::controller_client::ControllerClient;
 use hilbench_proto::pb::netem_control_client::NetemControlClient;
 use hilbench_proto::pb::plant_client::PlantClient;
+use hilbench_proto::pb::vehicle_control_client::VehicleControlClient;
 use hilbench_svc::tls::Tls;
 use mav::{PlantSample, Scenario};
 use mpc::{ControllerMode, CycleRecord, RunEnd, RunSummary};
@@ -185,6 +186,52 @@ async fn partial_run(
     })
 }
 
+/// How long a vehicle that does not fly setpoints yet is waited for: its heartbeat (1 Hz) may
+/// not show an arm and mode switch made just before the run.
+const VEHICLE_READY_WAIT: Duration = Duration::from_secs(3);
+
+/// A plant that is a vehicle behind a gateway (it serves `VehicleControl`) must have its link
+/// up and fly setpoints (armed, in its external mode) before a run starts: otherwise the run
+/// would fly for its whole time limit with a vehicle that ignores it. A simulated plant (no
+/// such service), or a gateway that does not let this client read the status, is not checked.
+async fn vehicle_ready(addr: &str, tls: &Tls, deadline: Instant) -> anyhow::Result<()> {
+    let mut control = VehicleControlClient::new(connect_with(addr, tls, deadline).await?);
+    let waited_until = Instant::now() + VEHICLE_READY_WAIT;
+    loop {
+        let s = match control.get_status(pb::GetVehicleStatusRequest {}).await {
+            Ok(s) => s.into_inner(),
+            Err(e) if matches!(e.code(), tonic::Code::Unimplemented | tonic::Code::PermissionDenied) => {
+                return Ok(());
+            }
+            Err(e) => bail!("the vehicle's status at {addr}: {}", e.message()),
+        };
+        if s.link_alive && s.flies_setpoints {
+            return Ok(());
+        }
+        if Instant::now() >= waited_until {
+            if !s.link_alive {
+                bail!(
+                    "the vehicle behind the gateway at {addr} is not talking: {} (check the \
+                     autopilot's link, `vehiclectl --gateway {addr} status`)",
+                    if s.heartbeat_seen {
+                        format!("no heartbeat for {:.1} s", s.heartbeat_age_ns as f64 * 1e-9)
+                    } else {
+                        "no heartbeat yet".to_string()
+                    }
+                );
+            }
+            bail!(
+                "the vehicle behind the gateway at {addr} would not fly the run: it is {}, in {}; arm \
+                 it and set OFFBOARD (PX4) or GUIDED_NOGPS (ArduCopter), e.g. `vehiclectl --gateway \
+                 {addr} arm-offboard`",
+                if s.armed { "armed" } else { "disarmed" },
+                s.mode
+            );
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+}
+
 /// Gives a netem running elsewhere the scenario's profiles.
 async fn configure_netem(
     addr: &str,
@@ -278,6 +325,7 @@ async fn drive(
             wanted
         );
     }
+    vehicle_ready(state_addr, tls, deadline).await?;
     // Subscribe before the episode starts: the response headers mean the server subscribed.
     let mut stream = controller
         .stream_telemetry(pb::StreamTelemetryRequest {})
@@ -376,7 +424,10 @@ async fn drive(
                         if s.last_error.is_empty() { "none" } else { &s.last_error }
                     );
                 }
-                if s.episode > before.episode
+                // An episode that failed before its first cycle (a plant that refused the
+                // Reset: a vehicle away from the start) ends without a new episode number:
+                // counted in `episodes_finished`, it ends the run at once too.
+                if (s.episode > before.episode || s.episodes_finished > before.episodes_finished)
                     && s.episode_finished
                     && s.finish_reason == pb::FinishReason::Error as i32
                 {

@@ -28,6 +28,7 @@ pub fn vehicle_status(s: &VehicleStatus, hover_thrust: f64) -> pb::VehicleStatus
         armed: s.armed,
         custom_mode: s.custom_mode,
         mode: s.mode.clone(),
+        flies_setpoints: s.flies_setpoints,
         battery_voltage_v: s.battery_voltage_v,
         battery_remaining_pct: s.battery_remaining_pct,
         clock_offset_ns: s.clock_offset_ns.map(|(o, _)| o),

@@ -204,6 +204,54 @@ async fn paper_2_in_real_time_through_netem_and_the_gateway_reaches_the_goal_of_
     bench.vehicle.stop();
 }
 
+/// `run_against` a gateway, with a netem in front of it as `hilbench run --plant` has.
+async fn run_through_the_gateway(
+    gateway: SocketAddr,
+    scenario: &Scenario,
+) -> anyhow::Result<hilbench::drive::grpc::GrpcRun> {
+    let endpoints = Endpoints {
+        plant: Some(gateway.to_string()),
+        netem: None,
+        controller: None,
+        time_mode: TimeMode::RealTime,
+        keep_netem_profile: false,
+        live: None,
+        tls: Default::default(),
+    };
+    let settings = GrpcSettings { timeout: Duration::from_secs(240), ..GrpcSettings::default() };
+    run_against(scenario, ControllerMode::Nmpc, &settings, &endpoints).await
+}
+
+/// The vehicle mistakes a new user met: a vehicle not armed is refused before the run flies,
+/// naming what to do; once armed and in OFFBOARD, a scenario whose start is away from the
+/// vehicle ends at the gateway's FAILED_PRECONDITION (its Reset refused) at once, not after
+/// the stall timeout, and says why.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_run_refuses_a_vehicle_not_flying_setpoints_and_ends_at_once_on_a_start_away_from_the_vehicle() {
+    let scenario = Scenario::paper_2();
+    let bench = start(&scenario).await;
+    let addr = bench.gateway.addr;
+    let mut vc = vehicle_control(addr).await;
+    wait_status(&mut vc, "the vehicle's heartbeat", |s| s.link_alive).await;
+    let status = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+    assert!(!status.flies_setpoints, "{status:?}");
+    let refused = run_through_the_gateway(addr, &scenario).await.map(|_| ()).expect_err("refused");
+    let text = format!("{refused:#}");
+    assert!(text.contains("disarmed") && text.contains("arm-offboard"), "{text}");
+    assert_eq!(bench.vehicle.autopilot().counters().refused_setpoints, 0);
+
+    arm_and_offboard(addr).await;
+    let status = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+    assert!(status.flies_setpoints, "{status:?}");
+    // paper-1 starts 3.2 m from where the vehicle stands. Ended by the refusal, not by the
+    // stall timeout ("no control cycle for 30 s", the failure this catches).
+    let far = run_through_the_gateway(addr, &Scenario::paper_1()).await.map(|_| ()).expect_err("refused");
+    let text = format!("{far:#}");
+    assert!(text.contains("episode ended with an error") && text.contains("teleport"), "{text}");
+    bench.gateway.stop().await.expect("gateway stops cleanly");
+    bench.vehicle.stop();
+}
+
 /// The regression test of an autopilot that reboots under the gateway: its clock restarts,
 /// and the gateway used to count every new state as stale and serve the last one, frozen,
 /// while the heartbeat said SERVING.
