@@ -85,6 +85,8 @@ pub fn sweep_json(
     v["time_mode"] = json!("lockstep");
     v["shrink"] = json!(meta.shrink);
     v["interrupted"] = json!(interrupted);
+    // `--shrink`'s spending: set by the sweep that shrank.
+    v["shrinking"] = Value::Null;
     v["timing"] = timing;
     v["hilbench_version"] = json!(env!("CARGO_PKG_VERSION"));
     v["hilbench_commit"] = json!(env!("HILBENCH_COMMIT"));
@@ -297,6 +299,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
     let mut failures = Vec::new();
     let mut meta: Option<Meta> = None;
     let mut interrupted = false;
+    let mut shrinkings = Vec::new();
     let (mut run_wall_s, mut solver_s) = (0.0, 0.0);
     for dir in dirs {
         let path = dir.join("sweep.json");
@@ -331,6 +334,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
             ),
         }
         interrupted |= v["interrupted"] == true;
+        shrinkings.push(v["shrinking"].clone());
         run_wall_s += v["timing"]["run_wall_s"].as_f64().unwrap_or(0.0);
         solver_s += v["timing"]["solver_s"].as_f64().unwrap_or(0.0);
         let csv_path = dir.join("runs.csv");
@@ -367,7 +371,8 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
     let refs: Vec<&RunRow> = rows.iter().collect();
     write_file(&out.join("runs.csv"), &stats::to_csv(&refs))?;
     let timing = json!({ "shards": dirs.len(), "run_wall_s": run_wall_s, "solver_s": solver_s });
-    let summary = sweep_json(&meta, &refs, failures, interrupted, timing);
+    let mut summary = sweep_json(&meta, &refs, failures, interrupted, timing);
+    summary["shrinking"] = merged_shrinking(&shrinkings);
     let scenario = crate::scenario_file::ScenarioFile::load(Path::new(&meta.file)).map(|f| f.scenario).ok();
     match scenario {
         Some(s) => finish(out, &meta, &refs, &summary, &s, plots)?,
@@ -413,4 +418,20 @@ mod tests {
             assert!(!is_failure_trace(bad), "{bad:?}");
         }
     }
+}
+
+/// The shards' `shrinking` added up (each shard spends its own budget): null when none shrank.
+fn merged_shrinking(shards: &[Value]) -> Value {
+    let shrank: Vec<&Value> = shards.iter().filter(|v| v.is_object()).collect();
+    let Some(first) = shrank.first() else { return Value::Null };
+    let sum = |key: &str| shrank.iter().filter_map(|v| v[key].as_u64()).sum::<u64>();
+    json!({
+        "failures": sum("failures"),
+        "shrunk": sum("shrunk"),
+        "reruns": sum("reruns"),
+        "per_failure_budget": first["per_failure_budget"],
+        "total_budget": first["total_budget"],
+        "wall_time_s": shrank.iter().filter_map(|v| v["wall_time_s"].as_f64()).sum::<f64>(),
+        "interrupted": shrank.iter().any(|v| v["interrupted"] == true),
+    })
 }
