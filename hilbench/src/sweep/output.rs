@@ -151,8 +151,8 @@ pub fn write(dir: &Path, sweep: &Sweep, result: &SweepResult, plots: bool) -> an
         }
         failures.push(failure_json(d, &meta));
     }
-    let run_wall_s: f64 = rows.iter().map(|r| r.wall_s).sum();
-    let solver_s: f64 = rows.iter().filter_map(|r| r.solver_s).sum();
+    let run_wall_s = crate::run::total(rows.iter().map(|r| r.wall_s));
+    let solver_s = crate::run::total(rows.iter().filter_map(|r| r.solver_s));
     let timing = json!({
         "wall_time_s": result.wall_time_s,
         "runs_per_s": rows.len() as f64 / result.wall_time_s.max(1e-9),
