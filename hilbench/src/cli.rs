@@ -23,16 +23,24 @@ use crate::scenario_file::Mode;
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
-    /// Print nothing but errors (the summary and logs are still written; the exit code says
-    /// whether a run collided).
+    /// Print nothing but errors (every file is written as without it, and the exit code is
+    /// the same).
     #[arg(long, global = true)]
     pub quiet: bool,
     /// Do not draw the plots (PNG and SVG under OUT/plots/).
     #[arg(long, global = true)]
     pub no_plots: bool,
-    /// Do not write the runs' MCAP files (OUT/<scenario>-<controller>.mcap, for Foxglove).
-    #[arg(long, global = true)]
-    pub no_mcap: bool,
+}
+
+impl Cli {
+    /// Whether the command writes its runs' MCAP files (only `reproduce` and `run` write any).
+    pub fn mcap(&self) -> bool {
+        match &self.command {
+            Command::Reproduce(a) => !a.no_mcap,
+            Command::Run(a) => !a.no_mcap,
+            _ => false,
+        }
+    }
 }
 
 /// `--mode`: the bench's controllers to fly.
@@ -169,6 +177,9 @@ pub struct ReproduceArgs {
     /// Print the summary as JSON on stdout instead of the tables.
     #[arg(long)]
     pub json: bool,
+    /// Do not write the runs' MCAP files (OUT/<scenario>-<controller>.mcap, for Foxglove).
+    #[arg(long)]
+    pub no_mcap: bool,
     /// Only this scenario (repeat the flag for more; default: all three).
     #[arg(long, value_parser = PossibleValuesParser::new(Scenario::BUILT_IN))]
     pub scenario: Vec<String>,
@@ -202,6 +213,9 @@ pub struct RunArgs {
     /// Print the summary as JSON on stdout instead of the table.
     #[arg(long)]
     pub json: bool,
+    /// Do not write the runs' MCAP files (OUT/<scenario>-<controller>.mcap, for Foxglove).
+    #[arg(long)]
+    pub no_mcap: bool,
     /// Run the closed loop in process (`mpc::run_closed_loop`) instead of over gRPC.
     #[arg(long, conflicts_with_all = ["plant", "netem", "controller", "time_mode"])]
     pub in_process: bool,
@@ -585,5 +599,38 @@ impl EndpointArgs {
             live: None,
             tls: Default::default(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
+
+    use super::Cli;
+
+    /// The long help of `hilbench <command>`.
+    fn help(command: &str) -> String {
+        let mut cli = Cli::command();
+        cli.build();
+        cli.find_subcommand_mut(command).expect("the command").render_long_help().to_string()
+    }
+
+    #[test]
+    fn only_the_commands_that_write_mcap_files_offer_no_mcap() {
+        for command in ["reproduce", "run"] {
+            assert!(help(command).contains("--no-mcap"), "{command}");
+        }
+        for command in ["sweep", "falsify", "sweep-merge", "trace", "certs"] {
+            assert!(!help(command).contains("--no-mcap"), "{command} offers --no-mcap:\n{}", help(command));
+        }
+    }
+
+    #[test]
+    fn quiet_promises_no_exit_code_that_a_sweep_does_not_give() {
+        // A sweep exits 0 whatever its runs did: --quiet's help must not say the exit code
+        // tells a collision.
+        let sweep = help("sweep");
+        assert!(sweep.contains("--quiet"), "{sweep}");
+        assert!(!sweep.contains("whether a run collided"), "{sweep}");
     }
 }

@@ -18,7 +18,7 @@ use hilbench::commands::{self, Exit, Options};
 fn main() -> anyhow::Result<()> {
     let started = Instant::now();
     let cli = Cli::parse();
-    let opts = Options { quiet: cli.quiet, plots: !cli.no_plots, mcap: !cli.no_mcap, started };
+    let opts = Options { quiet: cli.quiet, plots: !cli.no_plots, mcap: cli.mcap(), started };
     let exit = match cli.command {
         Command::Reproduce(args) => commands::reproduce::reproduce(args, &opts)?,
         Command::Run(args) => commands::run::run(args, &opts)?,

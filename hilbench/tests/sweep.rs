@@ -404,3 +404,61 @@ fn until_bound_stops_at_the_first_run_count_that_decides_whatever_the_jobs() {
     let refused = hilbench(&["sweep", &file, "--until-bound", "1.5", "--out", s(&out)]);
     assert_eq!(refused.status.code(), Some(2));
 }
+
+#[test]
+fn a_sweep_of_two_controllers_reports_each_apart_in_the_table_the_report_and_the_plots() {
+    // Two runs, each flown by both controllers: 4 flights, but 2 runs, and every number per
+    // controller (they were pooled: "4 of 2 runs", one row per family).
+    let out = out_dir("sweep-two-controllers");
+    let sweep = hilbench(&["sweep", &long_delays(), "--runs", "2", "--mode", "both", "--out", s(&out)]);
+    assert!(sweep.status.success(), "{sweep:?}");
+    let v = json_of(&out.join("sweep.json"));
+    assert_eq!(v["runs"], 4, "sweep.json's runs counts flights: {v}");
+    let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    assert!(
+        report
+            .contains(", 2 of 2 runs, seed 3, each flown by every controller (nmpc, multistage: 4 flights)"),
+        "{report}"
+    );
+    for (label, c) in [("standard NMPC", "nmpc"), ("multi-stage NMPC", "multistage")] {
+        let a = &v["by_controller"][c];
+        assert_eq!(a["runs"], 2, "{c}: {v}");
+        let heading = format!(
+            "## {label} (`{c}`): 2 runs, {} reached, {} collided, {} missed, {} errors",
+            a["reached"], a["collided"], a["missed"], a["errors"]
+        );
+        assert!(report.contains(&heading), "{heading:?} not in:\n{report}");
+        // Its own table: the family's row counts this controller's runs only.
+        let section = report.split(&heading).nth(1).expect("the section");
+        let long = section.lines().find(|l| l.starts_with("| long |")).expect("the family's row");
+        assert!(long.starts_with(&format!("| long | 2 | {} | {} |", a["reached"], a["collided"])), "{long}");
+    }
+    // The terminal table: a row per controller and family, and a count line per controller.
+    let stdout = String::from_utf8_lossy(&sweep.stdout);
+    assert!(stdout.contains("2 runs of paper-2-long-delays"), "{stdout}");
+    for c in ["nmpc", "multistage"] {
+        let a = &v["by_controller"][c];
+        assert!(stdout.lines().any(|l| l.split_whitespace().take(3).eq([c, "long", "2"])), "{c}: {stdout}");
+        assert!(
+            stdout.contains(&format!("  {c}: {} reached, {} collided", a["reached"], a["collided"])),
+            "{stdout}"
+        );
+    }
+    for plot in ["sweep-clearance-cdf", "sweep-path-length", "sweep-failures-top"] {
+        assert!(out.join("plots").join(format!("{plot}.png")).exists(), "{plot}");
+    }
+    let top = std::fs::read_to_string(out.join("plots/sweep-failures-top.svg")).expect("the top view");
+    assert!(
+        top.contains("standard NMPC (2 runs)") && top.contains("multi-stage NMPC (2 runs)"),
+        "a panel each"
+    );
+
+    // One controller: no sections, the runs counted as before.
+    let one = out_dir("sweep-one-controller");
+    let sweep =
+        hilbench(&["sweep", &long_delays(), "--runs", "2", "--no-plots", "--quiet", "--out", s(&one)]);
+    assert!(sweep.status.success(), "{sweep:?}");
+    let report = std::fs::read_to_string(one.join("report.md")).expect("report.md");
+    assert!(report.contains(", 2 of 2 runs, seed 3, controller multistage,"), "{report}");
+    assert!(!report.contains("(`multistage`)"), "{report}");
+}

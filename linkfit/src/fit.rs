@@ -436,7 +436,7 @@ fn weibull_ll(s: &Sums, ln_x: &[f64], shape: f64, scale: f64) -> f64 {
 }
 
 /// KS distance of the sorted sample `sorted` from `cdf`.
-fn ks_distance(sorted: &[f64], cdf: impl Fn(f64) -> f64) -> f64 {
+pub fn ks_distance(sorted: &[f64], cdf: impl Fn(f64) -> f64) -> f64 {
     let n = sorted.len() as f64;
     let mut d: f64 = 0.0;
     for (i, &x) in sorted.iter().enumerate() {
@@ -444,6 +444,14 @@ fn ks_distance(sorted: &[f64], cdf: impl Fn(f64) -> f64) -> f64 {
         d = d.max((i + 1) as f64 / n - f).max(f - i as f64 / n);
     }
     d
+}
+
+/// The Kolmogorov–Smirnov distance beyond which a sample of `n` values is not drawn from a
+/// given law at the 95 % level (asymptotic, `1.358 / sqrt(n)`). For a law whose parameters
+/// were fitted to the same sample the test is conservative (Lilliefors' limits are lower):
+/// a fit beyond it is a poor fit.
+pub fn ks_limit_95(n: usize) -> f64 {
+    1.358 / (n.max(1) as f64).sqrt()
 }
 
 /// The percentile interval of `reps` about `estimate`, the spread scaled by `scale`.

@@ -25,6 +25,9 @@ pub mod probe;
 pub mod stats;
 
 pub use confidence::{RateInterval, UntilBound, clopper_pearson, runs_needed, until_bound};
-pub use fit::{Candidate, FitError, FitOptions, FitReport, Kind, Model, Param, RegimeModel, TableError, fit};
+pub use fit::{
+    Candidate, FitError, FitOptions, FitReport, Kind, Model, Param, RegimeModel, TableError, fit,
+    ks_distance, ks_limit_95,
+};
 pub use import::{Format, ImportError, ImportOptions, Imported, IrttDelay, Unit, import};
 pub use stats::{SpikeRule, StatsOptions, TraceStats, trace_stats};

@@ -72,25 +72,39 @@ async fn main() -> anyhow::Result<()> {
     match args.action {
         Action::Status => {
             let status = answer("status", client.get_status(pb::GetVehicleStatusRequest {}).await)?;
-            println!("{status:#?}")
+            say(&format!("{status:#?}"))?
         }
-        Action::Arm => println!("arm: {}", answer("arm", client.arm(pb::ArmRequest {}).await)?.result),
+        Action::Arm => say(&format!("arm: {}", answer("arm", client.arm(pb::ArmRequest {}).await)?.result))?,
         Action::Disarm => {
-            println!("disarm: {}", answer("disarm", client.disarm(pb::DisarmRequest {}).await)?.result)
+            say(&format!("disarm: {}", answer("disarm", client.disarm(pb::DisarmRequest {}).await)?.result))?
         }
         Action::Offboard => {
-            println!("offboard: {}", answer("offboard", client.set_mode(offboard()).await)?.result)
+            say(&format!("offboard: {}", answer("offboard", client.set_mode(offboard()).await)?.result))?
         }
         Action::GuidedNogps => {
             let r = pb::SetModeRequest { mode: pb::FlightMode::ArdupilotGuidedNogps as i32 };
-            println!("guided_nogps: {}", answer("guided-nogps", client.set_mode(r).await)?.result)
+            say(&format!("guided_nogps: {}", answer("guided-nogps", client.set_mode(r).await)?.result))?
         }
         Action::ArmOffboard => {
-            println!("arm: {}", answer("arm", client.arm(pb::ArmRequest {}).await)?.result);
-            println!("offboard: {}", answer("offboard", client.set_mode(offboard()).await)?.result);
+            say(&format!("arm: {}", answer("arm", client.arm(pb::ArmRequest {}).await)?.result))?;
+            say(&format!("offboard: {}", answer("offboard", client.set_mode(offboard()).await)?.result))?;
         }
     }
     Ok(())
+}
+
+/// Prints `line` on stdout. A reader that stopped reading (`vehiclectl status | head`) is not
+/// an error: what it did not read was not wanted, and the call was made all the same (`println!`
+/// panicked there); any other failure to write is.
+fn say(line: &str) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match writeln!(out, "{line}").and_then(|()| out.flush()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+            Err(anyhow::anyhow!("cannot write to stdout: {e}"))
+        }
+        _ => Ok(()),
+    }
 }
 
 /// The answer of the call `what`, or an error naming the call, the gRPC code and the gateway's

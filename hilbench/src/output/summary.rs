@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use mpc::RunSummary;
 
-use crate::run::Batch;
 use crate::run::CycleRow;
+use crate::run::{Batch, total};
 
 /// Where the time went besides the runs, s (`None`: not done).
 #[derive(Debug, Clone, Copy, Default)]
@@ -39,9 +39,9 @@ pub fn summary_json(batch: &Batch, times: OutputTimes) -> serde_json::Value {
     let timing = serde_json::json!({
         "wall_time_s": batch.wall_time_s,
         "solver_s": batch.solver_s(),
-        "setup_s": batch.runs.iter().filter_map(|r| r.timing).map(|t| t.setup_s).sum::<f64>(),
-        "loop_overhead_s": batch.runs.iter().filter_map(|r| r.timing).map(|t| t.loop_overhead_s()).sum::<f64>(),
-        "teardown_s": batch.runs.iter().filter_map(|r| r.timing).map(|t| t.teardown_s).sum::<f64>(),
+        "setup_s": total(batch.runs.iter().filter_map(|r| r.timing).map(|t| t.setup_s)),
+        "loop_overhead_s": total(batch.runs.iter().filter_map(|r| r.timing).map(|t| t.loop_overhead_s())),
+        "teardown_s": total(batch.runs.iter().filter_map(|r| r.timing).map(|t| t.teardown_s)),
         "runs": timed,
         "plotting_s": times.plotting_s,
         "mcap_s": times.mcap_s,

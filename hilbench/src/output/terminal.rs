@@ -77,25 +77,74 @@ pub fn print_outputs(dir: &std::path::Path) {
     println!("Summary: {}", dir.join("summary.json").display());
 }
 
-/// The sweep's counts and distributions, per family, on stdout.
+/// A sweep's numbers by controller: `sweep.json` itself for a sweep of one controller (the
+/// name `None`), else each controller's entry of `by_controller`, in the order it flew. A
+/// sweep of several controllers is never reported pooled: runs of different controllers are
+/// different experiments.
+pub fn sweep_sections(v: &serde_json::Value) -> Vec<(Option<&str>, &serde_json::Value)> {
+    let names: Vec<&str> =
+        v["controllers"].as_array().into_iter().flatten().filter_map(|c| c.as_str()).collect();
+    match v["by_controller"].as_object() {
+        Some(by) if names.len() > 1 => {
+            names.into_iter().filter_map(|c| by.get(c).map(|a| (Some(c), a))).collect()
+        }
+        _ => vec![(None, v)],
+    }
+}
+
+/// The number of runs of a sweep, each flown by every controller (`sweep.json`'s `runs` counts
+/// the (run, controller) pairs).
+pub fn sweep_runs(v: &serde_json::Value) -> u64 {
+    let flights = v["runs"].as_u64().unwrap_or(0);
+    match sweep_sections(v).first() {
+        Some((Some(_), a)) => a["runs"].as_u64().unwrap_or(flights),
+        _ => flights,
+    }
+}
+
+/// The counts of `a` (an entry of [`sweep_sections`]) in words.
+fn sweep_counts(a: &serde_json::Value) -> String {
+    format!(
+        "{} reached, {} collided ({} with the ground), {} missed, {} errors",
+        a["reached"], a["collided"], a["collided_ground"], a["missed"], a["errors"]
+    )
+}
+
+/// The sweep's counts and distributions, per controller and family, on stdout.
 pub fn print_sweep(v: &serde_json::Value, dir: &std::path::Path) {
+    print!("{}", sweep_text(v, dir));
+}
+
+/// What [`print_sweep`] prints.
+pub fn sweep_text(v: &serde_json::Value, dir: &std::path::Path) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
     let f = |x: &serde_json::Value| x.as_f64().map_or_else(|| "-".to_string(), |x| format!("{x:.3}"));
-    println!();
-    println!(
-        "{} runs of {} ({}), seed {}: {} reached, {} collided ({} with the ground), {} missed, {} errors",
-        v["runs"],
+    let sections = sweep_sections(v);
+    let several = sections.len() > 1;
+    let _ = writeln!(out);
+    let head = format!(
+        "{} runs of {} ({}), seed {}",
+        sweep_runs(v),
         v["scenario"].as_str().unwrap_or(""),
         v["file"].as_str().unwrap_or(""),
-        v["seed"],
-        v["reached"],
-        v["collided"],
-        v["collided_ground"],
-        v["missed"],
-        v["errors"]
+        v["seed"]
     );
-    println!();
-    println!(
-        "{:<16} {:>6} {:>8} {:>9} {:>7} {:>7} {:>22} {:>16}",
+    if several {
+        let _ = writeln!(out, "{head}, each flown by every controller:");
+        for (name, a) in &sections {
+            let _ = writeln!(out, "  {}: {}", name.unwrap_or(""), sweep_counts(a));
+        }
+    } else {
+        let _ = writeln!(out, "{head}: {}", sweep_counts(v));
+    }
+    let _ = writeln!(out);
+    let controller =
+        |name: Option<&str>| if several { format!("{:<12} ", name.unwrap_or("")) } else { String::new() };
+    let _ = writeln!(
+        out,
+        "{}{:<16} {:>6} {:>8} {:>9} {:>7} {:>7} {:>22} {:>16}",
+        controller(several.then_some("controller")),
         "family",
         "runs",
         "reached",
@@ -106,46 +155,57 @@ pub fn print_sweep(v: &serde_json::Value, dir: &std::path::Path) {
         "path p50/p95 m"
     );
     let families = v["family_order"].as_array().cloned().unwrap_or_default();
-    for name in families.iter().filter_map(|n| n.as_str()) {
-        let a = &v["families"][name];
-        println!(
-            "{:<16} {:>6} {:>8} {:>9} {:>7} {:>7} {:>22} {:>16}",
-            name,
-            a["runs"].to_string(),
-            a["reached"].to_string(),
-            a["collided"].to_string(),
-            a["missed"].to_string(),
-            a["errors"].to_string(),
-            format!(
-                "{}/{}/{}",
-                f(&a["min_clearance_m"]["p1"]),
-                f(&a["min_clearance_m"]["p5"]),
-                f(&a["min_clearance_m"]["p50"])
-            ),
-            format!("{}/{}", f(&a["path_length_m"]["p50"]), f(&a["path_length_m"]["p95"])),
-        );
+    for (name, section) in &sections {
+        for family in families.iter().filter_map(|n| n.as_str()) {
+            let a = &section["families"][family];
+            let _ = writeln!(
+                out,
+                "{}{:<16} {:>6} {:>8} {:>9} {:>7} {:>7} {:>22} {:>16}",
+                controller(*name),
+                family,
+                a["runs"].to_string(),
+                a["reached"].to_string(),
+                a["collided"].to_string(),
+                a["missed"].to_string(),
+                a["errors"].to_string(),
+                format!(
+                    "{}/{}/{}",
+                    f(&a["min_clearance_m"]["p1"]),
+                    f(&a["min_clearance_m"]["p5"]),
+                    f(&a["min_clearance_m"]["p50"])
+                ),
+                format!("{}/{}", f(&a["path_length_m"]["p50"]), f(&a["path_length_m"]["p95"])),
+            );
+        }
     }
-    println!();
-    let p = &v["failure_probability"];
-    for (what, key) in [("collisions", "collision"), ("missed goals", "missed"), ("any failure", "any")] {
-        println!("{}", failure_text(what, &p[key]));
-    }
-    for name in families.iter().filter_map(|n| n.as_str()) {
-        let p = &v["families"][name]["failure_probability"];
-        println!("  {name}: {}", failure_text("any failure", &p["any"]));
+    for (name, section) in &sections {
+        let _ = writeln!(out);
+        if let Some(name) = name {
+            let _ = writeln!(out, "{name}:");
+        }
+        let p = &section["failure_probability"];
+        for (what, key) in [("collisions", "collision"), ("missed goals", "missed"), ("any failure", "any")] {
+            let _ = writeln!(out, "{}", failure_text(what, &p[key]));
+        }
+        for family in families.iter().filter_map(|n| n.as_str()) {
+            let p = &section["families"][family]["failure_probability"];
+            let _ = writeln!(out, "  {family}: {}", failure_text("any failure", &p["any"]));
+        }
     }
     let t = &v["timing"];
     if let (Some(wall), Some(rate)) = (t["wall_time_s"].as_f64(), t["runs_per_s"].as_f64()) {
-        println!();
-        println!(
+        let _ = writeln!(out);
+        let _ = writeln!(
+            out,
             "Time: {wall:.1} s wall, {rate:.1} runs/s with {} jobs (solver {:.1} s of {:.1} s in runs)",
             t["jobs"],
             t["solver_s"].as_f64().unwrap_or(0.0),
             t["run_wall_s"].as_f64().unwrap_or(0.0)
         );
     }
-    println!("Report: {}", dir.join("report.md").display());
-    println!("Summary: {}", dir.join("sweep.json").display());
+    let _ = writeln!(out, "Report: {}", dir.join("report.md").display());
+    let _ = writeln!(out, "Summary: {}", dir.join("sweep.json").display());
+    out
 }
 
 /// One failure probability in words, e.g. "collisions: 0 of 1,600 runs, P < 0.19 % (95 %)"

@@ -49,8 +49,15 @@ impl Batch {
 
     /// Solver time summed over every run, s.
     pub fn solver_s(&self) -> f64 {
-        self.runs.iter().map(|r| r.summary.solver_s).sum()
+        total(self.runs.iter().map(|r| r.summary.solver_s))
     }
+}
+
+/// The sum of `values`, `0.0` for none. Rust's `Sum` of `f64` starts at `-0.0` (the identity
+/// of IEEE addition), so a sum of nothing, or of `-0.0`s such as an external controller's
+/// solver time, printed as "-0.0"; every time the bench adds up goes through here.
+pub fn total(values: impl IntoIterator<Item = f64>) -> f64 {
+    values.into_iter().fold(0.0, |a, b| a + b)
 }
 
 /// The bench's controller a scenario file's or the command line's mode names.
@@ -318,4 +325,18 @@ pub fn rows_of(records: &[CycleRecord]) -> Vec<CycleRow> {
             cost_gap: r.cost_gap,
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::total;
+
+    #[test]
+    fn a_total_of_nothing_or_of_negative_zeros_prints_as_zero_not_minus_zero() {
+        // An external controller's sweep printed "solver -0.0 s": `Sum` of no f64 is -0.0.
+        assert_eq!(format!("{:.1}", [0.0f64; 0].iter().sum::<f64>()), "-0.0");
+        assert_eq!(format!("{:.1}", total([])), "0.0");
+        assert_eq!(format!("{:.1}", total([-0.0, -0.0])), "0.0");
+        assert_eq!(total([0.25, 0.5]), 0.75);
+    }
 }

@@ -33,9 +33,11 @@ pub struct RunPlan {
 }
 
 impl RunPlan {
-    /// `key=value;...` for runs.csv and the report.
+    /// `key=value;...` for runs.csv and the report, each value to 6 significant digits as
+    /// `delay::Number` shows it (`trace=4`, `shape=1.53457`, not `trace=4.000000`).
     pub fn params_text(&self) -> String {
-        let mut parts: Vec<String> = self.params.iter().map(|(k, v)| format!("{k}={v:.6}")).collect();
+        let short = |v: f64| delay::Number(format!("{v:.5e}").parse().unwrap_or(v));
+        let mut parts: Vec<String> = self.params.iter().map(|(k, v)| format!("{k}={}", short(*v))).collect();
         if let Some(f) = &self.trace_file {
             parts.push(format!("file={f}"));
         }
@@ -159,6 +161,27 @@ mod tests {
         }
         // Clipped at max_delay_s: the heaviest Gamma draws hit the clip.
         assert!(plans.iter().any(|p| p.delays_s.contains(&0.33)));
+    }
+
+    #[test]
+    fn drawn_parameters_print_short_an_index_as_an_integer() {
+        let plan = RunPlan {
+            index: 0,
+            family: "spiky".into(),
+            params: vec![
+                ("trace".into(), 4.0),
+                ("shape".into(), 1.534_567_891),
+                ("scale_s".into(), 0.012_345_678_9),
+                ("states[1].delay_s".into(), 0.5),
+            ],
+            delay_seed: 1,
+            trace_file: Some("a.csv".into()),
+            delays_s: Vec::new(),
+        };
+        assert_eq!(
+            plan.params_text(),
+            "trace=4;shape=1.53457;scale_s=0.0123457;states[1].delay_s=0.5;file=a.csv"
+        );
     }
 
     #[test]

@@ -149,8 +149,8 @@ pub fn write(dir: &Path, sweep: &Sweep, result: &SweepResult, plots: bool) -> an
         }
         failures.push(failure_json(d, &meta));
     }
-    let run_wall_s: f64 = rows.iter().map(|r| r.wall_s).sum();
-    let solver_s: f64 = rows.iter().filter_map(|r| r.solver_s).sum();
+    let run_wall_s = crate::run::total(rows.iter().map(|r| r.wall_s));
+    let solver_s = crate::run::total(rows.iter().filter_map(|r| r.solver_s));
     let timing = json!({
         "wall_time_s": result.wall_time_s,
         "runs_per_s": rows.len() as f64 / result.wall_time_s.max(1e-9),
@@ -177,7 +177,11 @@ fn finish(
     plots: bool,
 ) -> anyhow::Result<()> {
     write_file(&dir.join("sweep.json"), &serde_json::to_string_pretty(summary)?)?;
-    let figures = if plots { super::plots::write(dir, scenario, rows, &meta.families)? } else { Vec::new() };
+    let figures = if plots {
+        super::plots::write(dir, scenario, rows, &meta.families, &meta.controllers)?
+    } else {
+        Vec::new()
+    };
     write_file(&dir.join("report.md"), &report(meta, summary, rows, &figures, dir))?;
     Ok(())
 }
@@ -186,28 +190,30 @@ fn write_file(path: &Path, text: &str) -> anyhow::Result<()> {
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
-/// `report.md`.
+/// `report.md`: the numbers of each controller in a section of its own when the sweep flew
+/// several (`terminal::sweep_sections`), never pooled.
 fn report(meta: &Meta, v: &Value, rows: &[&RunRow], figures: &[PathBuf], dir: &Path) -> String {
+    use crate::output::terminal::{failure_text, sweep_runs, sweep_sections};
     let mut out = String::new();
     let f = |x: &Value| x.as_f64().map_or_else(|| "-".to_string(), |x| format!("{x:.3}"));
     let _ = writeln!(out, "# hilbench sweep {}\n", meta.file);
     let shard = meta.shard.as_ref().map(|s| format!(", shard {s}")).unwrap_or_default();
+    let sections = sweep_sections(v);
+    let controllers = if sections.len() > 1 {
+        format!("each flown by every controller ({}: {} flights)", meta.controllers.join(", "), rows.len())
+    } else {
+        format!("controller {}", meta.controllers.join(", "))
+    };
     let _ = writeln!(
         out,
-        "Scenario `{}`, {} of {} runs{shard}, seed {}, controllers {}, {} in lockstep{}.\n",
+        "Scenario `{}`, {} of {} runs{shard}, seed {}, {controllers}, {} in lockstep{}.\n",
         meta.scenario,
-        rows.len(),
+        sweep_runs(v),
         meta.runs_planned,
         meta.seed,
-        meta.controllers.join(", "),
         meta.transport,
         if v["interrupted"] == true { " (interrupted: what had finished)" } else { "" }
     );
-    let _ = writeln!(
-        out,
-        "| family | runs | reached | collided | of which ground | missed | errors | best-effort cycles | clearance p1 / p5 / p50 [m] | path p50 / p95 [m] | time to goal p50 / p95 [s] |"
-    );
-    let _ = writeln!(out, "|---|---|---|---|---|---|---|---|---|---|---|");
     let line = |name: &str, a: &Value| {
         format!(
             "| {name} | {} | {} | {} | {} | {} | {} | {} | {} / {} / {} | {} / {} | {} / {} |",
@@ -227,33 +233,52 @@ fn report(meta: &Meta, v: &Value, rows: &[&RunRow], figures: &[PathBuf], dir: &P
             f(&a["time_to_goal_s"]["p95"]),
         )
     };
-    for name in &meta.families {
-        let _ = writeln!(out, "{}", line(name, &v["families"][name]));
-    }
-    let _ = writeln!(out, "{}\n", line("**all**", v));
-    let _ = writeln!(
-        out,
-        "How sure (two-sided Clopper-Pearson intervals at {:.0} %, from the runs that flew):\n",
-        100.0 * stats::CONFIDENCE
-    );
-    for (name, a) in meta.families.iter().map(|n| (n.as_str(), &v["families"][n])).chain([("all", v)]) {
-        let p = &a["failure_probability"];
+    for (controller, a) in &sections {
+        if let Some(c) = controller {
+            let _ = writeln!(
+                out,
+                "## {} (`{c}`): {} runs, {} reached, {} collided, {} missed, {} errors\n",
+                crate::output::plots::style::controller_label(c),
+                a["runs"],
+                a["reached"],
+                a["collided"],
+                a["missed"],
+                a["errors"]
+            );
+        }
         let _ = writeln!(
             out,
-            "- {name}: {}; {}; {}",
-            crate::output::terminal::failure_text("collisions", &p["collision"]),
-            crate::output::terminal::failure_text("missed goals", &p["missed"]),
-            crate::output::terminal::failure_text("any failure", &p["any"])
+            "| family | runs | reached | collided | of which ground | missed | errors | best-effort cycles | clearance p1 / p5 / p50 [m] | path p50 / p95 [m] | time to goal p50 / p95 [s] |"
+        );
+        let _ = writeln!(out, "|---|---|---|---|---|---|---|---|---|---|---|");
+        for name in &meta.families {
+            let _ = writeln!(out, "{}", line(name, &a["families"][name]));
+        }
+        let _ = writeln!(out, "{}\n", line("**all**", a));
+        let _ = writeln!(
+            out,
+            "How sure (two-sided Clopper-Pearson intervals at {:.0} %, from the runs that flew):\n",
+            100.0 * stats::CONFIDENCE
+        );
+        for (name, x) in meta.families.iter().map(|n| (n.as_str(), &a["families"][n])).chain([("all", *a)]) {
+            let p = &x["failure_probability"];
+            let _ = writeln!(
+                out,
+                "- {name}: {}; {}; {}",
+                failure_text("collisions", &p["collision"]),
+                failure_text("missed goals", &p["missed"]),
+                failure_text("any failure", &p["any"])
+            );
+        }
+        let _ = writeln!(out);
+        let _ = writeln!(
+            out,
+            "Solve time (ms, over runs): median of the runs' medians {}, 99th percentile of their 99th percentiles {}, max {}.\n",
+            f(&a["solve_ms"]["p50"]),
+            f(&a["solve_ms"]["p99"]),
+            f(&a["solve_ms"]["max"])
         );
     }
-    let _ = writeln!(out);
-    let _ = writeln!(
-        out,
-        "Solve time (ms, over runs): median of the runs' medians {}, 99th percentile of their 99th percentiles {}, max {}.\n",
-        f(&v["solve_ms"]["p50"]),
-        f(&v["solve_ms"]["p99"]),
-        f(&v["solve_ms"]["max"])
-    );
     let failures = v["failures"].as_array().cloned().unwrap_or_default();
     if !failures.is_empty() {
         let _ = writeln!(out, "## Failures\n");

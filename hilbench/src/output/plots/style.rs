@@ -37,6 +37,33 @@ pub(crate) fn draw_legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::Coor
         .draw()
 }
 
+/// A chart on `area` whose x and y have the same scale (metres per pixel), so that a circle is
+/// drawn round: the shorter of `x` and `y` widened about its centre to the plotting area's
+/// proportions. Margins and label areas as every 2-D figure's.
+pub(crate) fn equal_axes_chart<'a, 'b, DB: DrawingBackend + 'a>(
+    area: &'a DrawingArea<DB, plotters::coord::Shift>,
+    x: std::ops::Range<f64>,
+    y: std::ops::Range<f64>,
+) -> Result<
+    ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    DrawingAreaErrorKind<DB::ErrorType>,
+> {
+    fn builder<'a, 'b, DB: DrawingBackend>(
+        area: &'a DrawingArea<DB, plotters::coord::Shift>,
+    ) -> ChartBuilder<'a, 'b, DB> {
+        let mut b = ChartBuilder::on(area);
+        b.margin(15).margin_right(25).x_label_area_size(50).y_label_area_size(60);
+        b
+    }
+    // Building a chart without a caption draws nothing: this one only measures the area.
+    let (pw, ph) = builder(area).build_cartesian_2d(0.0..1.0, 0.0..1.0)?.plotting_area().dim_in_pixel();
+    let (pw, ph) = (f64::from(pw.max(1)), f64::from(ph.max(1)));
+    let m_per_px = ((x.end - x.start) / pw).max((y.end - y.start) / ph);
+    let (cx, cy) = ((x.start + x.end) / 2.0, (y.start + y.end) / 2.0);
+    let (hw, hh) = (m_per_px * pw / 2.0, m_per_px * ph / 2.0);
+    builder(area).build_cartesian_2d((cx - hw)..(cx + hw), (cy - hh)..(cy + hh))
+}
+
 /// The axes and grid of every 2-D figure: the axis descriptions, the fonts, a light grid.
 pub(crate) fn draw_mesh<'a, DB: DrawingBackend + 'a>(
     chart: &mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,

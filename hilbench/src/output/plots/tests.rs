@@ -139,3 +139,53 @@ fn the_moment_fit_recovers_a_gamma() {
 fn delays_of(rows: &[CycleRow]) -> Vec<(f64, f64)> {
     delays(rows)
 }
+
+/// `n` delays, s: the quantiles `(i + 0.5) / n` of Gamma(shape, scale_s) (a sample with no
+/// sampling noise).
+fn gamma_quantiles(n: usize, shape: f64, scale_s: f64) -> Vec<f64> {
+    use statrs::distribution::{ContinuousCDF, Gamma};
+    let g = Gamma::new(shape, 1.0 / scale_s).expect("a Gamma");
+    (0..n).map(|i| g.inverse_cdf((i as f64 + 0.5) / n as f64)).collect()
+}
+
+/// A link's ordinary delays, 20-60 ms, with one in 25 a spike of 300-800 ms.
+fn spiky_delays_s(n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|i| {
+            if i % 25 == 7 {
+                0.3 + 0.5 * (i % 11) as f64 / 10.0
+            } else {
+                0.02 + 0.04 * (i % 13) as f64 / 12.0
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn spikes_far_beyond_the_bulk_are_a_tail_bar_that_counts_them() {
+    let delays = spiky_delays_s(1000);
+    let ms: Vec<f64> = delays.iter().map(|d| d * 1e3).collect();
+    let h = delays::Histogram::of(&ms);
+    let spikes = delays.iter().filter(|d| **d >= 0.3).count();
+    let tail = h.tail.expect("a tail");
+    assert_eq!(tail.count, spikes);
+    assert!(tail.beyond_ms > 60.0 && tail.beyond_ms < 300.0, "{tail:?}");
+    assert!((tail.max_ms - 800.0).abs() < 1e-9, "{tail:?}");
+    // The bins cover the bulk, 20-60 ms, finely (not 800 ms in 25 bins of 32 ms).
+    assert!(h.width <= 3.0, "{h:?}");
+    assert_eq!(h.counts.iter().sum::<usize>() + tail.count, delays.len());
+    // Gamma delays have no such tail.
+    let gamma: Vec<f64> = gamma_quantiles(1000, 12.0, 0.015).iter().map(|d| d * 1e3).collect();
+    assert_eq!(delays::Histogram::of(&gamma).tail, None);
+}
+
+#[test]
+fn a_gamma_fitted_to_a_mixture_is_called_a_poor_fit_and_to_gamma_delays_not() {
+    let mixture = spiky_delays_s(1000);
+    let fit = gamma_fit(&mixture).expect("a fit");
+    let quality = delays::FitQuality::of(&mixture, fit);
+    assert!(quality.poor(), "{quality:?}");
+    let gamma = gamma_quantiles(1000, 12.0, 0.015);
+    let quality = delays::FitQuality::of(&gamma, gamma_fit(&gamma).expect("a fit"));
+    assert!(!quality.poor(), "{quality:?}");
+}

@@ -4,7 +4,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::paths::{Swatch, circle, draw_legend, horizontal_extent, path, path_label};
-use super::style::{BOUND, CYLINDER, controller_color, draw_mesh, pad, title_font};
+use super::style::{BOUND, CYLINDER, controller_color, draw_mesh, equal_axes_chart, pad, title_font};
 use super::{DrawResult, RunData};
 
 pub(super) fn draw_top<DB: DrawingBackend>(
@@ -21,18 +21,7 @@ pub(super) fn draw_top<DB: DrawingBackend>(
     let paths: Vec<Vec<[f64; 3]>> = group.iter().map(|r| path(r)).collect();
     let x = pad(horizontal_extent(&paths, scenario, 0), 0.05, 0.5);
     let y = pad(horizontal_extent(&paths, scenario, 1), 0.05, 0.5);
-    // Equal aspect: widen the shorter range to the plotting area's proportions.
-    fn builder<'a, 'b, DB: DrawingBackend>(area: &'a DrawingArea<DB, Shift>) -> ChartBuilder<'a, 'b, DB> {
-        let mut b = ChartBuilder::on(area);
-        b.margin(15).margin_right(25).x_label_area_size(50).y_label_area_size(60);
-        b
-    }
-    let (pw, ph) = builder(&root).build_cartesian_2d(0.0..1.0, 0.0..1.0)?.plotting_area().dim_in_pixel();
-    let (pw, ph) = (f64::from(pw.max(1)), f64::from(ph.max(1)));
-    let m_per_px = ((x.end - x.start) / pw).max((y.end - y.start) / ph);
-    let (cx, cy) = ((x.start + x.end) / 2.0, (y.start + y.end) / 2.0);
-    let (hw, hh) = (m_per_px * pw / 2.0, m_per_px * ph / 2.0);
-    let mut chart = builder(&root).build_cartesian_2d((cx - hw)..(cx + hw), (cy - hh)..(cy + hh))?;
+    let mut chart = equal_axes_chart(&root, x, y)?;
     draw_mesh(&mut chart, "x [m]", "y [m]")?;
     for c in &scenario.obstacles {
         let outline = circle(c.x_m, c.y_m, c.radius_m);
