@@ -12,12 +12,12 @@ use tokio_stream::wrappers::BroadcastStream;
 use tonic::{Request, Response, Status};
 
 use crate::Mode;
-use crate::core::Shared;
+use crate::core::Net;
 
 /// The control service.
 #[derive(Clone)]
 pub struct Control {
-    pub(crate) shared: Arc<Shared>,
+    pub(crate) shared: Arc<Net>,
 }
 
 type RecordStream =

@@ -206,7 +206,7 @@ pub async fn serve(
             |router| {
                 router
                     .add_service(PlantServer::new(Proxy { shared: shared.clone() }))
-                    .add_service(NetemControlServer::new(Control { shared }))
+                    .add_service(NetemControlServer::new(Control { shared: shared.net.clone() }))
             },
             signal,
         )
