@@ -2,7 +2,7 @@
 //! and statistics (under one short lock that is never held across an await), the clock and the
 //! real-time release thread, the stream cap and the shutdown signal; `NetemControl` serves it.
 //! [`Shared`] adds the gRPC proxy's upstream plant client and lockstep machinery on top (it
-//! dereferences to its [`Net`]).
+//! dereferences to its [`Net`]); the UDP proxy (`crate::udp`) uses a [`Net`] alone.
 
 use std::sync::{Arc, Mutex, MutexGuard};
 
@@ -92,6 +92,8 @@ pub struct Inner {
     pub stream_overflow_dropped: [u64; 2],
     /// Records `StreamDeliveries` readers missed because they fell behind, summed over readers.
     pub deliveries_lagged: u64,
+    /// The UDP proxy's peers and refusals (`None` in gRPC mode).
+    pub udp: Option<crate::udp::Peers>,
 }
 
 impl Inner {
@@ -298,6 +300,7 @@ impl Net {
             epoch_reason: String::new(),
             stream_overflow_dropped: [0; 2],
             deliveries_lagged: 0,
+            udp: None,
         };
         Ok(Arc::new(Self {
             inner: Mutex::new(inner),
