@@ -162,6 +162,20 @@ pub enum NetemError {
     Serve(#[from] ServeError),
 }
 
+/// `shutdown`, then health `NOT_SERVING`, then netem's open streams told to end.
+fn shutdown_signal(
+    shutdown: impl Future<Output = ()> + Send,
+    not_serving: impl Future<Output = ()> + Send,
+    closing: tokio::sync::watch::Sender<bool>,
+) -> impl Future<Output = ()> + Send {
+    async move {
+        shutdown.await;
+        tracing::info!("netem shutting down");
+        not_serving.await;
+        closing.send_replace(true);
+    }
+}
+
 /// Serves netem on `listener` until `shutdown` resolves.
 pub async fn serve(
     listener: tokio::net::TcpListener,
@@ -199,13 +213,7 @@ pub async fn serve(
         controller_to_plant = ?config.controller_to_plant,
         "netem serving"
     );
-    let closing = shared.closing.clone();
-    let signal = async move {
-        shutdown.await;
-        tracing::info!("netem shutting down");
-        not_serving.await;
-        closing.send_replace(true);
-    };
+    let signal = shutdown_signal(shutdown, not_serving, shared.closing.clone());
     let result = server
         .serve(
             |router| {
@@ -254,13 +262,7 @@ pub async fn serve_udp(
         "netem serving a UDP link"
     );
     let mut proxy = tokio::spawn(udp::run(net.clone(), sockets, udp));
-    let closing = net.closing.clone();
-    let signal = async move {
-        shutdown.await;
-        tracing::info!("netem shutting down");
-        not_serving.await;
-        closing.send_replace(true);
-    };
+    let signal = shutdown_signal(shutdown, not_serving, net.closing.clone());
     let served =
         server.serve(|router| router.add_service(NetemControlServer::new(Control { shared: net })), signal);
     let result = tokio::select! {

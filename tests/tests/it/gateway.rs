@@ -111,7 +111,7 @@ async fn health(addr: SocketAddr, service: &str) -> i32 {
 }
 
 /// Polls until `pred` holds of the gateway's status (panics after PATIENCE).
-async fn wait_status(
+pub(crate) async fn wait_status(
     client: &mut VehicleControlClient<Channel>,
     what: &str,
     pred: impl Fn(&pb::VehicleStatus) -> bool,
@@ -128,7 +128,7 @@ async fn wait_status(
 }
 
 /// Arms the simulated vehicle and switches it to OFFBOARD through VehicleControl.
-async fn arm_and_offboard(addr: SocketAddr) {
+pub(crate) async fn arm_and_offboard(addr: SocketAddr) {
     let mut vc = vehicle_control(addr).await;
     // PX4 takes OFFBOARD only once setpoints stream (a tenth of a second of them here).
     wait_status(&mut vc, "the vehicle's heartbeat and the setpoint stream", |s| {
@@ -160,18 +160,7 @@ async fn paper_2_in_real_time_through_netem_and_the_gateway_reaches_the_goal_of_
         let _ = netem_stopped.await;
     }));
 
-    let endpoints = Endpoints {
-        plant: Some(bench.gateway.addr.to_string()),
-        netem: Some(netem_addr.to_string()),
-        controller: None,
-        time_mode: TimeMode::RealTime,
-        keep_netem_profile: false,
-        live: None,
-        tls: Default::default(),
-    };
-    let settings = GrpcSettings { timeout: Duration::from_secs(240), ..GrpcSettings::default() };
-    let run =
-        run_against(&scenario, ControllerMode::Nmpc, &settings, &endpoints).await.expect("the run completes");
+    let run = fly_in_real_time(&scenario, bench.gateway.addr, netem_addr, false).await;
     let s = &run.summary;
     assert!(s.reached && !s.collided, "{s:?}");
     assert!(s.min_clearance_m >= 0.0, "{s:?}");
@@ -202,6 +191,27 @@ async fn paper_2_in_real_time_through_netem_and_the_gateway_reaches_the_goal_of_
     let _ = tokio::time::timeout(PATIENCE, netem).await;
     bench.gateway.stop().await.expect("gateway stops cleanly");
     bench.vehicle.stop();
+}
+
+/// Flies `scenario` with the standard NMPC in real time, through the netem at `netem` (its
+/// profile left alone with `keep_netem_profile`) to the gateway at `gateway`.
+pub(crate) async fn fly_in_real_time(
+    scenario: &Scenario,
+    gateway: SocketAddr,
+    netem: SocketAddr,
+    keep_netem_profile: bool,
+) -> hilbench::drive::grpc::GrpcRun {
+    let endpoints = Endpoints {
+        plant: Some(gateway.to_string()),
+        netem: Some(netem.to_string()),
+        controller: None,
+        time_mode: TimeMode::RealTime,
+        keep_netem_profile,
+        live: None,
+        tls: Default::default(),
+    };
+    let settings = GrpcSettings { timeout: Duration::from_secs(240), ..GrpcSettings::default() };
+    run_against(scenario, ControllerMode::Nmpc, &settings, &endpoints).await.expect("the run completes")
 }
 
 /// The regression test of an autopilot that reboots under the gateway: its clock restarts,
