@@ -435,7 +435,8 @@ fn weibull_ll(s: &Sums, ln_x: &[f64], shape: f64, scale: f64) -> f64 {
     s.n * (shape.ln() - shape * ln_scale) + (shape - 1.0) * s.sum_ln - sum_pow
 }
 
-/// KS distance of the sorted sample `sorted` from `cdf`.
+/// Kolmogorov–Smirnov distance of the sorted sample `sorted` from `cdf` (also what the tests
+/// of other crates measure a delay sample against a law with).
 pub fn ks_distance(sorted: &[f64], cdf: impl Fn(f64) -> f64) -> f64 {
     let n = sorted.len() as f64;
     let mut d: f64 = 0.0;

@@ -12,12 +12,12 @@ use tokio_stream::wrappers::BroadcastStream;
 use tonic::{Request, Response, Status};
 
 use crate::Mode;
-use crate::core::Shared;
+use crate::core::Net;
 
 /// The control service.
 #[derive(Clone)]
 pub struct Control {
-    pub(crate) shared: Arc<Shared>,
+    pub(crate) shared: Arc<Net>,
 }
 
 type RecordStream =
@@ -94,6 +94,7 @@ impl pb::netem_control_server::NetemControl for Control {
             upstream_connected: inner.upstream_connected,
             upstream_failures: inner.upstream_failures,
             deliveries_lagged: inner.deliveries_lagged,
+            udp: inner.udp.as_ref().map(udp_stats),
             time_mode: match inner.mode {
                 None => pb::TimeMode::Unspecified,
                 Some(Mode::RealTime) => pb::TimeMode::RealTime,
@@ -112,6 +113,9 @@ impl pb::netem_control_server::NetemControl for Control {
         }
         inner.stream_overflow_dropped = [0; 2];
         inner.deliveries_lagged = 0;
+        if let Some(p) = inner.udp.as_mut() {
+            p.reset_counts();
+        }
         // Copies still in flight will be counted when they arrive; keep the books balanced
         // by starting the new period with them as sent.
         let in_flight = inner.in_flight;
@@ -157,5 +161,19 @@ impl pb::netem_control_server::NetemControl for Control {
         });
         let s = crate::core::until_closed(s, self.shared.closed());
         Ok(Response::new(Box::pin(hilbench_svc::streams::Guarded::new(s, slot))))
+    }
+}
+
+/// The UDP proxy's part of `NetemStats`.
+fn udp_stats(p: &crate::udp::Peers) -> pb::UdpStats {
+    pb::UdpStats {
+        listen_address: p.listen.to_string(),
+        forward_address: p.forward.to_string(),
+        client_address: p.client.map(|c| c.to_string()).unwrap_or_default(),
+        plant_side: p.plant_side.name().into(),
+        refused_foreign_client: p.refused_foreign_client,
+        refused_foreign_forward: p.refused_foreign_forward,
+        refused_no_client: p.refused_no_client,
+        send_errors: p.send_errors,
     }
 }

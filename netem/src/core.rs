@@ -1,6 +1,8 @@
-//! The state shared by netem's two services: the delay lines and statistics (under one short
-//! lock that is never held across an await), the upstream client, and the real-time release
-//! machinery.
+//! The state netem's services share. [`Net`] is what every face of netem has: the delay lines
+//! and statistics (under one short lock that is never held across an await), the clock and the
+//! real-time release thread, the stream cap and the shutdown signal; `NetemControl` serves it.
+//! [`Shared`] adds the gRPC proxy's upstream plant client and lockstep machinery on top (it
+//! dereferences to its [`Net`]); the UDP proxy (`crate::udp`) uses a [`Net`] alone.
 
 use std::sync::{Arc, Mutex, MutexGuard};
 
@@ -90,6 +92,8 @@ pub struct Inner {
     pub stream_overflow_dropped: [u64; 2],
     /// Records `StreamDeliveries` readers missed because they fell behind, summed over readers.
     pub deliveries_lagged: u64,
+    /// The UDP proxy's peers and refusals (`None` in gRPC mode).
+    pub udp: Option<crate::udp::Peers>,
 }
 
 impl Inner {
@@ -254,48 +258,32 @@ pub fn is_gone(s: &Status) -> bool {
     matches!(s.code(), tonic::Code::Unavailable | tonic::Code::Cancelled | tonic::Code::Unknown)
 }
 
-pub struct Shared {
+/// What every face of netem shares (see the module's documentation).
+pub struct Net {
     inner: Mutex<Inner>,
-    pub upstream: PlantClient<Channel>,
-    pub upstream_addr: String,
     pub clock: Clock,
     pub releaser: Releaser,
-    /// Serialises lockstep operations so that their order, and so the run, is deterministic.
-    pub lockstep: tokio::sync::Mutex<()>,
-    pub setting: TimeModeSetting,
     /// Seed given to presets set at run time.
     pub seed: u64,
-    pub forward_tx: mpsc::UnboundedSender<Forward>,
     /// Set to true when netem shuts down: open streams end, so the graceful shutdown is not
     /// kept waiting by a controller that never hangs up.
     pub closing: tokio::sync::watch::Sender<bool>,
-    /// The cap on open server streams, of both services.
+    /// The cap on open server streams, of every service.
     pub slots: StreamSlots,
-    /// Samples a real-time state stream's buffer holds (`Config::stream_buffer`).
-    pub stream_buffer: usize,
 }
 
-impl Shared {
-    /// The state of a netem on `config` (validated) with `upstream` as its client.
-    pub fn new(
-        upstream: PlantClient<Channel>,
-        config: &crate::Config,
-    ) -> Result<(Arc<Self>, mpsc::UnboundedReceiver<Forward>), crate::NetemError> {
+impl Net {
+    /// The delay lines of `config` (validated) and a release thread on a new clock; `mode` is
+    /// the time mode in force (`None`: not known yet).
+    pub fn new(config: &crate::Config, mode: Option<Mode>) -> Result<Arc<Self>, crate::NetemError> {
         let line =
             |dir, p: &DirectionProfile| DelayLine::new(dir, p.clone()).map_err(crate::NetemError::Profile);
         let lines = [
             line(Direction::PlantToController, &config.plant_to_controller)?,
             line(Direction::ControllerToPlant, &config.controller_to_plant)?,
         ];
-        let setting = config.time_mode;
         let clock = Clock::new();
         let releaser = Releaser::start(clock).map_err(crate::NetemError::Io)?;
-        let (forward_tx, forward_rx) = mpsc::unbounded_channel();
-        let mode = match setting {
-            TimeModeSetting::Auto => None,
-            TimeModeSetting::RealTime => Some(Mode::RealTime),
-            TimeModeSetting::Lockstep => Some(Mode::Lockstep),
-        };
         let inner = Inner {
             lines,
             stats: Default::default(),
@@ -312,22 +300,16 @@ impl Shared {
             epoch_reason: String::new(),
             stream_overflow_dropped: [0; 2],
             deliveries_lagged: 0,
+            udp: None,
         };
-        let shared = Arc::new(Self {
+        Ok(Arc::new(Self {
             inner: Mutex::new(inner),
-            upstream,
-            upstream_addr: config.upstream.clone(),
             clock,
             releaser,
-            lockstep: tokio::sync::Mutex::new(()),
-            setting,
             seed: config.seed,
-            forward_tx,
             closing: tokio::sync::watch::channel(false).0,
             slots: StreamSlots::new("netem", config.max_streams),
-            stream_buffer: config.stream_buffer,
-        });
-        Ok((shared, forward_rx))
+        }))
     }
 
     /// Resolves when netem starts shutting down.
@@ -340,6 +322,54 @@ impl Shared {
 
     pub fn lock(&self) -> MutexGuard<'_, Inner> {
         self.inner.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+/// The gRPC proxy's state: a [`Net`] (which it dereferences to) and the upstream plant.
+pub struct Shared {
+    pub net: Arc<Net>,
+    pub upstream: PlantClient<Channel>,
+    pub upstream_addr: String,
+    /// Serialises lockstep operations so that their order, and so the run, is deterministic.
+    pub lockstep: tokio::sync::Mutex<()>,
+    pub setting: TimeModeSetting,
+    pub forward_tx: mpsc::UnboundedSender<Forward>,
+    /// Samples a real-time state stream's buffer holds (`Config::stream_buffer`).
+    pub stream_buffer: usize,
+}
+
+impl std::ops::Deref for Shared {
+    type Target = Net;
+
+    fn deref(&self) -> &Net {
+        &self.net
+    }
+}
+
+impl Shared {
+    /// The state of a netem on `config` (validated) with `upstream` as its client.
+    pub fn new(
+        upstream: PlantClient<Channel>,
+        config: &crate::Config,
+    ) -> Result<(Arc<Self>, mpsc::UnboundedReceiver<Forward>), crate::NetemError> {
+        let setting = config.time_mode;
+        let mode = match setting {
+            TimeModeSetting::Auto => None,
+            TimeModeSetting::RealTime => Some(Mode::RealTime),
+            TimeModeSetting::Lockstep => Some(Mode::Lockstep),
+        };
+        let net = Net::new(config, mode)?;
+        let (forward_tx, forward_rx) = mpsc::unbounded_channel();
+        let shared = Arc::new(Self {
+            net,
+            upstream,
+            upstream_addr: config.upstream.clone(),
+            lockstep: tokio::sync::Mutex::new(()),
+            setting,
+            forward_tx,
+            stream_buffer: config.stream_buffer,
+        });
+        Ok((shared, forward_rx))
     }
 
     pub fn client(&self) -> PlantClient<Channel> {

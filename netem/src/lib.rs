@@ -9,6 +9,8 @@
 //! - [`Config`]: validated settings with documented defaults.
 //! - [`serve`]: runs both services (plus health and reflection) on a bound listener until
 //!   `shutdown` resolves; the `netem` binary and the tests start it this way.
+//! - [`serve_udp`]: the same delay lines on a datagram link instead ([`udp`]: a MAVLink
+//!   link between an autopilot and its gateway or ground station), with `NetemControl`.
 //!
 //! **Architecture Invariant:** every random decision is made by `delay::DelayLine`, which is
 //! pure and seeded; this crate only moves messages and reads clocks. Lockstep never reads a
@@ -22,6 +24,7 @@ pub mod control;
 mod core;
 pub mod proxy;
 pub mod release;
+pub mod udp;
 
 use std::future::Future;
 use std::time::Duration;
@@ -153,8 +156,24 @@ pub enum NetemError {
     Upstream(hilbench_svc::tls::TlsError),
     #[error("io: {0}")]
     Io(#[from] std::io::Error),
+    #[error("UDP: {0}")]
+    Udp(String),
     #[error(transparent)]
     Serve(#[from] ServeError),
+}
+
+/// `shutdown`, then health `NOT_SERVING`, then netem's open streams told to end.
+fn shutdown_signal(
+    shutdown: impl Future<Output = ()> + Send,
+    not_serving: impl Future<Output = ()> + Send,
+    closing: tokio::sync::watch::Sender<bool>,
+) -> impl Future<Output = ()> + Send {
+    async move {
+        shutdown.await;
+        tracing::info!("netem shutting down");
+        not_serving.await;
+        closing.send_replace(true);
+    }
 }
 
 /// Serves netem on `listener` until `shutdown` resolves.
@@ -194,25 +213,67 @@ pub async fn serve(
         controller_to_plant = ?config.controller_to_plant,
         "netem serving"
     );
-    let closing = shared.closing.clone();
-    let signal = async move {
-        shutdown.await;
-        tracing::info!("netem shutting down");
-        not_serving.await;
-        closing.send_replace(true);
-    };
+    let signal = shutdown_signal(shutdown, not_serving, shared.closing.clone());
     let result = server
         .serve(
             |router| {
                 router
                     .add_service(PlantServer::new(Proxy { shared: shared.clone() }))
-                    .add_service(NetemControlServer::new(Control { shared }))
+                    .add_service(NetemControlServer::new(Control { shared: shared.net.clone() }))
             },
             signal,
         )
         .await;
     forwarder.abort();
     probe.abort();
+    result?;
+    tracing::info!("netem stopped");
+    Ok(())
+}
+
+/// Serves the UDP proxy `udp` (real time) and `NetemControl` (plus health and reflection) on
+/// `listener` until `shutdown` resolves; the delay lines are `config`'s, as in [`serve`]
+/// (`config.upstream` is not used: there is no Plant API in this mode).
+pub async fn serve_udp(
+    listener: tokio::net::TcpListener,
+    config: Config,
+    udp: udp::UdpConfig,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<(), NetemError> {
+    config.validate()?;
+    if config.time_mode == TimeModeSetting::Lockstep {
+        return Err(NetemError::Config(
+            "--time-mode lockstep needs a plant whose time netem moves; the UDP proxy runs in real time"
+                .into(),
+        ));
+    }
+    let net = core::Net::new(&config, Some(Mode::RealTime))?;
+    let sockets = udp::Sockets::bind(&udp)
+        .map_err(|e| NetemError::Udp(format!("--udp-listen {}: cannot bind: {e}", udp.listen)))?;
+    let server = GrpcServer::new(listener, true, &config.tls, &[NetemControlServer::<Control>::NAME]).await?;
+    let (addr, not_serving) = (server.addr, server.not_serving());
+    tracing::info!(
+        %addr,
+        udp_listen = %sockets.listen_addr,
+        udp_forward = %udp.forward,
+        plant_side = udp.plant_side.name(),
+        plant_to_controller = ?config.plant_to_controller,
+        controller_to_plant = ?config.controller_to_plant,
+        "netem serving a UDP link"
+    );
+    let mut proxy = tokio::spawn(udp::run(net.clone(), sockets, udp));
+    let signal = shutdown_signal(shutdown, not_serving, net.closing.clone());
+    let served =
+        server.serve(|router| router.add_service(NetemControlServer::new(Control { shared: net })), signal);
+    let result = tokio::select! {
+        r = served => r.map_err(NetemError::from),
+        r = &mut proxy => Err(NetemError::Udp(match r {
+            Ok(Ok(())) => "the proxy stopped".into(),
+            Ok(Err(e)) => format!("the proxy stopped: {e}"),
+            Err(e) => format!("the proxy failed: {e}"),
+        })),
+    };
+    proxy.abort();
     result?;
     tracing::info!("netem stopped");
     Ok(())

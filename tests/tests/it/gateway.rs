@@ -111,7 +111,7 @@ async fn health(addr: SocketAddr, service: &str) -> i32 {
 }
 
 /// Polls until `pred` holds of the gateway's status (panics after PATIENCE).
-async fn wait_status(
+pub(crate) async fn wait_status(
     client: &mut VehicleControlClient<Channel>,
     what: &str,
     pred: impl Fn(&pb::VehicleStatus) -> bool,
@@ -128,7 +128,7 @@ async fn wait_status(
 }
 
 /// Arms the simulated vehicle and switches it to OFFBOARD through VehicleControl.
-async fn arm_and_offboard(addr: SocketAddr) {
+pub(crate) async fn arm_and_offboard(addr: SocketAddr) {
     let mut vc = vehicle_control(addr).await;
     // PX4 takes OFFBOARD only once setpoints stream (a tenth of a second of them here).
     wait_status(&mut vc, "the vehicle's heartbeat and the setpoint stream", |s| {
@@ -160,18 +160,7 @@ async fn paper_2_in_real_time_through_netem_and_the_gateway_reaches_the_goal_of_
         let _ = netem_stopped.await;
     }));
 
-    let endpoints = Endpoints {
-        plant: Some(bench.gateway.addr.to_string()),
-        netem: Some(netem_addr.to_string()),
-        controller: None,
-        time_mode: TimeMode::RealTime,
-        keep_netem_profile: false,
-        live: None,
-        tls: Default::default(),
-    };
-    let settings = GrpcSettings { timeout: Duration::from_secs(240), ..GrpcSettings::default() };
-    let run =
-        run_against(&scenario, ControllerMode::Nmpc, &settings, &endpoints).await.expect("the run completes");
+    let run = fly_in_real_time(&scenario, bench.gateway.addr, netem_addr, false).await;
     let s = &run.summary;
     assert!(s.reached && !s.collided, "{s:?}");
     assert!(s.min_clearance_m >= 0.0, "{s:?}");
@@ -204,17 +193,31 @@ async fn paper_2_in_real_time_through_netem_and_the_gateway_reaches_the_goal_of_
     bench.vehicle.stop();
 }
 
-/// `run_against` a gateway, with a netem in front of it as `hilbench run --plant` has.
-async fn run_through_the_gateway(
-    gateway: SocketAddr,
+/// Flies `scenario` with the standard NMPC in real time, through the netem at `netem` (its
+/// profile left alone with `keep_netem_profile`) to the gateway at `gateway`.
+pub(crate) async fn fly_in_real_time(
     scenario: &Scenario,
+    gateway: SocketAddr,
+    netem: SocketAddr,
+    keep_netem_profile: bool,
+) -> hilbench::drive::grpc::GrpcRun {
+    fly_to_the_gateway(scenario, gateway, Some(netem), keep_netem_profile).await.expect("the run completes")
+}
+
+/// `run_against` the gateway at `gateway` in real time with the standard NMPC, through the
+/// netem at `netem`, else one started as `hilbench run --plant` starts it.
+async fn fly_to_the_gateway(
+    scenario: &Scenario,
+    gateway: SocketAddr,
+    netem: Option<SocketAddr>,
+    keep_netem_profile: bool,
 ) -> anyhow::Result<hilbench::drive::grpc::GrpcRun> {
     let endpoints = Endpoints {
         plant: Some(gateway.to_string()),
-        netem: None,
+        netem: netem.map(|a| a.to_string()),
         controller: None,
         time_mode: TimeMode::RealTime,
-        keep_netem_profile: false,
+        keep_netem_profile,
         live: None,
         tls: Default::default(),
     };
@@ -235,7 +238,7 @@ async fn a_run_refuses_a_vehicle_not_flying_setpoints_and_ends_at_once_on_a_star
     wait_status(&mut vc, "the vehicle's heartbeat", |s| s.link_alive).await;
     let status = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
     assert!(!status.flies_setpoints, "{status:?}");
-    let refused = run_through_the_gateway(addr, &scenario).await.map(|_| ()).expect_err("refused");
+    let refused = fly_to_the_gateway(&scenario, addr, None, false).await.map(|_| ()).expect_err("refused");
     let text = format!("{refused:#}");
     assert!(text.contains("disarmed") && text.contains("arm-offboard"), "{text}");
     assert_eq!(bench.vehicle.autopilot().counters().refused_setpoints, 0);
@@ -245,7 +248,8 @@ async fn a_run_refuses_a_vehicle_not_flying_setpoints_and_ends_at_once_on_a_star
     assert!(status.flies_setpoints, "{status:?}");
     // paper-1 starts 3.2 m from where the vehicle stands. Ended by the refusal, not by the
     // stall timeout ("no control cycle for 30 s", the failure this catches).
-    let far = run_through_the_gateway(addr, &Scenario::paper_1()).await.map(|_| ()).expect_err("refused");
+    let far =
+        fly_to_the_gateway(&Scenario::paper_1(), addr, None, false).await.map(|_| ()).expect_err("refused");
     let text = format!("{far:#}");
     assert!(text.contains("episode ended with an error") && text.contains("teleport"), "{text}");
     bench.gateway.stop().await.expect("gateway stops cleanly");

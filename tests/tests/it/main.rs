@@ -11,3 +11,4 @@ mod netem;
 mod plant;
 mod python;
 mod tls;
+mod udp;
