@@ -127,7 +127,10 @@ pub fn wait_until(due_ns: u64, spin_ns: u64) -> u64 {
         let now = monotonic_ns();
         match plan(now, due_ns, spin_ns) {
             Wait::Due => return now,
-            Wait::Spin => std::hint::spin_loop(),
+            // No `spin_loop` hint: a run of PAUSE instructions makes the hypervisor take the
+            // vCPU away (pause-loop exiting), which on the bench's VM put the 99.9th
+            // percentile of a 1 kHz spin at 1.8 ms against 0.3 ms without it.
+            Wait::Spin => {}
             Wait::SleepUntil(t) => imp::sleep_until(t),
         }
     }
