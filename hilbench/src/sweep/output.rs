@@ -24,6 +24,9 @@ pub struct Meta {
     pub runs_planned: u64,
     /// `i/K`, or none for a whole sweep.
     pub shard: Option<String>,
+    /// Where the shard came from: `flag` (`--shard I/K`), `slurm` or `kubernetes`
+    /// (`--shard auto`); none for a whole sweep.
+    pub shard_from: Option<String>,
     pub controllers: Vec<String>,
     pub families: Vec<String>,
     pub transport: String,
@@ -37,7 +40,8 @@ impl Meta {
             file: sweep.file.display().to_string(),
             seed: sweep.seed,
             runs_planned: sweep.runs,
-            shard: sweep.shard.map(|(i, k)| format!("{i}/{k}")),
+            shard: sweep.shard.map(|s| format!("{}/{}", s.index, s.count)),
+            shard_from: sweep.shard.map(|s| s.from.name().to_string()),
             controllers: sweep.modes.iter().map(|m| m.name().to_string()).collect(),
             families: sweep.table.families.iter().map(|f| f.name().to_string()).collect(),
             transport: sweep.driver.name().to_string(),
@@ -75,6 +79,7 @@ pub fn sweep_json(
     v["seed"] = json!(meta.seed);
     v["runs_planned"] = json!(meta.runs_planned);
     v["shard"] = json!(meta.shard);
+    v["shard_from"] = json!(meta.shard_from);
     v["controllers"] = json!(meta.controllers);
     v["family_order"] = json!(meta.families);
     v["transport"] = json!(meta.transport);
@@ -318,6 +323,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
                 .as_u64()
                 .with_context(|| format!("{}: no `runs_planned`", path.display()))?,
             shard: None,
+            shard_from: None,
             controllers: strings("controllers"),
             families: strings("family_order"),
             transport: v["transport"].as_str().unwrap_or_default().to_string(),
@@ -360,7 +366,9 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
         }
     }
     let meta = meta.context("sweep-merge: no shard")?;
-    let rows = stats::merge_rows(rows, &meta.controllers).map_err(|e| anyhow::anyhow!("sweep-merge: {e}"))?;
+    // An interrupted shard flew part of its runs: the merge is of what finished, interrupted.
+    let rows = stats::merge_rows(rows, &meta.controllers, meta.runs_planned, interrupted)
+        .map_err(|e| anyhow::anyhow!("sweep-merge: {e}"))?;
     let order = |c: &str| meta.controllers.iter().position(|x| x == c).unwrap_or(usize::MAX);
     failures.sort_by_key(|f| {
         (f["run"].as_u64().unwrap_or(u64::MAX), order(f["controller"].as_str().unwrap_or("")))
