@@ -460,7 +460,7 @@ mod tests {
         let merged = merge_rows(rows(&[3, 0, 2, 1]), &modes, 4, false).expect("every run once");
         assert_eq!(merged.iter().map(|r| r.run).collect::<Vec<_>>(), [0, 1, 2, 3]);
         let e = merge_rows(rows(&[0, 4, 5, 9]), &modes, 12, false).expect_err("runs missing");
-        assert!(e.contains("7 of the sweep's 12 runs") && e.contains("runs 1-3, 6-8, 10-11"), "{e}");
+        assert!(e.contains("8 of the sweep's 12 runs") && e.contains("runs 1-3, 6-8, 10-11"), "{e}");
         let e = merge_rows(rows(&[0, 1, 1]), &modes, 2, false).expect_err("a run twice");
         assert!(e.contains("run 1 with multistage is in two shards"), "{e}");
         let e = merge_rows(rows(&[0, 1, 2]), &modes, 2, false).expect_err("a run past the sweep");
@@ -495,8 +495,12 @@ mod tests {
         // Path lengths over the 97 runs that reached the goal, 8..=104 m.
         assert_eq!(v["path_length_m"]["p50"], 56.0);
         assert_eq!(v["families"]["gamma"]["runs"], 100);
-        assert_eq!(merge_rows(vec![rows[1].clone(), rows[0].clone()], &[]).map(|r| r[0].run), Ok(0));
-        assert!(merge_rows(vec![rows[1].clone(), rows[1].clone()], &[]).is_err());
+        let modes = ["multistage".to_string()];
+        assert_eq!(
+            merge_rows(vec![rows[1].clone(), rows[0].clone()], &modes, 2, false).map(|r| r[0].run),
+            Ok(0)
+        );
+        assert!(merge_rows(vec![rows[1].clone(), rows[1].clone()], &modes, 2, false).is_err());
     }
 
     #[test]
