@@ -8,7 +8,7 @@
 #
 # Knobs (environment): PARTITION (default: the cluster's default partition), TIME (per task,
 # default 02:00:00), CPUS (CPUs per task, which is `--jobs`, default 2), MEM_PER_CPU (default
-# 200M), HILBENCH (the binary, default target/release/hilbench), SWEEP_ARGS (more flags of
+# 1G), HILBENCH (the binary, default target/release/hilbench), SWEEP_ARGS (more flags of
 # `hilbench sweep`), SBATCH_ARGS (more flags of both sbatch calls, e.g. "--account=lab").
 # OUT and the binary must be on a file system every node sees.
 set -euo pipefail
@@ -31,7 +31,7 @@ common=(--parsable --export=ALL)
 # shellcheck disable=SC2206 # SBATCH_ARGS is a list of flags
 common+=(${SBATCH_ARGS:-})
 array=$(sbatch "${common[@]}" --array="0-$((shards - 1))" --time="${TIME:-02:00:00}" \
-    --cpus-per-task="${CPUS:-2}" --mem-per-cpu="${MEM_PER_CPU:-200M}" \
+    --cpus-per-task="${CPUS:-2}" --mem-per-cpu="${MEM_PER_CPU:-1G}" \
     --output="$SWEEP_OUT/logs/shard-%a.out" "$here/sweep.sbatch")
 array=${array%%;*}
 merge=$(sbatch "${common[@]}" --dependency="afterok:$array" --kill-on-invalid-dep=yes \
