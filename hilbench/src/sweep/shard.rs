@@ -267,7 +267,9 @@ mod tests {
 
     #[test]
     fn auto_is_refused_naming_the_variables_when_none_is_set_or_they_are_bad_or_disagree() {
-        let cases: &[(&[(&str, &str)], Option<u64>, &[&str])] = &[
+        // (the variables, auto/K, what the message must name)
+        type Case<'a> = (&'a [(&'a str, &'a str)], Option<u64>, &'a [&'a str]);
+        let cases: &[Case] = &[
             (&[], None, &[SLURM_ID, K8S_INDEX, COUNT_VAR, "--shard I/K"]),
             (&[("SLURM_JOB_ID", "7")], None, &[SLURM_ID, K8S_INDEX]),
             (&[(SLURM_ID, "1")], None, &[SLURM_COUNT, SLURM_MIN]),
