@@ -13,6 +13,7 @@ use mav::Scenario;
 use crate::drive::TimeMode;
 use crate::drive::services::{BenchTls, Endpoints};
 use crate::scenario_file::Mode;
+use crate::sweep::shard::ShardArg;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -415,9 +416,11 @@ pub struct SweepArgs {
     #[arg(long, value_enum)]
     pub mode: Option<ModeArg>,
     /// Fly only the I-th of K disjoint slices of the runs (I from 0); merge the shards'
-    /// directories with `hilbench sweep-merge`.
-    #[arg(long, value_name = "I/K", value_parser = parse_shard)]
-    pub shard: Option<(u64, u64)>,
+    /// directories with `hilbench sweep-merge`. `auto`: the shard of a Slurm array task
+    /// (SLURM_ARRAY_TASK_ID, SLURM_ARRAY_TASK_COUNT or _MIN/_MAX) or of a Kubernetes Indexed
+    /// Job's pod (JOB_COMPLETION_INDEX, with HILBENCH_SHARD_COUNT or `auto/K`).
+    #[arg(long, value_name = "I/K|auto|auto/K", value_parser = crate::sweep::shard::parse)]
+    pub shard: Option<ShardArg>,
     /// Fly each run over the services (plant, netem, controller on loopback) instead of in
     /// process: the same numbers, slower.
     #[arg(long, conflicts_with = "controller_cmd")]
@@ -482,17 +485,6 @@ pub fn san_name(name: &str) -> Result<String, String> {
         ));
     }
     Ok(name.to_string())
-}
-
-/// `--shard I/K`.
-pub fn parse_shard(text: &str) -> Result<(u64, u64), String> {
-    let (i, k) = text.split_once('/').ok_or("expected I/K, e.g. 0/4")?;
-    let i: u64 = i.trim().parse().map_err(|_| format!("{i:?} is not a shard number"))?;
-    let k: u64 = k.trim().parse().map_err(|_| format!("{k:?} is not a number of shards"))?;
-    if k == 0 || i >= k {
-        return Err(format!("shard {i} of {k}: I must be below K (shards 0 to K-1)"));
-    }
-    Ok((i, k))
 }
 
 /// `--controller-cmd`: a command line with something to run.

@@ -163,12 +163,33 @@ fn a_failures_trace_replays_it_bit_for_bit_shrunk_or_not() {
     }
 }
 
+/// The variables `--shard auto` reads.
+const SCHEDULER_VARS: [&str; 7] = [
+    "SLURM_ARRAY_TASK_ID",
+    "SLURM_ARRAY_TASK_COUNT",
+    "SLURM_ARRAY_TASK_MIN",
+    "SLURM_ARRAY_TASK_MAX",
+    "SLURM_ARRAY_TASK_STEP",
+    "JOB_COMPLETION_INDEX",
+    "HILBENCH_SHARD_COUNT",
+];
+
+/// `hilbench ARGS` with the scheduler's variables `vars` (and no others of theirs).
+fn hilbench_under(vars: &[(&str, &str)], args: &[&str]) -> std::process::Output {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_hilbench"));
+    for var in SCHEDULER_VARS {
+        command.env_remove(var);
+    }
+    command.envs(vars.iter().copied()).args(args).output().expect("hilbench runs")
+}
+
 #[test]
 fn two_shards_merged_equal_the_unsharded_sweep() {
     let file = long_delays();
     let whole = out_dir("sweep-whole");
-    let run = |extra: &[&str], dir: &Path| {
-        let out = hilbench(
+    let run = |vars: &[(&str, &str)], extra: &[&str], dir: &Path| {
+        let out = hilbench_under(
+            vars,
             &[
                 &["sweep", &file, "--runs", "4", "--jobs", "2", "--no-plots", "--quiet", "--out", s(dir)],
                 extra,
@@ -177,11 +198,24 @@ fn two_shards_merged_equal_the_unsharded_sweep() {
         );
         assert!(out.status.success(), "{out:?}");
     };
-    run(&[], &whole);
+    run(&[], &[], &whole);
     let (a, b) = (out_dir("sweep-shard-0"), out_dir("sweep-shard-1"));
-    run(&["--shard", "0/2"], &a);
-    run(&["--shard", "1/2"], &b);
+    // Shard 0 as a Kubernetes Indexed Job's pod runs it, shard 1 as a Slurm array's task
+    // (--array=1-2: index = ID - MIN).
+    run(&[("JOB_COMPLETION_INDEX", "0"), ("HILBENCH_SHARD_COUNT", "2")], &["--shard", "auto"], &a);
+    let slurm = [
+        ("SLURM_ARRAY_TASK_ID", "2"),
+        ("SLURM_ARRAY_TASK_COUNT", "2"),
+        ("SLURM_ARRAY_TASK_MIN", "1"),
+        ("SLURM_ARRAY_TASK_MAX", "2"),
+    ];
+    run(&slurm, &["--shard", "auto/2"], &b);
+    for (dir, shard, from) in [(&a, "0/2", "kubernetes"), (&b, "1/2", "slurm")] {
+        let v = json_of(&dir.join("sweep.json"));
+        assert_eq!((v["shard"].as_str(), v["shard_from"].as_str()), (Some(shard), Some(from)), "{v}");
+    }
     assert_eq!(rows_of(&a).len() + rows_of(&b).len(), 4);
+    assert_eq!(rows_of(&a).iter().map(|r| r.run).collect::<Vec<_>>(), [0, 1]);
     let merged = out_dir("sweep-merged");
     let merge = hilbench(&["sweep-merge", s(&b), s(&a), "--out", s(&merged), "--no-plots", "--quiet"]);
     assert!(merge.status.success(), "{merge:?}");
@@ -202,6 +236,27 @@ fn two_shards_merged_equal_the_unsharded_sweep() {
     let twice = hilbench(&["sweep-merge", s(&a), s(&a), "--out", s(&out_dir("sweep-twice")), "--quiet"]);
     assert_eq!(twice.status.code(), Some(1), "{twice:?}");
     assert!(String::from_utf8_lossy(&twice.stderr).contains("in two shards"), "{twice:?}");
+    // A shard left out is refused, naming the runs it held.
+    let half = hilbench(&["sweep-merge", s(&a), "--out", s(&out_dir("sweep-half")), "--quiet"]);
+    assert_eq!(half.status.code(), Some(1), "{half:?}");
+    let stderr = String::from_utf8_lossy(&half.stderr);
+    assert!(stderr.contains("2 of the sweep's 4 runs with multistage are in no shard: runs 2-3"), "{stderr}");
+}
+
+#[test]
+fn shard_auto_without_a_schedulers_variables_is_refused_naming_them_before_anything_runs() {
+    let out = out_dir("sweep-auto-refused");
+    for (vars, says) in [
+        (&[][..], "SLURM_ARRAY_TASK_ID"),
+        (&[("JOB_COMPLETION_INDEX", "1")][..], "HILBENCH_SHARD_COUNT"),
+        (&[("SLURM_ARRAY_TASK_ID", "5"), ("SLURM_ARRAY_TASK_COUNT", "4")][..], "below"),
+    ] {
+        let run = hilbench_under(vars, &["sweep", &long_delays(), "--shard", "auto", "--out", s(&out)]);
+        assert_eq!(run.status.code(), Some(1), "{vars:?}: {run:?}");
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert!(stderr.contains("--shard auto") && stderr.contains(says), "{vars:?}: {stderr}");
+        assert!(!out.exists(), "{vars:?}: something ran");
+    }
 }
 
 #[test]

@@ -8,7 +8,7 @@ use crate::cli::SweepArgs;
 use crate::drive::TimeMode;
 use crate::output::terminal;
 use crate::scenario_file::ScenarioFile;
-use crate::sweep::{Sweep, execute, output, shrink_failures, until};
+use crate::sweep::{Sweep, execute, output, shard, shrink_failures, until};
 
 pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
     let spec = ScenarioFile::load(&args.file)?;
@@ -37,6 +37,14 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
         "{}: a sweep flies in lockstep (run.time_mode is real-time)",
         args.file.display()
     );
+    // --shard auto: the scheduler's variables, read here and nowhere else (a value that is not
+    // UTF-8 is kept, lossily, to be refused as not a number).
+    let env = || {
+        std::env::vars_os()
+            .map(|(k, v)| (k.to_string_lossy().into_owned(), v.to_string_lossy().into_owned()))
+            .collect()
+    };
+    let shard = args.shard.map(|arg| shard::resolve(arg, &env())).transpose().map_err(anyhow::Error::msg)?;
     let jobs = super::jobs_or_cores(args.jobs);
     let driver = super::lockstep_driver(args.controller_cmd, args.grpc, &args.tls, "sweep")?;
     let sweep = Sweep {
@@ -44,7 +52,7 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
         seed: args.seed.or(table.seed).unwrap_or(spec.scenario.seed),
         runs,
         modes,
-        shard: args.shard,
+        shard,
         jobs,
         driver,
         run_timeout: std::time::Duration::from_secs_f64(

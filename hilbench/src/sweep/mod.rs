@@ -12,6 +12,7 @@
 pub mod draw;
 pub mod output;
 pub mod plots;
+pub mod shard;
 pub mod stats;
 pub mod until;
 
@@ -47,8 +48,8 @@ pub struct Sweep {
     /// Runs of the whole sweep (all shards).
     pub runs: u64,
     pub modes: Vec<ControllerMode>,
-    /// `(i, k)`: the i-th of k slices of the runs.
-    pub shard: Option<(u64, u64)>,
+    /// The i-th of k slices of the runs, and where that came from.
+    pub shard: Option<shard::Shard>,
     pub jobs: usize,
     pub driver: Driver,
     pub run_timeout: Duration,
@@ -69,9 +70,9 @@ impl Sweep {
         }
         match self.shard {
             None => 0..self.runs,
-            Some((i, k)) => {
-                let at = |j: u64| (u128::from(self.runs) * u128::from(j) / u128::from(k)) as u64;
-                at(i)..at(i + 1)
+            Some(shard::Shard { index, count, .. }) => {
+                let at = |j: u64| (u128::from(self.runs) * u128::from(j) / u128::from(count)) as u64;
+                at(index)..at(index + 1)
             }
         }
     }

@@ -24,6 +24,9 @@ pub struct Meta {
     pub runs_planned: u64,
     /// `i/K`, or none for a whole sweep.
     pub shard: Option<String>,
+    /// Where the shard came from: `flag` (`--shard I/K`), `slurm` or `kubernetes`
+    /// (`--shard auto`); none for a whole sweep.
+    pub shard_from: Option<String>,
     pub controllers: Vec<String>,
     /// The external controller's command line, when the sweep flew one.
     pub controller_cmd: Option<String>,
@@ -39,7 +42,8 @@ impl Meta {
             file: sweep.file.display().to_string(),
             seed: sweep.seed,
             runs_planned: sweep.runs,
-            shard: sweep.shard.map(|(i, k)| format!("{i}/{k}")),
+            shard: sweep.shard.map(|s| format!("{}/{}", s.index, s.count)),
+            shard_from: sweep.shard.map(|s| s.from.name().to_string()),
             controllers: sweep.controllers(),
             controller_cmd: sweep.driver.controller_cmd().map(str::to_string),
             families: sweep.table.families.iter().map(|f| f.name().to_string()).collect(),
@@ -78,6 +82,7 @@ pub fn sweep_json(
     v["seed"] = json!(meta.seed);
     v["runs_planned"] = json!(meta.runs_planned);
     v["shard"] = json!(meta.shard);
+    v["shard_from"] = json!(meta.shard_from);
     v["controllers"] = json!(meta.controllers);
     v["controller_cmd"] = json!(meta.controller_cmd);
     v["family_order"] = json!(meta.families);
@@ -343,6 +348,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
                 .as_u64()
                 .with_context(|| format!("{}: no `runs_planned`", path.display()))?,
             shard: None,
+            shard_from: None,
             controllers: strings("controllers"),
             controller_cmd: v["controller_cmd"].as_str().map(String::from),
             families: strings("family_order"),
@@ -387,7 +393,9 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
         }
     }
     let meta = meta.context("sweep-merge: no shard")?;
-    let rows = stats::merge_rows(rows, &meta.controllers).map_err(|e| anyhow::anyhow!("sweep-merge: {e}"))?;
+    // An interrupted shard flew part of its runs: the merge is of what finished, interrupted.
+    let rows = stats::merge_rows(rows, &meta.controllers, meta.runs_planned, interrupted)
+        .map_err(|e| anyhow::anyhow!("sweep-merge: {e}"))?;
     let order = |c: &str| meta.controllers.iter().position(|x| x == c).unwrap_or(usize::MAX);
     failures.sort_by_key(|f| {
         (f["run"].as_u64().unwrap_or(u64::MAX), order(f["controller"].as_str().unwrap_or("")))

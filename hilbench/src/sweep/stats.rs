@@ -368,8 +368,14 @@ pub fn aggregate_with_families(rows: &[&RunRow], family_order: &[String]) -> Val
 }
 
 /// Rows of shards put together: sorted by run and controller (`modes` order), a (run,
-/// controller) present twice refused.
-pub fn merge_rows(mut rows: Vec<RunRow>, modes: &[String]) -> Result<Vec<RunRow>, String> {
+/// controller) present twice refused. Unless `partial` (a shard was interrupted), every run
+/// `0..runs` must be there with every controller: the runs missing are refused, named.
+pub fn merge_rows(
+    mut rows: Vec<RunRow>,
+    modes: &[String],
+    runs: u64,
+    partial: bool,
+) -> Result<Vec<RunRow>, String> {
     let order = |m: &str| modes.iter().position(|x| x == m).unwrap_or(usize::MAX);
     rows.sort_by_key(|a| (a.run, order(&a.controller)));
     for w in rows.windows(2) {
@@ -377,7 +383,58 @@ pub fn merge_rows(mut rows: Vec<RunRow>, modes: &[String]) -> Result<Vec<RunRow>
             return Err(format!("run {} with {} is in two shards", w[0].run, w[0].controller));
         }
     }
+    if let Some(r) = rows.iter().find(|r| r.run >= runs || order(&r.controller) == usize::MAX) {
+        return Err(format!(
+            "run {} with {} is not a run of this sweep (runs 0 to {} with {})",
+            r.run,
+            r.controller,
+            runs.saturating_sub(1),
+            modes.join(", ")
+        ));
+    }
+    if !partial {
+        for mode in modes {
+            let have = rows.iter().filter(|r| &r.controller == mode).map(|r| r.run);
+            let missing = gaps(have, runs);
+            if !missing.is_empty() {
+                let count: u64 = missing.iter().map(|g| g.end - g.start).sum();
+                let shown: Vec<String> = missing
+                    .iter()
+                    .take(10)
+                    .map(|g| {
+                        if g.end - g.start == 1 {
+                            format!("{}", g.start)
+                        } else {
+                            format!("{}-{}", g.start, g.end - 1)
+                        }
+                    })
+                    .collect();
+                let more = if missing.len() > 10 { ", ..." } else { "" };
+                return Err(format!(
+                    "{count} of the sweep's {runs} runs with {mode} are in no shard: runs {}{more} (a shard \
+                     missing or not finished?)",
+                    shown.join(", ")
+                ));
+            }
+        }
+    }
     Ok(rows)
+}
+
+/// The ranges of `0..runs` that `have` (sorted, no repeats) leaves out.
+fn gaps(have: impl Iterator<Item = u64>, runs: u64) -> Vec<std::ops::Range<u64>> {
+    let mut out = Vec::new();
+    let mut next = 0;
+    for run in have {
+        if run > next {
+            out.push(next..run);
+        }
+        next = run + 1;
+    }
+    if next < runs {
+        out.push(next..runs);
+    }
+    out
 }
 
 #[cfg(test)]
@@ -392,6 +449,22 @@ mod tests {
         r.what = "cylinder 1, 0.01 m deep, at \"3\" s".into();
         r.fail_position_m = Some([1.0, 2.0 / 3.0, 0.1]);
         r
+    }
+
+    #[test]
+    fn merged_rows_with_runs_missing_or_repeated_or_foreign_are_refused_naming_them() {
+        let modes = vec!["multistage".to_string()];
+        let rows = |runs: &[u64]| runs.iter().map(|&r| row(r, "reached", 0.5)).collect::<Vec<_>>();
+        let merged = merge_rows(rows(&[3, 0, 2, 1]), &modes, 4, false).expect("every run once");
+        assert_eq!(merged.iter().map(|r| r.run).collect::<Vec<_>>(), [0, 1, 2, 3]);
+        let e = merge_rows(rows(&[0, 4, 5, 9]), &modes, 12, false).expect_err("runs missing");
+        assert!(e.contains("8 of the sweep's 12 runs") && e.contains("runs 1-3, 6-8, 10-11"), "{e}");
+        let e = merge_rows(rows(&[0, 1, 1]), &modes, 2, false).expect_err("a run twice");
+        assert!(e.contains("run 1 with multistage is in two shards"), "{e}");
+        let e = merge_rows(rows(&[0, 1, 2]), &modes, 2, false).expect_err("a run past the sweep");
+        assert!(e.contains("run 2 with multistage is not a run of this sweep"), "{e}");
+        // An interrupted shard: what finished is merged.
+        assert_eq!(merge_rows(rows(&[0, 2]), &modes, 4, true).expect("partial").len(), 2);
     }
 
     #[test]
@@ -420,8 +493,12 @@ mod tests {
         // Path lengths over the 97 runs that reached the goal, 8..=104 m.
         assert_eq!(v["path_length_m"]["p50"], 56.0);
         assert_eq!(v["families"]["gamma"]["runs"], 100);
-        assert_eq!(merge_rows(vec![rows[1].clone(), rows[0].clone()], &[]).map(|r| r[0].run), Ok(0));
-        assert!(merge_rows(vec![rows[1].clone(), rows[1].clone()], &[]).is_err());
+        let modes = ["multistage".to_string()];
+        assert_eq!(
+            merge_rows(vec![rows[1].clone(), rows[0].clone()], &modes, 2, false).map(|r| r[0].run),
+            Ok(0)
+        );
+        assert!(merge_rows(vec![rows[1].clone(), rows[1].clone()], &modes, 2, false).is_err());
     }
 
     #[test]
