@@ -289,7 +289,7 @@ mod tests {
     use mpc::ControllerMode;
 
     fn failed(run: u64, mode: ControllerMode, outcome: &str, at: [f64; 3]) -> RunRow {
-        let mut r = RunRow::of_error(run, mode, "long", "", outcome, "", 0.0);
+        let mut r = RunRow::of_error(run, mode.name(), "long", "", outcome, "", 0.0);
         r.fail_position_m = Some(at);
         r.min_clearance_m = Some(-0.01);
         r

@@ -15,7 +15,7 @@
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use delay::{Direction, Distribution, Ordering};
+use delay::{Distribution, Ordering};
 use gateway::mavsim::{Mavsim, MavsimConfig};
 use gateway::{GatewayConfig, Link};
 use hilbench_proto::pb;
