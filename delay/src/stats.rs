@@ -26,19 +26,15 @@ pub struct Percentiles {
     pub max_ns: u64,
 }
 
-/// Durations, ns: exact percentiles over the last [`WINDOW`] pushed, the maximum over all of
-/// them (netem's delays and release errors, the services' real-time lateness).
 #[derive(Debug, Clone, Default)]
-pub struct Window {
+struct Window {
     values: Vec<u64>,
     next: usize,
     max: u64,
-    count: u64,
 }
 
 impl Window {
-    pub fn push(&mut self, v: u64) {
-        self.count += 1;
+    fn push(&mut self, v: u64) {
         self.max = self.max.max(v);
         if self.values.len() < WINDOW {
             self.values.push(v);
@@ -48,14 +44,7 @@ impl Window {
         }
     }
 
-    /// Durations pushed since the window was made.
-    pub fn count(&self) -> u64 {
-        self.count
-    }
-
-    /// Nearest-rank percentiles of the last [`WINDOW`] durations and the maximum of all; `None`
-    /// when nothing was pushed.
-    pub fn percentiles(&self) -> Option<Percentiles> {
+    fn percentiles(&self) -> Option<Percentiles> {
         if self.values.is_empty() {
             return None;
         }
