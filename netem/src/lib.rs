@@ -163,17 +163,15 @@ pub enum NetemError {
 }
 
 /// `shutdown`, then health `NOT_SERVING`, then netem's open streams told to end.
-fn shutdown_signal(
+async fn shutdown_signal(
     shutdown: impl Future<Output = ()> + Send,
     not_serving: impl Future<Output = ()> + Send,
     closing: tokio::sync::watch::Sender<bool>,
-) -> impl Future<Output = ()> + Send {
-    async move {
-        shutdown.await;
-        tracing::info!("netem shutting down");
-        not_serving.await;
-        closing.send_replace(true);
-    }
+) {
+    shutdown.await;
+    tracing::info!("netem shutting down");
+    not_serving.await;
+    closing.send_replace(true);
 }
 
 /// Serves netem on `listener` until `shutdown` resolves.

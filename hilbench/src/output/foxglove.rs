@@ -182,26 +182,8 @@ impl Channels {
     /// Everything one cycle logs, at the plant time of the sample it solved from.
     pub fn cycle(&self, scenario: &Scenario, record: &CycleRecord) {
         let t = record.sample_time_ns;
-        self.tf.log_with_time(&frame_transform(t, &record.state), t);
-        self.pose.log_with_time(&pose_in_frame(t, &record.state), t);
+        self.vehicle(t, record.cycle, &record.state, record.watchdog_hover);
         self.plan.log_with_time(&plan_update(t, record), t);
-        let s = &record.state;
-        self.state.log_with_time(
-            &Json(StateMsg {
-                cycle: record.cycle,
-                t_s: record.t_s(),
-                px_m: s[0],
-                py_m: s[1],
-                pz_m: s[2],
-                vx_mps: s[3],
-                vy_mps: s[4],
-                vz_mps: s[5],
-                roll_rad: s[6],
-                pitch_rad: s[7],
-                watchdog_hover: record.watchdog_hover,
-            }),
-            t,
-        );
         self.command.log_with_time(
             &Json(command_msg(scenario, record.cycle, record.command_seq, &record.command)),
             t,
@@ -239,17 +221,14 @@ impl Channels {
         );
     }
 
-    /// A command the plant applied, seen from the plant (an external controller's run: no
-    /// plan, no solve): the vehicle's pose and state at that step, and the command.
-    pub fn applied(&self, scenario: &Scenario, row: &CycleRow) {
-        let t = mav::s_to_ns(row.t_s).unwrap_or(0);
-        self.tf.log_with_time(&frame_transform(t, &row.state), t);
-        self.pose.log_with_time(&pose_in_frame(t, &row.state), t);
-        let s = &row.state;
+    /// The vehicle at plant time `t` (ns) of `cycle`: `/tf`, `/pose` and `/state`.
+    fn vehicle(&self, t: u64, cycle: u64, s: &[f64; 8], watchdog_hover: bool) {
+        self.tf.log_with_time(&frame_transform(t, s), t);
+        self.pose.log_with_time(&pose_in_frame(t, s), t);
         self.state.log_with_time(
             &Json(StateMsg {
-                cycle: row.cycle,
-                t_s: row.t_s,
+                cycle,
+                t_s: mav::ns_to_s(t),
                 px_m: s[0],
                 py_m: s[1],
                 pz_m: s[2],
@@ -258,10 +237,17 @@ impl Channels {
                 vz_mps: s[5],
                 roll_rad: s[6],
                 pitch_rad: s[7],
-                watchdog_hover: false,
+                watchdog_hover,
             }),
             t,
         );
+    }
+
+    /// A command the plant applied, seen from the plant (an external controller's run: no
+    /// plan, no solve): the vehicle's pose and state at that step, and the command.
+    pub fn applied(&self, scenario: &Scenario, row: &CycleRow) {
+        let t = mav::s_to_ns(row.t_s).unwrap_or(0);
+        self.vehicle(t, row.cycle, &row.state, false);
         self.command.log_with_time(&Json(command_msg(scenario, row.cycle, row.command_seq, &row.command)), t);
     }
 

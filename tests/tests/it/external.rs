@@ -263,7 +263,8 @@ fn an_external_controllers_sweep_failure_replays_as_written_shrunk_or_not_with_t
         assert_eq!(code, Some(3), "the replay collides: {stderr}");
         let run = &summary["runs"][0];
         assert_eq!(run["end_reason"], "collided", "{run}");
-        assert_eq!(run["end_time_s"], replayed["end_time_s"], "{run} against {replayed}");
+        assert_eq!(run["collisions"][0]["time_s"], replayed["end_time_s"], "{run} against {replayed}");
+        assert_eq!(run["min_clearance_m"], replayed["min_clearance_m"], "{run} against {replayed}");
         assert_eq!(run["cycles"], replayed["cycles"], "{run} against {replayed}");
     }
 }
