@@ -431,6 +431,22 @@ fn finish_without_scenario(dir: &Path, meta: &Meta, rows: &[&RunRow], summary: &
     write_file(&dir.join("report.md"), &report(meta, summary, rows, &[], dir))
 }
 
+/// The shards' `shrinking` added up (each shard spends its own budget): null when none shrank.
+fn merged_shrinking(shards: &[Value]) -> Value {
+    let shrank: Vec<&Value> = shards.iter().filter(|v| v.is_object()).collect();
+    let Some(first) = shrank.first() else { return Value::Null };
+    let sum = |key: &str| shrank.iter().filter_map(|v| v[key].as_u64()).sum::<u64>();
+    json!({
+        "failures": sum("failures"),
+        "shrunk": sum("shrunk"),
+        "reruns": sum("reruns"),
+        "per_failure_budget": first["per_failure_budget"],
+        "total_budget": first["total_budget"],
+        "wall_time_s": shrank.iter().filter_map(|v| v["wall_time_s"].as_f64()).sum::<f64>(),
+        "interrupted": shrank.iter().any(|v| v["interrupted"] == true),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -451,20 +467,4 @@ mod tests {
             assert!(!is_failure_trace(bad), "{bad:?}");
         }
     }
-}
-
-/// The shards' `shrinking` added up (each shard spends its own budget): null when none shrank.
-fn merged_shrinking(shards: &[Value]) -> Value {
-    let shrank: Vec<&Value> = shards.iter().filter(|v| v.is_object()).collect();
-    let Some(first) = shrank.first() else { return Value::Null };
-    let sum = |key: &str| shrank.iter().filter_map(|v| v[key].as_u64()).sum::<u64>();
-    json!({
-        "failures": sum("failures"),
-        "shrunk": sum("shrunk"),
-        "reruns": sum("reruns"),
-        "per_failure_budget": first["per_failure_budget"],
-        "total_budget": first["total_budget"],
-        "wall_time_s": shrank.iter().filter_map(|v| v["wall_time_s"].as_f64()).sum::<f64>(),
-        "interrupted": shrank.iter().any(|v| v["interrupted"] == true),
-    })
 }

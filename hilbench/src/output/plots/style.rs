@@ -37,6 +37,9 @@ pub(crate) fn draw_legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::Coor
         .draw()
 }
 
+/// A 2-D chart in metres on both axes.
+pub(crate) type MetreChart<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
 /// A chart on `area` whose x and y have the same scale (metres per pixel), so that a circle is
 /// drawn round: the shorter of `x` and `y` widened about its centre to the plotting area's
 /// proportions. Margins and label areas as every 2-D figure's.
@@ -44,10 +47,7 @@ pub(crate) fn equal_axes_chart<'a, 'b, DB: DrawingBackend + 'a>(
     area: &'a DrawingArea<DB, plotters::coord::Shift>,
     x: std::ops::Range<f64>,
     y: std::ops::Range<f64>,
-) -> Result<
-    ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
-    DrawingAreaErrorKind<DB::ErrorType>,
-> {
+) -> Result<MetreChart<'a, DB>, DrawingAreaErrorKind<DB::ErrorType>> {
     fn builder<'a, 'b, DB: DrawingBackend>(
         area: &'a DrawingArea<DB, plotters::coord::Shift>,
     ) -> ChartBuilder<'a, 'b, DB> {
