@@ -176,6 +176,19 @@ fn the_python_controller_flying_straight_into_a_paper_1_cylinder_is_reported_col
     assert!(run["min_clearance_m"].as_f64().is_some_and(|c| c < 0.0), "{}", run["min_clearance_m"]);
 }
 
+/// `hilbench ARGS` (a sweep) writing into `out`, which must succeed: its `sweep.json`.
+fn sweep_json(args: &[&str], out: &Path) -> serde_json::Value {
+    let run = Command::new(hilbench_tests::service_binary("hilbench"))
+        .args(args)
+        .args(["--quiet", "--no-plots", "--out"])
+        .arg(out)
+        .stdin(Stdio::null())
+        .output()
+        .expect("hilbench runs");
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    serde_json::from_str(&std::fs::read_to_string(out.join("sweep.json")).expect("sweep.json")).expect("JSON")
+}
+
 /// Twenty delay seeds: the sweep of issue 21's example (a loop here; `hilbench sweep
 /// --controller-cmd` once the sweep exists).
 #[test]
@@ -183,17 +196,10 @@ fn a_sweep_of_the_python_controller_under_twenty_delay_processes_reaches_every_g
     let out = TempDir::new("external-test-sweep");
     let file = repo("examples/python-controller/open-field.toml");
     let controller = python_controller();
-    let run = Command::new(hilbench_tests::service_binary("hilbench"))
-        .args(["sweep", file.to_str().expect("utf-8"), "--controller-cmd", &controller, "--jobs", "2"])
-        .args(["--quiet", "--no-plots", "--out"])
-        .arg(out.path())
-        .stdin(Stdio::null())
-        .output()
-        .expect("hilbench runs");
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let sweep: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("sweep.json")).expect("sweep.json"))
-            .expect("JSON");
+    let sweep = sweep_json(
+        &["sweep", file.to_str().expect("utf-8"), "--controller-cmd", &controller, "--jobs", "2"],
+        out.path(),
+    );
     assert_eq!(sweep["runs"], 20, "the file's sweep.runs");
     assert_eq!((sweep["reached"].as_u64(), sweep["collided"].as_u64()), (Some(20), Some(0)), "{sweep}");
     for family in ["gamma", "uniform"] {
@@ -226,17 +232,7 @@ fn an_external_controllers_sweep_failure_replays_as_written_shrunk_or_not_with_t
         if shrink {
             args.push("--shrink");
         }
-        let run = Command::new(hilbench_tests::service_binary("hilbench"))
-            .args(&args)
-            .args(["--quiet", "--no-plots", "--out"])
-            .arg(&dir)
-            .stdin(Stdio::null())
-            .output()
-            .expect("hilbench runs");
-        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-        let sweep: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(dir.join("sweep.json")).expect("sweep.json"))
-                .expect("JSON");
+        let sweep = sweep_json(&args, &dir);
         assert_eq!(sweep["controllers"], serde_json::json!(["external"]), "{sweep}");
         assert_eq!(sweep["controller_cmd"].as_str(), Some(controller.as_str()));
         let csv = std::fs::read_to_string(dir.join("runs.csv")).expect("runs.csv");
