@@ -16,10 +16,35 @@ pub fn service_binary(name: &str) -> PathBuf {
     path
 }
 
-/// A loopback address that was free a moment ago (the service binds it).
+/// A loopback address that was free a moment ago, for a service to bind.
+///
+/// The port comes from below the kernel's ephemeral range (32768-60999 on Linux), taken in
+/// turn from a counter: a port the kernel handed out for `bind(0)` and that the test released
+/// could be handed to another test's connection or `bind(0)` before the service binds it
+/// (seen as a failed test under parallel runs); ports outside that range are never handed out
+/// by the kernel, and the counter never gives one twice within a test binary. The start
+/// depends on the process id so that two test binaries running at once rarely meet; a port in
+/// use is skipped.
 pub fn free_loopback_address() -> String {
-    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind a loopback port");
-    listener.local_addr().expect("address").to_string()
+    use std::sync::atomic::{AtomicU32, Ordering};
+    const FIRST: u32 = 20_000;
+    const PORTS: u32 = 12_000;
+    static NEXT: AtomicU32 = AtomicU32::new(u32::MAX);
+    let _ = NEXT.compare_exchange(
+        u32::MAX,
+        (std::process::id() * 97) % PORTS,
+        Ordering::SeqCst,
+        Ordering::SeqCst,
+    );
+    for _ in 0..PORTS {
+        let port = FIRST + NEXT.fetch_add(1, Ordering::SeqCst) % PORTS;
+        let address = format!("127.0.0.1:{port}");
+        // Free for TCP and UDP both: some services listen on one and the other.
+        if std::net::TcpListener::bind(&address).is_ok() && std::net::UdpSocket::bind(&address).is_ok() {
+            return address;
+        }
+    }
+    panic!("no free loopback port in {FIRST}..{}", FIRST + PORTS)
 }
 
 /// A child process killed when dropped (a failing test leaves no service behind).
