@@ -409,9 +409,14 @@ pub struct SweepArgs {
     /// Seed of the draws (default: the file's `sweep.seed`, else `scenario.seed`).
     #[arg(long)]
     pub seed: Option<u64>,
-    /// Output directory (default: runs/sweep-<unix time>).
+    /// Output directory, new or empty (default: runs/sweep-<unix time>).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// When --out holds this sweep, killed before it finished, fly only the runs it lacks (the
+    /// same file and flags; refused, naming what differs, when they are not); otherwise start
+    /// it as without --resume (a scheduler's retry of a task is the same command line).
+    #[arg(long, requires = "out")]
+    pub resume: bool,
     /// Controllers to fly each run with (default: the file's `run.modes`).
     #[arg(long, value_enum)]
     pub mode: Option<ModeArg>,

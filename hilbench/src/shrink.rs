@@ -38,7 +38,7 @@ pub struct FailureTrace {
 }
 
 /// The numbers of a replayed failure, as `summary.json` has them.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Replay {
     pub outcome: String,
     pub end_reason: String,

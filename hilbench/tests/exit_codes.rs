@@ -79,3 +79,37 @@ fn a_run_ends_at_its_first_collision_unless_asked_to_continue() {
     assert!(last_t < first, "last cycle at {last_t} s, collision at {first} s");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_run_into_a_directory_that_holds_files_is_refused_leaving_them_and_runs_without_out_get_a_directory_each()
+{
+    let dir = common::out_dir("exit-codes-not-empty");
+    std::fs::create_dir_all(&dir).expect("dir");
+    std::fs::write(dir.join("notes.md"), "the user's").expect("write");
+    let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/paper-2.toml");
+    let run = hilbench(&["run", common::s(&file), "--in-process", "--quiet", "--out", common::s(&dir)]);
+    assert_eq!(run.status.code(), Some(1), "{run:?}");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("holds 1 file(s) hilbench did not write (notes.md)"), "{stderr}");
+    // Nothing written into it.
+    let names: Vec<_> =
+        std::fs::read_dir(&dir).expect("dir").map(|e| e.expect("entry").file_name()).collect();
+    assert_eq!(names, ["notes.md"]);
+    // Without --out, two runs in the same second get a directory each.
+    let cwd = common::out_dir("exit-codes-default-dirs");
+    std::fs::create_dir_all(&cwd).expect("dir");
+    let twice: Vec<_> = (0..2)
+        .map(|_| {
+            Command::new(env!("CARGO_BIN_EXE_hilbench"))
+                .args(["run", common::s(&file), "--in-process", "--quiet", "--no-plots", "--mode", "nmpc"])
+                .current_dir(&cwd)
+                .spawn()
+                .expect("starts")
+        })
+        .collect();
+    for child in twice {
+        assert!(child.wait_with_output().expect("ends").status.success());
+    }
+    let dirs = std::fs::read_dir(cwd.join("runs")).expect("runs/").count();
+    assert_eq!(dirs, 2);
+}

@@ -7,6 +7,10 @@ use std::process::Command;
 fn without_a_terminal_each_finished_run_prints_a_plain_line_on_stderr() {
     let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/slalom-4.toml");
     let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("progress-lines");
+    let quiet_out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("progress-lines-quiet");
+    for dir in [&out, &quiet_out] {
+        let _ = std::fs::remove_dir_all(dir);
+    }
     let run = Command::new(env!("CARGO_BIN_EXE_hilbench"))
         .args(["run", file.to_str().expect("utf-8"), "--in-process", "--no-plots", "--out"])
         .arg(&out)
@@ -23,7 +27,7 @@ fn without_a_terminal_each_finished_run_prints_a_plain_line_on_stderr() {
     assert!(!stderr.contains('\u{1b}'), "escape codes in:\n{stderr}");
     let quiet = Command::new(env!("CARGO_BIN_EXE_hilbench"))
         .args(["run", file.to_str().expect("utf-8"), "--in-process", "--no-plots", "--quiet", "--out"])
-        .arg(&out)
+        .arg(&quiet_out)
         .output()
         .expect("hilbench runs");
     assert!(quiet.stderr.is_empty(), "{}", String::from_utf8_lossy(&quiet.stderr));
@@ -64,6 +68,7 @@ fn ctrl_c_writes_what_finished_marks_the_summary_interrupted_and_exits_130() {
 fn without_a_terminal_a_real_time_run_says_every_few_seconds_that_it_is_flying() {
     let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/paper-2.toml");
     let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("progress-heartbeat");
+    let _ = std::fs::remove_dir_all(&out);
     let run = Command::new(env!("CARGO_BIN_EXE_hilbench"))
         .args(["run", file.to_str().expect("utf-8"), "--mode", "nmpc", "--time-mode", "real-time"])
         .args(["--no-plots", "--out"])

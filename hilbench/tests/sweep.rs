@@ -371,6 +371,64 @@ fn ctrl_c_writes_the_runs_that_finished_marks_the_sweep_interrupted_and_exits_13
     assert_eq!(rows_of(&out).len() as u64, runs);
 }
 
+#[test]
+fn a_sweep_killed_mid_way_resumes_to_the_outputs_of_one_never_stopped_and_its_directory_is_refused_meanwhile()
+{
+    let file = repo("scenarios/sweeps/paper-2-delays.toml");
+    let args = |dir: &Path| -> Vec<String> {
+        ["sweep", &file, "--runs", "12", "--jobs", "2", "--no-plots", "--quiet", "--out", s(dir)]
+            .map(String::from)
+            .to_vec()
+    };
+    let whole = out_dir("sweep-never-stopped");
+    let run = hilbench(&args(&whole).iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(run.status.success(), "{run:?}");
+    // kill -9 once a few runs are in runs.csv (appended as they finish).
+    let killed = out_dir("sweep-killed");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hilbench")).args(args(&killed)).spawn().expect("starts");
+    let started = std::time::Instant::now();
+    while std::fs::read_to_string(killed.join("runs.csv")).map_or(0, |t| t.lines().count()) < 4 {
+        assert!(started.elapsed().as_secs() < 120, "no runs in runs.csv");
+        assert!(child.try_wait().expect("wait").is_none(), "the sweep ended before it was killed");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    child.kill().expect("kill -9");
+    child.wait().expect("reaped");
+    let kept = rows_of(&killed);
+    assert!(kept.len() >= 3 && kept.len() < 12, "{} rows kept", kept.len());
+    assert!(!killed.join("sweep.json").exists());
+    // The directory is refused to a new sweep and to a merge, saying how to go on.
+    let again = hilbench(&args(&killed).iter().map(String::as_str).collect::<Vec<_>>());
+    assert_eq!(again.status.code(), Some(1), "{again:?}");
+    assert!(String::from_utf8_lossy(&again.stderr).contains("did not finish (killed)"), "{again:?}");
+    let merge = hilbench(&["sweep-merge", s(&killed), "--out", s(&out_dir("sweep-killed-merge")), "--quiet"]);
+    assert_eq!(merge.status.code(), Some(1), "{merge:?}");
+    assert!(String::from_utf8_lossy(&merge.stderr).contains("--resume"), "{merge:?}");
+    // Resumed with another seed: refused, naming it; with the same flags: the runs it lacks.
+    let mut other: Vec<String> = args(&killed);
+    other.extend(["--seed".into(), "99".into(), "--resume".into()]);
+    let refused = hilbench(&other.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_eq!(refused.status.code(), Some(1), "{refused:?}");
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("seed:"), "{refused:?}");
+    let mut resume = args(&killed);
+    resume.push("--resume".into());
+    let resumed = hilbench(&resume.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(resumed.status.success(), "{resumed:?}");
+    let strip = |rows: Vec<RunRow>| rows.iter().map(deterministic).collect::<Vec<_>>();
+    assert_eq!(strip(rows_of(&killed)), strip(rows_of(&whole)));
+    assert_eq!(
+        without_timing(json_of(&killed.join("sweep.json"))),
+        without_timing(json_of(&whole.join("sweep.json")))
+    );
+    // Finished: the outputs and their list are left, no journal, no marker.
+    let mut names: Vec<String> = std::fs::read_dir(&killed)
+        .expect("dir")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    assert!(names.iter().all(|n| !n.starts_with('.') || n == ".hilbench-outputs"), "{names:?}");
+}
+
 /// The long-delays file with only its short family (the paper's controller reaches the goal).
 fn short_delays(dir: &Path) -> String {
     let text = std::fs::read_to_string(long_delays()).expect("the file");

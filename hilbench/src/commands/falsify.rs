@@ -7,6 +7,7 @@ use super::{Exit, Options};
 use crate::cli::FalsifyArgs;
 use crate::drive::TimeMode;
 use crate::falsification::{Falsification, execute, output};
+use crate::output::out_dir::OutDir;
 use crate::scenario_file::ScenarioFile;
 
 pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
@@ -77,9 +78,9 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
         },
         scenario: spec.scenario,
     };
-    let dir = args.out.unwrap_or_else(|| crate::output::default_out_dir("falsify-"));
     // The output directory before the first run: a search that cannot write loses nothing.
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let out_dir = OutDir::claim_or_new(args.out.as_deref(), "falsify-", "falsify")?;
+    let dir = out_dir.path().to_path_buf();
     let show = !args.json && !opts.quiet;
     if show {
         eprintln!(
@@ -104,6 +105,7 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
     };
     let result = execute(&falsification, &mut progress);
     let summary = output::write(&dir, &falsification, &result, opts.plots)?;
+    out_dir.finish()?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else if show {

@@ -15,6 +15,7 @@ use std::time::Instant;
 
 use crate::drive::Driver;
 use crate::fly::fly_all;
+use crate::output::out_dir::OutDir;
 use crate::output::{self, Outputs, ReportParts};
 use crate::run::Batch;
 use crate::run::Job;
@@ -66,6 +67,7 @@ struct Written {
 /// JSON summary when asked; a run that failed is the command's error (what finished is kept),
 /// Ctrl-C its [`Exit::Interrupted`].
 fn fly_and_write(
+    command: &str,
     jobs: &[Job],
     out: Option<PathBuf>,
     json: bool,
@@ -74,10 +76,13 @@ fn fly_and_write(
     report: impl FnOnce(&Batch) -> ReportParts,
 ) -> anyhow::Result<Result<Written, Exit>> {
     let show = !json && !opts.quiet;
+    // The output directory before the first run: one that is refused costs nothing.
+    let out_dir = OutDir::claim_or_new(out.as_deref(), "", command)?;
     let batch = fly_all(jobs, driver, show)?;
-    let dir = out.unwrap_or_else(|| output::default_out_dir(""));
+    let dir = out_dir.path().to_path_buf();
     let outputs = Outputs { plots: opts.plots, mcap: opts.mcap, show };
     let summary = output::write(&dir, jobs, &batch, outputs, report)?;
+    out_dir.finish()?;
     if batch.interrupted {
         eprintln!(
             "interrupted: {} run(s) had finished; they are in {}",

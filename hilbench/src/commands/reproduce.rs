@@ -29,7 +29,7 @@ pub fn reproduce(args: ReproduceArgs, opts: &Options) -> anyhow::Result<Exit> {
         args.seed.unwrap_or(Scenario::paper_1().seed),
         driver.describe()
     );
-    let written = fly_and_write(&jobs, args.out, args.json, opts, &driver, |batch| {
+    let written = fly_and_write("reproduce", &jobs, args.out, args.json, opts, &driver, |batch| {
         let summaries = batch.summaries();
         ReportParts {
             title: "Paper reproduction".to_string(),

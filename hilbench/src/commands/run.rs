@@ -38,7 +38,7 @@ pub fn run(args: RunArgs, opts: &Options) -> anyhow::Result<Exit> {
             driver.describe()
         )
     };
-    let written = fly_and_write(&jobs, args.out, args.json, opts, &driver, |batch| ReportParts {
+    let written = fly_and_write("run", &jobs, args.out, args.json, opts, &driver, |batch| ReportParts {
         title: format!("hilbench run {}", file.display()),
         header: header(batch.time_mode),
         tables: None,

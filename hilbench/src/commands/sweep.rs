@@ -1,13 +1,18 @@
 //! `hilbench sweep FILE`: N lockstep runs, each under a delay process drawn from the file's
 //! `[sweep]` table; outcomes as distributions.
 
+use std::sync::Arc;
+
 use anyhow::Context;
+use serde_json::{Value, json};
 
 use super::{Exit, Options};
 use crate::cli::SweepArgs;
 use crate::drive::TimeMode;
+use crate::output::out_dir::OutDir;
 use crate::output::terminal;
 use crate::scenario_file::ScenarioFile;
+use crate::sweep::journal::Journal;
 use crate::sweep::{Sweep, execute, output, shard, shrink_failures, until};
 
 pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
@@ -72,13 +77,36 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
         scenario: spec.scenario,
         table,
         batch: None,
+        journal: None,
+        finished: Default::default(),
     };
     check_runs(&sweep, args.runs.is_some())?;
-    let dir = args.out.unwrap_or_else(|| crate::output::default_out_dir("sweep-"));
-    // The output directory before the first run: a sweep that cannot write loses nothing.
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let show = !args.json && !opts.quiet;
     let items = (sweep.indices().end - sweep.indices().start) * sweep.modes.len() as u64;
+    // The output directory before the first run: a sweep that cannot write loses nothing.
+    let file_text =
+        std::fs::read(&args.file).with_context(|| format!("cannot read {}", args.file.display()))?;
+    let identity = identity(&sweep, &file_text, args.until_bound);
+    // --resume where no sweep was killed starts one: a scheduler's retry of a task is the same
+    // command line whether the first try was killed or never started.
+    let (out_dir, journal, finished) = match (args.resume, args.out.as_deref()) {
+        (true, Some(dir)) if crate::output::out_dir::unfinished(dir) => {
+            let (out_dir, _) = OutDir::reclaim(dir, "sweep")?;
+            let (journal, finished) = Journal::resume(dir, &identity)?;
+            if show {
+                eprintln!("resuming {}: {} of {items} runs had finished", dir.display(), finished.len());
+            }
+            (out_dir, journal, finished)
+        }
+        (_, out) => {
+            let out_dir = OutDir::claim_or_new(out, "sweep-", "sweep")?;
+            let journal = Journal::start(out_dir.path(), &identity)?;
+            (out_dir, journal, Default::default())
+        }
+    };
+    let dir = out_dir.path().to_path_buf();
+    let journal = Arc::new(journal);
+    let sweep = Sweep { journal: Some(Arc::clone(&journal)), finished: Arc::new(finished), ..sweep };
     let bar = crate::progress::bar_with_eta(items, "runs", show);
     let (mut result, sweep) = match args.until_bound {
         None => (execute(&sweep, &bar, show), sweep),
@@ -94,6 +122,8 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
         result.shrinking = Some(spent);
     }
     let summary = output::write(&dir, &sweep, &result, opts.plots)?;
+    journal.finish()?;
+    out_dir.finish()?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else if show {
@@ -128,4 +158,30 @@ fn check_runs(sweep: &Sweep, from_flag: bool) -> anyhow::Result<()> {
         sweep.runs
     );
     Ok(())
+}
+
+/// What makes a sweep the same sweep (`--resume` refuses another): the file's contents and
+/// every setting that changes which runs fly or what they give; not `--jobs`, not the file's
+/// path (the same file may be named from elsewhere).
+fn identity(sweep: &Sweep, file_text: &[u8], until_bound: Option<f64>) -> Value {
+    json!({
+        "file_fnv1a64": format!("{:016x}", fnv1a64(file_text)),
+        "seed": sweep.seed,
+        "runs": sweep.runs,
+        "controllers": sweep.controllers(),
+        "controller_cmd": sweep.driver.controller_cmd(),
+        "transport": sweep.driver.name(),
+        "shard": sweep.shard.map(|s| format!("{}/{}", s.index, s.count)),
+        "until_bound": until_bound,
+        "run_timeout_s": sweep.run_timeout.as_secs_f64(),
+        "shrink": sweep.shrink,
+        "shrink_runs": sweep.shrink_runs,
+        "shrink_total_runs": sweep.shrink_total_runs,
+    })
+}
+
+/// FNV-1a, 64 bits: a file's fingerprint (not a defence against a forger, only a check that
+/// the file did not change).
+fn fnv1a64(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, b| (h ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3))
 }

@@ -6,13 +6,14 @@
 
 pub mod cycle_log;
 pub mod foxglove;
+pub mod out_dir;
 pub mod paper;
 pub mod plots;
 pub mod report;
 pub mod summary;
 pub mod terminal;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 use anyhow::Context;
@@ -82,13 +83,6 @@ pub fn write(
         report::write(dir, &text, &facts, batch.driver, &summary)?;
     }
     Ok(summary)
-}
-
-/// `runs/<prefix><unix time>`: where a command writes without `--out`.
-pub fn default_out_dir(prefix: &str) -> PathBuf {
-    let secs =
-        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
-    PathBuf::from("runs").join(format!("{prefix}{secs}"))
 }
 
 /// Writes each scenario of `jobs` as flown (seed, delay trace and every override applied, trace

@@ -10,6 +10,7 @@
 //! finish changes nothing in the outputs (rows are sorted by run).
 
 pub mod draw;
+pub mod journal;
 pub mod output;
 pub mod plots;
 pub mod shard;
@@ -60,6 +61,10 @@ pub struct Sweep {
     pub shrink_total_runs: u64,
     /// Fly these runs instead of the shard's (a batch of `--until-bound`, [`until`]).
     pub batch: Option<Range<u64>>,
+    /// Where each finished run is kept as it finishes (a killed sweep can be resumed).
+    pub journal: Option<Arc<journal::Journal>>,
+    /// Runs finished before (`--resume`): taken as they are, not flown again.
+    pub finished: Arc<journal::Finished>,
 }
 
 impl Sweep {
@@ -133,7 +138,17 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
             s.spawn(move || {
                 while !stop.load(Ordering::Relaxed) {
                     let Some((index, mode)) = item(next.fetch_add(1, Ordering::Relaxed)) else { break };
-                    let result = one(sweep, index, mode);
+                    let key = (index, sweep.driver.controller_name(mode).to_string());
+                    let result = match sweep.finished.get(&key) {
+                        Some(done) => Some(done.clone()),
+                        None => {
+                            let result = one(sweep, index, mode);
+                            if let (Some(done), Some(journal)) = (&result, &sweep.journal) {
+                                journal.record(done);
+                            }
+                            result
+                        }
+                    };
                     if result.is_none() {
                         stop.store(true, Ordering::Relaxed);
                     }

@@ -332,6 +332,12 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
     let mut shrinkings = Vec::new();
     let (mut run_wall_s, mut solver_s) = (0.0, 0.0);
     for dir in dirs {
+        anyhow::ensure!(
+            !crate::output::out_dir::unfinished(dir),
+            "{}: its sweep did not finish (killed, or still running): give its command again with --resume \
+             to fly the runs it lacks, then merge",
+            dir.display()
+        );
         let path = dir.join("sweep.json");
         let text =
             std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
