@@ -113,3 +113,26 @@ fn a_run_into_a_directory_that_holds_files_is_refused_leaving_them_and_runs_with
     let dirs = std::fs::read_dir(cwd.join("runs")).expect("runs/").count();
     assert_eq!(dirs, 2);
 }
+
+#[test]
+fn a_plant_address_where_nothing_listens_is_said_to_be_waited_for_then_refused_naming_it() {
+    let dir = common::out_dir("exit-codes-no-plant");
+    let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/paper-2.toml");
+    // Port 1 on loopback: nothing listens there (it is privileged and unused).
+    let run = hilbench(&[
+        "run",
+        common::s(&file),
+        "--mode",
+        "nmpc",
+        "--plant",
+        "127.0.0.1:1",
+        "--no-plots",
+        "--out",
+        common::s(&dir),
+    ]);
+    assert_eq!(run.status.code(), Some(1), "{run:?}");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("waiting for 127.0.0.1:1 ("), "{stderr}");
+    assert!(stderr.contains("cannot connect to 127.0.0.1:1 (tried for 30 s)"), "{stderr}");
+    assert!(stderr.contains("Connection refused"), "{stderr}");
+}

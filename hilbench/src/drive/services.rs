@@ -320,28 +320,59 @@ impl Services {
     }
 }
 
-/// A plaintext channel to `addr`, retried until `deadline` (the listener is bound before the
-/// server task runs, so this normally succeeds at once).
+/// How long a connection to a service is retried (a service of another machine or container
+/// still starting); the run's own deadline may be shorter.
+pub const CONNECT_PATIENCE: Duration = Duration::from_secs(30);
+/// After this long without a connection, a line says what the command waits for.
+const CONNECT_SAY_AFTER: Duration = Duration::from_secs(2);
+
+/// A plaintext channel to `addr`, retried until `deadline` or [`CONNECT_PATIENCE`] (the
+/// listener of a service started here is bound before its task runs, so this normally
+/// succeeds at once).
 pub async fn connect(addr: &str, deadline: Instant) -> anyhow::Result<Channel> {
     connect_with(addr, &Tls::plaintext(), deadline).await
 }
 
-/// As [`connect`], with `tls`'s client side (https with a CA, plaintext without).
+/// As [`connect`], with `tls`'s client side (https with a CA, plaintext without). A service
+/// that does not answer within 2 s is said to be waited for, on stderr, with the reason.
 pub async fn connect_with(addr: &str, tls: &Tls, deadline: Instant) -> anyhow::Result<Channel> {
     let endpoint = tls
         .endpoint(addr)
         .with_context(|| format!("bad address {addr:?}"))?
         .connect_timeout(Duration::from_secs(2))
         .tcp_nodelay(true);
+    let started = Instant::now();
+    let deadline = deadline.min(started + CONNECT_PATIENCE);
+    let (mut said, mut pause) = (false, Duration::from_millis(10));
     loop {
         match endpoint.connect().await {
             Ok(c) => return Ok(c),
             Err(e) if Instant::now() >= deadline || hilbench_svc::tls::is_tls_refusal(&e) => {
                 // The chain: tonic's "transport error" keeps the reason (refused, a failed
                 // handshake, a certificate for another name) in its sources.
-                return Err(anyhow!("cannot connect to {addr}: {}", hilbench_svc::tls::error_chain(&e)));
+                let waited = if said {
+                    format!(" (tried for {:.0} s)", started.elapsed().as_secs_f64())
+                } else {
+                    String::new()
+                };
+                return Err(anyhow!(
+                    "cannot connect to {addr}{waited}: {}",
+                    hilbench_svc::tls::error_chain(&e)
+                ));
             }
-            Err(_) => tokio::time::sleep(Duration::from_millis(10)).await,
+            Err(e) => {
+                if !said && started.elapsed() >= CONNECT_SAY_AFTER {
+                    said = true;
+                    eprintln!(
+                        "waiting for {addr} ({}); trying for up to {:.0} s",
+                        hilbench_svc::tls::error_chain(&e),
+                        deadline.saturating_duration_since(started).as_secs_f64()
+                    );
+                }
+                tokio::time::sleep(pause).await;
+                // Quick at first (a service of this process about to serve), then gentle.
+                pause = (pause * 2).min(Duration::from_millis(250));
+            }
         }
     }
 }
