@@ -238,6 +238,25 @@ impl LineSolver {
         let mut x = [0.0; 8];
         x.copy_from_slice(&x0);
         check_state_envelope(|i| format!("x0[{i}]"), &x).map_err(|e| err(e.field, e.reason))?;
+        // A start in a collision is no problem to solve (a plan cannot leave it, and the solver
+        // would answer `iteration_limit` after no iterations): refused, as a scenario's start is.
+        if x[2] < scenario.ground_z_m {
+            return Err(err(
+                "x0[2]",
+                format!("is below the ground (z {} m < ground_z_m {} m)", x[2], scenario.ground_z_m),
+            ));
+        }
+        if let (depth, Some(k)) = mav::geometry::min_clearance(&scenario.obstacles, x[0], x[1], x[2])
+            && depth < 0.0
+        {
+            return Err(err(
+                "x0",
+                format!(
+                    "is inside cylinder {k} of {} ({:.3} m deep): a start in a collision",
+                    scenario.name, -depth
+                ),
+            ));
+        }
         let u_prev =
             numbers(obj.get("u_prev").ok_or_else(|| err("u_prev", "is required"))?, "u_prev", Some(3))?;
         let budget = match obj.get("max_iterations") {
@@ -492,6 +511,27 @@ mod tests {
         assert_eq!(out[4]["line"], 5);
         assert!(out[5]["status"].is_string(), "{}", out[5]);
         assert_eq!(out[5]["line"], 6);
+    }
+
+    #[test]
+    fn a_start_inside_a_cylinder_or_below_the_ground_gets_an_error_line_naming_x0() {
+        let good = r#"{"scenario":"paper-2","x0":[3.2,0,0,0,0,0,0,0],"u_prev":[9.81,0,0],"weights":[0.05,0.15,0.45,0.3,0.05]}"#;
+        // paper-2's first cylinder: axis (3.5, 1.5), radius 0.25.
+        let inside = good.replace("[3.2,0,0,0,0,0,0,0]", "[3.5,1.4,1.0,0,0,0,0,0]");
+        let below = good.replace("[3.2,0,0,0,0,0,0,0]", "[3.2,0,-0.5,0,0,0,0,0]");
+        let input = format!("{inside}\n{below}\n");
+        let mut out = Vec::new();
+        LineSolver::new(MpcSettings::default()).run(input.as_bytes(), &mut out).expect("in-memory io");
+        let out: Vec<Value> = String::from_utf8(out)
+            .expect("utf8")
+            .lines()
+            .map(|l| serde_json::from_str(l).expect("json"))
+            .collect();
+        assert_eq!(out[0]["field"], "x0", "{}", out[0]);
+        let e = out[0]["error"].as_str().expect("an error");
+        assert!(e.contains("inside cylinder 0 of paper-2 (0.150 m deep)"), "{e}");
+        assert_eq!(out[1]["field"], "x0[2]", "{}", out[1]);
+        assert!(out[1]["error"].as_str().is_some_and(|e| e.contains("below the ground")), "{}", out[1]);
     }
 }
 
