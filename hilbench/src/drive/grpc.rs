@@ -373,7 +373,7 @@ async fn drive(
                 bail!("a task of the run panicked: {}", what.unwrap_or_default());
             }
             item = stream.message() => {
-                let mut item = item.context("telemetry stream")?
+                let mut item = item.map_err(|e| lost_controller(services.controller_addr(), "telemetry stream", e))?
                     .ok_or_else(|| anyhow!("the controller ended the telemetry stream"))?;
                 if item.episode <= before.episode {
                     continue;
@@ -406,7 +406,7 @@ async fn drive(
             }
             _ = poll.tick() => {
                 let s = controller.get_status(pb::GetStatusRequest {}).await
-                    .context("controller GetStatus")?.into_inner();
+                    .map_err(|e| lost_controller(services.controller_addr(), "GetStatus", e))?.into_inner();
                 progress.status = Some(s.clone());
                 if let Some((episode, _)) = real_time_end
                     && s.episode == episode
@@ -493,5 +493,30 @@ fn faults_of(status: &pb::ControllerStatus, records: &[CycleRecord], last: &Plan
         watchdog_hover_s: mav::ns_to_s(last.watchdog_hover_ns),
         plant_resets: status.plant_resets,
         plant_reset_time_s: status.plant_reset_time_s,
+    }
+}
+
+/// An error of the controller's `call` during a run: a connection that broke (the controller's
+/// process killed or crashed, or the link cut) said as such, with the transport's reason;
+/// anything else as the controller said it.
+fn lost_controller(addr: &str, call: &str, status: tonic::Status) -> anyhow::Error {
+    // Unavailable (no connection: a tcp connect error) and Cancelled (the connection dropped
+    // under the call) are the link's; Unknown is when its message is the transport's (an h2
+    // stream reset, a broken pipe).
+    let transport = match status.code() {
+        tonic::Code::Unavailable | tonic::Code::Cancelled => true,
+        tonic::Code::Unknown => ["h2 protocol", "broken pipe", "connection", "transport"]
+            .iter()
+            .any(|w| status.message().to_lowercase().contains(w)),
+        _ => false,
+    };
+    if transport {
+        anyhow!(
+            "the controller at {addr} went away during the run ({call}: {}): its process was killed or \
+             crashed, or the link to it was cut",
+            status.message()
+        )
+    } else {
+        anyhow!("controller {call}: {}: {}", status.code(), status.message())
     }
 }

@@ -307,7 +307,8 @@ fn scenario_file(name: &str) -> String {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_controller_killed_mid_run_leaves_the_cycles_so_far_and_the_error_and_hilbench_exits_1() {
+async fn a_controller_killed_mid_run_is_said_to_have_gone_away_keeping_the_cycles_so_far_and_hilbench_exits_1()
+ {
     let (plant, netem, controller) =
         (free_loopback_address(), free_loopback_address(), free_loopback_address());
     let _plant = Service::start("plant", &["--listen", &plant, "--time-mode", "real-time"]);
@@ -345,6 +346,7 @@ async fn a_controller_killed_mid_run_leaves_the_cycles_so_far_and_the_error_and_
     controller_process.signal("KILL");
     let (code, stderr) = exited(run).await;
     assert_eq!(code, Some(1), "{stderr}");
+    assert!(stderr.contains(&format!("the controller at {controller} went away during the run")), "{stderr}");
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary.json"))
             .expect("JSON");
