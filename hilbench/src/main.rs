@@ -15,7 +15,16 @@ use clap::Parser;
 use hilbench::cli::{Cli, Command};
 use hilbench::commands::{self, Exit, Options};
 
-fn main() -> anyhow::Result<()> {
+fn main() {
+    // The error and its causes on one line, without the backtrace anyhow's Debug adds when
+    // RUST_BACKTRACE is set: a refusal is a message, not a crash.
+    if let Err(e) = run() {
+        eprintln!("Error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run() -> anyhow::Result<()> {
     let started = Instant::now();
     let cli = Cli::parse();
     let opts = Options { quiet: cli.quiet, plots: !cli.no_plots, mcap: cli.mcap(), started };
