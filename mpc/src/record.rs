@@ -349,6 +349,30 @@ fn sinking_under_hover(records: &[CycleRecord]) -> Option<String> {
     None
 }
 
+/// A ground contact within [`EARLY_GROUND_S`] of the start, before the controller could have
+/// flown anywhere, while the first command asked for at least hover: the vehicle was already
+/// sinking when the run began (armed on a hover thrust other than the gateway's), which ends
+/// the run before [`sinking_under_hover`] has its cycles.
+fn ground_at_the_start(records: &[CycleRecord], last: &PlantSample) -> Option<String> {
+    let g = mav::ModelParams::default().gravity_mps2;
+    let contact = last.collisions.iter().find(|c| c.obstacle_index == mav::GROUND_INDEX)?;
+    let at_s = mav::ns_to_s(contact.time_ns);
+    let first = records.first()?;
+    let [t, roll, pitch] = first.command;
+    (at_s <= EARLY_GROUND_S && t * roll.cos() * pitch.cos() >= g).then(|| {
+        format!(
+            "the vehicle touched the ground {at_s:.2} s after the start while the first command asked \
+             for at least hover thrust (vertical speed {:.2} m/s at the first sample): a vehicle \
+             already sinking when the run began does this, when its hover thrust is not the \
+             gateway's --hover-thrust (docs/gateway.md, \"What to check first\")",
+            first.state[5]
+        )
+    })
+}
+
+/// A ground contact this soon after the start is the vehicle's doing, not the controller's, s.
+const EARLY_GROUND_S: f64 = 0.5;
+
 /// The findings of [`RunSummary::explanation`], from the records and the plant's last sample.
 pub fn explain(records: &[CycleRecord], last: &PlantSample, reached: bool) -> Vec<String> {
     let mut out = Vec::new();
@@ -390,6 +414,8 @@ pub fn explain(records: &[CycleRecord], last: &PlantSample, reached: bool) -> Ve
     }
     if let Some(sink) = sinking_under_hover(records) {
         out.push(sink);
+    } else if let Some(early) = ground_at_the_start(records, last) {
+        out.push(early);
     }
     if let Some(r) = records.iter().find(|r| r.watchdog_hover) {
         let n = records.iter().filter(|r| r.watchdog_hover).count();
@@ -511,5 +537,30 @@ mod tests {
         assert_eq!(sinking_under_hover(&short), None);
         let tilted: Vec<CycleRecord> = (0..8).map(|k| cycle(k, -0.5, [9.9, 0.3, 0.0])).collect();
         assert_eq!(sinking_under_hover(&tilted), None);
+    }
+
+    #[test]
+    fn a_ground_contact_right_after_the_start_under_hover_thrust_points_at_the_hover_thrust() {
+        let mut sim =
+            mav::PlantSim::new(&mav::Scenario::paper_2(), mav::SimSettings::default()).expect("sim");
+        let mut last = sim.sample();
+        let ground = |time_ns| mav::CollisionEvent {
+            kind: mav::CollisionKind::Ground,
+            obstacle_index: mav::GROUND_INDEX,
+            time_ns,
+            position_m: [3.2, 0.0, -0.01],
+            penetration_m: 0.01,
+            depth_m: 0.01,
+        };
+        last.collisions = vec![ground(100_000_000)];
+        let first = vec![cycle(0, -0.6, [9.9, 0.0, 0.0])];
+        let said = ground_at_the_start(&first, &last).expect("a finding");
+        assert!(said.contains("0.10 s after the start") && said.contains("--hover-thrust"), "{said}");
+        assert!(explain(&first, &last, false).iter().any(|f| f.contains("--hover-thrust")));
+        // Later, or on a command below hover (the controller landed it): the controller's doing.
+        last.collisions = vec![ground(2_000_000_000)];
+        assert_eq!(ground_at_the_start(&first, &last), None);
+        last.collisions = vec![ground(100_000_000)];
+        assert_eq!(ground_at_the_start(&[cycle(0, -0.6, [8.0, 0.0, 0.0])], &last), None);
     }
 }
