@@ -28,12 +28,14 @@ TILT_USE = 0.8  # share of the tilt limit the position loop may ask for
 
 def stubs(out):
     """Generates the Python modules of plant.proto (and delay.proto, which it imports) into out."""
-    root = Path(__file__).resolve().parents[2] / "proto" / "proto"
+    # The checkout's proto/proto, two folders above this file; HILBENCH_PROTO_DIR names another
+    # (a copy of this controller kept elsewhere).
+    root = Path(os.environ.get("HILBENCH_PROTO_DIR") or Path(__file__).resolve().parents[2] / "proto" / "proto")
     well_known = importlib.resources.files("grpc_tools") / "_proto"
     args = ["protoc", f"-I{root}", f"-I{well_known}", f"--python_out={out}", f"--grpc_python_out={out}",
             "hilbench/v1/delay.proto", "hilbench/v1/plant.proto"]
     if protoc.main(args) != 0:
-        sys.exit(f"controller: protoc failed on {root}")
+        sys.exit(f"controller: protoc failed on {root} (set HILBENCH_PROTO_DIR to your checkout's proto/proto)")
     sys.path.insert(0, out)
     from hilbench.v1 import plant_pb2, plant_pb2_grpc
     return plant_pb2, plant_pb2_grpc
