@@ -156,9 +156,12 @@ pub fn write(dir: &Path, sweep: &Sweep, result: &SweepResult, plots: bool) -> an
     }
     let run_wall_s = crate::run::total(rows.iter().map(|r| r.wall_s));
     let solver_s = crate::run::total(rows.iter().filter_map(|r| r.solver_s));
+    // After --resume, the runs taken from the journal were flown by another process.
+    let flown_here = rows.len().saturating_sub(sweep.finished.len());
     let timing = json!({
         "wall_time_s": result.wall_time_s,
-        "runs_per_s": rows.len() as f64 / result.wall_time_s.max(1e-9),
+        "runs_per_s": flown_here as f64 / result.wall_time_s.max(1e-9),
+        "resumed_runs": sweep.finished.len(),
         "jobs": sweep.jobs,
         "run_wall_s": run_wall_s,
         "solver_s": solver_s,
