@@ -85,6 +85,7 @@ impl pb::netem_control_server::NetemControl for Control {
             let held = HeldCounts {
                 in_flight: inner.in_flight[d.index()],
                 stream_overflow_dropped: inner.stream_overflow_dropped[d.index()],
+                refused_invalid: if d == Direction::ControllerToPlant { inner.refused_invalid } else { 0 },
             };
             stats_to_pb(&inner.stats[d.index()], held)
         };
@@ -112,6 +113,7 @@ impl pb::netem_control_server::NetemControl for Control {
             s.reset();
         }
         inner.stream_overflow_dropped = [0; 2];
+        inner.refused_invalid = 0;
         inner.deliveries_lagged = 0;
         if let Some(p) = inner.udp.as_mut() {
             p.reset_counts();

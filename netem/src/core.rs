@@ -90,6 +90,8 @@ pub struct Inner {
     /// Per direction: copies evicted from a state stream's full buffer (also in `stats`'s
     /// `dropped`).
     pub stream_overflow_dropped: [u64; 2],
+    /// Commands refused to their sender as invalid (`INVALID_ARGUMENT`), never delayed.
+    pub refused_invalid: u64,
     /// Records `StreamDeliveries` readers missed because they fell behind, summed over readers.
     pub deliveries_lagged: u64,
     /// The UDP proxy's peers and refusals (`None` in gRPC mode).
@@ -299,6 +301,7 @@ impl Net {
             epoch: 0,
             epoch_reason: String::new(),
             stream_overflow_dropped: [0; 2],
+            refused_invalid: 0,
             deliveries_lagged: 0,
             udp: None,
         };

@@ -84,6 +84,13 @@ fn respond<T>(body: T, md: MetadataMap, mode: Mode) -> Response<T> {
 }
 
 impl Proxy {
+    /// A command refused as invalid: counted (`DirectionStats.refused_invalid`) and refused to
+    /// its sender with the field that is wrong.
+    fn refused_invalid(&self, e: hilbench_proto::convert::FieldError) -> Status {
+        self.shared.lock().refused_invalid += 1;
+        Status::from(e)
+    }
+
     /// Lockstep: plant time now, asked from the upstream when netem does not know it.
     async fn plant_time(&self) -> Result<u64, Status> {
         if let Some(t) = self.shared.lock().plant_time_ns {
@@ -426,7 +433,7 @@ impl pb::plant_server::Plant for Proxy {
     ) -> Result<Response<pb::ApplyCommandResponse>, Status> {
         hilbench_svc::inject_panic("netem-command");
         let command = request.into_inner();
-        check_command("command", &command).map_err(Status::from)?;
+        check_command("command", &command).map_err(|e| self.refused_invalid(e))?;
         let mode = self.shared.mode().await?;
         let mut md = MetadataMap::new();
         let applied = match mode {
@@ -459,7 +466,7 @@ impl pb::plant_server::Plant for Proxy {
     async fn step(&self, request: Request<pb::StepRequest>) -> Result<Response<pb::AdvanceResponse>, Status> {
         let req = request.into_inner();
         if let Some(c) = &req.command {
-            check_command("command", c).map_err(Status::from)?;
+            check_command("command", c).map_err(|e| self.refused_invalid(e))?;
         }
         let mode = self.shared.mode().await?;
         let mut md = MetadataMap::new();

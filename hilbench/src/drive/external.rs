@@ -197,8 +197,9 @@ struct ExternalFlight<'a> {
     judge: Judge,
     delay_profile: DelayProfileInForce,
     exit: Option<String>,
-    /// netem's count of commands delayed, asked when the end was judged.
-    commands_delayed: Option<u64>,
+    /// netem's counts of commands delayed and refused as invalid, asked when the end was
+    /// judged.
+    commands_delayed: Option<(u64, u64)>,
     setup_s: f64,
     /// Stopping the controller's process, s (part of the run's teardown).
     stop_s: f64,
@@ -334,7 +335,17 @@ impl<'a> ExternalFlight<'a> {
         }
         self.stop_s = stopping.elapsed().as_secs_f64();
         let (end, last) = self.judge.end.clone().ok_or_else(|| anyhow!("the run has no end"))?;
-        let summary = self.judge.summary(&last, end);
+        let mut summary = self.judge.summary(&last, end);
+        if let Some((_, refused)) = self.commands_delayed
+            && refused > 0
+        {
+            // Where the user looks first (the printed summary, summary.json's explanation).
+            summary.explanation.push(format!(
+                "netem refused {refused} of the controller's commands as invalid (INVALID_ARGUMENT: a NaN, \
+                 a value out of range or a wrong length); they were never applied \
+                 (external_controller.commands_refused)"
+            ));
+        }
         Ok(self.run(summary, last, episode_s))
     }
 
@@ -356,7 +367,8 @@ impl<'a> ExternalFlight<'a> {
             command: self.controller.command.clone(),
             exit: self.exit.clone().unwrap_or_else(|| "killed by the bench".to_string()),
             commands_applied: self.judge.rows.len() as u64,
-            commands_delayed: self.commands_delayed,
+            commands_delayed: self.commands_delayed.map(|(sent, _)| sent),
+            commands_refused: self.commands_delayed.map(|(_, refused)| refused),
             commands_saturated: self.judge.saturated,
             plant_steps_judged: self.judge.steps,
             plant_steps_missed: self.judge.missed,
@@ -372,13 +384,14 @@ impl<'a> ExternalFlight<'a> {
     }
 }
 
-/// netem's commands sent (each drew a delay), or `None` when it cannot be asked (summary.json
-/// then says `null`, and a failure's trace keeps every delay the run had).
-async fn commands_delayed(netem_addr: &str, deadline: Instant) -> Option<u64> {
+/// netem's commands sent (each drew a delay) and refused as invalid, or `None` when it cannot
+/// be asked (summary.json then says `null`, and a failure's trace keeps every delay the run
+/// had).
+async fn commands_delayed(netem_addr: &str, deadline: Instant) -> Option<(u64, u64)> {
     let asked = async {
         let mut control = NetemControlClient::new(connect(netem_addr, deadline).await?);
         let stats = control.get_stats(pb::GetStatsRequest {}).await.context("netem GetStats")?.into_inner();
-        anyhow::Ok(stats.controller_to_plant.map_or(0, |d| d.sent))
+        anyhow::Ok(stats.controller_to_plant.map_or((0, 0), |d| (d.sent, d.refused_invalid)))
     };
     asked.await.ok()
 }

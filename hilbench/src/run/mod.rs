@@ -259,6 +259,10 @@ pub struct ExternalFacts {
     /// still in flight at the end are among them, and not in `commands_applied`. `None` when
     /// netem could not be asked.
     pub commands_delayed: Option<u64>,
+    /// Commands netem refused to the controller as invalid (`INVALID_ARGUMENT`: a NaN, a value
+    /// out of range, a wrong length), never delayed nor applied; `None` when netem could not be
+    /// asked.
+    pub commands_refused: Option<u64>,
     /// Of them, commands the plant clipped at its actuator limits.
     pub commands_saturated: u64,
     /// Plant steps judged (samples of the plant's stream up to the end of the run).

@@ -175,6 +175,8 @@ pub struct HeldCounts {
     pub in_flight: u64,
     /// Copies evicted from a state stream's full buffer (also counted in `dropped`).
     pub stream_overflow_dropped: u64,
+    /// Commands refused as invalid before they were delayed.
+    pub refused_invalid: u64,
 }
 
 /// The statistics of one direction, with what netem's shell counts of it.
@@ -197,6 +199,7 @@ pub fn stats_to_pb(s: &DirectionStats, held: HeldCounts) -> pb::DirectionStats {
         in_flight: held.in_flight,
         release_error_max_s: secs(e.max_ns),
         stream_overflow_dropped: held.stream_overflow_dropped,
+        refused_invalid: held.refused_invalid,
     }
 }
 

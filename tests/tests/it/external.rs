@@ -182,6 +182,31 @@ fn a_controller_printing_bytes_that_are_not_utf8_keeps_its_output_pipes_and_reac
 }
 
 #[test]
+fn commands_refused_as_invalid_are_counted_in_the_summary_and_explained() {
+    let out = TempDir::new("external-test-invalid");
+    let file = repo("examples/python-controller/open-field.toml").display().to_string();
+    // Three NaN commands, each refused to the controller with INVALID_ARGUMENT, then the flight.
+    let command = format!(
+        "'{}' '{}' '{}'",
+        python().display(),
+        hilbench_tests::python::scripts_dir().join("invalid_first_controller.py").display(),
+        repo("examples/python-controller/controller.py").display()
+    );
+    let (code, stderr, summary) = hilbench(&["run", &file, "--controller-cmd", &command], &out);
+    assert_eq!(code, Some(0), "{stderr}");
+    let run = &summary["runs"][0];
+    assert_eq!(run["reached"], true, "{run:#}");
+    assert_eq!(run["external_controller"]["commands_refused"], 3, "{run:#}");
+    let explanation = run["explanation"].as_array().expect("explanation");
+    assert!(
+        explanation
+            .iter()
+            .any(|e| e.as_str().is_some_and(|e| e.contains("netem refused 3 of the controller's commands"))),
+        "{explanation:?}"
+    );
+}
+
+#[test]
 fn a_controller_that_exits_with_an_error_fails_the_run_naming_its_status_and_last_output() {
     let out = TempDir::new("external-test-exit");
     let file = repo("examples/python-controller/open-field.toml").display().to_string();
