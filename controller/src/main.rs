@@ -158,6 +158,13 @@ fn main() -> anyhow::Result<()> {
         let stdout = std::io::stdout().lock();
         match file {
             Some(path) if path.as_os_str() != "-" => {
+                // A regular file (a device such as /dev/zero would never end; a stream of
+                // problems comes on stdin), read a line at a time, each line capped.
+                let meta =
+                    std::fs::metadata(path).with_context(|| format!("cannot open {}", path.display()))?;
+                hilbench_svc::user_file::check_regular(&meta).map_err(|why| {
+                    anyhow::anyhow!("{}: {why} (a stream of problems goes on stdin)", path.display())
+                })?;
                 let f =
                     std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
                 solver.run(BufReader::new(f), stdout)?;

@@ -68,3 +68,12 @@ fn solve_reads_a_file_stdin_or_dash_and_answers_every_line() {
     assert!(!missing.status.success());
     assert!(String::from_utf8_lossy(&missing.stderr).contains("cannot open"));
 }
+
+#[test]
+fn solve_refuses_a_file_that_is_not_a_regular_file_naming_it() {
+    let out = controller().args(["solve", "/dev/zero"]).output().expect("controller runs");
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("/dev/zero: not a regular file"), "{stderr}");
+    assert!(out.stdout.is_empty());
+}

@@ -106,6 +106,9 @@ pub enum KeyFileError {
     WorldReadable { path: std::path::PathBuf, mode: u32 },
 }
 
+/// Largest MAVLink signing key file, bytes.
+const MAX_KEY_FILE_BYTES: u64 = 1024;
+
 /// Reads a MAVLink signing key file (32 bytes, or 64 hex digits) that other users cannot read.
 pub fn signing_key_file(path: &std::path::Path) -> Result<mavbridge::SigningKey, KeyFileError> {
     use std::os::unix::fs::PermissionsExt;
@@ -114,7 +117,9 @@ pub fn signing_key_file(path: &std::path::Path) -> Result<mavbridge::SigningKey,
     if mode & 0o006 != 0 {
         return Err(KeyFileError::WorldReadable { path: path.into(), mode: mode & 0o777 });
     }
-    let contents = std::fs::read(path).map_err(read)?;
+    // A regular file of at most a few bytes (a key is 32 bytes, or 64 hex digits and a newline).
+    let contents = hilbench_svc::user_file::read_bytes(path, MAX_KEY_FILE_BYTES, "a MAVLink signing key")
+        .map_err(|e| read(std::io::Error::other(e.reason)))?;
     mavbridge::SigningKey::parse(&contents).map_err(|source| KeyFileError::Key { path: path.into(), source })
 }
 
@@ -332,7 +337,8 @@ mod tests {
     use std::os::unix::fs::PermissionsExt;
 
     #[test]
-    fn a_signing_key_file_is_refused_naming_the_flag_when_missing_short_or_readable_by_everyone() {
+    fn a_signing_key_file_is_refused_naming_the_flag_when_missing_short_huge_not_a_file_or_readable_by_everyone()
+     {
         let dir = std::env::temp_dir().join(format!("gateway-key-{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("a directory");
         let write = |name: &str, contents: &[u8], mode: u32| {
@@ -348,7 +354,17 @@ mod tests {
         let missing = dir.join("missing");
         let short = write("short", &[1; 31], 0o600);
         let open = write("open", &[1; 32], 0o644);
-        for (path, says) in [(&missing, "cannot read"), (&short, "31 bytes"), (&open, "chmod 600")] {
+        let huge = write("huge", &[b'a'; 4096], 0o600);
+        let folder = dir.join("folder");
+        std::fs::create_dir_all(&folder).expect("a folder");
+        std::fs::set_permissions(&folder, std::fs::Permissions::from_mode(0o700)).expect("chmod");
+        for (path, says) in [
+            (&missing, "cannot read"),
+            (&short, "31 bytes"),
+            (&open, "chmod 600"),
+            (&huge, "more than the 1024 bytes"),
+            (&folder, "a directory"),
+        ] {
             let e = signing_key_file(path).expect_err("refused").to_string();
             assert!(e.starts_with("--mavlink-signing-key") && e.contains(says), "{e}");
             assert!(e.contains(&path.display().to_string()), "{e}");

@@ -575,3 +575,14 @@ fn a_sweep_of_two_controllers_reports_each_apart_in_the_table_the_report_and_the
     assert!(report.contains(", 2 of 2 runs, seed 3, controller multistage,"), "{report}");
     assert!(!report.contains("(`multistage`)"), "{report}");
 }
+
+#[test]
+fn sweep_merge_reads_only_regular_files_naming_the_shards_file() {
+    let shard = out_dir("sweep-merge-not-a-file");
+    std::fs::create_dir_all(shard.join("sweep.json")).expect("a folder where sweep.json should be");
+    let merge =
+        hilbench(&["sweep-merge", s(&shard), "--out", s(&out_dir("sweep-merge-not-a-file-out")), "--quiet"]);
+    assert_eq!(merge.status.code(), Some(1), "{merge:?}");
+    let stderr = String::from_utf8_lossy(&merge.stderr);
+    assert!(stderr.contains("sweep.json: a directory; only a regular file is read"), "{stderr}");
+}

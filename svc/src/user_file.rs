@@ -1,8 +1,9 @@
 //! The one way a file the user names is read: a regular file only (a FIFO would block for
 //! ever, a device such as `/dev/zero` never ends), at most a given size, as UTF-8 text, every
 //! error naming the file. Scenario files, their trace files and trace folders, netem's
-//! `--profile-file`, `hilbench trace`'s imports and the TLS flags' files all read through
-//! [`read_text`] or [`read_bytes`].
+//! `--profile-file`, `hilbench trace`'s imports, the TLS flags' files, the gateway's MAVLink
+//! signing key and `sweep-merge`'s shard files all read through [`read_text`] or
+//! [`read_bytes`]; `controller solve FILE` checks [`check_regular`] and reads a line at a time.
 
 use std::io::Read;
 use std::path::{Path, PathBuf};

@@ -11,6 +11,11 @@ use serde_json::{Value, json};
 use super::stats::{self, RunRow};
 use super::{Done, Sweep, SweepResult};
 
+/// Largest shard `sweep.json` `sweep-merge` reads, bytes (a shard's failures are listed in it).
+const MAX_SWEEP_JSON_BYTES: u64 = 256 << 20;
+/// Largest shard `runs.csv` `sweep-merge` reads, bytes: a million rows of about 250 bytes.
+const MAX_RUNS_CSV_BYTES: u64 = 512 << 20;
+
 /// Folder of the failures' traces.
 pub const FAILURES_DIR: &str = "failures";
 
@@ -342,8 +347,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
             dir.display()
         );
         let path = dir.join("sweep.json");
-        let text =
-            std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+        let text = hilbench_svc::user_file::read_text(&path, MAX_SWEEP_JSON_BYTES, "a sweep's sweep.json")?;
         let v: Value =
             serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
         let strings = |key: &str| -> Vec<String> {
@@ -378,8 +382,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
         run_wall_s += v["timing"]["run_wall_s"].as_f64().unwrap_or(0.0);
         solver_s += v["timing"]["solver_s"].as_f64().unwrap_or(0.0);
         let csv_path = dir.join("runs.csv");
-        let csv = std::fs::read_to_string(&csv_path)
-            .with_context(|| format!("cannot read {}", csv_path.display()))?;
+        let csv = hilbench_svc::user_file::read_text(&csv_path, MAX_RUNS_CSV_BYTES, "a sweep's runs.csv")?;
         rows.extend(stats::from_csv(&csv).map_err(|e| anyhow::anyhow!("{}: {e}", csv_path.display()))?);
         for failure in v["failures"].as_array().into_iter().flatten() {
             if let Some(trace) = failure["trace_file"].as_str() {
