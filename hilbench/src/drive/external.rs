@@ -551,16 +551,42 @@ impl Drop for ScenarioTempFile {
     }
 }
 
+/// The variable that marks every process of one controller's run: set in its environment,
+/// inherited by all it starts, kept by one that leaves the process group (`setsid`, a daemon).
+const TOKEN_VAR: &str = "HILBENCH_CONTROLLER_TOKEN";
+
 /// The controller's process, in a process group of its own (so that what its shell starts is
-/// stopped with it), its output's last lines kept. Killed (the whole group) when dropped.
+/// stopped with it), its output's last lines kept. Killed (the whole group, and any process that
+/// left it but carries its token) when dropped.
 struct Process {
     child: Child,
     group: Option<rustix::process::Pid>,
     tail: Arc<Mutex<VecDeque<String>>>,
+    /// `TOKEN_VAR=<this process's pid>-<a counter>`: unique to this controller run.
+    token: String,
+}
+
+/// Processes (other than this one) whose environment holds `entry` (`VAR=value`), from
+/// `/proc/*/environ`; those of other users cannot be read and are not among them.
+fn processes_with(entry: &str) -> Vec<rustix::process::Pid> {
+    let me = std::process::id();
+    let Ok(dir) = std::fs::read_dir("/proc") else { return Vec::new() };
+    dir.filter_map(Result::ok)
+        .filter_map(|e| e.file_name().to_str().and_then(|n| n.parse::<u32>().ok()))
+        .filter(|&pid| pid != me)
+        .filter(|pid| {
+            std::fs::read(format!("/proc/{pid}/environ"))
+                .is_ok_and(|env| env.split(|b| *b == 0).any(|v| v == entry.as_bytes()))
+        })
+        .filter_map(|pid| rustix::process::Pid::from_raw(pid as i32))
+        .collect()
 }
 
 impl Process {
     fn spawn(command: &str, env: &[(&str, &str)]) -> anyhow::Result<Self> {
+        static RUNS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let token =
+            format!("{}-{}", std::process::id(), RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed));
         // The trap makes the shell wait for the command on SIGTERM and exit after it (traps run
         // once the foreground command has finished; its own SIGTERM disposition is the default):
         // a shell killed at once would orphan the controller, and an orphan is reaped by
@@ -569,6 +595,7 @@ impl Process {
             .arg("-c")
             .arg(format!("trap 'exit 143' TERM\n{command}"))
             .envs(env.iter().copied())
+            .env(TOKEN_VAR, &token)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
@@ -584,7 +611,17 @@ impl Process {
         if let Some(err) = child.stderr.take() {
             tokio::spawn(keep_tail(err, tail.clone()));
         }
-        Ok(Self { child, group, tail })
+        Ok(Self { child, group, tail, token: format!("{TOKEN_VAR}={token}") })
+    }
+
+    /// SIGKILL to every process that left the group but carries this run's token (a `setsid`
+    /// child, a daemon): how many.
+    fn kill_escaped(&self) -> usize {
+        let escaped = processes_with(&self.token);
+        for pid in &escaped {
+            let _ = rustix::process::kill_process(*pid, rustix::process::Signal::KILL);
+        }
+        escaped.len()
     }
 
     /// The last lines of its output, for an error message.
@@ -606,6 +643,7 @@ impl Process {
     fn kill(&mut self) {
         self.signal(rustix::process::Signal::KILL);
         self.group = None;
+        self.kill_escaped();
     }
 
     /// SIGTERM to the group, SIGKILL to what is left of it after `grace`: how it ended. The
@@ -621,15 +659,25 @@ impl Process {
                 self.group.is_none_or(|group| rustix::process::test_kill_process_group(group).is_err());
             if exited && group_gone {
                 self.group = None;
-                return "stopped by the bench".to_string();
+                return format!("stopped by the bench{}", escaped_text(self.kill_escaped()));
             }
             if tokio::time::Instant::now() >= deadline {
-                self.kill();
+                self.signal(rustix::process::Signal::KILL);
+                self.group = None;
+                let escaped = self.kill_escaped();
                 let _ = self.child.wait().await;
-                return "killed by the bench".to_string();
+                return format!("killed by the bench{}", escaped_text(escaped));
             }
             tokio::time::sleep(Duration::from_millis(10)).await;
         }
+    }
+}
+
+/// What `exit` adds for processes that had left the controller's process group.
+fn escaped_text(n: usize) -> String {
+    match n {
+        0 => String::new(),
+        n => format!("; {n} process(es) it started outside its process group (setsid) killed"),
     }
 }
 

@@ -207,6 +207,33 @@ fn commands_refused_as_invalid_are_counted_in_the_summary_and_explained() {
 }
 
 #[test]
+fn a_process_the_controller_started_outside_its_process_group_is_killed_at_the_end_and_said() {
+    let out = TempDir::new("external-test-setsid");
+    let pid_file = out.join("escaped.pid");
+    let file = repo("examples/python-controller/open-field.toml").display().to_string();
+    // A child in a session of its own (setsid): the process group's signals do not reach it.
+    let command = format!(
+        "setsid sh -c 'echo $$ > \"{}\"; exec sleep 300' & exec {}",
+        pid_file.display(),
+        python_controller()
+    );
+    let (code, stderr, summary) = hilbench(&["run", &file, "--controller-cmd", &command], &out);
+    assert_eq!(code, Some(0), "{stderr}");
+    let exit = summary["runs"][0]["external_controller"]["exit"].as_str().expect("exit").to_string();
+    assert_eq!(
+        exit,
+        "stopped by the bench; 1 process(es) it started outside its process group (setsid) killed"
+    );
+    let pid = std::fs::read_to_string(&pid_file).expect("the escaped child's pid");
+    let stat = PathBuf::from(format!("/proc/{}/stat", pid.trim()));
+    let started = Instant::now();
+    while std::fs::read_to_string(&stat).is_ok_and(|s| !s.contains(") Z ")) {
+        assert!(started.elapsed() < Duration::from_secs(10), "pid {} still runs", pid.trim());
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
 fn a_controller_that_exits_with_an_error_fails_the_run_naming_its_status_and_last_output() {
     let out = TempDir::new("external-test-exit");
     let file = repo("examples/python-controller/open-field.toml").display().to_string();
