@@ -265,6 +265,11 @@ impl PlantService {
         self.shared.catch_up(&mut inner);
     }
 
+    /// Plant time the simulation has been integrated to, ns.
+    pub fn plant_time_ns(&self) -> u64 {
+        self.shared.lock().sim.time_ns()
+    }
+
     /// Samples discarded from full `StreamState` buffers since start, over every subscriber
     /// (each subscriber's count is in the log, at every power of two).
     pub fn stream_overflow_dropped(&self) -> u64 {
