@@ -1,18 +1,24 @@
-//! The real-time step loop: a thread of its own that calls [`PlantService::tick`] at every
-//! multiple of the integration step, woken as every real-time thread of the bench is
+//! The real-time step loop: a thread of its own that calls [`PlantService::tick`] when plant
+//! time reaches each step boundary, woken as every real-time thread of the bench is
 //! ([`hilbench_svc::realtime`]: `SCHED_FIFO` when permitted, a sleep on `CLOCK_MONOTONIC` to
 //! shortly before the deadline, then a spin). A tokio interval would wake on its timer wheel's
 //! 1 ms grid, a whole step late.
 //!
-//! Its step jitter (the lateness of each wake-up against its deadline) is kept in
-//! [`StepStats`], returned when the loop stops; `serve` logs it then. A thread that wakes
-//! more than a step late skips the steps it missed rather than running them back to back
-//! (the tick catches the simulation up to the clock either way), and counts them.
+//! The deadlines are the plant's own step boundaries (multiples of the step since the last
+//! reset, [`PlantService::until_next_step_ns`]), asked again before every wait, so that a
+//! reset moves them: each step's sample then reaches the state streams within the wake-up's
+//! lateness of its plant time. (A schedule of its own, from the loop's start, put every tick at
+//! a fixed phase within the step: each step's sample waited for the next tick, up to a step.)
+//!
+//! Its step jitter (the lateness of each wake-up against its boundary) is kept in
+//! [`StepStats`], returned when the loop stops; `serve` logs it then. A thread that wakes more
+//! than a step late integrates and publishes every step it passed, at once; those steps are
+//! counted as late ([`StepStats::late_steps`]), none is lost.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use hilbench_svc::realtime::{self, Periodic, Priority};
+use hilbench_svc::realtime::{self, Priority};
 
 use crate::PlantService;
 
@@ -23,9 +29,10 @@ pub struct StepStats {
     pub priority: Priority,
     /// Ticks run.
     pub ticks: u64,
-    /// Deadlines passed over because the thread woke more than a step late.
-    pub skipped: u64,
-    /// Lateness of each tick's wake-up against its deadline, ns.
+    /// Steps integrated and published a step or more after their time, by a tick that woke
+    /// that late (every step is published; these came in a burst).
+    pub late_steps: u64,
+    /// Lateness of each tick's wake-up against its step boundary, ns.
     pub lateness: delay::Window,
 }
 
@@ -34,10 +41,10 @@ impl std::fmt::Display for StepStats {
         let p = self.lateness.percentiles().unwrap_or_default();
         write!(
             f,
-            "{} ticks ({}), {} skipped, lateness p50 {:.1} µs p99 {:.1} µs max {:.1} µs",
+            "{} ticks ({}), {} steps a step late or more, lateness p50 {:.1} µs p99 {:.1} µs max {:.1} µs",
             self.ticks,
             self.priority,
-            self.skipped,
+            self.late_steps,
             p.p50_ns as f64 / 1e3,
             p.p99_ns as f64 / 1e3,
             p.max_ns as f64 / 1e3
@@ -52,7 +59,7 @@ pub struct StepLoop {
 }
 
 impl StepLoop {
-    /// Starts ticking `service` every [`PlantService::step_ns`] on a thread of its own.
+    /// Starts ticking `service` at its step boundaries on a thread of its own.
     pub fn start(service: PlantService) -> std::io::Result<Self> {
         let stop = Arc::new(AtomicBool::new(false));
         let stopping = stop.clone();
@@ -73,16 +80,20 @@ impl StepLoop {
 
 fn run(service: &PlantService, stop: &AtomicBool) -> StepStats {
     let priority = realtime::promote_current_thread("plant-steps");
-    let mut schedule = Periodic::new(realtime::monotonic_ns(), service.step_ns());
     let mut lateness = delay::Window::default();
-    let mut ticks = 0;
+    let (mut ticks, mut late_steps) = (0, 0);
     while !stop.load(Ordering::Acquire) {
-        let now = realtime::wait_until(schedule.due_ns(), realtime::SPIN_NS);
-        lateness.push(schedule.woke(now));
-        service.tick();
+        // The service's clock is read before `CLOCK_MONOTONIC`, so the deadline is never
+        // before the boundary on the wall clock (`Instant`, the same clock on Linux): a tick
+        // never stops just short of it, which would leave its sample to the next tick.
+        let wait = service.until_next_step_ns();
+        let due = realtime::monotonic_ns() + wait;
+        let now = realtime::wait_until(due, realtime::SPIN_NS);
+        lateness.push(now - due);
+        late_steps += service.tick().saturating_sub(1);
         ticks += 1;
     }
-    StepStats { priority, ticks, skipped: schedule.skipped, lateness }
+    StepStats { priority, ticks, late_steps, lateness }
 }
 
 #[cfg(test)]

@@ -136,41 +136,6 @@ pub fn wait_until(due_ns: u64, spin_ns: u64) -> u64 {
     }
 }
 
-/// A periodic schedule of deadlines `start + k * period` that skips the ones a late thread has
-/// already missed instead of bursting through them.
-#[derive(Debug, Clone, Copy)]
-pub struct Periodic {
-    start_ns: u64,
-    period_ns: u64,
-    next: u64,
-    /// Deadlines passed over because the thread woke after them.
-    pub skipped: u64,
-}
-
-impl Periodic {
-    /// Deadlines every `period_ns` (at least 1) from `start_ns + period_ns` on.
-    pub fn new(start_ns: u64, period_ns: u64) -> Self {
-        Self { start_ns, period_ns: period_ns.max(1), next: 1, skipped: 0 }
-    }
-
-    /// The next deadline to wait for.
-    pub fn due_ns(&self) -> u64 {
-        self.start_ns.saturating_add(self.next.saturating_mul(self.period_ns))
-    }
-
-    /// The thread woke at `now_ns` for [`Periodic::due_ns`] (and did its work): moves to the
-    /// first deadline after `now_ns`, counting the ones in between as skipped. Returns the
-    /// lateness of this wake-up, ns.
-    pub fn woke(&mut self, now_ns: u64) -> u64 {
-        let due = self.due_ns();
-        let late = now_ns.saturating_sub(due);
-        let behind = late / self.period_ns;
-        self.skipped += behind;
-        self.next += behind + 1;
-        late
-    }
-}
-
 #[cfg(target_os = "linux")]
 mod imp {
     use rustix::thread::ClockId;
@@ -264,37 +229,5 @@ mod tests {
     #[test]
     fn a_deadline_closer_than_the_margin_is_spun_for_not_slept_for() {
         assert_eq!(plan(100, 130, 50), Wait::Spin);
-    }
-
-    #[test]
-    fn periodic_deadlines_follow_each_other_when_the_thread_is_on_time() {
-        let mut p = Periodic::new(1_000, 100);
-        assert_eq!(p.due_ns(), 1_100);
-        assert_eq!(p.woke(1_103), 3);
-        assert_eq!(p.due_ns(), 1_200);
-        assert_eq!(p.woke(1_200), 0);
-        assert_eq!(p.due_ns(), 1_300);
-        assert_eq!(p.skipped, 0);
-    }
-
-    #[test]
-    fn a_late_wake_up_skips_the_missed_deadlines_and_counts_them() {
-        let mut p = Periodic::new(0, 100);
-        // Due at 100, woke at 350: 200 and 300 are gone, the next is 400.
-        assert_eq!(p.woke(350), 250);
-        assert_eq!(p.skipped, 2);
-        assert_eq!(p.due_ns(), 400);
-        // Late by less than a period: nothing skipped.
-        assert_eq!(p.woke(499), 99);
-        assert_eq!(p.skipped, 2);
-        assert_eq!(p.due_ns(), 500);
-    }
-
-    #[test]
-    fn a_zero_period_is_taken_as_one_nanosecond() {
-        let mut p = Periodic::new(0, 0);
-        assert_eq!(p.due_ns(), 1);
-        p.woke(1);
-        assert_eq!(p.due_ns(), 2);
     }
 }

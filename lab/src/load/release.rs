@@ -175,7 +175,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         "1000 Hz | plant step loop",
         steps.lateness.count(),
         steps.lateness.percentiles().unwrap_or_default(),
-        &format!("{}; {} steps skipped", steps.priority, steps.skipped),
+        &format!("{}; {} steps a step late or more", steps.priority, steps.late_steps),
     );
     println!();
     println!("load average at the end {}", load_average());
