@@ -52,8 +52,11 @@ pub async fn serve(
     let mut loop_task = tokio::spawn(runner::run(config.clone(), shared.clone(), stop_rx));
     let service = ControllerService::new(shared.clone(), config.max_streams);
 
+    // TCP_NODELAY as every server of the bench: without it, Nagle's algorithm held each small
+    // write (a telemetry item, a GetStatus answer) behind the client's delayed ACK, 40 ms on
+    // Linux, which was most of `hilbench reproduce`'s wall time over gRPC (BENCHMARKS.md).
     let server =
-        GrpcServer::new(listener, false, &config.tls, &[ControllerServer::<ControllerService>::NAME]).await?;
+        GrpcServer::new(listener, true, &config.tls, &[ControllerServer::<ControllerService>::NAME]).await?;
     let addr = server.addr;
     tracing::info!(%addr, plant = %config.plant, scenario = %config.scenario.name, mode = config.mode.name(), "controller serving");
     let mut loop_failure = None;

@@ -40,7 +40,7 @@ pub use profile::{
 pub use queue::ReleaseQueue;
 pub use record::Record;
 pub use spec::{DelaysTable, SpecError};
-pub use stats::{DirectionStats, Percentiles};
+pub use stats::{DirectionStats, Percentiles, Window};
 pub use trace::{
     LOST_S, Provenance, Trace, TraceEnd, TraceEnded, TraceError, TraceFile, WriteError, is_lost, parse_trace,
     parse_trace_file, write_trace,

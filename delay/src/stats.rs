@@ -26,15 +26,19 @@ pub struct Percentiles {
     pub max_ns: u64,
 }
 
+/// Durations, ns: exact percentiles over the last [`WINDOW`] pushed, the maximum over all of
+/// them (netem's delays and release errors, the services' real-time lateness).
 #[derive(Debug, Clone, Default)]
-struct Window {
+pub struct Window {
     values: Vec<u64>,
     next: usize,
     max: u64,
+    count: u64,
 }
 
 impl Window {
-    fn push(&mut self, v: u64) {
+    pub fn push(&mut self, v: u64) {
+        self.count += 1;
         self.max = self.max.max(v);
         if self.values.len() < WINDOW {
             self.values.push(v);
@@ -44,7 +48,14 @@ impl Window {
         }
     }
 
-    fn percentiles(&self) -> Option<Percentiles> {
+    /// Durations pushed since the window was made.
+    pub fn count(&self) -> u64 {
+        self.count
+    }
+
+    /// Nearest-rank percentiles of the last [`WINDOW`] durations and the maximum of all; `None`
+    /// when nothing was pushed.
+    pub fn percentiles(&self) -> Option<Percentiles> {
         if self.values.is_empty() {
             return None;
         }

@@ -4,6 +4,7 @@
 //! cargo run --release -p lab -- load throughput --messages 200000 [--rate-hz 20000]
 //! cargo run --release -p lab -- load commands --messages 20000
 //! cargo run --release -p lab -- load real-time --seconds 60 --rate-hz 1000 --delay-ms 20
+//! cargo run --release -p lab -- load release --seconds 20     (or scripts/bench-release.sh)
 //! cargo build --release -p plant -p netem
 //! cargo run --release -p lab -- load idle-streams --streams 60
 //! cargo run --release -p lab -- load step-rate --clients 1,4,16
@@ -33,6 +34,8 @@ use tokio_stream::StreamExt;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::transport::{Channel, Server};
 use tonic::{Request, Response, Status};
+
+mod release;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -71,6 +74,9 @@ enum Bench {
         #[arg(long, default_value_t = 20.0)]
         delay_ms: f64,
     },
+    /// netem's release error beside the machine's floor (bare sleeps to the same deadlines)
+    /// at each rate, constant and Gamma delays, and the plant's real-time step jitter.
+    Release(release::Args),
     /// Memory of a netem process (`VmRSS`) before and after `--streams` StateStream
     /// subscribers that read their first sample and then never read again, in front of a
     /// real-time plant at 1 kHz (plant and netem are the release binaries); with `--direct`,
@@ -221,9 +227,14 @@ struct Rig {
     stops: Vec<oneshot::Sender<()>>,
 }
 
-/// netem with a constant `delay_s` both ways in front of an echo plant whose streams send
-/// `limit` samples, `burst` at each tick of the period asked for.
-async fn rig(delay_s: f64, limit: u64, burst: u64, stream_buffer: usize) -> anyhow::Result<Rig> {
+/// A constant `delay_s` (seed 42).
+fn constant(delay_s: f64) -> DirectionProfile {
+    DirectionProfile::with_delay(Distribution::Constant { delay_s }, 42)
+}
+
+/// netem with `profile` both ways in front of an echo plant whose streams send `limit`
+/// samples, `burst` at each tick of the period asked for.
+async fn rig(profile: DirectionProfile, limit: u64, burst: u64, stream_buffer: usize) -> anyhow::Result<Rig> {
     let plant =
         EchoPlant { limit: Arc::new(AtomicU64::new(limit)), burst, applied: Arc::new(AtomicU64::new(0)) };
     let pl = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
@@ -242,7 +253,6 @@ async fn rig(delay_s: f64, limit: u64, burst: u64, stream_buffer: usize) -> anyh
     let mut config = netem::Config::new(plant_addr.to_string());
     config.time_mode = netem::TimeModeSetting::RealTime;
     config.stream_buffer = stream_buffer;
-    let profile = DirectionProfile::with_delay(Distribution::Constant { delay_s }, 42);
     config.plant_to_controller = profile.clone();
     config.controller_to_plant = profile;
     let nl = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
@@ -538,6 +548,96 @@ async fn step_rate(
     Ok(())
 }
 
+/// What [`real_time`] measured.
+struct RealTimeRun {
+    /// Samples the plant streamed and commands the controller sent, each.
+    sent: u64,
+    received: u64,
+    applied: u64,
+    plant_to_controller: pb::DirectionStats,
+    controller_to_plant: pb::DirectionStats,
+    /// Every decision, when traced.
+    records: Vec<pb::TraceRecord>,
+}
+
+impl RealTimeRun {
+    /// An error when a message was lost on the way.
+    fn check(&self) -> anyhow::Result<()> {
+        if self.received != self.sent
+            || self.applied != self.sent
+            || self.plant_to_controller.dropped + self.controller_to_plant.dropped != 0
+        {
+            bail!("lost messages");
+        }
+        Ok(())
+    }
+}
+
+/// netem in real time with `profile` both ways: samples streamed plant to controller and
+/// commands sent controller to plant at `rate_hz` each for `seconds`; with `trace`, netem's
+/// record of every decision.
+async fn real_time(
+    profile: DirectionProfile,
+    seconds: f64,
+    rate_hz: f64,
+    trace: bool,
+) -> anyhow::Result<RealTimeRun> {
+    let n = (seconds * rate_hz).round() as u64;
+    let period = Duration::from_secs_f64(1.0 / rate_hz);
+    let rig = rig(profile, n, 1, netem::DEFAULT_STREAM_BUFFER).await?;
+    let mut control = NetemControlClient::new(rig.netem.clone());
+    if trace {
+        control.start_trace(pb::StartTraceRequest {}).await?;
+    }
+    let mut client = PlantClient::new(rig.netem.clone());
+    let mut s = client
+        .stream_state(pb::StreamStateRequest { period_ns: period.as_nanos() as u64 })
+        .await?
+        .into_inner();
+    let reader = tokio::spawn(async move {
+        let mut got = 0u64;
+        while got < n {
+            match tokio::time::timeout(Duration::from_secs(10), s.next()).await {
+                Ok(Some(Ok(_))) => got += 1,
+                _ => break,
+            }
+        }
+        got
+    });
+    // A held command's ApplyCommand returns at once.
+    let mut tick = tokio::time::interval(period);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
+    for k in 0..n {
+        tick.tick().await;
+        client.apply_command(command(k)).await?;
+    }
+    let received = reader.await?;
+    // Until every copy still held has been released (or 30 s, and the check fails).
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let st = loop {
+        let st = stats(&rig.netem).await?;
+        let held = |d: &Option<pb::DirectionStats>| d.as_ref().map_or(0, |d| d.in_flight);
+        if held(&st.plant_to_controller) + held(&st.controller_to_plant) == 0 || Instant::now() > deadline {
+            break st;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
+    let records = match trace {
+        true => control.stop_trace(pb::StopTraceRequest {}).await?.into_inner().records,
+        false => Vec::new(),
+    };
+    let run = RealTimeRun {
+        sent: n,
+        received,
+        applied: rig.plant.applied.load(AtomicOrdering::Relaxed),
+        plant_to_controller: st.plant_to_controller.context("stats")?,
+        controller_to_plant: st.controller_to_plant.context("stats")?,
+        records,
+    };
+    drop(rig.stops);
+    Ok(run)
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     tokio::runtime::Builder::new_multi_thread().enable_all().build()?.block_on(bench(args.bench))
 }
@@ -545,7 +645,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 async fn bench(bench: Bench) -> anyhow::Result<()> {
     match bench {
         Bench::Throughput { messages, rate_hz, stream_buffer } => {
-            let rig = rig(0.0, messages, rate_hz / 1000, stream_buffer).await?;
+            let rig = rig(constant(0.0), messages, rate_hz / 1000, stream_buffer).await?;
             let mut client = PlantClient::new(rig.netem.clone());
             let t0 = Instant::now();
             let period_ns = if rate_hz > 0 { 1_000_000 } else { 0 };
@@ -578,7 +678,7 @@ async fn bench(bench: Bench) -> anyhow::Result<()> {
             drop(rig.stops);
         }
         Bench::Commands { messages, clients } => {
-            let rig = rig(0.0, 0, 1, netem::DEFAULT_STREAM_BUFFER).await?;
+            let rig = rig(constant(0.0), 0, 1, netem::DEFAULT_STREAM_BUFFER).await?;
             let per = messages / clients;
             let t0 = Instant::now();
             let mut tasks = Vec::new();
@@ -612,47 +712,17 @@ async fn bench(bench: Bench) -> anyhow::Result<()> {
             drop(rig.stops);
         }
         Bench::RealTime { seconds, rate_hz, delay_ms } => {
-            let n = (seconds * rate_hz).round() as u64;
-            let period = Duration::from_secs_f64(1.0 / rate_hz);
-            let rig = rig(delay_ms / 1e3, n, 1, netem::DEFAULT_STREAM_BUFFER).await?;
-            let mut client = PlantClient::new(rig.netem.clone());
-            let mut s = client
-                .stream_state(pb::StreamStateRequest { period_ns: period.as_nanos() as u64 })
-                .await?
-                .into_inner();
-            let reader = tokio::spawn(async move {
-                let mut got = 0u64;
-                while got < n {
-                    match tokio::time::timeout(Duration::from_secs(10), s.next()).await {
-                        Ok(Some(Ok(_))) => got += 1,
-                        _ => break,
-                    }
-                }
-                got
-            });
-            let mut tick = tokio::time::interval(period);
-            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
-            for k in 0..n {
-                tick.tick().await;
-                client.apply_command(command(k)).await?;
-            }
-            let got = reader.await?;
-            tokio::time::sleep(Duration::from_millis((delay_ms * 3.0) as u64 + 100)).await;
-            let st = stats(&rig.netem).await?;
+            let run = real_time(constant(delay_ms / 1e3), seconds, rate_hz, false).await?;
             println!(
-                "real time: {seconds} s at {rate_hz} Hz, constant {delay_ms} ms each way; samples received {got}/{n}"
+                "real time: {seconds} s at {rate_hz} Hz, constant {delay_ms} ms each way; samples received {}/{}",
+                run.received, run.sent
             );
-            let p = st.plant_to_controller.context("stats")?;
-            let c = st.controller_to_plant.context("stats")?;
-            print_dir("plant->controller", &p);
-            print_dir("controller->plant", &c);
-            let applied = rig.plant.applied.load(AtomicOrdering::Relaxed);
-            println!("  commands applied by the plant: {applied}/{n}");
-            if got != n || applied != n || p.dropped + c.dropped != 0 {
-                bail!("lost messages");
-            }
-            drop(rig.stops);
+            print_dir("plant->controller", &run.plant_to_controller);
+            print_dir("controller->plant", &run.controller_to_plant);
+            println!("  commands applied by the plant: {}/{}", run.applied, run.sent);
+            run.check()?;
         }
+        Bench::Release(args) => release::run(args).await?,
         Bench::IdleStreams { streams, seconds, every_s, client_window_kib, direct, bins } => {
             idle_streams(streams, seconds, every_s, client_window_kib, direct, &bins).await?;
         }

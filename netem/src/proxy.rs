@@ -5,9 +5,12 @@
 //! The controller drives plant time with `Advance`/`Step`. A command sent with `ApplyCommand`
 //! or `Step` at plant time `t` (the time of the newest sample) is held in the delay line and
 //! applied upstream exactly at its release time `t + d`: netem advances the upstream plant
-//! piecewise, `Advance(r1 - t)`, `ApplyCommand(c1)`, `Advance(r2 - r1)`, ..., up to the end of
-//! the call. A zero delay applies the command at once (its `ApplyCommandResponse.applied` is
-//! then set; a held command answers with `applied` unset).
+//! piecewise, `Advance(r1 - t)`, `Step(c1, r2 - r1)`, ..., `Step(cn, T - rn)`, up to the end
+//! of the call; a `Step` applies its command, then advances (the plant's `ApplyCommand` then
+//! `Advance`, in one round trip). A zero delay applies the command at once: an
+//! `ApplyCommand`'s with its own upstream `ApplyCommand` (its `ApplyCommandResponse.applied`
+//! is then set; a held command answers with `applied` unset), a `Step`'s with the `Step`'s
+//! move, one upstream `Step` in all.
 //!
 //! State samples in lockstep are delayed by staleness: the sample returned at the end of an
 //! `Advance`/`Step` to plant time `T` is the state at `T - d`, `d` drawn on the
@@ -128,6 +131,26 @@ impl Proxy {
         command: pb::Command,
         md: &mut MetadataMap,
     ) -> Result<Option<pb::ApplyCommandResponse>, Status> {
+        let due_now = self.lockstep_send(command, md).await?;
+        let mut applied = None;
+        for p in due_now {
+            let original = !p.msg.duplicate;
+            let r = self.apply_upstream(p).await?;
+            if original {
+                applied = r;
+            }
+        }
+        Ok(applied)
+    }
+
+    /// Lockstep: draws a command's fate at the current plant time and holds the copies due
+    /// later; returns the copies due now, for the caller to apply (at once, or with the
+    /// upstream call that follows).
+    async fn lockstep_send(
+        &self,
+        command: pb::Command,
+        md: &mut MetadataMap,
+    ) -> Result<Vec<PendingCommand>, Status> {
         let t = self.plant_time().await?;
         let mut due_now = Vec::new();
         {
@@ -160,15 +183,50 @@ impl Proxy {
                 }
             }
         }
-        let mut applied = None;
-        for p in due_now {
-            let original = !p.msg.duplicate;
-            let r = self.apply_upstream(p).await?;
-            if original {
-                applied = r;
+        Ok(due_now)
+    }
+
+    /// Lockstep: moves the upstream plant from plant time `now` to `to` (an `Advance`, or a
+    /// `GetState` when `to` is `now`) and returns its sample there, having applied the commands
+    /// in `due` at `now` first, in order. The last of them goes with the move in one `Step`
+    /// (command, duration, sample), which the plant runs as `ApplyCommand` then `Advance`: the
+    /// same trajectory, one round trip fewer per command. `due` is empty on return.
+    async fn up_to(
+        &self,
+        due: &mut Vec<PendingCommand>,
+        now: u64,
+        to: u64,
+    ) -> Result<pb::StateSample, Status> {
+        let duration_ns = to.saturating_sub(now);
+        if let Some(last) = due.pop() {
+            for p in std::mem::take(due) {
+                self.apply_upstream(p).await?;
+            }
+            let step = pb::StepRequest { command: Some(last.command), duration_ns, ..Default::default() };
+            match self.shared.up(self.shared.client().step(step)).await {
+                Ok(r) => {
+                    self.shared.lock().delivered(&last.msg, 0);
+                    return r.into_inner().sample.ok_or_else(|| {
+                        Status::internal("the upstream plant answered Step without a sample")
+                    });
+                }
+                Err(s) if s.code() == tonic::Code::Unavailable => {
+                    self.shared.lock().dropped(&last.msg, &format!("upstream unavailable: {}", s.message()));
+                    return Err(s);
+                }
+                // A plant without `Step`: the command on its own, then the move.
+                Err(s) if s.code() == tonic::Code::Unimplemented => {
+                    self.apply_upstream(last).await?;
+                }
+                Err(s) => {
+                    // The plant refused the command (it passed netem's checks) and, refusing it,
+                    // did not move: the command is lost, the move is made without it.
+                    tracing::warn!(status = %s, "the plant refused a released command");
+                    self.shared.lock().dropped(&last.msg, &format!("refused by the plant: {}", s.message()));
+                }
             }
         }
-        Ok(applied)
+        if duration_ns > 0 { self.up_advance(duration_ns).await } else { self.up_state().await }
     }
 
     async fn up_advance(&self, duration_ns: u64) -> Result<pb::StateSample, Status> {
@@ -190,8 +248,12 @@ impl Proxy {
     /// With `wait_for_command_seq` set (not 0) and that command still held, the call goes on
     /// past `duration_ns` to the command's release (docs/spec.md's `t_k + max(T, d_k)`); a command
     /// already applied or lost does not extend it.
+    ///
+    /// `due` are commands due at the current plant time, not yet applied (a `Step`'s own): they
+    /// are applied first, with the first upstream call.
     async fn lockstep_advance(
         &self,
+        mut due: Vec<PendingCommand>,
         duration_ns: u64,
         wait_for_command_seq: u64,
         md: &mut MetadataMap,
@@ -224,24 +286,25 @@ impl Proxy {
             let next = self.shared.lock().pending.next_release_ns().filter(|r| *r <= target);
             // The sample sent at t_s is read once every command due at or before t_s is in.
             if staleness > 0 && stale_sample.is_none() && next.is_none_or(|r| r > t_s) {
-                let s = if t_s > now { self.up_advance(t_s - now).await? } else { self.up_state().await? };
-                now = t_s;
+                let s = self.up_to(&mut due, now, t_s.max(now)).await?;
+                now = t_s.max(now);
                 self.shared.lock().plant_time_ns = Some(now);
                 stale_sample = Some(s);
                 continue;
             }
             let Some(r) = next else { break };
             if r > now {
-                self.up_advance(r - now).await?;
+                self.up_to(&mut due, now, r).await?;
                 now = r;
                 self.shared.lock().plant_time_ns = Some(now);
             }
+            // Applied with the next upstream call, at `now`.
             let popped = self.shared.lock().pending.pop();
             if let Some((_, p)) = popped {
-                self.apply_upstream(p).await?;
+                due.push(p);
             }
         }
-        let end = if target > now { self.up_advance(target - now).await? } else { self.up_state().await? };
+        let end = self.up_to(&mut due, now, target.max(now)).await?;
         let mut inner = self.shared.lock();
         inner.plant_time_ns = Some(end.time_ns);
         let sample = stale_sample.unwrap_or(end);
@@ -459,7 +522,8 @@ impl pb::plant_server::Plant for Proxy {
         }
         let _guard = self.shared.lockstep.lock().await;
         let mut md = MetadataMap::new();
-        let sample = self.lockstep_advance(req.duration_ns, req.wait_for_command_seq, &mut md).await?;
+        let sample =
+            self.lockstep_advance(Vec::new(), req.duration_ns, req.wait_for_command_seq, &mut md).await?;
         Ok(respond(pb::AdvanceResponse { sample: Some(sample) }, md, mode))
     }
 
@@ -473,13 +537,16 @@ impl pb::plant_server::Plant for Proxy {
         let sample = match mode {
             Mode::Lockstep => {
                 let _guard = self.shared.lockstep.lock().await;
-                if let Some(c) = req.command {
-                    self.lockstep_command(c, &mut md).await?;
-                }
+                // The command, when due now, goes upstream with the first move: one `Step`.
+                let mut due = match req.command {
+                    Some(c) => self.lockstep_send(c, &mut md).await?,
+                    None => Vec::new(),
+                };
                 if req.duration_ns > 0 || req.wait_for_command_seq != 0 {
-                    self.lockstep_advance(req.duration_ns, req.wait_for_command_seq, &mut md).await?
+                    self.lockstep_advance(due, req.duration_ns, req.wait_for_command_seq, &mut md).await?
                 } else {
-                    let s = self.up_state().await?;
+                    let now = self.plant_time().await?;
+                    let s = self.up_to(&mut due, now, now).await?;
                     self.shared.lock().plant_time_ns = Some(s.time_ns);
                     s
                 }

@@ -8,24 +8,25 @@
 //!   binary and the tests both start it this way.
 //!
 //! Time modes: in lockstep plant time moves only through `Advance`/`Step`, so runs are
-//! deterministic and bit-identical to the in-process simulation. In real time a task calls
-//! [`PlantService::tick`] at the integration rate, which catches the simulation up to the
-//! clock (plant time = time since the last reset), and `Advance`/`Step` with a duration are
-//! refused with `FAILED_PRECONDITION`.
+//! deterministic and bit-identical to the in-process simulation. In real time the
+//! [`step_loop`] thread calls [`PlantService::tick`] at the integration rate, which catches the
+//! simulation up to the clock (plant time = time since the last reset), and `Advance`/`Step`
+//! with a duration are refused with `FAILED_PRECONDITION`.
 
 pub mod clock;
 pub mod config;
 pub mod service;
+pub mod step_loop;
 
 pub use clock::{Clock, ManualClock, WallClock};
 pub use config::{ConfigError, PlantConfig, TimeMode};
 pub use service::PlantService;
+pub use step_loop::{StepLoop, StepStats};
 
 use hilbench_proto::pb::plant_server::PlantServer;
 use hilbench_svc::{GrpcServer, ServeError};
 use std::future::Future;
 use std::sync::Arc;
-use std::time::Duration;
 use tonic::server::NamedService;
 
 /// Why the plant could not serve.
@@ -35,6 +36,8 @@ pub enum PlantError {
     Config(#[from] ConfigError),
     #[error(transparent)]
     Serve(#[from] ServeError),
+    #[error("real-time step loop: {0}")]
+    StepLoop(std::io::Error),
 }
 
 /// Serves the plant on `listener` until `shutdown` resolves, on the wall clock.
@@ -61,9 +64,9 @@ pub async fn serve_with_clock(
     let server = GrpcServer::new(listener, true, &tls, &[PlantServer::<PlantService>::NAME]).await?;
     let (addr, not_serving) = (server.addr, server.not_serving());
 
-    let ticker = match service.time_mode() {
+    let steps = match service.time_mode() {
         TimeMode::Lockstep => None,
-        TimeMode::RealTime => Some(tokio::spawn(run_real_time(service.clone()))),
+        TimeMode::RealTime => Some(StepLoop::start(service.clone()).map_err(PlantError::StepLoop)?),
     };
 
     let signal = {
@@ -78,21 +81,14 @@ pub async fn serve_with_clock(
     };
     tracing::info!(%addr, mode = %service.time_mode(), %scenario, rate_hz, "plant serving");
     let result = server.serve(|router| router.add_service(PlantServer::new(service)), signal).await;
-    if let Some(t) = ticker {
-        t.abort();
+    if let Some(steps) = steps {
+        // Joining waits for the loop's current step to end.
+        match tokio::task::spawn_blocking(move || steps.stop()).await {
+            Ok(stats) => tracing::info!("real-time steps: {stats}"),
+            Err(e) => tracing::warn!("real-time step loop: {e}"),
+        }
     }
     result?;
     tracing::info!("plant stopped");
     Ok(())
-}
-
-/// Real time: integrate at the configured rate. Each tick catches the simulation up to the
-/// clock, so a late tick loses no plant time (it integrates more steps).
-async fn run_real_time(service: PlantService) {
-    let mut interval = tokio::time::interval(Duration::from_nanos(service.step_ns()));
-    interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    loop {
-        interval.tick().await;
-        service.tick();
-    }
 }

@@ -259,10 +259,30 @@ impl PlantService {
         self.shared.settings.step_ns
     }
 
-    /// Real time: integrate to the clock's current plant time (a no-op in lockstep).
-    pub fn tick(&self) {
+    /// Real time: integrate to the clock's current plant time (a no-op in lockstep). Returns
+    /// the step boundaries it integrated over (each one's sample went to the streams): 1 for
+    /// a tick on time, more for a tick that came a step late or later.
+    pub fn tick(&self) -> u64 {
         let mut inner = self.shared.lock();
+        let before = inner.sim.time_ns();
         self.shared.catch_up(&mut inner);
+        let step = self.shared.settings.step_ns;
+        (inner.sim.time_ns() / step).saturating_sub(before / step)
+    }
+
+    /// Real time: how long, on the service's clock, until plant time reaches its next step
+    /// boundary (a multiple of the step since the last reset), ns; a whole step when it is on
+    /// one. The step loop wakes then, so that each step's sample goes out when its time comes
+    /// rather than at a phase of its own.
+    pub fn until_next_step_ns(&self) -> u64 {
+        let epoch_ns = self.shared.lock().epoch_ns;
+        let step = self.shared.settings.step_ns;
+        step - self.shared.clock.now_ns().saturating_sub(epoch_ns) % step
+    }
+
+    /// Plant time the simulation has been integrated to, ns.
+    pub fn plant_time_ns(&self) -> u64 {
+        self.shared.lock().sim.time_ns()
     }
 
     /// Samples discarded from full `StreamState` buffers since start, over every subscriber
@@ -504,6 +524,27 @@ mod tests {
         svc.tick();
         let s = svc.get_state(Request::new(pb::GetStateRequest {})).await.expect("ok").into_inner();
         assert_eq!((s.time_ns, s.seq, s.watchdog_hover), (7_000_000, 1, false));
+    }
+
+    #[tokio::test]
+    async fn the_next_step_is_counted_from_the_last_reset_and_a_late_tick_says_how_many_steps_it_passed() {
+        let clock = Arc::new(ManualClock::new(1_234_567));
+        let svc =
+            PlantService::new(PlantConfig::real_time(Scenario::paper_1()), clock.clone()).expect("valid");
+        assert_eq!(svc.until_next_step_ns(), 1_000_000);
+        clock.advance(300_000);
+        assert_eq!(svc.until_next_step_ns(), 700_000);
+        assert_eq!(svc.tick(), 0);
+        clock.advance(700_000);
+        assert_eq!((svc.until_next_step_ns(), svc.tick()), (1_000_000, 1));
+        // Woken 2.5 steps late: three boundaries at once.
+        clock.advance(3_500_000);
+        assert_eq!(svc.tick(), 3);
+        // A reset moves the boundaries to its own time.
+        clock.advance(100_000);
+        svc.reset(Request::new(pb::ResetRequest::default())).await.expect("ok");
+        clock.advance(250_000);
+        assert_eq!(svc.until_next_step_ns(), 750_000);
     }
 
     #[tokio::test]

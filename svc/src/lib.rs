@@ -4,9 +4,12 @@
 //! server streams that cannot exhaust a service ([`streams`]: a cap on open streams, and a
 //! bounded drop-oldest buffer per subscriber); and the scenario file loader
 //! ([`scenario_file`]) behind `--scenario FILE`; and mutual TLS for servers and clients
-//! ([`tls`]: the flags, the checked files, the server's config and the client's endpoint).
+//! ([`tls`]: the flags, the checked files, the server's config and the client's endpoint); and
+//! waking at a deadline to tens of microseconds ([`realtime`]: netem's release thread, the
+//! plant's step loop).
 
 pub mod falsify_table;
+pub mod realtime;
 pub mod scenario_file;
 pub mod streams;
 pub mod sweep_table;

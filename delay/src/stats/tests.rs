@@ -17,3 +17,15 @@ fn percentiles_are_nearest_rank() {
     s.reset();
     assert_eq!(s.delivered, 0);
 }
+
+#[test]
+fn a_window_counts_every_push_and_keeps_the_maximum_of_all() {
+    let mut w = Window::default();
+    assert_eq!(w.percentiles(), None);
+    for v in [5, 1, 9, 3] {
+        w.push(v);
+    }
+    assert_eq!(w.count(), 4);
+    let p = w.percentiles().unwrap_or_default();
+    assert_eq!((p.p50_ns, p.max_ns), (3, 9));
+}

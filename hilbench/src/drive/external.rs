@@ -235,14 +235,16 @@ impl<'a> ExternalFlight<'a> {
         let deadline = started + settings.timeout;
         let mut plant = PlantClient::new(connect(plant_addr, deadline).await?);
         // The bench resets the plant to the scenario, whole, for every run.
-        plant
+        let reset = plant
             .reset(pb::ResetRequest {
                 scenario: String::new(),
                 initial_state: None,
                 definition: Some(self.scenario.into()),
             })
             .await
-            .context("plant Reset")?;
+            .context("plant Reset")?
+            .into_inner();
+        self.judge.step_ns = reset.description.map(|d| d.step_ns).filter(|&s| s > 0);
         // On the plant itself: the truth, undelayed. It starts with the reset's sample.
         let mut stream = plant
             .stream_state(pb::StreamStateRequest { period_ns: 0 })
@@ -411,6 +413,7 @@ fn faults_of(last: &PlantSample) -> RunFaults {
 /// `decision`, `cost_gap` and `injected_delay_s` empty.
 struct Judge {
     scenario: Scenario,
+    /// The plant's integration step (its description's `step_ns`): the stream's spacing.
     step_ns: Option<u64>,
     flight_id: Option<u64>,
     /// The newest sample judged.
@@ -454,14 +457,8 @@ impl Judge {
             ),
             Some(_) => {}
         }
-        if let Some(prev) = &self.last {
-            // Every step comes once, in order: a larger gap is steps the stream dropped.
-            let gap_ns = sample.time_ns.saturating_sub(prev.time_ns);
-            match self.step_ns {
-                Some(step) if gap_ns > step => self.missed += gap_ns / step - 1,
-                None if gap_ns > 0 => self.step_ns = Some(gap_ns),
-                _ => {}
-            }
+        if let (Some(prev), Some(step)) = (&self.last, self.step_ns) {
+            self.missed += steps_missed_between(prev.time_ns, sample.time_ns, step);
         }
         self.steps += 1;
         let applied = &sample.last_command;
@@ -524,6 +521,19 @@ impl Judge {
         summary.cycles = self.rows.len() as u64;
         summary
     }
+}
+
+/// Step boundaries (multiples of `step_ns`) strictly between two consecutive samples of a
+/// period-0 stream at plant times `prev_ns` and `next_ns`: the steps the stream did not bring.
+///
+/// Counted by boundary, not by the gap: the stream's first sample is the current one, which in
+/// real time lies between steps, so the gap from it to the first step is shorter than a step
+/// (taking that gap for the step counted every later step as two or three missed ones).
+fn steps_missed_between(prev_ns: u64, next_ns: u64, step_ns: u64) -> u64 {
+    // Boundaries in (prev, next): the last one at or before `next` less the last one at or
+    // before `prev`, less `next` itself when it is one.
+    let crossed = (next_ns / step_ns).saturating_sub(prev_ns / step_ns);
+    crossed.saturating_sub(u64::from(next_ns.is_multiple_of(step_ns)))
 }
 
 /// The scenario as flown, in a temporary file (`HILBENCH_SCENARIO`), removed on drop.
@@ -788,6 +798,21 @@ mod tests {
             lines[0]
         );
         assert_eq!(lines[1], "next line");
+    }
+
+    #[test]
+    fn a_stream_that_starts_between_steps_misses_no_step() {
+        let ms = 1_000_000;
+        // The first sample 0.7 ms after the reset, then every step: nothing missed (the gap to
+        // the first step, 0.3 ms, is not the step).
+        assert_eq!(steps_missed_between(700_000, ms, ms), 0);
+        assert_eq!(steps_missed_between(ms, 2 * ms, ms), 0);
+        // Steps 2 and 3 ms did not come.
+        assert_eq!(steps_missed_between(ms, 4 * ms, ms), 2);
+        // From between steps past one: 1 ms did not come.
+        assert_eq!(steps_missed_between(300_000, 2 * ms, ms), 1);
+        // A sample between steps after a step (a stream never sends one, but it is no gap).
+        assert_eq!(steps_missed_between(2 * ms, 2 * ms + 500_000, ms), 0);
     }
 
     #[tokio::test]
