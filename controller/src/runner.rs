@@ -62,6 +62,11 @@ pub struct Status {
     pub plant_resets: u64,
     /// Plant time of the last sample of the episode's flight before the reset, s.
     pub plant_reset_time_s: f64,
+    /// Solves of the current episode that stopped at the iteration limit.
+    pub iteration_limits: u64,
+    /// Of those, the ones whose plan was predicted inside a cylinder
+    /// (`SolveStatus::InfeasibleAtLimit`).
+    pub infeasible_at_limit: u64,
     /// The scenario of the current episode; before the first, the one the controller was
     /// started with (`--scenario`), as it will fly it.
     pub definition: Option<Scenario>,
@@ -522,6 +527,7 @@ async fn fly(
             st.finish_reason = None;
             (st.link_losses, st.link_down_s, st.longest_link_down_s) = (0, 0.0, 0.0);
             (st.plant_resets, st.plant_reset_time_s) = (0, 0.0);
+            (st.iteration_limits, st.infeasible_at_limit) = (0, 0);
             st.sampling_times_s = episode.controller().definition().sampling_times_s.clone();
         });
         tracing::info!(scenario = %current.scenario.name, mode = current.mode.name(), lockstep, "episode started");
@@ -639,7 +645,10 @@ fn finish(shared: &Shared, end: RunEnd) {
 /// somebody listens).
 fn publish(shared: &Shared, flight: &Flight, wire_sample: &pb::StateSample, mut out: CycleOutput) {
     let stats = pb::SolveStats::from(&out.record.solve);
+    let status = out.record.solve.status;
     shared.update(|st| {
+        st.iteration_limits += u64::from(status.at_iteration_limit());
+        st.infeasible_at_limit += u64::from(status == mpc::SolveStatus::InfeasibleAtLimit);
         st.cycles = flight.episode.cycles();
         st.weights = out.record.weights.clone();
         st.last_solve = Some(stats);

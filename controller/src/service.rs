@@ -60,6 +60,8 @@ impl Controller for ControllerService {
             longest_link_down_s: s.longest_link_down_s,
             plant_resets: s.plant_resets,
             plant_reset_time_s: s.plant_reset_time_s,
+            iteration_limits: s.iteration_limits,
+            infeasible_at_limit: s.infeasible_at_limit,
             definition: s.definition.as_ref().map(Into::into),
         }))
     }

@@ -14,10 +14,11 @@
 //! `u_prev` within the scenario's input bounds. Every line is solved on its own: from its
 //! `warm_start` (or hover) and `multipliers` (or zeros) with a fresh penalty, so that an answer
 //! does not depend on the lines before it.
-//! Output keys: `line`, `scenario`, `mode`, `status`, `iterations`, `solve_ms`, `cost` (the
-//! spec's objective, unscaled), `u` (N x 3), `multipliers`, `min_clearance_m`,
-//! `constraint_violation`, and the problem solved: `obstacle_margin_m`, `floor_m`,
-//! `delay_compensation`; or `line`, `error` and `field`. Unknown and repeated
+//! Output keys: `line`, `scenario`, `mode`, `status` (`infeasible_at_limit` when the budget ran
+//! out with the plan predicted inside a cylinder), `iterations`, `solve_ms`, `cost` (the
+//! spec's objective, unscaled), `u` (N x 3), `multipliers`, `min_clearance_m`, `depth_m` (how
+//! deep the plan's deepest point is inside a cylinder, 0 when clear), `constraint_violation`,
+//! and the problem solved: `obstacle_margin_m`, `floor_m`, `delay_compensation`; or `line`, `error` and `field`. Unknown and repeated
 //! keys are errors naming the key, and a line longer than [`MAX_LINE_BYTES`] is refused
 //! without being held in memory.
 
@@ -323,6 +324,7 @@ impl LineSolver {
             "u": u,
             "multipliers": mpc.multipliers(),
             "min_clearance_m": report.min_clearance_m,
+            "depth_m": report.depth_m(),
             "constraint_violation": report.constraint_violation,
             "obstacle_margin_m": def.obstacle_margin_m,
             "floor_m": def.min_altitude_m,
@@ -601,6 +603,24 @@ mod whole_problem_tests {
         // The floor adds a constraint per predicted point: more multipliers.
         let count = |v: &Value| v["multipliers"].as_array().map_or(0, Vec::len);
         assert!(count(&out[1]) > count(&out[0]), "{} vs {}", count(&out[1]), count(&out[0]));
+    }
+
+    #[test]
+    fn an_answer_at_the_limit_with_its_plan_inside_a_cylinder_says_so_with_the_depth() {
+        // paper-1's start, the paper's exact problem (no margin), two iterations: the long
+        // scenarios' plans still cross the cylinder.
+        let start = r#""x0":[0,0,0,0,0,0,0,0],"u_prev":[9.81,0,0],"weights":[0.05,0.15,0.45,0.3,0.05]"#;
+        let out = solve(&[
+            format!(r#"{{"scenario":"paper-1","obstacle_margin_m":0,"max_iterations":2,{start}}}"#),
+            format!(r#"{{"scenario":"paper-2",{PAPER_2}}}"#),
+        ]);
+        assert_eq!(out[0]["status"], "infeasible_at_limit", "{}", out[0]);
+        let depth = out[0]["depth_m"].as_f64().expect("a number");
+        let clearance = out[0]["min_clearance_m"].as_f64().expect("a number");
+        assert!(depth > 0.0 && depth == -clearance, "{}", out[0]);
+        assert!(out[1]["status"].is_string(), "{}", out[1]);
+        assert_ne!(out[1]["status"], "infeasible_at_limit", "{}", out[1]);
+        assert_eq!(out[1]["depth_m"], 0.0, "{}", out[1]);
     }
 
     #[test]

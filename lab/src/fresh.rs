@@ -1,17 +1,24 @@
-//! The "fresh from a logged warm start" sample of issue 20: states logged along closed loops,
-//! each solved from scratch from the warm start logged with it, as `controller solve` does
-//! (a reset workspace: zero multipliers, the initial penalty, no carried Lipschitz estimate),
-//! by both PANOCs, against the careful reference (`mpc::accuracy`).
+//! Cold solves of logged states (issues 20 and 39): states logged along closed loops, each
+//! solved from scratch from the warm start logged with it, as `controller solve` does (a reset
+//! workspace: zero multipliers, the initial penalty, no carried Lipschitz estimate), by both
+//! PANOCs in the same run, against the best known cost of a clear plan.
 //!
 //! We have no other implementation's logs, so the states come from the bench's own paper loops
-//! (paper-1/2/3) flown with `--log-solver` (OpEn by default): every `stride`-th cycle's state,
-//! last command, weights and warm start (the previous plan shifted by one step). `--lines FILE`
-//! writes them as `controller solve` JSON lines, so that the same sample can be solved through
-//! the controller (`controller --solver own solve FILE`).
+//! (paper-1/2/3) flown with `--log-solver` (OpEn, the paper's toolchain, by default): every
+//! `stride`-th cycle's state, last command, weights and warm start (the previous plan shifted
+//! by one step). The loops fly paper mode (its 0.1 m margin); the cold solves solve the problem
+//! `--obstacle-margin-m` sets (0: the paper's exact problem). `--lines FILE` writes the sample as
+//! `controller solve` JSON lines (with that margin), so that the same sample can be solved
+//! through the controller (`controller --solver own solve FILE`).
+//!
+//! The best known cost of a state is the least cost of a clear plan (no predicted point inside
+//! a cylinder, [`mpc::INSIDE_TOLERANCE_M`]) among both answers and the careful reference
+//! (`mpc::accuracy`) started from the warm start and from each answer.
 use std::io::Write;
 
 use mpc::{
-    ControllerMode, Mpc, OcpDefinition, PanocSolver, SolveBudget, SolveStatus, accuracy, record::percentile,
+    ControllerMode, INSIDE_TOLERANCE_M, Mpc, OcpDefinition, PanocSolver, SolveBudget, SolveStatus, accuracy,
+    record::percentile,
 };
 
 use crate::settings::MpcFlags;
@@ -27,43 +34,97 @@ pub struct Args {
     /// The solver of the logged loops.
     #[arg(long, default_value = "open", value_parser = solver)]
     log_solver: PanocSolver,
+    /// The margin of the cold solves' problem, m (the loops fly paper mode's); default: the
+    /// settings' (0.1 m). 0 is the paper's exact problem.
+    #[arg(long, env = "MPC_MARGIN")]
+    obstacle_margin_m: Option<f64>,
+    /// That built-in scenario alone (default: the three paper scenarios).
+    #[arg(long)]
+    scenario: Option<String>,
+    /// Print every answer (scenario, cycle, status, iterations, gap, clearance).
+    #[arg(long)]
+    verbose: bool,
     /// Write the sample as `controller solve` JSON lines to this file.
     #[arg(long)]
     lines: Option<std::path::PathBuf>,
-    /// The settings of the fresh solves (`--solver` is ignored: both solvers run).
+    /// The settings of the cold solves (`--solver` is ignored: both solvers run).
     #[command(flatten)]
     mpc: MpcFlags,
 }
 
-/// One solver's sample: relative gaps to the reference, solve times (ms), iterations, and the
-/// solves at the iteration limit.
+/// One solver's sample.
 #[derive(Default)]
 struct Stats {
-    gaps: Vec<f64>,
+    /// Relative gap to the best known clear cost; `None` when the answer's plan is not clear
+    /// (or no clear plan is known).
+    gaps: Vec<Option<f64>>,
     times: Vec<f64>,
     iterations: Vec<f64>,
-    limits: usize,
+    /// Answers at the iteration limit whose plan is clear.
+    limits_clear: usize,
+    /// Depths of the answers whose plan is predicted inside a cylinder, by status name.
+    inside: Vec<(&'static str, f64)>,
 }
 
 fn solver(value: &str) -> Result<PanocSolver, String> {
     PanocSolver::parse(value).ok_or_else(|| format!("`{value}`: open or own"))
 }
 
+/// The predicted points of the last solve inside a cylinder: `scenario:step depth` each.
+fn inside_points(m: &Mpc) -> String {
+    let obstacles = &m.definition().obstacles;
+    let mut out = Vec::new();
+    for (i, p) in m.predictions().iter().enumerate() {
+        for (j, x) in p.iter().enumerate().skip(1) {
+            let (c, _) = mav::geometry::min_clearance(obstacles, x[0], x[1], x[2]);
+            if c < -INSIDE_TOLERANCE_M {
+                out.push(format!("{i}:{j} {:.3}", -c));
+            }
+        }
+    }
+    out.join(", ")
+}
+
+/// A careful solve's (clearance, cost) from `start`.
+fn reference_solve(
+    def: &OcpDefinition,
+    settings: &mpc::MpcSettings,
+    i: &accuracy::Instance,
+    start: &[f64],
+) -> anyhow::Result<(f64, f64)> {
+    let mut r = Mpc::new(def.clone(), accuracy::reference_settings(settings))?;
+    r.set_warm_start(start)?;
+    let rep = r.solve(&i.x0, &i.u_prev, &i.weights, &SolveBudget::default())?;
+    Ok((rep.min_clearance_m, rep.cost))
+}
+
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let stride = args.stride.max(1);
     let base = args.mpc.settings();
+    let margin = args.obstacle_margin_m.unwrap_or(base.obstacle_margin_m);
+    let cold = mpc::MpcSettings { obstacle_margin_m: margin, ..base };
     let mut lines = args.lines.as_ref().map(std::fs::File::create).transpose()?;
+    println!(
+        "cold solves: margin {margin} m; states from {} loops, every {stride}th",
+        args.log_solver.name()
+    );
     for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
         if args.mode.is_some_and(|m| m != mode) {
             continue;
         }
-        // Per solver: gaps, times (ms), iterations, solves at the iteration limit.
         let solvers = [PanocSolver::OpEn, PanocSolver::Own];
         let mut stats: Vec<Stats> = solvers.iter().map(|_| Stats::default()).collect();
+        let mut no_clear_known = 0;
         for name in mav::Scenario::BUILT_IN {
+            if args.scenario.as_deref().is_some_and(|s| s != name) {
+                continue;
+            }
             let scenario = mav::Scenario::by_name(name)?;
-            let def = OcpDefinition::from_scenario(&scenario, mode, base.obstacle_margin_m, base.formulation);
-            let logged = mpc::MpcSettings { solver: args.log_solver, ..base };
+            let mut cold_scenario = scenario.clone();
+            cold_scenario.obstacle_margin_m = Some(margin);
+            let def = OcpDefinition::from_scenario(&cold_scenario, mode, margin, cold.formulation);
+            // The loops fly paper mode: the default settings but for the solver.
+            let logged = mpc::MpcSettings { solver: args.log_solver, ..mpc::MpcSettings::default() };
             let solves = accuracy::loop_solves(&scenario, mode, &logged)?;
             for (k, ls) in solves.iter().enumerate().step_by(stride) {
                 let i = &ls.instance;
@@ -71,53 +132,101 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                     let rows: Vec<&[f64]> = i.warm_start.chunks(3).collect();
                     let line = serde_json::json!({
                         "scenario": name, "mode": mode.name(), "x0": i.x0, "u_prev": i.u_prev,
-                        "weights": i.weights, "warm_start": rows,
+                        "weights": i.weights, "warm_start": rows, "obstacle_margin_m": margin,
                     });
                     writeln!(f, "{line}")?;
                 }
-                let mut plans = Vec::new();
-                let mut costs = Vec::new();
-                for (si, &solver) in solvers.iter().enumerate() {
-                    let settings = mpc::MpcSettings { solver, ..base };
+                let mut answers = Vec::new();
+                for &solver in &solvers {
+                    let settings = mpc::MpcSettings { solver, ..cold };
                     let mut m = Mpc::new(def.clone(), settings)?;
                     m.reset_warm_start();
                     m.set_warm_start(&i.warm_start)?;
                     let r = m.solve(&i.x0, &i.u_prev, &i.weights, &SolveBudget::default())?;
-                    stats[si].times.push(r.solve_time.as_secs_f64() * 1e3);
-                    stats[si].iterations.push(r.iterations as f64);
-                    if r.status == SolveStatus::IterationLimit {
-                        stats[si].limits += 1;
+                    if args.verbose && r.min_clearance_m < -INSIDE_TOLERANCE_M {
+                        println!("    {} inside: {}", solver.name(), inside_points(&m));
                     }
-                    costs.push(r.cost);
-                    plans.push(m.solution().to_vec());
+                    answers.push((r, m.solution().to_vec()));
                 }
-                let mut starts: Vec<&[f64]> = vec![&i.warm_start];
-                starts.extend(plans.iter().map(Vec::as_slice));
-                let reference = accuracy::reference_cost(&def, &base, i, &starts)?;
-                for (si, cost) in costs.iter().enumerate() {
-                    let gap = (cost - reference) / reference.abs().max(1e-12);
-                    stats[si].gaps.push(gap);
-                    if gap > 0.01 {
-                        println!("  {name} {} cycle {k} {}: gap {gap:.3}", mode.name(), solvers[si].name());
+                let mut candidates: Vec<(f64, f64)> =
+                    answers.iter().map(|(r, _)| (r.min_clearance_m, r.cost)).collect();
+                candidates.push(reference_solve(&def, &cold, i, &i.warm_start)?);
+                for (_, plan) in &answers {
+                    candidates.push(reference_solve(&def, &cold, i, plan)?);
+                }
+                let best = candidates
+                    .iter()
+                    .filter(|(clearance, _)| *clearance >= -INSIDE_TOLERANCE_M)
+                    .map(|(_, cost)| *cost)
+                    .fold(f64::INFINITY, f64::min);
+                if !best.is_finite() {
+                    no_clear_known += 1;
+                    if args.verbose {
+                        println!(
+                            "  {name} {} cycle {k}: no clear plan known; (clearance, cost) {candidates:.4?}",
+                            mode.name()
+                        );
+                    }
+                }
+                for (si, (r, _)) in answers.iter().enumerate() {
+                    let s = &mut stats[si];
+                    s.times.push(r.solve_time.as_secs_f64() * 1e3);
+                    s.iterations.push(r.iterations as f64);
+                    let clear = r.min_clearance_m >= -INSIDE_TOLERANCE_M;
+                    if !clear {
+                        s.inside.push((r.status.name(), -r.min_clearance_m));
+                    } else if r.status == SolveStatus::IterationLimit {
+                        s.limits_clear += 1;
+                    }
+                    let gap = (clear && best.is_finite()).then(|| (r.cost - best) / best.abs().max(1e-12));
+                    s.gaps.push(gap);
+                    let miss = gap.is_none_or(|g| g > 0.01);
+                    if args.verbose || miss {
+                        println!(
+                            "  {name} {} cycle {k} {}: {} {} it., cost {:.4} (best {best:.4}), gap {}, clearance {:+.4} m",
+                            mode.name(),
+                            solvers[si].name(),
+                            r.status.name(),
+                            r.iterations,
+                            r.cost,
+                            gap.map_or("-".to_string(), |g| format!("{g:.4}")),
+                            r.min_clearance_m,
+                        );
                     }
                 }
             }
         }
-        for (si, Stats { gaps, times, iterations: iters, limits }) in stats.iter_mut().enumerate() {
-            let within = gaps.iter().filter(|g| **g <= 0.01).count();
+        let n = stats[0].gaps.len();
+        println!("{} cold, {n} states ({no_clear_known} with no clear plan known):", mode.name());
+        for (si, s) in stats.iter().enumerate() {
+            let within = s.gaps.iter().filter(|g| g.is_some_and(|g| g <= 0.01)).count();
+            let mut depths: Vec<f64> = s.inside.iter().map(|(_, d)| *d).collect();
+            let statuses: std::collections::BTreeMap<&str, usize> =
+                s.inside.iter().fold(Default::default(), |mut m, (st, _)| {
+                    *m.entry(*st).or_default() += 1;
+                    m
+                });
             println!(
-                "{} fresh, {}: {within}/{} within 1%; ms median {:.3} p99 {:.3} max {:.3}; iterations median {} p99 {} total {}; at the iteration limit {limits}",
-                mode.name(),
+                "  {:4}: {within}/{n} within 1% with a clear plan; ms median {:.3} total {:.1}; iterations median {} total {}; at the limit and clear {}; inside a cylinder {} {:?} (depth max {:.4} m, median {:.4} m)",
                 solvers[si].name(),
-                gaps.len(),
-                percentile(&mut times.clone(), 50.0),
-                percentile(&mut times.clone(), 99.0),
-                percentile(times, 100.0),
-                percentile(&mut iters.clone(), 50.0),
-                percentile(&mut iters.clone(), 99.0),
-                iters.iter().sum::<f64>(),
+                percentile(&mut s.times.clone(), 50.0),
+                s.times.iter().sum::<f64>(),
+                percentile(&mut s.iterations.clone(), 50.0),
+                s.iterations.iter().sum::<f64>(),
+                s.limits_clear,
+                s.inside.len(),
+                statuses,
+                percentile(&mut depths.clone(), 100.0),
+                percentile(&mut depths, 50.0),
             );
         }
+        let ratio = |f: &dyn Fn(&Stats) -> f64| f(&stats[1]) / f(&stats[0]);
+        println!(
+            "  own / open: median time {:.2}, total time {:.2}, total iterations {:.2}",
+            ratio(&|s| percentile(&mut s.times.clone(), 50.0)),
+            ratio(&|s| s.times.iter().sum::<f64>()),
+            ratio(&|s| s.iterations.iter().sum::<f64>()),
+        );
     }
     Ok(())
 }

@@ -47,6 +47,6 @@ pub use qp::{QpBudget, QpFallback, QpReport, QpSettings, QpStatus};
 pub use record::{CycleRecord, PredictedPath, RunOutcome, RunSummary, SolveStats, summarize};
 pub use safety::{Decision, QpSchedule, Rejection, SafetyLayer, SafetySettings, Selection};
 pub use solver::{
-    InactiveSetTolerances, Mpc, MpcSettings, PanocSolver, SolveBudget, SolveReport, SolveStatus,
-    shift_plan_into, shifted_plan,
+    INSIDE_TOLERANCE_M, InactiveSetTolerances, Mpc, MpcSettings, PanocSolver, SolveBudget, SolveReport,
+    SolveStatus, shift_plan_into, shifted_plan,
 };

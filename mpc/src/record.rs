@@ -189,8 +189,11 @@ pub struct RunSummary {
     /// QP cost minus PANOC cost on the nonlinear model, over the cycles where both were
     /// evaluated (positive: PANOC's plan is cheaper).
     pub cost_gap: GapSummary,
-    /// Cycles that stopped at the iteration limit.
+    /// Cycles that stopped at the iteration limit, their plans clear or not.
     pub iteration_limits: u64,
+    /// Of `iteration_limits`, the cycles whose plan was predicted inside a cylinder
+    /// ([`SolveStatus::InfeasibleAtLimit`]).
+    pub infeasible_at_limit: u64,
     pub final_position_m: [f64; 3],
     /// The plant's last state (position, velocity, roll, pitch): where the MCAP log's last
     /// pose comes from. Not a `summary.json` key (`final_position_m` is).
@@ -396,9 +399,12 @@ pub fn explain(records: &[CycleRecord], last: &PlantSample, reached: bool) -> Ve
             r.reason
         ));
     }
-    let limits = records.iter().filter(|r| r.solve.status == SolveStatus::IterationLimit).count();
+    let limits = records.iter().filter(|r| r.solve.status.at_iteration_limit()).count();
     if limits > 0 && (2 * limits >= cycles || !reached || last.collided) {
-        out.push(format!("{limits} of {cycles} solves stopped at the iteration limit"));
+        let inside = records.iter().filter(|r| r.solve.status == SolveStatus::InfeasibleAtLimit).count();
+        let of_them =
+            if inside > 0 { format!(", {inside} with plans inside a cylinder") } else { String::new() };
+        out.push(format!("{limits} of {cycles} solves stopped at the iteration limit{of_them}"));
     }
     let numerical = records.iter().filter(|r| r.solve.status == SolveStatus::NumericalFailure).count();
     if numerical > 0 {
@@ -466,8 +472,11 @@ pub fn summarize(
         best_effort_cycles: records.iter().filter(|r| r.best_effort).count() as u64,
         explanation: explain(records, last, time_to_goal_ns.is_some()),
         cost_gap: GapSummary::of(&records.iter().filter_map(|r| r.cost_gap).collect::<Vec<_>>()),
-        iteration_limits: records.iter().filter(|r| r.solve.status == SolveStatus::IterationLimit).count()
-            as u64,
+        iteration_limits: records.iter().filter(|r| r.solve.status.at_iteration_limit()).count() as u64,
+        infeasible_at_limit: records
+            .iter()
+            .filter(|r| r.solve.status == SolveStatus::InfeasibleAtLimit)
+            .count() as u64,
         final_position_m: [x[0], x[1], x[2]],
         final_state: last.state.into(),
         collisions: last
@@ -520,6 +529,28 @@ mod tests {
             cost_gap: None,
             predictions: vec![],
         }
+    }
+
+    #[test]
+    fn solves_at_the_limit_inside_a_cylinder_are_counted_apart_and_among_the_iteration_limits() {
+        let mut records: Vec<CycleRecord> = (0..6).map(|k| cycle(k, 0.0, [9.81, 0.0, 0.0])).collect();
+        records[1].solve.status = SolveStatus::IterationLimit;
+        records[2].solve.status = SolveStatus::InfeasibleAtLimit;
+        records[2].solve.min_clearance_m = -0.04;
+        records[3].solve.status = SolveStatus::InfeasibleAtLimit;
+        records[4].solve.status = SolveStatus::Deadline;
+        let scenario = mav::Scenario::paper_1();
+        let mut last = mav::PlantSim::new(&scenario, mav::SimSettings::default()).expect("valid").sample();
+        last.path_length_m = 1.0;
+        let s = summarize("paper-1", ControllerMode::Multistage, &records, &last, RunEnd::TimeLimit);
+        assert_eq!((s.iteration_limits, s.infeasible_at_limit), (3, 2));
+        assert!(
+            s.explanation
+                .iter()
+                .any(|e| e == "3 of 6 solves stopped at the iteration limit, 2 with plans inside a cylinder"),
+            "{:?}",
+            s.explanation
+        );
     }
 
     #[test]

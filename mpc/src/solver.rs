@@ -23,7 +23,7 @@ use crate::error::MpcError;
 use crate::problem::{Evaluator, ObstacleFormulation, OcpDefinition, validate_instance};
 
 use alm::AlmRun;
-pub use report::{SolveReport, SolveStatus};
+pub use report::{INSIDE_TOLERANCE_M, SolveReport, SolveStatus};
 pub use settings::{InactiveSetTolerances, MAX_MULTIPLIER, MpcSettings, PanocSolver, SolveBudget};
 pub use warm_start::{shift_plan_into, shifted_plan};
 
@@ -163,6 +163,7 @@ impl Mpc {
             *u = u.clamp(self.def.bounds.min[k % 3], self.def.bounds.max[k % 3]);
         }
         let (cost, violation, min_clearance_m) = self.evaluate_solution();
+        let status = status.with_clearance(min_clearance_m);
         if status != SolveStatus::NumericalFailure {
             // Keep the penalty that was needed (warm start of the outer loop); relax it
             // when no predicted point enters an inflated cylinder any more.

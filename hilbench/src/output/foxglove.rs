@@ -129,7 +129,8 @@ pub struct SafetyMsg {
     /// Why (empty when the layer is off).
     pub reason: String,
     pub fallback: bool,
-    /// PANOC's status: `converged`, `iteration_limit`, `deadline`, `numerical_failure`.
+    /// PANOC's status: `converged`, `iteration_limit`, `infeasible_at_limit`, `deadline`,
+    /// `numerical_failure`.
     pub status: String,
     pub iterations: u64,
     pub solve_ms: f64,

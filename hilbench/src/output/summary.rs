@@ -100,6 +100,8 @@ pub fn run_json(r: &RunSummary) -> serde_json::Value {
         "cycles": r.cycles,
         "solve_ms": { "mean": r.solve_ms_mean, "median": r.solve_ms_median, "p95": r.solve_ms_p95, "max": r.solve_ms_max },
         "iterations_median": r.iterations_median,
+        "iteration_limits": r.iteration_limits,
+        "infeasible_at_limit": r.infeasible_at_limit,
         "fallbacks": r.fallbacks,
         "decisions": r.decisions,
         "best_effort_cycles": r.best_effort_cycles,

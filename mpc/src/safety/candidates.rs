@@ -92,7 +92,11 @@ impl SafetyLayer {
             Ok((u, status)) => {
                 let status_ok = match status {
                     SolveStatus::Converged => true,
-                    SolveStatus::IterationLimit => self.settings.accept_iteration_limit,
+                    // A plan inside a cylinder is judged by the same check as any other (which
+                    // rejects it under the plan check; the fail-safe check judges its command).
+                    SolveStatus::IterationLimit | SolveStatus::InfeasibleAtLimit => {
+                        self.settings.accept_iteration_limit
+                    }
                     SolveStatus::Deadline => self.settings.accept_deadline,
                     SolveStatus::NumericalFailure => false,
                 };

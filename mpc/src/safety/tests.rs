@@ -62,7 +62,8 @@ fn panoc_forced_to_fail_hands_over_to_the_qp() {
     let mut layer = SafetyLayer::new(&def, safety).expect("valid");
     let budget = SolveBudget { max_inner_iterations: Some(1), deadline: None };
     let r = mpc.solve(&s.start, &HOVER, &W5, &budget).expect("valid");
-    assert_eq!(r.status, SolveStatus::IterationLimit);
+    // One iteration from hover leaves the long scenarios' plans inside the cylinders.
+    assert_eq!(r.status, SolveStatus::InfeasibleAtLimit, "{r:?}");
     let sel = layer.select(&s.start, &HOVER, &W5, &mpc, &r);
     assert_eq!(sel.decision, Decision::Qp, "{}", sel.reason());
     assert!(matches!(sel.panoc.rejection, Some(Rejection::PanocStatus { .. })));

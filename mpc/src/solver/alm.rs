@@ -11,7 +11,7 @@ use optimization_engine::core::ExitStatus;
 use optimization_engine::{FunctionCallResult, SolverError};
 
 use super::panoc::{PanocStatus, SmoothCost};
-use super::{InactiveSetTolerances, Mpc, PanocSolver, SolveBudget, SolveStatus};
+use super::{INSIDE_TOLERANCE_M, InactiveSetTolerances, Mpc, PanocSolver, SolveBudget, SolveStatus};
 use crate::problem::{Evaluator, ObstacleFormulation};
 
 /// The inner problem of our ALM/PM: `ψ(z; c, y)` of the evaluator (see [`Evaluator::cost`]).
@@ -118,14 +118,21 @@ impl Mpc {
             };
             iterations += step.inner_iterations;
             elapsed += step.solve_time;
+            // A plan predicted inside a cylinder's true surface is not a solution, however small
+            // the violation the tolerance lets through (with a margin below the constraint
+            // tolerance, or multipliers at their cap): the loop goes on, the penalty raised.
+            let mut inside = false;
             if let Some(end) = step.verdict(s.constraint_tolerance) {
-                status = end;
-                break;
+                inside = end == SolveStatus::Converged && nc > 0 && self.plan_inside_obstacle();
+                if !inside {
+                    status = end;
+                    break;
+                }
             }
             if nc == 0 {
                 break;
             }
-            if step.violation > 0.1 * previous_violation {
+            if inside || step.violation > 0.1 * previous_violation {
                 c = (c * s.penalty_update_factor).min(s.max_penalty);
             }
             previous_violation = step.violation;
@@ -141,6 +148,19 @@ impl Mpc {
             self.evaluator.borrow().to_inputs(&self.z, &mut self.solution);
         }
         AlmRun { status, iterations, outer_iterations: outer, elapsed, penalty: c }
+    }
+
+    /// Whether a predicted point (after the first) of a scenario at `self.z` lies more than
+    /// [`INSIDE_TOLERANCE_M`] inside a cylinder's true surface (no margin). One forward pass,
+    /// none when the evaluator is already at `self.z`.
+    fn plan_inside_obstacle(&mut self) -> bool {
+        let mut ev = self.evaluator.borrow_mut();
+        ev.objective(&self.z);
+        (0..ev.num_scenarios()).any(|i| {
+            ev.predicted_states(i)[1..].iter().any(|x| {
+                mav::geometry::min_clearance(&self.def.obstacles, x[0], x[1], x[2]).0 < -INSIDE_TOLERANCE_M
+            })
+        })
     }
 
     /// Sets the cycle's instance in the evaluator and scales the warm start for penalty `c`.

@@ -101,7 +101,10 @@ fn the_iteration_budget_is_respected_and_reported() {
     let mut mpc = mpc_for(&s, ControllerMode::Multistage, settings);
     let budget = SolveBudget { max_inner_iterations: Some(2), deadline: None };
     let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &budget).expect("valid");
-    assert_eq!(r.status, SolveStatus::IterationLimit);
+    // Two iterations from hover: the long scenarios' plans still cross paper-1's cylinder, and
+    // the status says so.
+    assert_eq!(r.status, SolveStatus::InfeasibleAtLimit, "{r:?}");
+    assert!(r.depth_m() > 0.0 && r.depth_m() == -r.min_clearance_m, "{r:?}");
     assert!(r.iterations <= 2);
     assert!(s.bounds.contains(&mav::Input::from(mpc.first_input())));
 }
@@ -423,5 +426,87 @@ fn each_panoc_stops_at_its_own_default_budget_on_a_state_that_needs_more() {
         let given = SolveBudget { max_inner_iterations: Some(7), deadline: None };
         let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &weights, &given).expect("valid");
         assert!(r.iterations <= 7, "{solver:?}: {r:?}");
+    }
+}
+
+#[test]
+fn an_answer_whose_plan_is_inside_a_cylinder_says_so_and_never_converged_or_iteration_limit() {
+    // The paper's exact problem (no margin) from hover at paper-1's start and from a paper-2
+    // state flying at the first cylinder, at budgets from 1 to the default: every answer's
+    // plan is predicted clear, or its status is `InfeasibleAtLimit` with the depth.
+    let p1 = Scenario::paper_1();
+    let p2 = Scenario::paper_2();
+    let moving = [3.3, 0.6, 0.6, 0.0, 0.9, 0.3, 0.0, 0.05];
+    let mut seen_inside = 0;
+    for solver in [PanocSolver::OpEn, PanocSolver::Own] {
+        let settings = MpcSettings { solver, obstacle_margin_m: 0.0, ..MpcSettings::default() };
+        for (s, x0) in [(&p1, p1.start), (&p2, moving)] {
+            for budget in [1, 2, 5, 20, 60, settings.inner_budget()] {
+                let mut mpc = mpc_for(s, ControllerMode::Multistage, settings);
+                let b = SolveBudget { max_inner_iterations: Some(budget), deadline: None };
+                let r = mpc.solve(&x0, &[9.81, 0.0, 0.0], &W5, &b).expect("valid");
+                let deepest = mpc
+                    .predictions()
+                    .iter()
+                    .flat_map(|p| p[1..].to_vec())
+                    .map(|x| mav::geometry::min_clearance(&s.obstacles, x[0], x[1], x[2]).0)
+                    .fold(f64::INFINITY, f64::min);
+                assert_eq!(deepest.to_bits(), r.min_clearance_m.to_bits(), "{solver:?} {budget}");
+                let inside = deepest < -INSIDE_TOLERANCE_M;
+                assert_eq!(r.status == SolveStatus::InfeasibleAtLimit, inside, "{solver:?} {budget}: {r:?}");
+                if inside {
+                    seen_inside += 1;
+                    assert!(r.depth_m() > INSIDE_TOLERANCE_M, "{r:?}");
+                    assert!(r.status.at_iteration_limit());
+                } else {
+                    assert_eq!(r.depth_m(), 0.0, "{r:?}");
+                }
+            }
+        }
+    }
+    assert!(seen_inside > 0, "the sample must hold plans inside a cylinder");
+}
+
+#[test]
+fn only_an_iteration_limit_on_a_plan_inside_becomes_infeasible_at_limit() {
+    let inside = -0.05;
+    assert_eq!(SolveStatus::IterationLimit.with_clearance(inside), SolveStatus::InfeasibleAtLimit);
+    assert_eq!(SolveStatus::IterationLimit.with_clearance(0.3), SolveStatus::IterationLimit);
+    assert_eq!(
+        SolveStatus::IterationLimit.with_clearance(-0.5 * INSIDE_TOLERANCE_M),
+        SolveStatus::IterationLimit
+    );
+    assert_eq!(SolveStatus::IterationLimit.with_clearance(f64::INFINITY), SolveStatus::IterationLimit);
+    for s in [SolveStatus::Converged, SolveStatus::Deadline, SolveStatus::NumericalFailure] {
+        assert_eq!(s.with_clearance(inside), s);
+    }
+    let names: Vec<&str> = SolveStatus::ALL.iter().map(|s| s.name()).collect();
+    assert_eq!(
+        names,
+        ["converged", "iteration_limit", "infeasible_at_limit", "deadline", "numerical_failure"]
+    );
+    assert!(
+        SolveStatus::InfeasibleAtLimit.at_iteration_limit()
+            && SolveStatus::IterationLimit.at_iteration_limit()
+    );
+    assert!(!SolveStatus::Converged.at_iteration_limit() && !SolveStatus::Deadline.at_iteration_limit());
+}
+
+#[test]
+fn a_converged_answer_is_clear_even_without_a_margin() {
+    // With no margin the constraint tolerance alone would let a converged plan sit up to 2 cm
+    // inside a cylinder; such a plan is not a solution and the solve goes on.
+    let s = Scenario::paper_2();
+    let moving = [3.3, 0.6, 0.6, 0.0, 0.9, 0.3, 0.0, 0.05];
+    for solver in [PanocSolver::OpEn, PanocSolver::Own] {
+        let settings = MpcSettings { solver, obstacle_margin_m: 0.0, ..MpcSettings::default() };
+        let mut mpc = mpc_for(&s, ControllerMode::Multistage, settings);
+        let b = SolveBudget { max_inner_iterations: Some(100_000), deadline: None };
+        let r = mpc.solve(&moving, &[9.81, 0.0, 0.0], &W5, &b).expect("valid");
+        if r.status == SolveStatus::Converged {
+            assert!(r.min_clearance_m >= -INSIDE_TOLERANCE_M, "{solver:?}: {r:?}");
+        } else {
+            assert_eq!(r.status, SolveStatus::InfeasibleAtLimit, "{solver:?}: {r:?}");
+        }
     }
 }

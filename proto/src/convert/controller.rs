@@ -72,6 +72,7 @@ impl From<SolveStatus> for pb::SolveStatus {
         match s {
             SolveStatus::Converged => Self::Converged,
             SolveStatus::IterationLimit => Self::IterationLimit,
+            SolveStatus::InfeasibleAtLimit => Self::InfeasibleAtLimit,
             SolveStatus::Deadline => Self::Deadline,
             SolveStatus::NumericalFailure => Self::NumericalFailure,
         }
@@ -83,6 +84,7 @@ pub fn solve_status_from_pb(field: &str, code: i32) -> Result<SolveStatus, Field
     match pb::SolveStatus::try_from(code) {
         Ok(pb::SolveStatus::Converged) => Ok(SolveStatus::Converged),
         Ok(pb::SolveStatus::IterationLimit) => Ok(SolveStatus::IterationLimit),
+        Ok(pb::SolveStatus::InfeasibleAtLimit) => Ok(SolveStatus::InfeasibleAtLimit),
         Ok(pb::SolveStatus::Deadline) => Ok(SolveStatus::Deadline),
         Ok(pb::SolveStatus::NumericalFailure) => Ok(SolveStatus::NumericalFailure),
         _ => Err(FieldError::new(field, format!("unknown solve status {code}"))),
@@ -279,6 +281,17 @@ mod tests {
         assert_eq!(goal_from_pb(&short).map_err(|e| e.field), Err("goal_m".to_string()));
         let far = pb::SetGoalRequest { goal_m: vec![1.0, 2.0, 1e9] };
         assert_eq!(goal_from_pb(&far).map_err(|e| e.field), Err("goal_m[2]".to_string()));
+    }
+
+    #[test]
+    fn every_solve_status_crosses_the_wire_and_back_and_an_unknown_one_is_refused() {
+        for status in SolveStatus::ALL {
+            let code = pb::SolveStatus::from(status) as i32;
+            assert_eq!(solve_status_from_pb("status", code), Ok(status));
+        }
+        assert_eq!(pb::SolveStatus::from(SolveStatus::InfeasibleAtLimit), pb::SolveStatus::InfeasibleAtLimit);
+        assert!(solve_status_from_pb("status", 0).is_err());
+        assert!(solve_status_from_pb("status", 99).is_err());
     }
 
     #[test]
