@@ -523,6 +523,7 @@ impl pb::plant_server::Plant for Proxy {
     async fn step(&self, request: Request<pb::StepRequest>) -> Result<Response<pb::AdvanceResponse>, Status> {
         let req = request.into_inner();
         if let Some(c) = &req.command {
+            hilbench_svc::inject_panic("netem-command");
             check_command("command", c).map_err(Status::from)?;
         }
         let mode = self.shared.mode().await?;
