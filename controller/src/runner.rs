@@ -1,8 +1,9 @@
 //! The control loop: a Plant API client running `docs/spec.md`'s cycle.
 //!
-//! Lockstep (the controller drives plant time): at `t_k` it solves from the sample, sends the
-//! command, and asks for `Advance(min_cycle, wait_for_command_seq = k)`, so the next sample
-//! comes at `t_k + max(min_cycle, d_k)` whatever sits between it and the plant. Real time:
+//! Lockstep (the controller drives plant time): at `t_k` it solves from the sample and sends
+//! the command with the cycle's advance in one call, `Step(command, min_cycle,
+//! wait_for_command_seq = k)`, so the next sample comes at `t_k + max(min_cycle, d_k)`
+//! whatever sits between it and the plant. Real time:
 //! one cycle every `min_cycle` of wall time, from the freshest sample, with a solve deadline.
 //!
 //! The cycle itself (delay measured from the sample's stamps, weights, solve, safety layer,
@@ -464,6 +465,13 @@ async fn within<T>(
 
 /// The delay netem stamped on a command it did not drop (`netem-command-delay-ns`), s; `None`
 /// without netem's stamps or for a dropped command.
+/// The answer to a cycle's command: lockstep's `Step` (with the next sample) or real time's
+/// `ApplyCommand`.
+enum Answer {
+    Step(tonic::Response<pb::AdvanceResponse>),
+    Command(tonic::Response<pb::ApplyCommandResponse>),
+}
+
 fn injected_delay_s(md: &tonic::metadata::MetadataMap) -> Option<f64> {
     let text = |key: &str| md.get(key).and_then(|v| v.to_str().ok());
     if text("netem-command-outcome")? == "dropped" {
@@ -599,9 +607,23 @@ async fn fly(
         }
         let mut out = flight.episode.on_sample(&sample, &timing).map_err(episode_error)?;
         let command = pb::Command::from(&Command { input: out.record.command.into(), meta: out.meta });
-        let answer = match tokio::time::timeout(call_timeout, client.apply_command(command)).await {
+        // Lockstep: one call per cycle, `Step` (the command, then the cycle's advance, to the
+        // command's release at least: `wait_for_command_seq`, and the next sample), which the
+        // plant and netem run as `ApplyCommand` then `Advance`. Real time: the command alone.
+        let (call, answer) = if lockstep {
+            let step = pb::StepRequest {
+                command: Some(command),
+                duration_ns: flight.episode.min_cycle_ns(),
+                wait_for_command_seq: flight.episode.commands_sent(),
+            };
+            ("Step", tokio::time::timeout(call_timeout, client.step(step)).await.map(|a| a.map(Answer::Step)))
+        } else {
+            let answer = tokio::time::timeout(call_timeout, client.apply_command(command)).await;
+            ("ApplyCommand", answer.map(|a| a.map(Answer::Command)))
+        };
+        let answer = match answer {
             Ok(answer) => answer.map_err(LoopError::from),
-            Err(_) => Err(LoopError::Timeout { call: "ApplyCommand", after: call_timeout }),
+            Err(_) => Err(LoopError::Timeout { call, after: call_timeout }),
         };
         // The cycle happened (it was solved and its command numbered) whether or not the
         // command got through: its telemetry is published either way, so that the record of
@@ -613,15 +635,15 @@ async fn fly(
                 return Err(e);
             }
         };
-        out.record.injected_delay_s = injected_delay_s(answer.metadata());
+        let metadata = match &answer {
+            Answer::Step(r) => r.metadata(),
+            Answer::Command(r) => r.metadata(),
+        };
+        out.record.injected_delay_s = injected_delay_s(metadata);
         shared.link_answered(!lockstep);
         publish(shared, flight, &wire_sample, out);
-        if lockstep {
-            let advance = pb::AdvanceRequest {
-                duration_ns: flight.episode.min_cycle_ns(),
-                wait_for_command_seq: flight.episode.commands_sent(),
-            };
-            flight.pending_sample = within(call_timeout, "Advance", client.advance(advance)).await?.sample;
+        if let Answer::Step(r) = answer {
+            flight.pending_sample = r.into_inner().sample;
         } else {
             let next = cycle_start + min_cycle;
             tokio::select! {

@@ -530,6 +530,7 @@ impl pb::plant_server::Plant for Proxy {
     async fn step(&self, request: Request<pb::StepRequest>) -> Result<Response<pb::AdvanceResponse>, Status> {
         let req = request.into_inner();
         if let Some(c) = &req.command {
+            hilbench_svc::inject_panic("netem-command");
             check_command("command", c).map_err(|e| self.refused_invalid(e))?;
         }
         let mode = self.shared.mode().await?;

@@ -448,6 +448,9 @@ impl pb::plant_server::Plant for PlantService {
 
     async fn step(&self, request: Request<pb::StepRequest>) -> Result<Response<pb::AdvanceResponse>, Status> {
         let step = Step::try_from(request.get_ref())?;
+        if step.command.is_some() {
+            hilbench_svc::inject_panic("plant-command");
+        }
         if step.duration_ns > 0 {
             self.refuse_in_real_time("Step")?;
         }
