@@ -75,6 +75,15 @@ pub struct MpcFlags {
     /// The same, standard NMPC.
     #[arg(long, env = "MPC_NMPC_GAP_TOL")]
     pub nmpc_cost_gap_tolerance: Option<f64>,
+    /// Our PANOC: restoration iterations at the limit with a plan inside (0: none).
+    #[arg(long, env = "MPC_RESTORE_IT")]
+    pub restoration_iterations: Option<usize>,
+    /// Our PANOC: the restoration's penalty.
+    #[arg(long, env = "MPC_RESTORE_C")]
+    pub restoration_penalty: Option<f64>,
+    /// Our PANOC: the restoration's shift outwards, m.
+    #[arg(long, env = "MPC_RESTORE_SHIFT")]
+    pub restoration_shift_m: Option<f64>,
     /// Multi-stage inactive-set tolerances: `measured` or `TOL,AKKT,GRAD`.
     #[arg(long, env = "MPC_INACTIVE", value_parser = inactive_set)]
     pub inactive_set: Option<InactiveSetTolerances>,
@@ -116,6 +125,9 @@ impl MpcFlags {
             single_scenario_cost_gap_tolerance: self
                 .nmpc_cost_gap_tolerance
                 .unwrap_or(d.single_scenario_cost_gap_tolerance),
+            restoration_iterations: self.restoration_iterations.unwrap_or(d.restoration_iterations),
+            restoration_penalty: self.restoration_penalty.unwrap_or(d.restoration_penalty),
+            restoration_shift_m: self.restoration_shift_m.unwrap_or(d.restoration_shift_m),
             ..d
         }
     }

@@ -61,6 +61,9 @@ pub struct Mpc {
     /// Our PANOC's workspace ([`PanocSolver::Own`]); its Lipschitz estimate carries across
     /// outer iterations and cycles.
     panoc: panoc::Panoc,
+    /// The restoration phase's shifted multipliers and the iterate it started from.
+    restoration_multipliers: Vec<f64>,
+    restoration_z: Vec<f64>,
 }
 
 impl Mpc {
@@ -110,6 +113,8 @@ impl Mpc {
             has_solution: false,
             penalty: settings.initial_penalty,
             panoc: panoc::Panoc::new(n, lbfgs_memory),
+            restoration_multipliers: vec![0.0; n1],
+            restoration_z: vec![0.0; n],
             def,
         })
     }

@@ -96,6 +96,9 @@ impl Mpc {
         let mut c = self.penalty.clamp(s.initial_penalty, s.max_penalty);
         let nc = self.def.num_constraints();
         self.start_instance(x0, u_prev, weights, c);
+        let own_alm = s.solver == PanocSolver::Own
+            && self.def.formulation == ObstacleFormulation::DistanceAlm
+            && nc > 0;
         // A budget of zero runs no iteration: the warm start comes back with `IterationLimit`.
         let max_total = budget.max_inner_iterations.unwrap_or(s.inner_budget());
         let mut iterations = 0;
@@ -140,6 +143,15 @@ impl Mpc {
                 self.rescale_at_solution(c);
             }
         }
+        if own_alm
+            && status == SolveStatus::IterationLimit
+            && s.restoration_iterations > 0
+            && self.plan_inside_obstacle()
+        {
+            let (its, time) = self.restore_clearance(budget, elapsed);
+            iterations += its;
+            elapsed += time;
+        }
         // A failed OpEn call, or a solution that is not finite: the counts of the work done so
         // far, and the caller falls back to the warm start.
         if status == SolveStatus::NumericalFailure || self.z.iter().any(|v| !v.is_finite()) {
@@ -161,6 +173,44 @@ impl Mpc {
                 mav::geometry::min_clearance(&self.def.obstacles, x[0], x[1], x[2]).0 < -INSIDE_TOLERANCE_M
             })
         })
+    }
+
+    /// The restoration phase ([`MpcSettings::restoration_iterations`]): our PANOC on the
+    /// augmented Lagrangian at the restoration penalty with the constraints shifted outwards,
+    /// from `self.z`; kept only if its plan is clear of the cylinders. Returns the iterations
+    /// and the time it took.
+    fn restore_clearance(&mut self, budget: &SolveBudget, elapsed: Duration) -> (usize, Duration) {
+        let start = Instant::now();
+        let s = self.settings;
+        let Ok(remaining) = time_left(budget, elapsed) else {
+            return (0, Duration::ZERO);
+        };
+        let c = s.restoration_penalty;
+        for (r, y) in self.restoration_multipliers.iter_mut().zip(&self.warm_multipliers) {
+            *r = (y + c * s.restoration_shift_m).min(s.max_multiplier);
+        }
+        self.restoration_z.copy_from_slice(&self.z);
+        let exit = {
+            let mut ev = self.evaluator.borrow_mut();
+            let mut problem = AugmentedLagrangian {
+                evaluator: &mut ev,
+                penalty: c,
+                multipliers: &self.restoration_multipliers,
+            };
+            self.panoc.solve(
+                &mut problem,
+                &mut self.z,
+                &self.lo,
+                &self.hi,
+                s.cost_gap_tolerance_for(self.def.num_scenarios()),
+                s.restoration_iterations,
+                remaining.map(|r| start + r),
+            )
+        };
+        if exit.status == PanocStatus::NotFinite || self.plan_inside_obstacle() {
+            self.z.copy_from_slice(&self.restoration_z);
+        }
+        (exit.iterations, start.elapsed())
     }
 
     /// Sets the cycle's instance in the evaluator and scales the warm start for penalty `c`.

@@ -510,3 +510,26 @@ fn a_converged_answer_is_clear_even_without_a_margin() {
         }
     }
 }
+
+#[test]
+fn our_restoration_phase_clears_a_plan_the_budget_left_inside_a_cylinder() {
+    // paper-1's start, the paper's exact problem (no margin), a cold solve: our PANOC's 100
+    // iterations leave the long scenarios' plans inside the cylinder; the restoration phase
+    // takes them out, and a restoration that cannot is not kept.
+    let s = Scenario::paper_1();
+    let base = MpcSettings { solver: PanocSolver::Own, obstacle_margin_m: 0.0, ..MpcSettings::default() };
+    let solve = |settings: MpcSettings| {
+        let mut mpc = mpc_for(&s, ControllerMode::Multistage, settings);
+        mpc.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &SolveBudget::default()).expect("valid")
+    };
+    let without = solve(MpcSettings { restoration_iterations: 0, ..base });
+    assert_eq!(without.status, SolveStatus::InfeasibleAtLimit, "{without:?}");
+    let with = solve(base);
+    assert_eq!(with.status, SolveStatus::IterationLimit, "{with:?}");
+    assert!(with.min_clearance_m >= 0.0, "{with:?}");
+    assert!(with.iterations > without.iterations && with.iterations <= 100 + base.restoration_iterations);
+    // One restoration iteration cannot clear it: the plan the budget reached comes back.
+    let short = solve(MpcSettings { restoration_iterations: 1, ..base });
+    assert_eq!(short.status, SolveStatus::InfeasibleAtLimit, "{short:?}");
+    assert_eq!(short.cost.to_bits(), without.cost.to_bits());
+}
