@@ -162,19 +162,25 @@ fn the_mcap_of_an_external_run_reads_back_in_python_with_a_pose_state_and_comman
     }
 }
 
-#[test]
-fn a_controller_printing_bytes_that_are_not_utf8_keeps_its_output_pipes_and_reaches_the_goal() {
-    let out = TempDir::new("external-test-noisy");
+/// `hilbench run` of open-field with the example controller run by the test script `wrapper`
+/// (tests/python/), into a new directory named `out`.
+fn fly_wrapped(wrapper: &str, out: &str) -> (Option<i32>, String, serde_json::Value) {
+    let out = TempDir::new(out);
     let file = repo("examples/python-controller/open-field.toml").display().to_string();
-    // The controller under a wrapper that prints invalid UTF-8 to stdout and stderr every
-    // 10 ms, and exits 41 when a write fails (the pipe closed).
     let command = format!(
         "'{}' '{}' '{}'",
         python().display(),
-        hilbench_tests::python::scripts_dir().join("noisy_controller.py").display(),
+        hilbench_tests::python::scripts_dir().join(wrapper).display(),
         repo("examples/python-controller/controller.py").display()
     );
-    let (code, stderr, summary) = hilbench(&["run", &file, "--controller-cmd", &command], &out);
+    hilbench(&["run", &file, "--controller-cmd", &command], &out)
+}
+
+#[test]
+fn a_controller_printing_bytes_that_are_not_utf8_keeps_its_output_pipes_and_reaches_the_goal() {
+    // The controller under a wrapper that prints invalid UTF-8 to stdout and stderr every
+    // 10 ms, and exits 41 when a write fails (the pipe closed).
+    let (code, stderr, summary) = fly_wrapped("noisy_controller.py", "external-test-noisy");
     assert_eq!(code, Some(0), "{stderr}");
     let run = &summary["runs"][0];
     assert_eq!((run["reached"].as_bool(), run["end_reason"].as_str()), (Some(true), Some("reached")));
@@ -183,16 +189,8 @@ fn a_controller_printing_bytes_that_are_not_utf8_keeps_its_output_pipes_and_reac
 
 #[test]
 fn commands_refused_as_invalid_are_counted_in_the_summary_and_explained() {
-    let out = TempDir::new("external-test-invalid");
-    let file = repo("examples/python-controller/open-field.toml").display().to_string();
     // Three NaN commands, each refused to the controller with INVALID_ARGUMENT, then the flight.
-    let command = format!(
-        "'{}' '{}' '{}'",
-        python().display(),
-        hilbench_tests::python::scripts_dir().join("invalid_first_controller.py").display(),
-        repo("examples/python-controller/controller.py").display()
-    );
-    let (code, stderr, summary) = hilbench(&["run", &file, "--controller-cmd", &command], &out);
+    let (code, stderr, summary) = fly_wrapped("invalid_first_controller.py", "external-test-invalid");
     assert_eq!(code, Some(0), "{stderr}");
     let run = &summary["runs"][0];
     assert_eq!(run["reached"], true, "{run:#}");
