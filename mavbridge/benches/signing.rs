@@ -39,14 +39,23 @@ fn bench(c: &mut Criterion) {
         })
     });
 
-    let state = MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA { x: 1.0, y: 2.0, z: -3.0, ..Default::default() });
+    let state = MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA {
+        x: 1.0,
+        y: 2.0,
+        z: -3.0,
+        ..Default::default()
+    });
     let state_extra = MavMessage::extra_crc(state.message_id());
     let mut state_signer = Signer::new(key.clone(), 0);
     let mut stamp = NOW;
     let mut signed_state = || {
         let mut frame = Vec::with_capacity(300);
-        let len = mavlink::write_v2_msg(&mut frame, MavHeader { system_id: 1, component_id: 1, sequence: 0 }, &state)
-            .expect("encodes");
+        let len = mavlink::write_v2_msg(
+            &mut frame,
+            MavHeader { system_id: 1, component_id: 1, sequence: 0 },
+            &state,
+        )
+        .expect("encodes");
         frame.resize(len + 13, 0);
         stamp += 1;
         let n = state_signer.sign(&mut frame, len, state_extra, stamp);
@@ -61,7 +70,8 @@ fn bench(c: &mut Criterion) {
     };
     c.bench_function("state parsed, unsigned", |b| {
         b.iter(|| {
-            let parsed = mavlink::MavlinkReader::new(black_box(&unsigned[..])).read_any_message::<MavMessage>();
+            let parsed =
+                mavlink::MavlinkReader::new(black_box(&unsigned[..])).read_any_message::<MavMessage>();
             black_box(parsed.is_ok())
         })
     });
