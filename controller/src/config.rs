@@ -61,6 +61,10 @@ pub struct ControllerConfig {
     pub max_streams: usize,
     /// TLS of the Controller API and of the link to the plant (default: plaintext both ways).
     pub tls: hilbench_svc::tls::Tls,
+    /// Limits on the server's connections and on the streams one client holds
+    /// (`--max-connections`, `--handshake-timeout-s`, `--idle-timeout-s`,
+    /// `--max-streams-per-client`).
+    pub connections: hilbench_svc::connections::ConnectionLimits,
 }
 
 impl ControllerConfig {
@@ -90,6 +94,7 @@ impl ControllerConfig {
             telemetry_buffer: 4096,
             max_streams: hilbench_svc::streams::DEFAULT_MAX_STREAMS,
             tls: hilbench_svc::tls::Tls::plaintext(),
+            connections: hilbench_svc::connections::ConnectionLimits::default(),
         }
     }
 

@@ -50,13 +50,21 @@ pub async fn serve(
     let shared = runner::Shared::new(&config);
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
     let mut loop_task = tokio::spawn(runner::run(config.clone(), shared.clone(), stop_rx));
-    let service = ControllerService::new(shared.clone(), config.max_streams);
+    let service =
+        ControllerService::new(shared.clone(), config.max_streams, config.connections.max_streams_per_client);
 
     // TCP_NODELAY as every server of the bench: without it, Nagle's algorithm held each small
     // write (a telemetry item, a GetStatus answer) behind the client's delayed ACK, 40 ms on
     // Linux, which was most of `hilbench reproduce`'s wall time over gRPC (BENCHMARKS.md).
-    let server =
-        GrpcServer::new(listener, true, &config.tls, &[ControllerServer::<ControllerService>::NAME]).await?;
+    let server = GrpcServer::new(
+        "controller",
+        listener,
+        true,
+        &config.tls,
+        &config.connections,
+        &[ControllerServer::<ControllerService>::NAME],
+    )
+    .await?;
     let addr = server.addr;
     tracing::info!(%addr, plant = %config.plant, scenario = %config.scenario.name, mode = config.mode.name(), "controller serving");
     let mut loop_failure = None;

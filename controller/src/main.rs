@@ -208,6 +208,7 @@ fn main() -> anyhow::Result<()> {
     config.stall_timeout = std::time::Duration::from_millis(cli.stall_timeout_ms);
     config.max_streams = cli.max_streams;
     config.tls = hilbench_svc::tls::TlsFiles::server_and_client(&cli.server.tls, &cli.trust).load()?;
+    config.connections = cli.server.connections.limits()?;
     config.reset_plant = !cli.no_reset;
     config.autostart = !cli.no_autostart;
     config.time_mode = match cli.time_mode {

@@ -23,9 +23,10 @@ pub struct ControllerService {
 }
 
 impl ControllerService {
-    /// The API over `shared`, serving at most `max_streams` telemetry streams at once.
-    pub fn new(shared: Arc<Shared>, max_streams: usize) -> Self {
-        Self { shared, slots: StreamSlots::new("controller", max_streams) }
+    /// The API over `shared`, serving at most `max_streams` telemetry streams at once,
+    /// `per_client` of them to one client.
+    pub fn new(shared: Arc<Shared>, max_streams: usize, per_client: usize) -> Self {
+        Self { shared, slots: StreamSlots::new("controller", max_streams, per_client) }
     }
 }
 
@@ -70,9 +71,9 @@ impl Controller for ControllerService {
 
     async fn stream_telemetry(
         &self,
-        _: Request<pb::StreamTelemetryRequest>,
+        request: Request<pb::StreamTelemetryRequest>,
     ) -> Result<Response<Self::StreamTelemetryStream>, Status> {
-        let slot = self.slots.acquire("StreamTelemetry")?;
+        let slot = self.slots.acquire(&request, "StreamTelemetry")?;
         // A subscriber that falls behind loses the oldest items (and is told how many in the
         // log); the control loop never waits for it.
         let stream = BroadcastStream::new(self.shared.subscribe()).filter_map(|item| match item {

@@ -43,6 +43,10 @@ pub struct GatewayConfig {
     pub stream_buffer: usize,
     /// TLS of the Plant and VehicleControl APIs (default: plaintext).
     pub tls: hilbench_svc::tls::Tls,
+    /// Limits on the server's connections and on the streams one client holds
+    /// (`--max-connections`, `--handshake-timeout-s`, `--idle-timeout-s`,
+    /// `--max-streams-per-client`).
+    pub connections: hilbench_svc::connections::ConnectionLimits,
     /// MAVLink 2 signing of the vehicle link (`--mavlink-signing-key`; `None`: unsigned).
     pub signing_key: Option<mavbridge::SigningKey>,
     /// The client certificates (common names) that may call VehicleControl (`--allow-client`;
@@ -72,6 +76,7 @@ impl GatewayConfig {
             max_streams: hilbench_svc::streams::DEFAULT_MAX_STREAMS,
             stream_buffer: 256,
             tls: hilbench_svc::tls::Tls::plaintext(),
+            connections: hilbench_svc::connections::ConnectionLimits::default(),
             signing_key: None,
             allow_clients: Vec::new(),
             record_link: None,
@@ -170,7 +175,11 @@ pub async fn serve_with_link(
     let service = GatewayService::new(
         bridge,
         link.clone(),
-        config.max_streams,
+        hilbench_svc::streams::StreamSlots::new(
+            "gateway",
+            config.max_streams,
+            config.connections.max_streams_per_client,
+        ),
         config.stream_buffer,
         config.allow_clients.clone(),
     );
@@ -184,7 +193,7 @@ pub async fn serve_with_link(
     }
     const NAMES: [&str; 2] =
         [PlantServer::<GatewayService>::NAME, VehicleControlServer::<GatewayService>::NAME];
-    let server = GrpcServer::new(listener, true, &config.tls, &NAMES).await?;
+    let server = GrpcServer::new("gateway", listener, true, &config.tls, &config.connections, &NAMES).await?;
     let (addr, health) = (server.addr, server.health.clone());
     // Not serving until the vehicle's heartbeat arrives.
     set_health(&health, &NAMES, false).await;

@@ -88,6 +88,7 @@ fn config(args: &Args) -> anyhow::Result<GatewayConfig> {
     config.component_id = args.component_id;
     config.max_streams = args.max_streams;
     config.tls = hilbench_svc::tls::TlsFiles::server(&args.server.tls).load()?;
+    config.connections = args.server.connections.limits()?;
     config.bridge.vehicle =
         mavbridge::VehicleFilter { system_id: args.vehicle_sysid, component_id: args.vehicle_compid };
     config.bridge.envelope_margin_m = args.envelope_margin_m;

@@ -231,7 +231,7 @@ impl GatewayService {
     pub(crate) fn new(
         bridge: Bridge,
         link: Link,
-        max_streams: usize,
+        slots: StreamSlots,
         stream_buffer: usize,
         allow_clients: Vec<String>,
     ) -> Self {
@@ -259,7 +259,7 @@ impl GatewayService {
                 }),
                 origin: Instant::now(),
                 link,
-                slots: StreamSlots::new("gateway", max_streams),
+                slots,
                 stream_buffer,
                 config_scenario,
                 allow_clients,
@@ -615,7 +615,7 @@ impl pb::plant_server::Plant for GatewayService {
         request: Request<pb::StreamStateRequest>,
     ) -> Result<Response<Self::StreamStateStream>, Status> {
         let req = StreamState::try_from(request.get_ref())?;
-        let slot = self.shared.slots.acquire("StreamState")?;
+        let slot = self.shared.slots.acquire(&request, "StreamState")?;
         let (tx, rx) = drop_oldest(self.shared.stream_buffer);
         let now = self.shared.now_ns();
         let mut inner = self.shared.lock();
@@ -792,7 +792,7 @@ mod tests {
         let bridge =
             Bridge::new(Scenario::paper_2(), mavbridge::BridgeSettings::default(), 0, 1).expect("valid");
         let link = Link::open("udpin:127.0.0.1:0", 255, 191).expect("a loopback UDP port");
-        GatewayService::new(bridge, link, 4, 16, Vec::new())
+        GatewayService::new(bridge, link, StreamSlots::new("gateway", 4, 4), 16, Vec::new())
     }
 
     #[test]

@@ -149,9 +149,9 @@ impl pb::netem_control_server::NetemControl for Control {
 
     async fn stream_deliveries(
         &self,
-        _request: Request<pb::StreamDeliveriesRequest>,
+        request: Request<pb::StreamDeliveriesRequest>,
     ) -> Result<Response<Self::StreamDeliveriesStream>, Status> {
-        let slot = self.shared.slots.acquire("StreamDeliveries")?;
+        let slot = self.shared.slots.acquire(&request, "StreamDeliveries")?;
         let rx = self.shared.lock().deliveries.subscribe();
         let shared = self.shared.clone();
         let s = BroadcastStream::new(rx).filter_map(move |r| match r {

@@ -311,7 +311,7 @@ impl Net {
             releaser,
             seed: config.seed,
             closing: tokio::sync::watch::channel(false).0,
-            slots: StreamSlots::new("netem", config.max_streams),
+            slots: StreamSlots::new("netem", config.max_streams, config.connections.max_streams_per_client),
         }))
     }
 

@@ -93,6 +93,10 @@ pub struct Config {
     pub max_streams: usize,
     /// TLS of netem's server and of its upstream connection (default: plaintext both ways).
     pub tls: hilbench_svc::tls::Tls,
+    /// Limits on the server's connections and on the streams one client holds
+    /// (`--max-connections`, `--handshake-timeout-s`, `--idle-timeout-s`,
+    /// `--max-streams-per-client`).
+    pub connections: hilbench_svc::connections::ConnectionLimits,
 }
 
 impl Config {
@@ -109,6 +113,7 @@ impl Config {
             stream_buffer: DEFAULT_STREAM_BUFFER,
             deliveries_buffer: DEFAULT_DELIVERIES_BUFFER,
             tls: hilbench_svc::tls::Tls::plaintext(),
+            connections: hilbench_svc::connections::ConnectionLimits::default(),
         }
     }
 
@@ -195,9 +200,11 @@ pub async fn serve(
         tokio::spawn(core::run_probe(shared.clone(), Duration::from_millis(config.probe_interval_ms)));
 
     let server = GrpcServer::new(
+        "netem",
         listener,
         true,
         &config.tls,
+        &config.connections,
         &[PlantServer::<Proxy>::NAME, NetemControlServer::<Control>::NAME],
     )
     .await?;
@@ -248,7 +255,15 @@ pub async fn serve_udp(
     let net = core::Net::new(&config, Some(Mode::RealTime))?;
     let sockets = udp::Sockets::bind(&udp)
         .map_err(|e| NetemError::Udp(format!("--udp-listen {}: cannot bind: {e}", udp.listen)))?;
-    let server = GrpcServer::new(listener, true, &config.tls, &[NetemControlServer::<Control>::NAME]).await?;
+    let server = GrpcServer::new(
+        "netem",
+        listener,
+        true,
+        &config.tls,
+        &config.connections,
+        &[NetemControlServer::<Control>::NAME],
+    )
+    .await?;
     let (addr, not_serving) = (server.addr, server.not_serving());
     tracing::info!(
         %addr,

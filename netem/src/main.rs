@@ -112,6 +112,7 @@ async fn main() -> anyhow::Result<()> {
     };
     config.max_streams = args.max_streams;
     config.tls = hilbench_svc::tls::TlsFiles::server_and_client(&args.server.tls, &args.trust).load()?;
+    config.connections = args.server.connections.limits()?;
     let listener = args.server.bind().await?;
     match udp {
         Some(udp) => netem::serve_udp(listener, config, udp, hilbench_svc::shutdown_signal()).await?,

@@ -457,7 +457,7 @@ impl pb::plant_server::Plant for Proxy {
         request: Request<pb::StreamStateRequest>,
     ) -> Result<Response<Self::StreamStateStream>, Status> {
         // Taken first, so that a refused stream costs no upstream call.
-        let slot = self.shared.slots.acquire("StreamState")?;
+        let slot = self.shared.slots.acquire(&request, "StreamState")?;
         let mode = self.shared.mode().await?;
         let upstream =
             self.shared.up(self.shared.client().stream_state(request.into_inner())).await?.into_inner();

@@ -95,6 +95,10 @@ pub struct PlantConfig {
     pub max_streams: usize,
     /// TLS of the Plant API (default: plaintext).
     pub tls: hilbench_svc::tls::Tls,
+    /// Limits on the server's connections and on the streams one client holds
+    /// (`--max-connections`, `--handshake-timeout-s`, `--idle-timeout-s`,
+    /// `--max-streams-per-client`).
+    pub connections: hilbench_svc::connections::ConnectionLimits,
 }
 
 impl Default for PlantConfig {
@@ -115,6 +119,7 @@ impl PlantConfig {
             stream_buffer: DEFAULT_STREAM_BUFFER,
             max_streams: DEFAULT_MAX_STREAMS,
             tls: hilbench_svc::tls::Tls::plaintext(),
+            connections: hilbench_svc::connections::ConnectionLimits::default(),
         }
     }
 

@@ -58,10 +58,11 @@ pub async fn serve_with_clock(
 ) -> Result<(), PlantError> {
     let scenario = config.scenario.name.clone();
     let rate_hz = config.rate_hz;
-    let tls = config.tls.clone();
+    let (tls, limits) = (config.tls.clone(), config.connections);
     let service = PlantService::new(config, clock)?;
 
-    let server = GrpcServer::new(listener, true, &tls, &[PlantServer::<PlantService>::NAME]).await?;
+    let server =
+        GrpcServer::new("plant", listener, true, &tls, &limits, &[PlantServer::<PlantService>::NAME]).await?;
     let (addr, not_serving) = (server.addr, server.not_serving());
 
     let steps = match service.time_mode() {

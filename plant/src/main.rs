@@ -67,6 +67,7 @@ fn config(args: &Args) -> anyhow::Result<PlantConfig> {
         WatchdogArg::Hover => mav::WatchdogAction::Hover,
     };
     config.tls = hilbench_svc::tls::TlsFiles::server(&args.server.tls).load()?;
+    config.connections = args.server.connections.limits()?;
     if let Some(ms) = args.watchdog_ms {
         config.watchdog_timeout_ns = match ms {
             0 => None,

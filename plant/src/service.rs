@@ -244,7 +244,11 @@ impl PlantService {
                 settings,
                 config_scenario: config.scenario,
                 stream_buffer: config.stream_buffer,
-                slots: StreamSlots::new("plant", config.max_streams),
+                slots: StreamSlots::new(
+                    "plant",
+                    config.max_streams,
+                    config.connections.max_streams_per_client,
+                ),
                 clock,
             }),
         })
@@ -392,7 +396,7 @@ impl pb::plant_server::Plant for PlantService {
         request: Request<pb::StreamStateRequest>,
     ) -> Result<Response<Self::StreamStateStream>, Status> {
         let req = StreamState::try_from(request.get_ref())?;
-        let slot = self.shared.slots.acquire("StreamState")?;
+        let slot = self.shared.slots.acquire(&request, "StreamState")?;
         let (tx, rx) = drop_oldest(self.shared.stream_buffer);
         let mut inner = self.shared.lock();
         if inner.closed {

@@ -8,6 +8,7 @@
 //! waking at a deadline to tens of microseconds ([`realtime`]: netem's release thread, the
 //! plant's step loop).
 
+pub mod connections;
 pub mod falsify_table;
 pub mod realtime;
 pub mod scenario_file;
@@ -20,7 +21,7 @@ use std::future::Future;
 use std::net::SocketAddr;
 
 use tonic::transport::Server;
-use tonic::transport::server::{Router, TcpIncoming};
+use tonic::transport::server::Router;
 use tonic_health::ServingStatus;
 use tonic_health::server::HealthReporter;
 
@@ -40,6 +41,8 @@ pub enum ServeError {
     Io(#[from] std::io::Error),
     #[error("gRPC server: {0}")]
     Transport(#[from] tonic::transport::Error),
+    #[error("TLS: {0}")]
+    Tls(#[from] tls::TlsError),
 }
 
 /// A service's gRPC server before it serves: the health service with the service's own
@@ -50,21 +53,32 @@ pub struct GrpcServer {
     /// The health service's reporter (a service that reports NOT_SERVING at shutdown awaits
     /// [`GrpcServer::not_serving`] in its shutdown signal instead).
     pub health: HealthReporter,
+    /// What its connections met (refusals by reason), for tests and status.
+    pub connections: std::sync::Arc<connections::ConnectionStats>,
     /// The names reported SERVING by [`GrpcServer::new`].
     services: Vec<String>,
     router: Router,
-    incoming: TcpIncoming,
+    incoming: Incoming,
+}
+
+/// The server's connections, plaintext or TLS ([`connections::Incoming`]).
+enum Incoming {
+    Plaintext(connections::Incoming<tokio::net::TcpStream>),
+    Tls(connections::Incoming<tokio_rustls::server::TlsStream<tokio::net::TcpStream>>),
 }
 
 impl GrpcServer {
-    /// Takes `listener` (with `TCP_NODELAY` on accepted connections when `nodelay`), serves
-    /// TLS when `tls` has an identity (and requires client certificates when it has a client
-    /// CA), and reports every one of `services` (their `NamedService::NAME`s) SERVING.
+    /// Takes `listener` (with `TCP_NODELAY` on accepted connections when `nodelay`) under
+    /// `limits` ([`connections`]), serves TLS when `tls` has an identity (and requires client
+    /// certificates when it has a client CA), and reports every one of `services` (their
+    /// `NamedService::NAME`s) SERVING. `name` (the binary's) begins its connection log lines.
     /// Plaintext on an address other than loopback is served, with a warning.
     pub async fn new(
+        name: &'static str,
         listener: tokio::net::TcpListener,
         nodelay: bool,
         tls: &tls::Tls,
+        limits: &connections::ConnectionLimits,
         services: &[&str],
     ) -> Result<Self, ServeError> {
         let addr = listener.local_addr()?;
@@ -75,10 +89,12 @@ impl GrpcServer {
                  drive the bench; give --tls-cert, --tls-key and --tls-client-ca (docs/tls.md)"
             );
         }
-        let mut server = match tls.server_config() {
-            Some(config) => Server::builder().tls_config(config)?,
-            None => Server::builder(),
-        };
+        // A peer that answers nothing for `idle_timeout` is closed: a ping every half of it,
+        // unanswered for the other half.
+        let half_idle = limits.idle_timeout / 2;
+        let mut server = Server::builder()
+            .http2_keepalive_interval(Some(half_idle))
+            .http2_keepalive_timeout(Some(half_idle));
         let (health, health_service) = tonic_health::server::health_reporter();
         for name in services {
             health.set_service_status(*name, ServingStatus::Serving).await;
@@ -100,9 +116,26 @@ impl GrpcServer {
             .add_service(health_service)
             .add_service(builder().build_v1()?)
             .add_service(builder().build_v1alpha()?);
-        let incoming = TcpIncoming::from(listener).with_nodelay(nodelay.then_some(true));
+        let stats = std::sync::Arc::new(connections::ConnectionStats::default());
+        let incoming = match tls.server_config() {
+            Some(config) => Incoming::Tls(connections::Incoming::tls(
+                listener,
+                nodelay,
+                *limits,
+                name,
+                stats.clone(),
+                config?,
+            )),
+            None => Incoming::Plaintext(connections::Incoming::plaintext(
+                listener,
+                nodelay,
+                *limits,
+                name,
+                stats.clone(),
+            )),
+        };
         let services = services.iter().map(|name| name.to_string()).collect();
-        Ok(Self { addr, health, services, router, incoming })
+        Ok(Self { addr, health, connections: stats, services, router, incoming })
     }
 
     /// A future that reports every one of the services given to [`GrpcServer::new`]
@@ -124,7 +157,11 @@ impl GrpcServer {
         add: impl FnOnce(Router) -> Router,
         shutdown: impl Future<Output = ()>,
     ) -> Result<(), ServeError> {
-        add(self.router).serve_with_incoming_shutdown(self.incoming, shutdown).await?;
+        let router = add(self.router);
+        match self.incoming {
+            Incoming::Plaintext(incoming) => router.serve_with_incoming_shutdown(incoming, shutdown).await?,
+            Incoming::Tls(incoming) => router.serve_with_incoming_shutdown(incoming, shutdown).await?,
+        }
         Ok(())
     }
 }
@@ -242,7 +279,15 @@ mod tests {
     async fn not_serving_reports_every_listed_service_and_only_when_awaited()
     -> Result<(), Box<dyn std::error::Error>> {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-        let server = GrpcServer::new(listener, false, &tls::Tls::plaintext(), &["a.A", "b.B"]).await?;
+        let server = GrpcServer::new(
+            "test",
+            listener,
+            false,
+            &tls::Tls::plaintext(),
+            &Default::default(),
+            &["a.A", "b.B"],
+        )
+        .await?;
         let addr = server.addr;
         let not_serving = server.not_serving();
         let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
@@ -275,7 +320,15 @@ mod tests {
         use tonic_reflection::pb::v1alpha::server_reflection_response::MessageResponse;
 
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-        let server = GrpcServer::new(listener, false, &tls::Tls::plaintext(), &["hilbench.v1.Plant"]).await?;
+        let server = GrpcServer::new(
+            "test",
+            listener,
+            false,
+            &tls::Tls::plaintext(),
+            &Default::default(),
+            &["hilbench.v1.Plant"],
+        )
+        .await?;
         let addr = server.addr;
         let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
         let task = tokio::spawn(server.serve(|router| router, async {

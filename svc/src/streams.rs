@@ -7,9 +7,8 @@
 //! a writer that waited for a slow reader would hold up the simulation or the other readers.
 //! The writer gets the evicted item back, so the service can count and report it.
 
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
 use std::pin::Pin;
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::task::{Context, Poll, Waker};
 
@@ -25,8 +24,12 @@ pub const DEFAULT_MAX_STREAMS: usize = 64;
 
 /// The flag a `RESOURCE_EXHAUSTED` answer names.
 pub const MAX_STREAMS_FLAG: &str = "--max-streams";
+/// The flag a `RESOURCE_EXHAUSTED` answer names when one client holds its share.
+pub const MAX_STREAMS_PER_CLIENT_FLAG: &str = "--max-streams-per-client";
 
-/// The streams a service has open, at most `max` at once. Cheap to clone (one counter).
+/// The streams a service has open: at most `max` at once, and at most `per_client` of them
+/// for one client ([`crate::connections::client_of`]), so that one client cannot take them
+/// all. Cheap to clone (one shared count).
 #[derive(Debug, Clone)]
 pub struct StreamSlots {
     inner: Arc<Slots>,
@@ -37,26 +40,48 @@ struct Slots {
     /// The service, as its binary is called (`plant`, `netem`, `controller`).
     service: &'static str,
     max: usize,
-    open: AtomicUsize,
+    per_client: usize,
+    open: Mutex<Open>,
+}
+
+#[derive(Debug, Default)]
+struct Open {
+    total: usize,
+    by_client: HashMap<String, usize>,
+}
+
+impl Slots {
+    fn lock(&self) -> MutexGuard<'_, Open> {
+        // Nothing here panics while holding the lock; a poisoned count is still a count.
+        self.open.lock().unwrap_or_else(PoisonError::into_inner)
+    }
 }
 
 /// One open stream's slot; dropping it (with its stream) frees the slot.
 #[derive(Debug)]
 pub struct StreamSlot {
     inner: Arc<Slots>,
+    client: String,
 }
 
 impl Drop for StreamSlot {
     fn drop(&mut self) {
-        self.inner.open.fetch_sub(1, Ordering::AcqRel);
+        let mut open = self.inner.lock();
+        open.total -= 1;
+        if let Some(n) = open.by_client.get_mut(&self.client) {
+            *n -= 1;
+            if *n == 0 {
+                open.by_client.remove(&self.client);
+            }
+        }
     }
 }
 
 impl StreamSlots {
-    /// At most `max` streams open at once on `service` (0 refuses every stream; services
-    /// validate `max >= 1` in their configuration).
-    pub fn new(service: &'static str, max: usize) -> Self {
-        Self { inner: Arc::new(Slots { service, max, open: AtomicUsize::new(0) }) }
+    /// At most `max` streams open at once on `service`, `per_client` of them for one client
+    /// (0 refuses every stream; services validate `max >= 1` in their configuration).
+    pub fn new(service: &'static str, max: usize, per_client: usize) -> Self {
+        Self { inner: Arc::new(Slots { service, max, per_client, open: Mutex::new(Open::default()) }) }
     }
 
     pub fn max(&self) -> usize {
@@ -65,27 +90,45 @@ impl StreamSlots {
 
     /// Streams open right now.
     pub fn open(&self) -> usize {
-        self.inner.open.load(Ordering::Acquire)
+        self.inner.lock().total
     }
 
-    /// A slot for a new `what` stream, or `RESOURCE_EXHAUSTED` naming the limit and the flag
-    /// that raises it.
-    pub fn acquire(&self, what: &str) -> Result<StreamSlot, tonic::Status> {
-        let Slots { service, max, open } = &*self.inner;
-        match open.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| (n < *max).then_some(n + 1)) {
-            Ok(_) => Ok(StreamSlot { inner: self.inner.clone() }),
-            Err(n) => Err(tonic::Status::resource_exhausted(format!(
+    /// A slot for a new `what` stream of `request`'s client, or `RESOURCE_EXHAUSTED` naming
+    /// the limit reached and the flag that raises it.
+    pub fn acquire<T>(&self, request: &tonic::Request<T>, what: &str) -> Result<StreamSlot, tonic::Status> {
+        self.acquire_for(crate::connections::client_of(request), what)
+    }
+
+    /// A slot for a new `what` stream of `client`, as [`StreamSlots::acquire`].
+    pub fn acquire_for(&self, client: String, what: &str) -> Result<StreamSlot, tonic::Status> {
+        let Slots { service, max, per_client, .. } = &*self.inner;
+        let mut open = self.inner.lock();
+        if open.total >= *max {
+            let n = open.total;
+            return Err(tonic::Status::resource_exhausted(format!(
                 "{service}: {n} streams are open, the most it serves at once ({MAX_STREAMS_FLAG} {max}); \
                  this {what} stream is refused: close a stream, or start the {service} with a larger \
                  {MAX_STREAMS_FLAG}"
-            ))),
+            )));
         }
+        let mine = open.by_client.get(&client).copied().unwrap_or(0);
+        if mine >= (*per_client).min(*max) {
+            return Err(tonic::Status::resource_exhausted(format!(
+                "{service}: {client} holds {mine} streams, the most one client may hold \
+                 ({MAX_STREAMS_PER_CLIENT_FLAG} {per_client}); this {what} stream is refused: close \
+                 a stream, or start the {service} with a larger {MAX_STREAMS_PER_CLIENT_FLAG}"
+            )));
+        }
+        open.total += 1;
+        *open.by_client.entry(client.clone()).or_insert(0) += 1;
+        drop(open);
+        Ok(StreamSlot { inner: self.inner.clone(), client })
     }
 
-    /// `stream` holding a slot until it is dropped (when the client goes away or the stream
-    /// ends), or `RESOURCE_EXHAUSTED` as [`StreamSlots::acquire`].
-    pub fn guard<S>(&self, what: &str, stream: S) -> Result<Guarded<S>, tonic::Status> {
-        Ok(Guarded { stream, _slot: self.acquire(what)? })
+    /// `stream` holding a slot of `client` until it is dropped (when the client goes away or
+    /// the stream ends), or `RESOURCE_EXHAUSTED` as [`StreamSlots::acquire`].
+    pub fn guard<S>(&self, client: String, what: &str, stream: S) -> Result<Guarded<S>, tonic::Status> {
+        Ok(Guarded { stream, _slot: self.acquire_for(client, what)? })
     }
 }
 
@@ -360,16 +403,40 @@ mod tests {
 
     #[tokio::test]
     async fn slots_refuse_beyond_the_cap_naming_it_and_the_flag_and_free_on_drop() {
-        let slots = StreamSlots::new("netem", 2);
-        let a = slots.acquire("StreamState").expect("first");
-        let _b = slots.guard("StreamState", tokio_stream::empty::<()>()).expect("second");
-        let refused = slots.acquire("StreamDeliveries").expect_err("third");
+        let slots = StreamSlots::new("netem", 2, 16);
+        let a = slots.acquire_for("address 127.0.0.1".into(), "StreamState").expect("first");
+        let _b = slots
+            .guard("address 127.0.0.2".into(), "StreamState", tokio_stream::empty::<()>())
+            .expect("second");
+        let refused = slots.acquire_for("address 127.0.0.3".into(), "StreamDeliveries").expect_err("third");
         assert_eq!(refused.code(), tonic::Code::ResourceExhausted);
         for part in ["netem", "--max-streams 2", "StreamDeliveries"] {
             assert!(refused.message().contains(part), "{part:?} not in {:?}", refused.message());
         }
         drop(a);
         assert_eq!(slots.open(), 1);
-        slots.acquire("StreamState").expect("a freed slot is taken again");
+        slots.acquire_for("address 127.0.0.3".into(), "StreamState").expect("a freed slot is taken again");
+    }
+
+    #[tokio::test]
+    async fn one_client_holds_at_most_its_share_and_the_others_still_get_slots() {
+        let slots = StreamSlots::new("plant", 64, 16);
+        let greedy: Vec<_> = (0..16)
+            .map(|_| slots.acquire_for("certificate hog".into(), "StreamState").expect("within the share"))
+            .collect();
+        let refused = slots.acquire_for("certificate hog".into(), "StreamState").expect_err("the 17th");
+        assert_eq!(refused.code(), tonic::Code::ResourceExhausted);
+        for part in ["plant", "certificate hog", "holds 16", "--max-streams-per-client 16"] {
+            assert!(refused.message().contains(part), "{part:?} not in {:?}", refused.message());
+        }
+        let other =
+            slots.acquire_for("certificate controller".into(), "StreamState").expect("another client");
+        assert_eq!(slots.open(), 17);
+        drop(greedy);
+        let _again = slots
+            .acquire_for("certificate hog".into(), "StreamState")
+            .expect("its slots are freed with its streams");
+        drop(other);
+        assert_eq!(slots.open(), 1);
     }
 }

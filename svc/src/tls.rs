@@ -17,7 +17,9 @@ use std::path::{Path, PathBuf};
 
 use rustls_pki_types::pem::PemObject;
 use rustls_pki_types::{CertificateDer, PrivateKeyDer};
-use tonic::transport::{Certificate, ClientTlsConfig, Endpoint, Identity, Server, ServerTlsConfig};
+use tokio_rustls::rustls::server::WebPkiClientVerifier;
+use tokio_rustls::rustls::{RootCertStore, ServerConfig};
+use tonic::transport::{Certificate, ClientTlsConfig, Endpoint, Identity};
 
 /// This process's identity: served by a server, presented by a client to servers that ask for
 /// a certificate (`--tls-client-ca`).
@@ -52,6 +54,8 @@ pub struct ServerArgs {
     pub listen: String,
     #[command(flatten)]
     pub tls: ServeTlsArgs,
+    #[command(flatten)]
+    pub connections: crate::connections::ConnectionArgs,
 }
 
 impl ServerArgs {
@@ -184,9 +188,11 @@ impl Tls {
                 // rustls checks that the key is the certificate's when it builds a config:
                 // build one now, so that a mismatch stops the start-up rather than every
                 // handshake.
-                let identity = Identity::from_pem(&pems.0, &pems.1);
-                Server::builder().tls_config(ServerTlsConfig::new().identity(identity)).map_err(|e| {
-                    TlsError::Identity { cert: cert.clone(), key: key.clone(), why: error_chain(&e) }
+                server_config(&pems.0, &pems.1, None).map_err(|e| match e {
+                    TlsError::Identity { why, .. } => {
+                        TlsError::Identity { cert: cert.clone(), key: key.clone(), why }
+                    }
+                    other => other,
                 })?;
                 Some(pems)
             }
@@ -199,7 +205,17 @@ impl Tls {
                     missing: "--tls-cert and --tls-key",
                 });
             }
-            Some(path) => Some(certificates_pem("--tls-client-ca", path)?),
+            Some(path) => {
+                let pem = certificates_pem("--tls-client-ca", path)?;
+                if let Some((cert, key)) = &identity {
+                    // The roots are checked when the server's config is built: build it now.
+                    server_config(cert, key, Some(&pem)).map_err(|e| match e {
+                        TlsError::Pem { flag, what, .. } => TlsError::Pem { flag, path: path.clone(), what },
+                        other => other,
+                    })?;
+                }
+                Some(pem)
+            }
         };
         let ca = match &files.ca {
             None => None,
@@ -232,13 +248,9 @@ impl Tls {
 
     /// The server's TLS config (`None`: plaintext): its identity, and the client CA when
     /// client certificates are required.
-    pub fn server_config(&self) -> Option<ServerTlsConfig> {
+    pub fn server_config(&self) -> Option<Result<ServerConfig, TlsError>> {
         let (cert, key) = self.identity.as_ref()?;
-        let config = ServerTlsConfig::new().identity(Identity::from_pem(cert, key));
-        Some(match &self.client_ca {
-            Some(ca) => config.client_ca_root(Certificate::from_pem(ca)),
-            None => config,
-        })
+        Some(server_config(cert, key, self.client_ca.as_deref()))
     }
 
     /// The client's TLS config (`None`: plaintext): the trusted CA, and this process's identity
@@ -317,6 +329,36 @@ pub fn is_tls_refusal(e: &(dyn std::error::Error + 'static)) -> bool {
         source = s.source();
     }
     false
+}
+
+/// A server's rustls config, as tonic's `ServerTlsConfig` builds it (the process's crypto
+/// provider, ring): the identity, and client certificates required and checked against
+/// `client_ca` when given. [`crate::connections::Incoming`] adds ALPN `h2`.
+fn server_config(cert: &[u8], key: &[u8], client_ca: Option<&[u8]>) -> Result<ServerConfig, TlsError> {
+    let identity_error = |why: String| TlsError::Identity { cert: PathBuf::new(), key: PathBuf::new(), why };
+    let chain = CertificateDer::pem_slice_iter(cert)
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| identity_error(format!("not PEM: {e}")))?;
+    let key =
+        PrivateKeyDer::from_pem_slice(key).map_err(|e| identity_error(format!("no private key: {e}")))?;
+    let builder = ServerConfig::builder();
+    let builder = match client_ca {
+        None => builder.with_no_client_auth(),
+        Some(ca) => {
+            let trust_error =
+                |what: String| TlsError::Pem { flag: "--tls-client-ca", path: PathBuf::new(), what };
+            let mut roots = RootCertStore::empty();
+            for certificate in CertificateDer::pem_slice_iter(ca) {
+                let certificate = certificate.map_err(|e| trust_error(format!("not PEM: {e}")))?;
+                roots.add(certificate).map_err(|e| trust_error(e.to_string()))?;
+            }
+            let verifier = WebPkiClientVerifier::builder(roots.into())
+                .build()
+                .map_err(|e| trust_error(e.to_string()))?;
+            builder.with_client_cert_verifier(verifier)
+        }
+    };
+    builder.with_single_cert(chain, key).map_err(|e| identity_error(e.to_string()))
 }
 
 /// A certificate or key file: a regular file of at most `user_file::MAX_PEM_FILE_BYTES`
