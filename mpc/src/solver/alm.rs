@@ -33,6 +33,15 @@ impl SmoothCost for AugmentedLagrangian<'_> {
     }
 }
 
+/// Whose multipliers an inner solve of ours takes: none (the penalty method), the warm ones
+/// (an outer step of the ALM), or the restoration phase's.
+#[derive(Debug, Clone, Copy)]
+enum InnerMultipliers {
+    None,
+    Warm,
+    Restoration,
+}
+
 /// Least time left before a deadline for another OpEn call: below it the solve stops with
 /// `Deadline` (an OpEn call whose time is up before its first PANOC iteration does no work).
 const MIN_CALL_DURATION: Duration = Duration::from_micros(20);
@@ -190,27 +199,44 @@ impl Mpc {
             *r = (y + c * s.restoration_shift_m).min(s.max_multiplier);
         }
         self.restoration_z.copy_from_slice(&self.z);
-        let exit = {
-            let mut ev = self.evaluator.borrow_mut();
-            let mut problem = AugmentedLagrangian {
-                evaluator: &mut ev,
-                penalty: c,
-                multipliers: &self.restoration_multipliers,
-            };
-            self.panoc.solve(
-                &mut problem,
-                &mut self.z,
-                &self.lo,
-                &self.hi,
-                s.cost_gap_tolerance_for(self.def.num_scenarios()),
-                s.restoration_iterations,
-                remaining.map(|r| start + r),
-            )
-        };
+        let exit = self.inner_solve(
+            c,
+            InnerMultipliers::Restoration,
+            s.restoration_iterations,
+            remaining.map(|r| start + r),
+        );
         if exit.status == PanocStatus::NotFinite || self.plan_inside_obstacle() {
             self.z.copy_from_slice(&self.restoration_z);
         }
         (exit.iterations, start.elapsed())
+    }
+
+    /// Our PANOC on `ψ(z; c, y)` over the box from and into `self.z`, with at most
+    /// `max_iterations` iterations: the inner solve of an outer step and of the restoration
+    /// phase, which differ in penalty, multipliers and budget only.
+    fn inner_solve(
+        &mut self,
+        penalty: f64,
+        multipliers: InnerMultipliers,
+        max_iterations: usize,
+        deadline: Option<Instant>,
+    ) -> super::panoc::PanocExit {
+        let mut ev = self.evaluator.borrow_mut();
+        let multipliers: &[f64] = match multipliers {
+            InnerMultipliers::None => &[],
+            InnerMultipliers::Warm => &self.warm_multipliers,
+            InnerMultipliers::Restoration => &self.restoration_multipliers,
+        };
+        let mut problem = AugmentedLagrangian { evaluator: &mut ev, penalty, multipliers };
+        self.panoc.solve(
+            &mut problem,
+            &mut self.z,
+            &self.lo,
+            &self.hi,
+            self.settings.cost_gap_tolerance_for(self.def.num_scenarios()),
+            max_iterations,
+            deadline,
+        )
     }
 
     /// Sets the cycle's instance in the evaluator and scales the warm start for penalty `c`.
@@ -322,21 +348,9 @@ impl Mpc {
         let s = self.settings;
         let nc = self.def.num_constraints();
         let alm = self.def.formulation == ObstacleFormulation::DistanceAlm && nc > 0;
+        let multipliers = if alm { InnerMultipliers::Warm } else { InnerMultipliers::None };
+        let exit = self.inner_solve(c, multipliers, max_inner, remaining.map(|r| start + r));
         let mut ev = self.evaluator.borrow_mut();
-        let exit = {
-            let y: &[f64] = if alm { &self.warm_multipliers } else { &[] };
-            let mut problem = AugmentedLagrangian { evaluator: &mut ev, penalty: c, multipliers: y };
-            let deadline = remaining.map(|r| start + r);
-            self.panoc.solve(
-                &mut problem,
-                &mut self.z,
-                &self.lo,
-                &self.hi,
-                s.cost_gap_tolerance_for(self.def.num_scenarios()),
-                max_inner,
-                deadline,
-            )
-        };
         match exit.status {
             PanocStatus::NotFinite => return Err(SolveStatus::NumericalFailure),
             PanocStatus::Deadline if exit.iterations == 0 => return Err(SolveStatus::Deadline),
