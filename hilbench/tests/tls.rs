@@ -158,6 +158,36 @@ fn a_run_whose_client_certificate_another_ca_signed_fails_at_once_naming_the_ref
 }
 
 #[test]
+fn a_service_address_whose_scheme_contradicts_the_tls_set_up_is_refused_at_once_naming_the_flag() {
+    let tls = certs("tls-scheme");
+    let cases: [(&[&str], &str); 3] = [
+        (
+            &["--plant", "http://127.0.0.1:1", "--tls-dir", path(&tls)],
+            "--plant: address http://127.0.0.1:1: http:// with --tls-ca",
+        ),
+        (
+            &["--plant", "https://127.0.0.1:1"],
+            "--plant: address https://127.0.0.1:1: https:// needs --tls-ca",
+        ),
+        (
+            &["--netem", "https://127.0.0.1:1"],
+            "--netem: address https://127.0.0.1:1: https:// needs --tls-ca",
+        ),
+    ];
+    for (flags, expected) in cases {
+        let out = out_dir("tls-scheme-run");
+        let file = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenarios/paper-2.toml");
+        let run = hilbench(
+            &[&["--no-plots", "run", file, "--mode", "nmpc", "--out", path(&out)][..], flags].concat(),
+        );
+        assert_eq!(run.status.code(), Some(1), "{flags:?}: {run:?}");
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert!(stderr.contains(expected), "{flags:?}: {stderr}");
+        assert!(!stderr.contains("waiting for"), "{flags:?}: waited instead of refusing: {stderr}");
+    }
+}
+
+#[test]
 fn bad_tls_flags_are_refused_at_start_naming_the_flag() {
     let tls = certs("tls-bad-flags");
     let readme = concat!(env!("CARGO_MANIFEST_DIR"), "/../README.md");

@@ -3,6 +3,12 @@
 //! that close a peer gone silent, and a log line for every connection refused (peer, reason),
 //! rate-limited so that a flood cannot flood the log too.
 //!
+//! At the cap, a new connection takes the place of the oldest one still in its handshakes
+//! (that one is closed, counted as evicted); only when every open connection is through its
+//! handshakes is the new one refused. So peers that open connections and say nothing cannot
+//! keep a client off by holding the cap: each new connection pushes one of theirs out, and a
+//! client's handshake (a millisecond on a LAN) finishes before the flood reaches it.
+//!
 //! Why here and not in tonic: tonic's server holds a connection that never sends a byte (or
 //! only HTTP/2's preface, or no TLS ClientHello) forever, logs a refused TLS handshake only at
 //! debug level and without the peer, and takes every connection the listener gives it: 200
@@ -150,6 +156,8 @@ pub struct ConnectionStats {
     pub handshake_timeouts: AtomicU64,
     /// Closed: the TLS handshake failed (a plaintext client, a certificate refused, ...).
     pub tls_refused: AtomicU64,
+    /// Closed at the cap while still in its handshakes, for a newer connection.
+    pub evicted: AtomicU64,
 }
 
 impl ConnectionStats {
@@ -157,47 +165,75 @@ impl ConnectionStats {
         counter.fetch_add(1, Ordering::Relaxed);
     }
 
-    /// `(served, refused_at_cap, handshake_timeouts, tls_refused)` now.
-    pub fn snapshot(&self) -> [u64; 4] {
-        [&self.served, &self.refused_at_cap, &self.handshake_timeouts, &self.tls_refused]
+    /// `[served, refused_at_cap, handshake_timeouts, tls_refused, evicted]` now.
+    pub fn snapshot(&self) -> [u64; 5] {
+        [&self.served, &self.refused_at_cap, &self.handshake_timeouts, &self.tls_refused, &self.evicted]
             .map(|c| c.load(Ordering::Relaxed))
     }
 }
 
-/// At most one warning a second per reason, the next one saying how many were left out.
+/// At most one warning a second per kind (reason and detail); the events of a kind left out
+/// in that second are said a second after its first line, with their count.
 struct RateLimitedLog {
     service: &'static str,
-    last: Mutex<HashMap<&'static str, (Instant, u64)>>,
+    /// Per kind: when its last line was written, and the events left out since.
+    last: Arc<Mutex<HashMap<(&'static str, String), (Instant, u64)>>>,
 }
 
 impl RateLimitedLog {
     const EVERY: Duration = Duration::from_secs(1);
 
     fn warn(&self, reason: &'static str, peer: SocketAddr, detail: &str) {
-        let suppressed = {
+        let service = self.service;
+        let key = (reason, detail.to_string());
+        let first_left_out = {
             let mut last = self.last.lock().unwrap_or_else(PoisonError::into_inner);
             let now = Instant::now();
-            match last.get_mut(reason) {
+            match last.get_mut(&key) {
                 Some((at, left_out)) if now.duration_since(*at) < Self::EVERY => {
                     *left_out += 1;
+                    *left_out == 1
+                }
+                _ => {
+                    last.insert(key.clone(), (now, 0));
+                    tracing::warn!(%peer, "{service}: {reason}: {detail}");
                     return;
-                }
-                Some((at, left_out)) => {
-                    *at = now;
-                    std::mem::take(left_out)
-                }
-                None => {
-                    last.insert(reason, (now, 0));
-                    0
                 }
             }
         };
-        let service = self.service;
-        if suppressed > 0 {
-            tracing::warn!(%peer, "{service}: {reason}: {detail} (and {suppressed} more like it in the last second)");
-        } else {
-            tracing::warn!(%peer, "{service}: {reason}: {detail}");
+        if first_left_out {
+            // Say how many were left out once the second is over, whether or not another
+            // event of the kind comes.
+            let last = self.last.clone();
+            tokio::spawn(async move {
+                tokio::time::sleep(Self::EVERY).await;
+                let left_out = last
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .get_mut(&key)
+                    .map(|(_, n)| std::mem::take(n))
+                    .unwrap_or(0);
+                if left_out > 0 {
+                    let (reason, detail) = key;
+                    tracing::warn!("{service}: {reason}: {detail}: {left_out} more in the last second");
+                }
+            });
         }
+    }
+}
+
+/// A connection still in its handshakes, which a newer one may evict at the cap.
+#[derive(Default)]
+struct Pending {
+    /// Through its handshakes, or closed: not to be evicted.
+    done: std::sync::atomic::AtomicBool,
+    /// Told to close (a stored permit when nothing waits yet, so no eviction is lost).
+    evict: Arc<tokio::sync::Notify>,
+}
+
+impl Pending {
+    fn finish(&self) {
+        self.done.store(true, Ordering::Release);
     }
 }
 
@@ -218,6 +254,32 @@ pub struct Incoming<IO> {
 struct Shared {
     stats: Arc<ConnectionStats>,
     log: RateLimitedLog,
+    /// Connections in their handshakes, oldest first (finished ones are dropped lazily).
+    pending: Mutex<std::collections::VecDeque<Arc<Pending>>>,
+}
+
+impl Shared {
+    /// Tells the oldest connection still in its handshakes to close; false when there is none.
+    fn evict_oldest(&self) -> bool {
+        let mut pending = self.pending.lock().unwrap_or_else(PoisonError::into_inner);
+        while let Some(oldest) = pending.pop_front() {
+            if !oldest.done.load(Ordering::Acquire) {
+                oldest.finish();
+                oldest.evict.notify_one();
+                return true;
+            }
+        }
+        false
+    }
+
+    /// Keeps `new` in the queue of connections in their handshakes.
+    fn push_pending(&self, new: Arc<Pending>) {
+        let mut pending = self.pending.lock().unwrap_or_else(PoisonError::into_inner);
+        while pending.front().is_some_and(|p| p.done.load(Ordering::Acquire)) {
+            pending.pop_front();
+        }
+        pending.push_back(new);
+    }
 }
 
 type TlsAcceptorOrNone = Option<TlsAcceptor>;
@@ -285,23 +347,31 @@ impl<IO: AsyncRead + AsyncWrite + Unpin + Send + 'static> Incoming<IO> {
             pending: JoinSet::new(),
             shared: Arc::new(Shared {
                 stats,
-                log: RateLimitedLog { service, last: Mutex::new(HashMap::new()) },
+                log: RateLimitedLog { service, last: Arc::new(Mutex::new(HashMap::new())) },
+                pending: Mutex::new(std::collections::VecDeque::new()),
             }),
         }
     }
 
-    /// Takes a new TCP connection: closed at once over the cap, else its handshake started.
+    /// Takes a new TCP connection: at the cap, in the place of the oldest connection still in
+    /// its handshakes, or closed at once when there is none; then its handshake is started.
     fn take(&mut self, tcp: TcpStream, peer: SocketAddr) {
-        let Ok(permit) = self.permits.clone().try_acquire_owned() else {
-            ConnectionStats::bump(&self.shared.stats.refused_at_cap);
-            let max = self.limits.max_connections;
-            self.shared.log.warn(
-                "connection refused",
-                peer,
-                &format!("{max} connections are open, the most it serves at once (--max-connections {max})"),
-            );
-            drop(tcp);
-            return;
+        let permit = match self.permits.clone().try_acquire_owned() {
+            Ok(permit) => Some(permit),
+            Err(_) if self.shared.evict_oldest() => None,
+            Err(_) => {
+                ConnectionStats::bump(&self.shared.stats.refused_at_cap);
+                let max = self.limits.max_connections;
+                self.shared.log.warn(
+                    "connection refused",
+                    peer,
+                    &format!(
+                        "{max} connections are open and through their handshakes, the most it serves at once \
+                         (--max-connections {max})"
+                    ),
+                );
+                return;
+            }
         };
         if self.nodelay {
             let _ = tcp.set_nodelay(true);
@@ -309,17 +379,37 @@ impl<IO: AsyncRead + AsyncWrite + Unpin + Send + 'static> Incoming<IO> {
         let deadline = tokio::time::Instant::now() + self.limits.handshake_timeout;
         let timeout_s = self.limits.handshake_timeout.as_secs_f64();
         let handshake = (self.handshake)(self.tls.clone(), tcp);
-        let shared = self.shared.clone();
+        let (shared, permits) = (self.shared.clone(), self.permits.clone());
+        let pending = Arc::new(Pending::default());
+        shared.push_pending(pending.clone());
         let is_tls = self.tls.is_some();
         self.pending.spawn(async move {
-            match tokio::time::timeout_at(deadline, handshake).await {
-                Ok(Ok(io)) => Some(Watched::new(io, peer, deadline, timeout_s, permit, shared)),
+            let handshake = async {
+                // In the place of an evicted connection: its place is free once it is closed.
+                let permit = match permit {
+                    Some(permit) => permit,
+                    None => permits.acquire_owned().await.map_err(std::io::Error::other)?,
+                };
+                Ok::<_, std::io::Error>((handshake.await?, permit))
+            };
+            let outcome = tokio::select! {
+                outcome = tokio::time::timeout_at(deadline, handshake) => outcome,
+                () = pending.evict.notified() => {
+                    ConnectionStats::bump(&shared.stats.evicted);
+                    shared.log.warn("connection closed", peer, "evicted in its handshake by a newer connection at --max-connections");
+                    return None;
+                }
+            };
+            match outcome {
+                Ok(Ok((io, permit))) => Some(Watched::new(io, peer, deadline, timeout_s, permit, shared, pending)),
                 Ok(Err(e)) => {
+                    pending.finish();
                     ConnectionStats::bump(&shared.stats.tls_refused);
                     shared.log.warn("TLS handshake refused", peer, &crate::tls::error_chain(&e));
                     None
                 }
                 Err(_) => {
+                    pending.finish();
                     ConnectionStats::bump(&shared.stats.handshake_timeouts);
                     let what = if is_tls { "no TLS handshake" } else { "no handshake" };
                     shared.log.warn(
@@ -378,8 +468,9 @@ impl<IO: AsyncRead + AsyncWrite + Unpin + Send + 'static> Stream for Incoming<IO
 pub struct Watched<IO> {
     io: IO,
     peer: SocketAddr,
-    /// Until HTTP/2's preface and a frame header were read.
-    handshake: Option<Pin<Box<tokio::time::Sleep>>>,
+    /// Until HTTP/2's preface and a frame header were read: the deadline, and the eviction.
+    handshake: Option<(Pin<Box<tokio::time::Sleep>>, Pin<Box<tokio::sync::futures::OwnedNotified>>)>,
+    pending: Arc<Pending>,
     timeout_s: f64,
     read: u64,
     shared: Arc<Shared>,
@@ -394,12 +485,17 @@ impl<IO> Watched<IO> {
         timeout_s: f64,
         permit: OwnedSemaphorePermit,
         shared: Arc<Shared>,
+        pending: Arc<Pending>,
     ) -> Self {
         ConnectionStats::bump(&shared.stats.served);
+        // Told to close after the TLS handshake: the notification waits here (an eviction
+        // between the handshake task's end and the first poll is a stored permit).
+        let evicted = Box::pin(pending.evict.clone().notified_owned());
         Self {
             io,
             peer,
-            handshake: Some(Box::pin(tokio::time::sleep_until(deadline))),
+            handshake: Some((Box::pin(tokio::time::sleep_until(deadline)), evicted)),
+            pending,
             timeout_s,
             read: 0,
             shared,
@@ -407,23 +503,39 @@ impl<IO> Watched<IO> {
         }
     }
 
-    /// An error when the handshake's deadline passed before HTTP/2's preface came in.
+    /// An error when the handshake's deadline passed, or a newer connection evicted this one,
+    /// before HTTP/2's preface came in.
     fn check_deadline(&mut self, cx: &mut Context<'_>) -> std::io::Result<()> {
-        let Some(sleep) = self.handshake.as_mut() else { return Ok(()) };
-        if sleep.as_mut().poll(cx).is_pending() {
+        let Some((sleep, evicted)) = self.handshake.as_mut() else { return Ok(()) };
+        let (counter, reason, detail) = if evicted.as_mut().poll(cx).is_ready() {
+            (
+                &self.shared.stats.evicted,
+                "evicted in its handshake by a newer connection at --max-connections".to_string(),
+                "evicted in its handshake",
+            )
+        } else if sleep.as_mut().poll(cx).is_ready() {
+            (
+                &self.shared.stats.handshake_timeouts,
+                format!(
+                    "no HTTP/2 preface within {} s (--handshake-timeout-s)",
+                    delay::Number(self.timeout_s)
+                ),
+                "no HTTP/2 preface before the handshake deadline",
+            )
+        } else {
             return Ok(());
-        }
+        };
         self.handshake = None;
-        ConnectionStats::bump(&self.shared.stats.handshake_timeouts);
-        self.shared.log.warn(
-            "connection closed",
-            self.peer,
-            &format!("no HTTP/2 preface within {} s (--handshake-timeout-s)", delay::Number(self.timeout_s)),
-        );
-        Err(std::io::Error::new(
-            std::io::ErrorKind::TimedOut,
-            "no HTTP/2 preface before the handshake deadline",
-        ))
+        self.pending.finish();
+        ConnectionStats::bump(counter);
+        self.shared.log.warn("connection closed", self.peer, &reason);
+        Err(std::io::Error::new(std::io::ErrorKind::TimedOut, detail))
+    }
+}
+
+impl<IO> Drop for Watched<IO> {
+    fn drop(&mut self) {
+        self.pending.finish();
     }
 }
 
@@ -440,6 +552,7 @@ impl<IO: AsyncRead + Unpin> AsyncRead for Watched<IO> {
             self.read += (buf.filled().len() - before) as u64;
             if self.read >= HTTP2_PREFACE_AND_FRAME_HEADER {
                 self.handshake = None;
+                self.pending.finish();
             }
         }
         Poll::Ready(Ok(()))

@@ -42,14 +42,14 @@ impl Running {
         Self { addr, stats, stop: Some(stop), task }
     }
 
-    /// `[served, refused_at_cap, handshake_timeouts, tls_refused]`.
-    fn counts(&self) -> [u64; 4] {
+    /// `[served, refused_at_cap, handshake_timeouts, tls_refused, evicted]`.
+    fn counts(&self) -> [u64; 5] {
         self.stats.snapshot()
     }
 
     /// The counts once they equal `expected` (a connection is closed just before its refusal
     /// is counted), or as they are after [`PATIENCE`].
-    async fn counts_become(&self, expected: [u64; 4]) -> [u64; 4] {
+    async fn counts_become(&self, expected: [u64; 5]) -> [u64; 5] {
         let start = std::time::Instant::now();
         while self.counts() != expected && start.elapsed() < PATIENCE {
             tokio::time::sleep(Duration::from_millis(10)).await;
@@ -104,9 +104,9 @@ async fn a_connection_that_sends_nothing_is_closed_at_the_handshake_deadline_and
     let silent = TcpStream::connect(server.addr).expect("connect");
     assert!(closed(silent).await.is_some(), "a silent connection was held past {PATIENCE:?}");
     assert_eq!(
-        server.counts_become([1, 0, 1, 0]).await,
-        [1, 0, 1, 0],
-        "served, at cap, handshake timeouts, TLS refused"
+        server.counts_become([1, 0, 1, 0, 0]).await,
+        [1, 0, 1, 0, 0],
+        "served, at cap, handshake timeouts, TLS refused, evicted"
     );
     server.stop().await;
 }
@@ -117,47 +117,67 @@ async fn a_connection_that_sends_only_the_http2_preface_is_closed_at_the_handsha
     let mut half = TcpStream::connect(server.addr).expect("connect");
     half.write_all(PREFACE).expect("preface");
     assert!(closed(half).await.is_some(), "a connection that sent only the preface was held");
-    assert_eq!(server.counts_become([1, 0, 1, 0]).await, [1, 0, 1, 0], "the handshake timeout is counted");
+    assert_eq!(
+        server.counts_become([1, 0, 1, 0, 0]).await,
+        [1, 0, 1, 0, 0],
+        "the handshake timeout is counted"
+    );
     server.stop().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn connections_beyond_the_cap_are_closed_at_once_and_a_client_is_served_when_the_silent_ones_time_out()
-{
+async fn at_the_cap_a_new_connection_evicts_the_oldest_still_in_its_handshake_so_silent_peers_cannot_keep_a_client_off()
+ {
+    // A deadline far beyond the test: only eviction can free a place.
     let server =
-        Running::start(&Tls::plaintext(), ConnectionLimits { max_connections: 4, ..limits(3.0) }).await;
+        Running::start(&Tls::plaintext(), ConnectionLimits { max_connections: 4, ..limits(60.0) }).await;
     let silent: Vec<TcpStream> = (0..4).map(|_| TcpStream::connect(server.addr).expect("connect")).collect();
-    // The server takes connections as it accepts them: give it the four before the fifth.
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let fifth = TcpStream::connect(server.addr).expect("the kernel accepts it");
-    assert!(closed(fifth).await.is_some(), "the fifth connection was held");
-    assert_eq!(
-        server.counts_become([4, 1, 0, 0]).await,
-        [4, 1, 0, 0],
-        "the connection over the cap is counted"
-    );
-    // Closed at once, not at the deadline: the four silent ones are still open.
-    for s in &silent {
+    // The cap is held by four silent peers that never time out here: a client is served.
+    let status = health(server.addr).await.expect("a client is served while silent peers hold the cap");
+    assert_eq!(status, tonic_health::pb::health_check_response::ServingStatus::Serving as i32);
+    let [served, at_cap, timeouts, _, evicted] = server.counts();
+    assert_eq!((served, at_cap, timeouts, evicted), (5, 0, 0, 1), "served, at cap, timeouts, evicted");
+    // The oldest silent one was closed for it, the others are still open.
+    let mut silent = silent.into_iter();
+    assert!(closed(silent.next().expect("first")).await.is_some(), "the oldest was not evicted");
+    for s in silent {
         s.set_nonblocking(true).expect("nonblocking");
         // Open: data waiting (the server's SETTINGS) or none yet; closed: EOF or an error.
         let still_open = match s.peek(&mut [0u8; 1]) {
             Ok(n) => n > 0,
             Err(e) => e.kind() == std::io::ErrorKind::WouldBlock,
         };
-        assert!(still_open, "a silent connection was closed before the fifth was refused");
-        s.set_nonblocking(false).expect("blocking");
+        assert!(still_open, "a newer silent connection was closed");
     }
-    // They time out and free their places: a real client is served.
-    for s in silent {
-        assert!(closed(s).await.is_some(), "a silent connection was held past {PATIENCE:?}");
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn at_the_cap_with_every_connection_through_its_handshake_a_new_one_is_closed_at_once_and_counted() {
+    let server =
+        Running::start(&Tls::plaintext(), ConnectionLimits { max_connections: 2, ..limits(60.0) }).await;
+    let mut clients = Vec::new();
+    for _ in 0..2 {
+        let channel = tonic::transport::Channel::from_shared(format!("http://{}", server.addr))
+            .expect("uri")
+            .connect()
+            .await
+            .expect("connect");
+        let mut client = HealthClient::new(channel);
+        client.check(HealthCheckRequest { service: "test.Test".into() }).await.expect("served");
+        clients.push(client);
     }
+    let third = TcpStream::connect(server.addr).expect("the kernel accepts it");
+    assert!(closed(third).await.is_some(), "the connection over the cap was held");
     assert_eq!(
-        server.counts_become([4, 1, 4, 0]).await,
-        [4, 1, 4, 0],
-        "the four silent connections timed out"
+        server.counts_become([2, 1, 0, 0, 0]).await,
+        [2, 1, 0, 0, 0],
+        "served, at cap, timeouts, TLS, evicted"
     );
-    let status = health(server.addr).await.expect("a client is served once the cap has room");
-    assert_eq!(status, tonic_health::pb::health_check_response::ServingStatus::Serving as i32);
+    for client in &mut clients {
+        client.check(HealthCheckRequest { service: "test.Test".into() }).await.expect("still served");
+    }
     server.stop().await;
 }
 
@@ -174,7 +194,7 @@ async fn a_client_idle_past_the_handshake_deadline_keeps_its_connection() {
     client.check(request()).await.expect("first call");
     tokio::time::sleep(Duration::from_millis(800)).await;
     client.check(request()).await.expect("a call after the deadline");
-    assert_eq!(server.counts(), [1, 0, 0, 0], "one connection, never timed out");
+    assert_eq!(server.counts(), [1, 0, 0, 0, 0], "one connection, never timed out");
     server.stop().await;
 }
 
@@ -186,7 +206,7 @@ async fn a_peer_through_the_handshake_that_answers_no_ping_is_closed_after_the_i
     mute.write_all(PREFACE).expect("preface");
     mute.write_all(&EMPTY_SETTINGS).expect("settings");
     assert!(closed(mute).await.is_some(), "a peer that answers no ping was held past {PATIENCE:?}");
-    assert_eq!(server.counts(), [1, 0, 0, 0], "through the handshake: not a handshake timeout");
+    assert_eq!(server.counts(), [1, 0, 0, 0, 0], "through the handshake: not a handshake timeout");
     server.stop().await;
 }
 
@@ -296,7 +316,7 @@ async fn refused_tls_handshakes_are_counted_and_logged_with_the_peer_and_the_rea
     let status = HealthClient::new(channel).check(HealthCheckRequest { service: "test.Test".into() }).await;
     assert!(status.is_ok(), "a client with a certificate was refused: {status:?}");
 
-    let [served, _, _, tls_refused] = server.counts();
+    let [served, _, _, tls_refused, _] = server.counts();
     assert_eq!(served, 1, "only the client with a certificate is served");
     // Two refused clients; a client may try its handshake again once.
     assert!(tls_refused >= 2, "{tls_refused} refused handshakes counted, 2 clients were refused");
@@ -314,9 +334,32 @@ async fn a_connection_that_sends_no_tls_client_hello_is_closed_at_the_handshake_
     let silent = TcpStream::connect(server.addr).expect("connect");
     assert!(closed(silent).await.is_some(), "a silent TLS connection was held past {PATIENCE:?}");
     assert_eq!(
-        server.counts_become([0, 0, 1, 0]).await,
-        [0, 0, 1, 0],
-        "served, at cap, handshake timeouts, TLS refused"
+        server.counts_become([0, 0, 1, 0, 0]).await,
+        [0, 0, 1, 0, 0],
+        "served, at cap, handshake timeouts, TLS refused, evicted"
+    );
+    server.stop().await;
+}
+
+#[tokio::test]
+async fn a_burst_of_one_kind_is_logged_once_then_counted_a_second_later() {
+    let log = Captured::default();
+    let subscriber = tracing_subscriber::fmt().with_writer(log.clone()).with_ansi(false).finish();
+    let _guard = tracing::subscriber::set_default(subscriber);
+    let server = Running::start(&Tls::plaintext(), limits(0.1)).await;
+    let silent: Vec<TcpStream> = (0..3).map(|_| TcpStream::connect(server.addr).expect("connect")).collect();
+    for s in silent {
+        assert!(closed(s).await.is_some(), "a silent connection was held");
+    }
+    let lines = |text: &str, what: &str| text.lines().filter(|l| l.contains(what)).count();
+    let before = log.text();
+    assert_eq!(lines(&before, "no HTTP/2 preface within 0.1 s"), 1, "one line for the burst: {before}");
+    // The two left out are said once the second is over, without another event.
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    let after = log.text();
+    assert!(
+        after.contains("no HTTP/2 preface within 0.1 s (--handshake-timeout-s): 2 more in the last second"),
+        "{after}"
     );
     server.stop().await;
 }

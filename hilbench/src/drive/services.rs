@@ -220,6 +220,18 @@ impl Services {
         mode: ControllerMode,
         endpoints: &Endpoints,
     ) -> anyhow::Result<Self> {
+        // A scheme that contradicts the TLS set-up is refused here, naming the flag: a netem
+        // started here in front of such a --plant would refuse it and die, and the run would
+        // only say, 30 s later, that the netem could not be reached.
+        for (flag, address) in [
+            ("--plant", &endpoints.plant),
+            ("--netem", &endpoints.netem),
+            ("--controller", &endpoints.controller),
+        ] {
+            if let Some(address) = address {
+                endpoints.tls.client.uri(address).with_context(|| flag.to_string())?;
+            }
+        }
         if let Some(controller_addr) = &endpoints.controller {
             if endpoints.plant.is_none() && endpoints.netem.is_none() {
                 bail!(
