@@ -89,8 +89,11 @@ fn config(args: &Args) -> anyhow::Result<GatewayConfig> {
     config.max_streams = args.max_streams;
     config.tls = hilbench_svc::tls::TlsFiles::server(&args.server.tls).load()?;
     config.connections = args.server.connections.limits()?;
-    config.bridge.vehicle =
-        mavbridge::VehicleFilter { system_id: args.vehicle_sysid, component_id: args.vehicle_compid };
+    config.bridge.vehicle = mavbridge::VehicleFilter {
+        system_id: args.vehicle_sysid,
+        component_id: args.vehicle_compid,
+        may_move: args.mavlink_signing_key.is_some(),
+    };
     config.bridge.envelope_margin_m = args.envelope_margin_m;
     config.bridge.max_speed_mps = args.max_speed_mps;
     config.signing_key = args.mavlink_signing_key.as_deref().map(gateway::signing_key_file).transpose()?;

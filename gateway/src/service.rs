@@ -71,6 +71,8 @@ struct Inner {
     /// so up to a heartbeat period later, and until then "does not fly them" would be wrong.
     accepted_command_ns: Option<u64>,
     /// Gateway time of the last reboot warning, and the reboots not logged since.
+    /// Times the link locked to a vehicle (a second lock is a vehicle that moved).
+    locks: u64,
     reboot_logged_ns: Option<u64>,
     reboots_unlogged: u64,
     /// `--record-link`: the `TIMESYNC` exchanges, written as a delay trace.
@@ -254,6 +256,7 @@ impl GatewayService {
                     warned_not_flown: false,
                     accepted_command_ns: None,
                     reboot_logged_ns: None,
+                    locks: 0,
                     reboots_unlogged: 0,
                     link_record: None,
                 }),
@@ -361,9 +364,17 @@ impl GatewayService {
                 return;
             }
             if let Some(vehicle) = event.locked {
-                tracing::info!(
-                    "locked to the vehicle {vehicle}: frames from any other address, system or component are dropped"
-                );
+                // A lock after the first is a vehicle that moved: worth the operator's eye.
+                if inner.locks > 0 {
+                    tracing::warn!(
+                        "locked again, to the vehicle {vehicle} (signed link): frames from any other address, system or component are dropped"
+                    );
+                } else {
+                    tracing::info!(
+                        "locked to the vehicle {vehicle}: frames from any other address, system or component are dropped"
+                    );
+                }
+                inner.locks += 1;
                 self.shared.link.answer(vehicle.peer);
             }
             if let Some(reboot) = &event.reboot {

@@ -38,6 +38,11 @@ pub struct VehicleFilter {
     pub system_id: Option<u8>,
     /// `--vehicle-compid`.
     pub component_id: Option<u8>,
+    /// A vehicle lost for its heartbeat's timeout may be locked to again from a new address.
+    /// Only on a signed link (`--mavlink-signing-key`): there the signature says it is the
+    /// vehicle; on an unsigned link anyone on the network could take its place during a gap
+    /// (a 2 s pause of the autopilot was enough), so the lock stays on its address.
+    pub may_move: bool,
 }
 
 /// Why a frame was dropped.
@@ -173,7 +178,7 @@ impl Trust {
                 match (peer == v.peer, same_ids) {
                     (true, true) => Ok(Admitted::Vehicle),
                     (true, false) => Err(Refusal::ForeignSystem),
-                    (false, true) if vehicle_lost && lockable.is_some() => {
+                    (false, true) if vehicle_lost && lockable.is_some() && self.filter.may_move => {
                         let moved = Vehicle { peer, ..v };
                         self.vehicle = Some(moved);
                         Ok(Admitted::Locked(moved))
@@ -261,7 +266,7 @@ mod tests {
 
     #[test]
     fn given_ids_lock_only_to_that_vehicle() {
-        let mut t = Trust::new(VehicleFilter { system_id: Some(42), component_id: Some(1) });
+        let mut t = Trust::new(VehicleFilter { system_id: Some(42), component_id: Some(1), may_move: false });
         let px4 = heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4);
         assert_eq!(t.admit(at(5000), &header(1, 1), &px4, false), Err(Refusal::NoVehicle));
         assert_eq!(t.admit(at(5000), &header(42, 2), &px4, false), Err(Refusal::NoVehicle));
@@ -272,8 +277,24 @@ mod tests {
     }
 
     #[test]
-    fn a_lost_vehicle_is_found_again_at_a_new_address_only_with_its_own_ids_and_only_once_lost() {
+    fn an_unsigned_link_never_moves_its_lock_to_a_new_address_even_when_the_vehicle_was_lost() {
         let mut t = Trust::new(VehicleFilter::default());
+        let px4 = heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4);
+        t.admit(at(5000), &header(1, 1), &px4, false).expect("locks");
+        // Someone else with the vehicle's ids during a heartbeat gap: refused.
+        assert_eq!(t.admit(at(6000), &header(1, 1), &px4, true), Err(Refusal::ForeignAddress));
+        assert_eq!(t.vehicle().map(|v| v.peer), Some(at(5000)), "still locked to the vehicle's address");
+        assert_eq!(
+            t.admit(at(5000), &header(1, 1), &px4, true),
+            Ok(Admitted::Vehicle),
+            "the vehicle comes back"
+        );
+    }
+
+    #[test]
+    fn a_lost_vehicle_is_found_again_at_a_new_address_only_on_a_signed_link_with_its_own_ids_and_only_once_lost()
+     {
+        let mut t = Trust::new(VehicleFilter { may_move: true, ..VehicleFilter::default() });
         let px4 = heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4);
         t.admit(at(5000), &header(1, 1), &px4, false).expect("locks");
         assert_eq!(t.admit(at(6000), &header(1, 1), &px4, false), Err(Refusal::ForeignAddress), "alive");
