@@ -484,9 +484,13 @@ pub fn san_name(name: &str) -> Result<String, String> {
             && !l.starts_with('-')
             && !l.ends_with('-')
     };
-    if name.len() > 253 || host.is_empty() || !host.split('.').all(label_ok) {
+    // A last label of digits only is no host name (RFC 1123, 2.1): `1.2.3.4.5` is a mistyped
+    // address, not a name.
+    let numeric_tld = host.rsplit('.').next().is_some_and(|l| l.chars().all(|c| c.is_ascii_digit()));
+    if name.len() > 253 || host.is_empty() || !host.split('.').all(label_ok) || numeric_tld {
         return Err(format!(
-            "{name:?} is neither an IP address nor a DNS name (letters, digits and `-` between dots)"
+            "{name:?} is neither an IP address nor a DNS name (letters, digits and `-` between dots, \
+             not all digits at the end; `*.` may lead)"
         ));
     }
     Ok(name.to_string())

@@ -175,7 +175,20 @@ mod tests {
         for good in ["plant", "bench.example.org", "*.example.org", "10.0.0.7", "fe80::1", "a-1.b"] {
             assert_eq!(san_name(good), Ok(good.to_string()), "{good}");
         }
-        for bad in ["", " ", "my host", "a..b", "-a", "a-", "host/x", "*.", "caf\u{e9}", &"a".repeat(64)] {
+        for bad in [
+            "",
+            " ",
+            "my host",
+            "a..b",
+            "-a",
+            "a-",
+            "host/x",
+            "*.",
+            "caf\u{e9}",
+            &"a".repeat(64),
+            "1.2.3.4.5",
+            "10.0.0.256",
+        ] {
             assert!(san_name(bad).is_err(), "{bad:?} accepted");
         }
     }
