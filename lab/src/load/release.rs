@@ -311,6 +311,17 @@ async fn udp_run(profile: DirectionProfile, seconds: f64, rate_hz: f64) -> anyho
     let at_client = tokio::task::spawn_blocking(move || at_client.join())
         .await?
         .map_err(|_| anyhow::anyhow!("reader panicked"))?;
+    // Until netem has counted every copy (a task counts them after the release thread sent
+    // them), or 30 s and the run shows the loss.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let st = control.get_stats(pb::GetStatsRequest {}).await?.into_inner();
+        let held = |d: &Option<pb::DirectionStats>| d.as_ref().map_or(0, |d| d.in_flight);
+        if held(&st.plant_to_controller) + held(&st.controller_to_plant) == 0 || Instant::now() > deadline {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
     let records = control.stop_trace(pb::StopTraceRequest {}).await?.into_inner().records;
     let _ = stop.send(());
     let _ = netem.await;
