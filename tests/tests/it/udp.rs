@@ -56,6 +56,33 @@ async fn netem_control(addr: &str) -> NetemControlClient<Channel> {
     }
 }
 
+/// The gateway flying `scenario` over `link` (opened as `mavlink` says), recording its
+/// TIMESYNC round trips in `record_link`.
+async fn start_gateway(
+    mavlink: String,
+    link: Link,
+    scenario: &Scenario,
+    record_link: &std::path::Path,
+) -> server::Running<gateway::GatewayError> {
+    let mut config = GatewayConfig::new(mavlink, scenario.clone());
+    config.record_link = Some(record_link.to_path_buf());
+    server::start("gateway", move |listener, shutdown| {
+        gateway::serve_with_link(listener, config, link, shutdown)
+    })
+    .await
+}
+
+/// `mavsim` flying `scenario` as PX4 on `mavlink`, unsigned.
+fn start_mavsim(mavlink: String, scenario: &Scenario) -> Mavsim {
+    Mavsim::start(&MavsimConfig {
+        mavlink,
+        scenario: scenario.clone(),
+        autopilot: Default::default(),
+        signing_key: None,
+    })
+    .expect("mavsim starts")
+}
+
 /// The `netem` binary forwarding datagrams from a free loopback port (returned) to `forward`,
 /// without delay, with `extra` flags, and a client of its NetemControl.
 async fn start_udp_netem(forward: &str, extra: &[&str]) -> (Service, NetemControlClient<Channel>, String) {
@@ -126,22 +153,11 @@ async fn paper_2_over_netems_udp_link_to_mavsim_reaches_the_goal_and_the_datagra
     // The gateway listens for MAVLink; netem forwards the vehicle's datagrams to it.
     let link = Link::open_signed("udpin:127.0.0.1:0", 255, 191, None).expect("a loopback UDP port");
     let gateway_port = link.local_addr.expect("bound").port();
-    let mut config = GatewayConfig::new(format!("udpin:127.0.0.1:{gateway_port}"), scenario.clone());
-    config.record_link = Some(link_file.clone());
-    let gateway = server::start("gateway", move |listener, shutdown| {
-        gateway::serve_with_link(listener, config, link, shutdown)
-    })
-    .await;
+    let gateway = start_gateway(format!("udpin:127.0.0.1:{gateway_port}"), link, &scenario, &link_file).await;
 
     let (_netem, mut control, udp_listen) = start_udp_netem(&format!("127.0.0.1:{gateway_port}"), &[]).await;
 
-    let vehicle = Mavsim::start(&MavsimConfig {
-        mavlink: format!("udpout:{udp_listen}"),
-        scenario: scenario.clone(),
-        autopilot: Default::default(),
-        signing_key: None,
-    })
-    .expect("mavsim starts");
+    let vehicle = start_mavsim(format!("udpout:{udp_listen}"), &scenario);
 
     // Armed and in OFFBOARD through netem (no delay yet).
     crate::gateway::arm_and_offboard(gateway.addr).await;
@@ -158,14 +174,7 @@ async fn paper_2_over_netems_udp_link_to_mavsim_reaches_the_goal_and_the_datagra
     let mut gamma =
         delay::DirectionProfile::with_delay(Distribution::Gamma { shape: SHAPE, scale_s: SCALE_S }, 42);
     gamma.ordering = Ordering::Independent;
-    control
-        .set_profile(pb::SetProfileRequest {
-            direction: pb::Direction::ControllerToPlant as i32,
-            profile: Some(pb::DirectionProfile::from(&gamma)),
-            preset: String::new(),
-        })
-        .await
-        .expect("profile set at run time");
+    set_profile(&mut control, pb::Direction::ControllerToPlant, &gamma).await;
     control.start_trace(pb::StartTraceRequest {}).await.expect("trace started");
 
     // The controller reaches the gateway through a gRPC netem without delay: every delay of
@@ -490,22 +499,14 @@ async fn netems_udp_link_loses_duplicates_and_reorders_datagrams_as_its_statisti
         (0, 0, 0),
         "{udp:?}"
     );
-    let reordered_to_far = check_direction(
-        "to the far side",
-        N,
-        &at_far.lock().expect("arrivals"),
-        s.plant_to_controller.as_ref().expect("stats"),
-        &of(pb::Direction::PlantToController),
-        &to_far,
-    );
-    let reordered_to_client = check_direction(
-        "to the client",
-        N,
-        &at_client.lock().expect("arrivals"),
-        s.controller_to_plant.as_ref().expect("stats"),
-        &of(pb::Direction::ControllerToPlant),
-        &to_client,
-    );
+    let [reordered_to_far, reordered_to_client] = [
+        ("to the far side", &at_far, &s.plant_to_controller, pb::Direction::PlantToController, &to_far),
+        ("to the client", &at_client, &s.controller_to_plant, pb::Direction::ControllerToPlant, &to_client),
+    ]
+    .map(|(what, arrivals, stats, dir, profile)| {
+        let arrivals = arrivals.lock().expect("arrivals");
+        check_direction(what, N, &arrivals, stats.as_ref().expect("stats"), &of(dir), profile)
+    });
     // Independent delays of 5-25 ms a millisecond apart overtake each other all the time;
     // FIFO never does.
     eprintln!("reordered arrivals: {reordered_to_far} to the far side, {reordered_to_client} to the client");
@@ -592,25 +593,14 @@ async fn a_gateway_arms_a_listening_vehicle_through_netem_with_the_plant_side_fo
     let dir = TempDir::new("netem-udp-forward");
     let link_file = dir.join("link.csv");
     let vehicle_port = free_udp_port();
-    let vehicle = Mavsim::start(&MavsimConfig {
-        mavlink: format!("udpin:127.0.0.1:{vehicle_port}"),
-        scenario: scenario.clone(),
-        autopilot: Default::default(),
-        signing_key: None,
-    })
-    .expect("mavsim starts");
+    let vehicle = start_mavsim(format!("udpin:127.0.0.1:{vehicle_port}"), &scenario);
     let (_netem, mut control, udp_listen) =
         start_udp_netem(&format!("127.0.0.1:{vehicle_port}"), &["--udp-plant-side", "forward"]).await;
     let commands = delay::DirectionProfile::with_delay(Distribution::Constant { delay_s: DELAY_S }, 1);
     set_profile(&mut control, pb::Direction::ControllerToPlant, &commands).await;
 
     let link = Link::open_signed(&format!("udpout:{udp_listen}"), 255, 191, None).expect("a UDP link");
-    let mut config = GatewayConfig::new(format!("udpout:{udp_listen}"), scenario.clone());
-    config.record_link = Some(link_file.clone());
-    let gateway = server::start("gateway", move |listener, shutdown| {
-        gateway::serve_with_link(listener, config, link, shutdown)
-    })
-    .await;
+    let gateway = start_gateway(format!("udpout:{udp_listen}"), link, &scenario, &link_file).await;
     crate::gateway::arm_and_offboard(gateway.addr).await;
     // A few TIMESYNC round trips (one every 0.5 s).
     tokio::time::sleep(Duration::from_secs(3)).await;
