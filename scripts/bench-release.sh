@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Release precision, side by side on this machine (BENCHMARKS.md, "Release precision"):
 #   1. the machine's floor, bare clock_nanosleep wake-ups at netem's own release deadlines,
-#   2. netem's release error in its gRPC path at each rate, constant and Gamma delays,
+#   2. netem's release error in its gRPC path and in its UDP path (--udp-listen) at each rate,
+#      constant and Gamma delays,
 #   3. Linux `tc netem` on a veth pair between two network namespaces, where the kernel has
 #      sch_netem (constant delay, ping at the rate: round trip minus the delay and the pair's
 #      own round trip without netem),

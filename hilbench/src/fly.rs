@@ -128,8 +128,9 @@ pub struct Flight {
     pub summary: RunSummary,
     pub rows: Vec<crate::run::CycleRow>,
     /// Delays the run drew from its round trip by its end: one per cycle for the bench's
-    /// controller, netem's count of commands delayed for an external one (which can have
-    /// several in flight, and draws for commands it never sees applied). `None`: unknown.
+    /// controller, netem's count of the commands delayed before the end for an external one
+    /// (`ExternalFacts::commands_delayed`: it can have several in flight, and draws for
+    /// commands it never sees applied). `None`: unknown.
     pub delays_drawn: Option<usize>,
 }
 

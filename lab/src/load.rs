@@ -74,8 +74,9 @@ enum Bench {
         #[arg(long, default_value_t = 20.0)]
         delay_ms: f64,
     },
-    /// netem's release error beside the machine's floor (bare sleeps to the same deadlines)
-    /// at each rate, constant and Gamma delays, and the plant's real-time step jitter.
+    /// netem's release error, gRPC and UDP paths, beside the machine's floor (bare sleeps to
+    /// the same deadlines) at each rate, constant and Gamma delays, and the plant's real-time
+    /// step jitter.
     Release(release::Args),
     /// Memory of a netem process (`VmRSS`) before and after `--streams` StateStream
     /// subscribers that read their first sample and then never read again, in front of a

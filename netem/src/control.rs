@@ -145,6 +145,26 @@ impl pb::netem_control_server::NetemControl for Control {
         Ok(Response::new(pb::Trace { records: records.iter().map(pb::TraceRecord::from).collect() }))
     }
 
+    async fn commands_sent_before(
+        &self,
+        request: Request<pb::CommandsSentBeforeRequest>,
+    ) -> Result<Response<pb::CommandsSentBeforeResponse>, Status> {
+        let t = request.get_ref().before_plant_time_ns;
+        let inner = self.shared.lock();
+        if inner.mode != Some(Mode::Lockstep) {
+            return Err(Status::failed_precondition(
+                "commands are counted by plant time in lockstep only (netem's clock is not the plant's)",
+            ));
+        }
+        let commands = inner.command_times.before(t).ok_or_else(|| {
+            Status::out_of_range(format!(
+                "plant time {t} ns is older than the {} plant times netem keeps",
+                crate::command_times::KEPT_TIMES
+            ))
+        })?;
+        Ok(Response::new(pb::CommandsSentBeforeResponse { commands }))
+    }
+
     type StreamDeliveriesStream = RecordStream;
 
     async fn stream_deliveries(

@@ -96,6 +96,9 @@ pub struct Inner {
     pub deliveries_lagged: u64,
     /// The UDP proxy's peers and refusals (`None` in gRPC mode).
     pub udp: Option<crate::udp::Peers>,
+    /// Lockstep: the plant time each command was drawn at, since the plant's last reset
+    /// through netem (`NetemControl.CommandsSentBefore`).
+    pub command_times: crate::command_times::CommandTimes,
 }
 
 impl Inner {
@@ -124,6 +127,10 @@ impl Inner {
         let ended = self.trace_ended(dir);
         let d = self.lines[dir.index()].send(send_ns);
         self.stats[dir.index()].record_decision(&d);
+        if dir == Direction::ControllerToPlant && self.mode == Some(Mode::Lockstep) {
+            // In lockstep a command's send time is the plant time netem knows.
+            self.command_times.push(send_ns);
+        }
         if let Some(ended) = ended.as_ref().filter(|_| d.trace_ended) {
             tracing::warn!(direction = ?dir, message = d.seq, "{ended}");
         }
@@ -304,6 +311,7 @@ impl Net {
             refused_invalid: 0,
             deliveries_lagged: 0,
             udp: None,
+            command_times: Default::default(),
         };
         Ok(Arc::new(Self {
             inner: Mutex::new(inner),

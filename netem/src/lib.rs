@@ -20,6 +20,7 @@
 //! `netem-sample-*` metadata; stream items are described on `NetemControl.StreamDeliveries`.
 
 pub mod clock;
+pub mod command_times;
 pub mod control;
 mod core;
 pub mod proxy;

@@ -441,6 +441,7 @@ impl pb::plant_server::Plant for Proxy {
         for line in &mut inner.lines {
             line.reset();
         }
+        inner.command_times = Default::default();
         inner.plant_time_ns = r.sample.as_ref().map(|s| s.time_ns);
         inner.last_sample = r.sample.clone();
         tracing::info!(

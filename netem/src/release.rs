@@ -11,8 +11,10 @@
 //!
 //! ## What a release costs
 //! The release actions run on this thread one after the other, so they must be short (a
-//! channel send, a push into a stream's buffer): the release error of a copy includes the
-//! actions of the copies due before it.
+//! channel send, a push into a stream's buffer, a datagram's `send_to`): the release error of
+//! a copy includes the actions of the copies due before it. They should not take netem's lock
+//! either: a task holding it may be preempted, and the thread would wait for it (the UDP path
+//! did, p99 in milliseconds under load, until its copies were counted by a task instead).
 
 use std::sync::mpsc;
 use std::sync::{Arc, OnceLock};

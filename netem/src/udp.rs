@@ -8,6 +8,10 @@
 //! (an ephemeral port), which sends to the forward address and hears its answers. A datagram
 //! is one message of its direction: drawn on the line, each copy released by the release
 //! thread, which sends it (to the forward address, or back to the client) at its release.
+//! The release thread only sends: what became of the copy is counted by a task
+//! ([`keep_books`]), as the gRPC path counts a command in its forwarder, so that the real-time
+//! thread never waits for netem's lock while a task of the runtime holds it (a normal thread
+//! preempted under load kept it waiting for milliseconds: `lab load release`, BENCHMARKS.md).
 //!
 //! **Who may talk** ([`Peers`], pure): as any UDP proxy, netem learns its client from the first
 //! datagram on the listen socket, and from then on forwards only that address's datagrams;
@@ -276,21 +280,60 @@ pub async fn run(net: Arc<Net>, sockets: Sockets, config: UdpConfig) -> std::io:
     net.lock().udp = Some(Peers::new(&config, sockets.listen_addr));
     let listen_rx = tokio::net::UdpSocket::from_std(sockets.listen.try_clone()?)?;
     let forward_rx = tokio::net::UdpSocket::from_std(sockets.forward.try_clone()?)?;
+    let (sent_tx, sent_rx) = tokio::sync::mpsc::unbounded_channel();
     let client_side = receive(
         net.clone(),
         listen_rx,
         config.plant_side.client_to_forward(),
-        sockets.forward.clone(),
+        Out { socket: sockets.forward.clone(), sent: sent_tx.clone() },
         ListenOrForward::Listen,
     );
     let forward_side = receive(
-        net,
+        net.clone(),
         forward_rx,
         config.plant_side.forward_to_client(),
-        sockets.listen.clone(),
+        Out { socket: sockets.listen.clone(), sent: sent_tx },
         ListenOrForward::Forward,
     );
-    tokio::try_join!(client_side, forward_side).map(|_| ())
+    let books = keep_books(net, sent_rx);
+    tokio::try_join!(client_side, forward_side, books).map(|_| ())
+}
+
+/// A copy the release thread sent, or failed to send (where to, and why).
+struct Sent {
+    msg: Msg,
+    release_error_ns: i64,
+    failed: Option<(SocketAddr, std::io::Error)>,
+}
+
+/// Where one direction's copies leave, and where the release thread reports them.
+struct Out {
+    socket: Arc<std::net::UdpSocket>,
+    sent: tokio::sync::mpsc::UnboundedSender<Sent>,
+}
+
+/// Counts what the release thread sent (`delivered`, with its release error) or could not
+/// (`dropped`, a send error), under netem's lock, off the real-time thread.
+async fn keep_books(
+    net: Arc<Net>,
+    mut sent: tokio::sync::mpsc::UnboundedReceiver<Sent>,
+) -> std::io::Result<()> {
+    let mut batch = Vec::with_capacity(64);
+    while sent.recv_many(&mut batch, 64).await > 0 {
+        let mut inner = net.lock();
+        for s in batch.drain(..) {
+            match s.failed {
+                None => inner.delivered(&s.msg, s.release_error_ns),
+                Some((to, e)) => {
+                    if let Some(p) = inner.udp.as_mut() {
+                        p.send_errors += 1;
+                    }
+                    inner.dropped(&s.msg, &format!("send to {to} failed: {e}"));
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -305,7 +348,7 @@ async fn receive(
     net: Arc<Net>,
     socket: tokio::net::UdpSocket,
     dir: Direction,
-    out: Arc<std::net::UdpSocket>,
+    out: Out,
     side: ListenOrForward,
 ) -> std::io::Result<()> {
     let mut buf = vec![0u8; MAX_DATAGRAM];
@@ -346,19 +389,10 @@ async fn receive(
         let d = inner.decide(dir, now, payload_seq);
         drop(inner);
         for m in Msg::copies(&d, dir, payload_seq) {
-            let (net2, out, datagram) = (net.clone(), out.clone(), buf[..n].to_vec());
+            let (socket, sent, datagram) = (out.socket.clone(), out.sent.clone(), buf[..n].to_vec());
             let action = Box::new(move |release_error_ns: i64| {
-                let sent = out.send_to(&datagram, to);
-                let mut inner = net2.lock();
-                match sent {
-                    Ok(_) => inner.delivered(&m, release_error_ns),
-                    Err(e) => {
-                        if let Some(p) = inner.udp.as_mut() {
-                            p.send_errors += 1;
-                        }
-                        inner.dropped(&m, &format!("send to {to} failed: {e}"));
-                    }
-                }
+                let failed = socket.send_to(&datagram, to).err().map(|e| (to, e));
+                let _ = sent.send(Sent { msg: m, release_error_ns, failed });
             });
             if net.releaser.schedule(m.release_ns, action).is_err() {
                 net.lock().dropped(&m, "netem is shutting down");

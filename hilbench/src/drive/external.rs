@@ -327,10 +327,16 @@ impl<'a> ExternalFlight<'a> {
             }
         }
         let episode_s = episode_started.elapsed().as_secs_f64();
-        // Before the controller is stopped: every command sent before the end has had its delay
-        // drawn by now (the plant stepped to the end while netem advanced it for a command
-        // already delayed), so the count is never short of what a replay needs.
-        self.commands_delayed = commands_delayed(netem_addr, deadline).await;
+        // Every command sent before the end has had its delay drawn by now (the plant stepped
+        // to the end while netem advanced it for a command already delayed). In lockstep netem
+        // counts those sent at plant times before the end's, whatever the controller sends
+        // while it is asked; in real time it is asked before the controller is stopped, so
+        // that its count is never short of what a replay needs.
+        let lockstep_end_ns = match self.controller.time_mode {
+            TimeMode::Lockstep => self.judge.end.as_ref().map(|(_, s)| s.time_ns),
+            TimeMode::RealTime => None,
+        };
+        self.commands_delayed = commands_delayed(netem_addr, deadline, lockstep_end_ns).await;
         let stopping = Instant::now();
         if exited.is_none() {
             self.exit = Some(process.stop(settings.stop_grace).await);
@@ -386,14 +392,32 @@ impl<'a> ExternalFlight<'a> {
     }
 }
 
-/// netem's commands sent (each drew a delay) and refused as invalid, or `None` when it cannot
+/// netem's commands that drew a delay and those it refused as invalid, or `None` when it cannot
 /// be asked (summary.json then says `null`, and a failure's trace keeps every delay the run
-/// had).
-async fn commands_delayed(netem_addr: &str, deadline: Instant) -> Option<(u64, u64)> {
+/// had). With `lockstep_end_ns` (the plant time of the run's end, in lockstep) the commands
+/// sent before it (`NetemControl.CommandsSentBefore`): the same for identical runs, however
+/// long the controller stepped on after the end; otherwise every command sent so far.
+async fn commands_delayed(
+    netem_addr: &str,
+    deadline: Instant,
+    lockstep_end_ns: Option<u64>,
+) -> Option<(u64, u64)> {
     let asked = async {
         let mut control = NetemControlClient::new(connect(netem_addr, deadline).await?);
         let stats = control.get_stats(pb::GetStatsRequest {}).await.context("netem GetStats")?.into_inner();
-        anyhow::Ok(stats.controller_to_plant.map_or((0, 0), |d| (d.sent, d.refused_invalid)))
+        let (sent, refused) = stats.controller_to_plant.map_or((0, 0), |d| (d.sent, d.refused_invalid));
+        let delayed = match lockstep_end_ns {
+            Some(t) => {
+                control
+                    .commands_sent_before(pb::CommandsSentBeforeRequest { before_plant_time_ns: t })
+                    .await
+                    .context("netem CommandsSentBefore")?
+                    .into_inner()
+                    .commands
+            }
+            None => sent,
+        };
+        anyhow::Ok((delayed, refused))
     };
     asked.await.ok()
 }

@@ -252,12 +252,13 @@ pub struct ExternalFacts {
     /// Commands the plant applied, as seen at its steps (one replaced within a step is not
     /// seen); the CSV has a row for each.
     pub commands_applied: u64,
-    /// Commands netem drew a delay for by the end of the run (`NetemControl.GetStats`'s
-    /// commands sent, asked as soon as the end is judged): each took one entry of a trace, so
-    /// a failure's trace keeps this many to replay. It can exceed the commands sent before the
-    /// end (the controller steps on until it is stopped), never fall short of them; commands
-    /// still in flight at the end are among them, and not in `commands_applied`. `None` when
-    /// netem could not be asked.
+    /// Commands netem drew a delay for before the end of the run: each took one entry of a
+    /// trace, so a failure's trace keeps this many to replay; commands still in flight at the
+    /// end are among them, and not in `commands_applied`. In lockstep those sent at plant times
+    /// before the end's (`NetemControl.CommandsSentBefore`), the same for identical runs
+    /// whatever the controller sent after the end; in real time netem's count of commands sent
+    /// as soon as the end is judged (`GetStats`), which can exceed them (the controller goes on
+    /// until it is stopped) and never falls short. `None` when netem could not be asked.
     pub commands_delayed: Option<u64>,
     /// Commands netem refused to the controller as invalid (`INVALID_ARGUMENT`: a NaN, a value
     /// out of range, a wrong length), never delayed nor applied; `None` when netem could not be

@@ -5,6 +5,11 @@
 //! the echo plant (samples streamed one way, commands sent the other, both at the rate) with a
 //! trace of every decision. Its release error is each delivered copy's `release_error_ns`
 //! (actual minus scheduled, measured by the release thread when it runs the copy's release).
+//! Then the same for netem's UDP path ([`udp_run`]: `netem::serve_udp` in process, a client
+//! sending numbered datagrams at the rate, the far side echoing each one back, so both
+//! directions carry the rate), with the receivers' view beside it: each datagram's arrival
+//! minus its scheduled release, less the smallest such difference (the clocks' offset and the
+//! fastest loopback crossing), so the forwarding and the receiver's wake-up included.
 //! The copies' scheduled release times are then replayed, shifted to now, by bare threads
 //! that only sleep to each deadline and read the clock: the machine's floor, in three
 //! variants (a plain thread; a `SCHED_FIFO` thread; a `SCHED_FIFO` thread that sleeps to
@@ -141,12 +146,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
                     .with_context(|| case.clone())?;
             lost |= run.check().is_err();
             let delivered: Vec<&pb::TraceRecord> = run.records.iter().filter(|r| !r.dropped).collect();
-            let mut errors = Window::default();
-            let mut early = 0u64;
-            for r in &delivered {
-                early += u64::from(r.release_error_ns < 0);
-                errors.push(r.release_error_ns.unsigned_abs());
-            }
+            let (errors, early) = release_errors(&run.records);
             let mut deadlines: Vec<u64> = delivered.iter().map(|r| r.release_time_ns).collect();
             deadlines.sort_unstable();
             for floor in Floor::ALL {
@@ -167,6 +167,26 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
                 errors.percentiles().unwrap_or_default(),
                 &note,
             );
+            let profile = DirectionProfile::with_delay(delay.clone(), 42);
+            let udp = udp_run(profile, args.seconds, rate).await.with_context(|| format!("{case}, UDP"))?;
+            lost |= udp.lost();
+            let (errors, early) = release_errors(&udp.records);
+            let seen = udp.received.percentiles().unwrap_or_default();
+            let us = |ns: u64| ns as f64 / 1e3;
+            let note = format!(
+                "{} of {} datagrams delivered; {early} early; receivers' view, above its fastest: {:.1} / {:.1} / {:.1}",
+                errors.count(),
+                2 * udp.sent,
+                us(seen.p50_ns),
+                us(seen.p99_ns),
+                us(seen.max_ns)
+            );
+            row(
+                &format!("{case} | netem, UDP path"),
+                errors.count(),
+                errors.percentiles().unwrap_or_default(),
+                &note,
+            );
         }
     }
     let seconds = args.seconds;
@@ -183,6 +203,152 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         anyhow::bail!("netem lost messages (see above)");
     }
     Ok(())
+}
+
+/// The release errors of the delivered copies of `records` (their magnitudes), and how many
+/// were early.
+fn release_errors(records: &[pb::TraceRecord]) -> (Window, u64) {
+    let mut errors = Window::default();
+    let mut early = 0u64;
+    for r in records.iter().filter(|r| !r.dropped) {
+        early += u64::from(r.release_error_ns < 0);
+        errors.push(r.release_error_ns.unsigned_abs());
+    }
+    (errors, early)
+}
+
+/// What [`udp_run`] measured.
+struct UdpRun {
+    /// Datagrams the client sent (and the far side echoed as many).
+    sent: u64,
+    /// Every decision of both directions.
+    records: Vec<pb::TraceRecord>,
+    /// The receivers' view: each datagram's arrival minus its scheduled release (netem's
+    /// clock), less the smallest of them, ns.
+    received: Window,
+}
+
+impl UdpRun {
+    fn lost(&self) -> bool {
+        self.records.iter().any(|r| r.dropped) || self.received.count() != 2 * self.sent
+    }
+}
+
+/// netem's UDP proxy in process with `profile` both ways: a client sends datagrams numbered
+/// `0..n` at `rate_hz` for `seconds` to its listen port, the far side (its forward address)
+/// echoes each one back numbered by arrival, and both receivers stamp each arrival.
+async fn udp_run(profile: DirectionProfile, seconds: f64, rate_hz: f64) -> anyhow::Result<UdpRun> {
+    use std::net::UdpSocket;
+    use std::time::{Duration, Instant};
+    let n = (seconds * rate_hz).round() as u64;
+    let period = Duration::from_secs_f64(1.0 / rate_hz);
+    let far = UdpSocket::bind("127.0.0.1:0")?;
+    let client = UdpSocket::bind("127.0.0.1:0")?;
+    let udp = netem::udp::UdpConfig {
+        listen: "127.0.0.1:0".parse()?,
+        forward: far.local_addr()?,
+        plant_side: netem::udp::Side::Listen,
+    };
+    let mut config = netem::Config::new("unused");
+    config.plant_to_controller = profile.clone();
+    config.controller_to_plant = profile;
+    let control_listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+    let control_addr = control_listener.local_addr()?;
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    let netem = tokio::spawn(netem::serve_udp(control_listener, config, udp, async {
+        let _ = stopped.await;
+    }));
+    let channel = tonic::transport::Channel::from_shared(format!("http://{control_addr}"))?.connect().await?;
+    let mut control = hilbench_proto::pb::netem_control_client::NetemControlClient::new(channel);
+    let stats = control.get_stats(pb::GetStatsRequest {}).await?.into_inner();
+    let listen: std::net::SocketAddr =
+        stats.udp.context("UDP stats")?.listen_address.parse().context("netem's listen address")?;
+    control.start_trace(pb::StartTraceRequest {}).await?;
+
+    // Each receiver keeps (number, arrival); the far side echoes what it gets, numbered by
+    // arrival (the number netem gives the echo, its `payload_seq`).
+    let origin = Instant::now();
+    let receive =
+        |socket: &UdpSocket, echo: bool| -> anyhow::Result<std::thread::JoinHandle<Vec<(u64, u64)>>> {
+            let socket = socket.try_clone()?;
+            socket.set_read_timeout(Some(Duration::from_secs(2)))?;
+            Ok(std::thread::spawn(move || {
+                let mut got = Vec::with_capacity(n as usize);
+                let mut buf = [0u8; 64];
+                while (got.len() as u64) < n {
+                    let Ok((len, from)) = socket.recv_from(&mut buf) else { break };
+                    let at = origin.elapsed().as_nanos() as u64;
+                    if len != 8 {
+                        continue;
+                    }
+                    let k = u64::from_le_bytes(buf[..8].try_into().unwrap_or_default());
+                    if echo {
+                        let _ = socket.send_to(&(got.len() as u64).to_le_bytes(), from);
+                    }
+                    got.push((k, at));
+                }
+                got
+            }))
+        };
+    let at_far = receive(&far, true)?;
+    let at_client = receive(&client, false)?;
+    let sender = std::thread::spawn(move || {
+        let start = Instant::now();
+        for k in 0..n {
+            let due = start + period.mul_f64(k as f64);
+            std::thread::sleep(due.saturating_duration_since(Instant::now()));
+            if client.send_to(&k.to_le_bytes(), listen).is_err() {
+                break;
+            }
+        }
+    });
+    tokio::task::spawn_blocking(move || sender.join())
+        .await?
+        .map_err(|_| anyhow::anyhow!("sender panicked"))?;
+    let at_far = tokio::task::spawn_blocking(move || at_far.join())
+        .await?
+        .map_err(|_| anyhow::anyhow!("reader panicked"))?;
+    let at_client = tokio::task::spawn_blocking(move || at_client.join())
+        .await?
+        .map_err(|_| anyhow::anyhow!("reader panicked"))?;
+    // Until netem has counted every copy (a task counts them after the release thread sent
+    // them), or 30 s and the run shows the loss.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let st = control.get_stats(pb::GetStatsRequest {}).await?.into_inner();
+        let held = |d: &Option<pb::DirectionStats>| d.as_ref().map_or(0, |d| d.in_flight);
+        if held(&st.plant_to_controller) + held(&st.controller_to_plant) == 0 || Instant::now() > deadline {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let records = control.stop_trace(pb::StopTraceRequest {}).await?.into_inner().records;
+    let _ = stop.send(());
+    let _ = netem.await;
+
+    // Scheduled releases per direction and number (no loss or duplicates are configured: one
+    // copy each). The client's datagrams go to the far side: plant_to_controller
+    // (`--udp-plant-side listen`); the echoes come back: controller_to_plant.
+    let release = |dir: pb::Direction| -> std::collections::HashMap<u64, u64> {
+        records
+            .iter()
+            .filter(|r| r.direction == dir as i32 && !r.dropped)
+            .map(|r| (r.payload_seq, r.release_time_ns))
+            .collect()
+    };
+    let (to_far, to_client) =
+        (release(pb::Direction::PlantToController), release(pb::Direction::ControllerToPlant));
+    let raw: Vec<i128> = at_far
+        .iter()
+        .filter_map(|(k, at)| to_far.get(k).map(|r| *at as i128 - *r as i128))
+        .chain(at_client.iter().filter_map(|(k, at)| to_client.get(k).map(|r| *at as i128 - *r as i128)))
+        .collect();
+    let fastest = raw.iter().copied().min().unwrap_or(0);
+    let mut received = Window::default();
+    for d in raw {
+        received.push((d - fastest) as u64);
+    }
+    Ok(UdpRun { sent: n, records, received })
 }
 
 /// The plant's real-time step loop at 1 kHz on the wall clock for `seconds` (paper-1, no

@@ -187,6 +187,18 @@ async fn lockstep_command_takes_effect_exactly_at_send_time_plus_delay() {
         assert_eq!(c.applied_time_ns, release, "command {} sent at {send}", c.command_seq);
         assert!(release > send, "Gamma delays are positive");
     }
+    // netem counts each command at the plant time it was sent: those before a time, strictly.
+    let mut control = netem.control().await;
+    for t in [0, 1, 50_000_000, 50_000_001, 1_000_000_000, u64::MAX] {
+        let want = stamps.iter().filter(|(send, _)| *send < t).count() as u64;
+        let got = control
+            .commands_sent_before(pb::CommandsSentBeforeRequest { before_plant_time_ns: t })
+            .await
+            .expect("counted in lockstep")
+            .into_inner()
+            .commands;
+        assert_eq!(got, want, "commands sent before {t} ns");
+    }
     netem.stop().await.expect("netem served cleanly");
     plant.stop().await.expect("plant stops");
 }
@@ -500,6 +512,10 @@ async fn real_time_streams_and_commands_are_delayed_and_stamped() {
     assert_eq!(p.dropped, 0);
     let c = stats.controller_to_plant.expect("c2p");
     assert_eq!((c.sent, c.delivered, c.dropped), (1, 1, 0));
+    // Commands are counted by plant time in lockstep only.
+    let by_time =
+        control.commands_sent_before(pb::CommandsSentBeforeRequest { before_plant_time_ns: 1 }).await;
+    assert_eq!(by_time.expect_err("real time").code(), Code::FailedPrecondition);
     drop(stream);
     netem.stop().await.expect("netem served cleanly");
     plant.stop().await.expect("plant stops");
