@@ -2,7 +2,8 @@
 with INVALID_ARGUMENT, then flies as the example controller (its path is the argument) does.
 The bench must count the three refusals (summary.json's external_controller.commands_refused).
 
-Usage: invalid_first_controller.py PATH/TO/controller.py
+Usage: invalid_first_controller.py PATH/TO/controller.py [--then-exit]
+(--then-exit: exit 5 after the three refusals instead of flying, as a controller that gives up.)
 """
 
 import importlib.util
@@ -15,7 +16,7 @@ import tempfile
 import grpc
 
 
-def main(path):
+def main(path, then_exit=False):
     spec = importlib.util.spec_from_file_location("pd_controller", path)
     pd = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(pd)
@@ -36,8 +37,10 @@ def main(path):
                 sys.exit(f"invalid command {k} was accepted")
     finally:
         shutil.rmtree(out, ignore_errors=True)
+    if then_exit:
+        sys.exit(5)
     pd.main()
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    main(sys.argv[1], then_exit=sys.argv[2:] == ["--then-exit"])

@@ -160,6 +160,12 @@ pub async fn run_external(
     };
     let mut flight = ExternalFlight::new(scenario, controller, delay_profile);
     let result = flight.fly(&plant_addr, &netem_addr, started).await;
+    if result.is_err() && flight.commands_delayed.is_none() {
+        // A run that ended in an error still says what netem delayed and refused (a controller
+        // that gave up after refusals is the case to explain), before netem is stopped.
+        flight.commands_delayed =
+            commands_delayed(&netem_addr, Instant::now() + ASK_NETEM_AFTER_ERROR, None).await;
+    }
     let stopping = Instant::now();
     let stopped = stop_all([netem, plant]).await;
     match result {
@@ -343,22 +349,22 @@ impl<'a> ExternalFlight<'a> {
         }
         self.stop_s = stopping.elapsed().as_secs_f64();
         let (end, last) = self.judge.end.clone().ok_or_else(|| anyhow!("the run has no end"))?;
-        let mut summary = self.judge.summary(&last, end);
+        let summary = self.judge.summary(&last, end);
+        Ok(self.run(summary, last, episode_s))
+    }
+
+    /// The run, ended at `last` with `summary`, and the commands netem refused said in its
+    /// explanation, where the user looks first (the printed summary, summary.json).
+    fn run(&self, mut summary: RunSummary, last: PlantSample, episode_s: f64) -> ExternalRun {
         if let Some((_, refused)) = self.commands_delayed
             && refused > 0
         {
-            // Where the user looks first (the printed summary, summary.json's explanation).
             summary.explanation.push(format!(
                 "netem refused {refused} of the controller's commands as invalid (INVALID_ARGUMENT: a NaN, \
                  a value out of range or a wrong length); they were never applied \
                  (external_controller.commands_refused)"
             ));
         }
-        Ok(self.run(summary, last, episode_s))
-    }
-
-    /// The run, ended at `last` with `summary`.
-    fn run(&self, summary: RunSummary, last: PlantSample, episode_s: f64) -> ExternalRun {
         ExternalRun {
             summary,
             rows: self.judge.rows.clone(),
@@ -391,6 +397,9 @@ impl<'a> ExternalFlight<'a> {
         Some(self.run(summary, last, episode_s))
     }
 }
+
+/// How long a run that ended in an error waits for netem's counts.
+const ASK_NETEM_AFTER_ERROR: Duration = Duration::from_secs(5);
 
 /// netem's commands that drew a delay and those it refused as invalid, or `None` when it cannot
 /// be asked (summary.json then says `null`, and a failure's trace keeps every delay the run

@@ -205,6 +205,32 @@ fn commands_refused_as_invalid_are_counted_in_the_summary_and_explained() {
 }
 
 #[test]
+fn commands_refused_before_a_controller_gives_up_are_still_counted_in_the_failed_runs_summary() {
+    // Three NaN commands refused, then the controller exits 5: the run ends in an error, and
+    // its summary still says what netem refused (it said null before).
+    let out = TempDir::new("external-test-invalid-exit");
+    let file = repo("examples/python-controller/open-field.toml").display().to_string();
+    let command = format!(
+        "'{}' '{}' '{}' --then-exit",
+        python().display(),
+        hilbench_tests::python::scripts_dir().join("invalid_first_controller.py").display(),
+        repo("examples/python-controller/controller.py").display()
+    );
+    let (code, stderr, summary) = hilbench(&["run", &file, "--controller-cmd", &command], &out);
+    assert_ne!(code, Some(0), "a controller that gave up: {stderr}");
+    let run = &summary["runs"][0];
+    assert_eq!(run["end_reason"], "error", "{run:#}");
+    assert_eq!(run["external_controller"]["commands_refused"], 3, "{run:#}");
+    let explanation = run["explanation"].as_array().expect("explanation");
+    assert!(
+        explanation
+            .iter()
+            .any(|e| e.as_str().is_some_and(|e| e.contains("netem refused 3 of the controller's commands"))),
+        "{explanation:?}"
+    );
+}
+
+#[test]
 fn a_process_the_controller_started_outside_its_process_group_is_killed_at_the_end_and_said() {
     let out = TempDir::new("external-test-setsid");
     let pid_file = out.join("escaped.pid");
