@@ -121,7 +121,11 @@ impl Space {
                     .map_err(|e| format!("family {}: {e}", self.name))?;
                 let mut line = DelayLine::new(Direction::ControllerToPlant, network.to_plant)
                     .map_err(|e| format!("family {}: {e}", self.name))?;
-                Ok(trace_at_send_times(scenario, *max_delay_s, |t_ns| line.sample_delay_at(t_ns)))
+                // A message the line loses (the family's `loss`) is a `lost` entry.
+                Ok(trace_at_send_times(scenario, *max_delay_s, |t_ns| {
+                    let draw = line.draw(t_ns);
+                    if draw.lost && !draw.trace_ended { delay::LOST_S } else { draw.sampled_delay_s }
+                }))
             }
         }
     }
@@ -178,7 +182,7 @@ pub fn max_cycles(scenario: &Scenario) -> usize {
 }
 
 /// One delay per cycle of a run of `scenario`: `delay_at(t_k)` at each send time, clipped to
-/// `[0, clip_s]` (NaN: 0), `t_{k+1} = t_k + max(min_cycle_s, d_k)`.
+/// `[0, clip_s]` (NaN: 0; a loss, [`delay::LOST_S`], kept), `t_{k+1} = t_k + max(min_cycle_s, d_k)`.
 pub fn trace_at_send_times(
     scenario: &Scenario,
     clip_s: f64,
@@ -189,7 +193,13 @@ pub fn trace_at_send_times(
     (0..max_cycles(scenario))
         .map(|_| {
             let d = delay_at(t_ns);
-            let d = if d.is_nan() { 0.0 } else { d.clamp(0.0, clip_s) };
+            let d = if d.is_nan() {
+                0.0
+            } else if delay::is_lost(d) {
+                d
+            } else {
+                d.clamp(0.0, clip_s)
+            };
             t_ns = t_ns.saturating_add(cycle_ns.max(delay::delay_ns(d)));
             d
         })

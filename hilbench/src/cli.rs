@@ -358,6 +358,10 @@ pub enum TraceCommand {
         /// Seed of the bootstrap (the same file and seed give the same numbers).
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Print the fits as JSON (every candidate's parameters with their intervals, AIC and KS
+        /// distance, best first; the ranking by KS; the loss share) instead of the tables.
+        #[arg(long)]
+        json: bool,
         /// Draw the data with the fitted densities into DIR (PNG and SVG).
         #[arg(long, value_name = "DIR")]
         plot: Option<PathBuf>,

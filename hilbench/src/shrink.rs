@@ -110,7 +110,12 @@ impl FailureTrace {
         }
         out.push_str("delay_s\n");
         for d in &self.delays_s {
-            out.push_str(&format!("{d:?}\n"));
+            // A lost command is `lost`, as the parser reads it (`-1.0` would be refused).
+            if delay::is_lost(*d) {
+                out.push_str("lost\n");
+            } else {
+                out.push_str(&format!("{d:?}\n"));
+            }
         }
         out
     }
@@ -377,5 +382,13 @@ mod tests {
         assert_eq!(FailureTrace::unshrunk(&delays, &f).delays_s, delays[..7].to_vec());
         f.delays_drawn = None;
         assert_eq!(FailureTrace::unshrunk(&delays, &f).delays_s.len(), 20, "unknown: every delay");
+    }
+
+    #[test]
+    fn a_failure_trace_with_a_lost_command_writes_it_as_lost_and_parses_back() {
+        let delays = vec![0.05, delay::LOST_S, 0.25];
+        let text = FailureTrace::whole(&delays).to_text(&["run 3".into()]);
+        assert!(text.contains("\nlost\n"), "{text}");
+        assert_eq!(delay::parse_trace(&text).expect("a trace file"), delays);
     }
 }

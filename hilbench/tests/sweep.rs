@@ -586,3 +586,95 @@ fn sweep_merge_reads_only_regular_files_naming_the_shards_file() {
     let stderr = String::from_utf8_lossy(&merge.stderr);
     assert!(stderr.contains("sweep.json: a directory; only a regular file is read"), "{stderr}");
 }
+
+#[test]
+fn a_familys_loss_is_drawn_per_run_recorded_flown_as_lost_commands_and_kept_in_the_failure_trace() {
+    let dir = out_dir("sweep-loss");
+    // The short family (the controller reaches the goal) losing 20 to 30 % of its commands.
+    let text = std::fs::read_to_string(short_delays(&dir)).expect("the file");
+    let lossy = dir.join("lossy.toml");
+    std::fs::write(&lossy, text.replace("max_s = 0.05\n", "max_s = 0.05\nloss = [0.2, 0.3]\n"))
+        .expect("write");
+    let out = dir.join("sweep");
+    let sweep = hilbench(&["sweep", s(&lossy), "--runs", "2", "--no-plots", "--quiet", "--out", s(&out)]);
+    assert!(sweep.status.success(), "{sweep:?}");
+    let rows = rows_of(&out);
+    assert_eq!(rows.len(), 2);
+    for row in &rows {
+        // The drawn loss, with the run's other drawn parameters.
+        let loss: f64 = row
+            .params
+            .split(';')
+            .find_map(|p| p.strip_prefix("loss="))
+            .unwrap_or_else(|| panic!("no loss in {:?}", row.params))
+            .parse()
+            .expect("a number");
+        assert!((0.2..=0.3).contains(&loss), "{loss}");
+        // Flown alone, the run loses that share of its commands: the per-cycle CSV's lost
+        // commands (an empty injected_delay_s) within 5 standard deviations of the binomial.
+        let alone = dir.join(format!("run-{}", row.run));
+        let i = row.run.to_string();
+        let run = hilbench(&[
+            "run",
+            s(&lossy),
+            "--in-process",
+            "--no-plots",
+            "--quiet",
+            "--sweep-run",
+            &i,
+            "--out",
+            s(&alone),
+        ]);
+        assert!(run.status.code() == Some(0) || run.status.code() == Some(3), "{run:?}");
+        let csv = std::fs::read_to_string(alone.join(format!("paper-2-long-delays-{}.csv", row.controller)))
+            .expect("the per-cycle CSV");
+        let header: Vec<&str> = csv.lines().next().expect("a header").split(',').collect();
+        let column = header.iter().position(|h| *h == "injected_delay_s").expect("injected_delay_s");
+        let cells: Vec<&str> =
+            csv.lines().skip(1).map(|l| l.split(',').nth(column).expect("a cell")).collect();
+        let n = cells.len() as f64;
+        let lost = cells.iter().filter(|c| c.is_empty()).count() as f64;
+        assert_eq!(Some(row.cycles), Some(cells.len() as u64), "one line a cycle");
+        let sd = (n * loss * (1.0 - loss)).sqrt();
+        assert!(
+            n > 50.0 && (lost - n * loss).abs() < 5.0 * sd,
+            "run {i}: {lost} of {n} commands lost, p = {loss}"
+        );
+    }
+
+    // A failing run's trace keeps its lost commands, and replays to the same end.
+    let text = std::fs::read_to_string(long_delays()).expect("the file");
+    let long_lossy = dir.join("long-lossy.toml");
+    std::fs::write(
+        &long_lossy,
+        text.replace("delay_s = [0.31, 0.33]\n", "delay_s = [0.31, 0.33]\nloss = 0.5\n"),
+    )
+    .expect("write");
+    let out = dir.join("failures");
+    let sweep =
+        hilbench(&["sweep", s(&long_lossy), "--runs", "1", "--no-plots", "--quiet", "--out", s(&out)]);
+    assert!(sweep.status.success(), "{sweep:?}");
+    let v = json_of(&out.join("sweep.json"));
+    let failure = &v["failures"][0];
+    let trace = out.join(failure["trace_file"].as_str().expect("a failure's trace"));
+    let text = std::fs::read_to_string(&trace).expect("the trace");
+    let entries = delay::parse_trace(&text).unwrap_or_else(|e| panic!("{e}\n{text}"));
+    assert!(entries.iter().any(|d| delay::is_lost(*d)), "no lost command in\n{text}");
+    let replay = dir.join("replay");
+    let run = hilbench(&[
+        "run",
+        s(&long_lossy),
+        "--in-process",
+        "--no-plots",
+        "--quiet",
+        "--delay-trace",
+        s(&trace),
+        "--out",
+        s(&replay),
+    ]);
+    assert!(run.status.code() == Some(0) || run.status.code() == Some(3), "{run:?}");
+    let r = &json_of(&replay.join("summary.json"))["runs"][0];
+    for key in ["min_clearance_m", "path_length_m", "cycles", "end_reason"] {
+        assert_eq!(r[key], failure["replay"][key], "{key} of {}", trace.display());
+    }
+}

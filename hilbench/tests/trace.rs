@@ -45,6 +45,15 @@ fn a_ping_recording_imports_with_its_losses_and_fits_into_tables_the_loader_take
     let out = hilbench(&["trace", "fit", &trace.display().to_string(), "--seed", "1"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let tables = String::from_utf8(out.stdout).expect("UTF-8");
+    // The family's loss: the share's Clopper–Pearson interval around 8 of 200.
+    assert!(tables.contains("# loss: the trace lost 8 of 200 probes"), "{tables}");
+    let json = hilbench(&["trace", "fit", &trace.display().to_string(), "--seed", "1", "--json"]);
+    assert!(json.status.success(), "{}", String::from_utf8_lossy(&json.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&json.stdout).expect("JSON");
+    assert_eq!((report["entries"].as_u64(), report["delivered"].as_u64()), (Some(200), Some(192)));
+    assert_eq!(report["loss_probability"].as_f64(), Some(0.04));
+    let first = &report["candidates"][0];
+    assert!(first["model"]["kind"].is_string() && first["params"][0]["lower"].is_f64(), "{first}");
     let delays = tables.split("[[sweep.families]]").next().expect("the scenario table").to_string();
     // The [scenario.delays] table in a scenario file: the loader takes it.
     let paper_2 =

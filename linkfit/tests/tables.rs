@@ -7,6 +7,7 @@ use std::path::Path;
 
 use delay::{DelayLine, Direction, DirectionProfile, Distribution, Dwell, RegimeState};
 use hilbench_svc::scenario_file::ScenarioFile;
+use hilbench_svc::sweep_table::Param;
 use linkfit::{FitOptions, Format, ImportOptions, Kind, fit, import};
 
 /// paper-2's scenario file, renamed, with its `[scenario.delays]` replaced by `tables`.
@@ -60,6 +61,7 @@ fn each_replayable_kind_loads_as_a_scenario_and_a_sweep_family() {
         let sweep = file.sweep.as_ref().expect("a sweep");
         assert_eq!(sweep.families[0].kind, kind.name());
         assert_eq!(sweep.families[0].name(), format!("fit-{}", kind.name()));
+        assert_eq!(sweep.families[0].loss, None, "nothing lost, no loss key");
     }
 }
 
@@ -73,6 +75,11 @@ fn a_recorded_irtt_trace_imports_fits_and_loads_with_its_losses_and_dwell_in_sec
     let file = scenario_with(&both(&report)).unwrap_or_else(|e| panic!("{e}"));
     let delays = file.scenario.delays.expect("delays");
     assert_eq!(delays.loss_probability, Some(5.0 / 199.0));
+    // The sweep family's loss: the loss share's Clopper–Pearson 95 % interval.
+    let family = &file.sweep.as_ref().expect("a sweep").families[0];
+    let want = linkfit::clopper_pearson(5, 199, 0.95).expect("an interval");
+    assert_eq!(family.loss, Some(Param::Range(want.lower, want.upper)));
+    assert!(want.lower < 5.0 / 199.0 && 5.0 / 199.0 < want.upper && want.upper < 0.07, "{want:?}");
     if let Some(states) = delays.states {
         assert!(states.iter().all(|s| s.mean_dwell_s.is_some() && s.mean_dwell_messages.is_none()));
     }

@@ -13,12 +13,15 @@
 //! kind = "gamma"          # a kind of [scenario.delays] ...
 //! shape = [1.0, 30.0]     # ... whose parameters are numbers or ranges [min, max]
 //! scale_s = [0.002, 0.04]
+//! loss = [0.0, 0.05]     # the run's loss probability (optional, any kind; not a state's)
 //! ```
 //!
 //! A family is a delay kind of `delay::spec` (`constant`, `uniform`, `normal`, `gamma`,
 //! `lognormal`, `pareto`, `regime` with ranged states) or `traces`, a folder of recorded trace
 //! files. A run's parameters are drawn uniformly in each range; [`Family::table`] turns the
-//! drawn values into a `delay::DelaysTable`, the one thing the rest of the bench flies.
+//! drawn values into a `delay::DelaysTable`, the one thing the rest of the bench flies. A
+//! family's `loss` is that table's `loss_probability`: each command of the run is lost with
+//! it (a `traces` family's recorded `lost` entries stay lost).
 //!
 //! Validation ([`SweepSection::validate`]) refuses ranges with min > max, non-finite or
 //! negative values (but `mu`, the log of a delay), weights that do not sum to a positive
@@ -137,6 +140,11 @@ pub struct Family {
     /// its trace ends with an error, counted as a failure).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub looping: Option<bool>,
+    /// The run's loss probability, in [0, 1): each command is lost with it, whatever its
+    /// delay (the table's `loss_probability`). Drawn after the other ranges; a family's, not
+    /// a regime state's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub loss: Option<Param>,
     /// `traces`: the files read from `dir` (name, delays), sorted by name; filled by the loader.
     #[serde(skip)]
     pub traces: Vec<(String, Vec<f64>)>,
@@ -189,7 +197,10 @@ impl Family {
         pick_trace: &mut dyn FnMut(usize) -> usize,
     ) -> (DelaysTable, Vec<(String, f64)>) {
         let mut params = Vec::new();
-        let table = self.table_at("", pick, pick_trace, &mut params);
+        let mut table = self.table_at("", pick, pick_trace, &mut params);
+        if let Some(p) = self.loss {
+            table.loss_probability = Some(value(p, "loss".into(), pick, &mut params));
+        }
         (table, params)
     }
 
@@ -209,15 +220,7 @@ impl Family {
         let mut table = DelaysTable { kind: Some(self.kind.clone()), ..DelaysTable::default() };
         for key in NUMERIC {
             let Some(p) = self.param(key) else { continue };
-            let here = join(path, key);
-            let value = match p {
-                Param::Fixed(v) => v,
-                Param::Range(lo, hi) => {
-                    let v = pick(&here, lo, hi);
-                    params.push((here, v));
-                    v
-                }
-            };
+            let drawn = value(p, join(path, key), pick, params);
             let slot = match key {
                 "delay_s" => &mut table.delay_s,
                 "min_s" => &mut table.min_s,
@@ -231,7 +234,7 @@ impl Family {
                 "mean_dwell_messages" => &mut table.mean_dwell_messages,
                 _ => &mut table.mean_dwell_s,
             };
-            *slot = Some(value);
+            *slot = Some(drawn);
         }
         if let Some(states) = &self.states {
             table.states = Some(
@@ -272,6 +275,22 @@ impl Family {
             }
             if lo > hi {
                 return Err((join(path, key), format!("range [{lo}, {hi}]: min > max")));
+            }
+        }
+        if let Some(p) = self.loss {
+            let key = join(path, "loss");
+            if state {
+                return Err((
+                    key,
+                    "is the run's loss: it belongs to the family, not to a regime's state".into(),
+                ));
+            }
+            let (lo, hi) = p.bounds();
+            if !(0.0..1.0).contains(&lo) || !(0.0..1.0).contains(&hi) {
+                return Err((key, "a loss probability must be in [0, 1)".into()));
+            }
+            if lo > hi {
+                return Err((key, format!("range [{lo}, {hi}]: min > max")));
             }
         }
         if self.kind == "traces" {
@@ -327,8 +346,31 @@ impl Family {
     }
 
     fn ranged_count(&self) -> u32 {
-        let own = NUMERIC.iter().filter(|k| matches!(self.param(k), Some(Param::Range(..)))).count() as u32;
+        let own = NUMERIC
+            .iter()
+            .map(|k| self.param(k))
+            .chain([self.loss])
+            .filter(|p| matches!(p, Some(Param::Range(..))))
+            .count() as u32;
         own + self.states.iter().flatten().map(Family::ranged_count).sum::<u32>()
+    }
+}
+
+/// A parameter's value in one draw: a fixed one as it is, a range's from `pick` (and listed in
+/// `params` under `key`).
+fn value(
+    p: Param,
+    key: String,
+    pick: &mut dyn FnMut(&str, f64, f64) -> f64,
+    params: &mut Vec<(String, f64)>,
+) -> f64 {
+    match p {
+        Param::Fixed(v) => v,
+        Param::Range(lo, hi) => {
+            let v = pick(&key, lo, hi);
+            params.push((key, v));
+            v
+        }
     }
 }
 
@@ -562,6 +604,58 @@ mod tests {
         let names: Vec<&str> = params.iter().map(|(k, _)| k.as_str()).collect();
         assert_eq!(names, ["states[0].delay_s", "states[0].mean_dwell_messages"]);
         assert_eq!(s.families[1].name(), "bursts");
+    }
+
+    #[test]
+    fn a_familys_loss_is_drawn_last_into_the_tables_loss_probability() {
+        let s = section(
+            "[[families]]\nkind = \"gamma\"\nshape = [1.0, 30.0]\nscale_s = 0.01\nloss = [0.0, 0.1]\n\
+             [[families]]\nkind = \"constant\"\ndelay_s = 0.05\nloss = 0.02\n\
+             [[families]]\nname = \"bursts\"\nkind = \"regime\"\nloss = [0.01, 0.03]\n\
+             [[families.states]]\nkind = \"constant\"\ndelay_s = [0.0, 0.06]\nmean_dwell_messages = 10\n\
+             [[families.states]]\nkind = \"constant\"\ndelay_s = 0.3\nmean_dwell_messages = 5\n",
+        );
+        assert_eq!(s.validate(), Ok(()));
+        let (t, params) = s.families[0].table(&mut |_, lo, hi| (lo + hi) / 2.0, &mut |_| 0);
+        assert_eq!((t.shape, t.loss_probability), (Some(15.5), Some(0.05)));
+        assert_eq!(params, vec![("shape".to_string(), 15.5), ("loss".to_string(), 0.05)]);
+        // A fixed loss is the table's for every run, and no drawn parameter.
+        let (t, params) = s.families[1].table(&mut |_, lo, _| lo, &mut |_| 0);
+        assert_eq!((t.loss_probability, params), (Some(0.02), vec![]));
+        // A regime's loss is the family's (the whole table's), drawn after its states'.
+        let (t, params) = s.families[2].table(&mut |_, _, hi| hi, &mut |_| 0);
+        assert_eq!(t.loss_probability, Some(0.03));
+        let names: Vec<&str> = params.iter().map(|(k, _)| k.as_str()).collect();
+        assert_eq!(names, ["states[0].delay_s", "loss"]);
+        let network = t.to_network(1, &mut |_| Ok(vec![])).expect("a network");
+        assert_eq!(network.to_plant.loss_probability, 0.03);
+        // A traces family's table carries it too.
+        let mut traces = section("[[families]]\nkind = \"traces\"\ndir = \"t\"\nloss = 0.1\n");
+        assert_eq!(traces.validate(), Ok(()));
+        traces.families[0].traces = vec![("a.csv".into(), vec![0.1, delay::LOST_S])];
+        let (t, _) = traces.families[0].table(&mut |_, lo, _| lo, &mut |_| 0);
+        assert_eq!((t.delays_s.as_deref(), t.loss_probability), (Some(&[0.1, delay::LOST_S][..]), Some(0.1)));
+    }
+
+    #[test]
+    fn a_loss_outside_0_to_1_or_in_a_state_is_refused_naming_the_field() {
+        let gamma = |loss: &str| {
+            format!("[[families]]\nkind = \"gamma\"\nshape = 2.0\nscale_s = 0.01\nloss = {loss}")
+        };
+        for bad in ["1.0", "-0.1", "[0.0, 1.0]", "[-0.01, 0.5]", "nan", "[0.2, 0.1]"] {
+            assert_eq!(field_of(&gamma(bad)), "sweep.families[0].loss", "loss = {bad}");
+        }
+        for good in ["0.0", "0.999", "[0.0, 0.5]", "[0.1, 0.1]"] {
+            assert_eq!(section(&gamma(good)).validate(), Ok(()), "loss = {good}");
+        }
+        let (_, why) = section(&gamma("1.5")).validate().expect_err("refused");
+        assert!(why.contains("[0, 1)"), "{why}");
+        assert_eq!(
+            field_of(
+                "[[families]]\nkind = \"regime\"\n[[families.states]]\nkind = \"constant\"\ndelay_s = 0.1\nmean_dwell_messages = 2\nloss = 0.1"
+            ),
+            "sweep.families[0].states[0].loss"
+        );
     }
 
     #[test]

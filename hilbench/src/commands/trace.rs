@@ -79,12 +79,14 @@ pub fn trace(args: TraceArgs, opts: &Options) -> anyhow::Result<Exit> {
             }
             Ok(Exit::Success)
         }
-        TraceCommand::Fit { file, seed, plot } => {
+        TraceCommand::Fit { file, seed, json, plot } => {
             let trace = read_trace(&file)?;
             let options = FitOptions { seed, rate_hz: trace.provenance.rate_hz, ..FitOptions::default() };
             let report = linkfit::fit(&trace.delays_s, &options)
                 .map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
-            if !opts.quiet {
+            if json {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            } else if !opts.quiet {
                 eprintln!(
                     "{}: {} entries, {} delivered; by AIC (KS distance beside):",
                     file.display(),
@@ -106,7 +108,9 @@ pub fn trace(args: TraceArgs, opts: &Options) -> anyhow::Result<Exit> {
                     );
                 }
             }
-            println!("{}\n{}", report.scenario_toml()?, report.sweep_toml()?);
+            if !json {
+                println!("{}\n{}", report.scenario_toml()?, report.sweep_toml()?);
+            }
             if let Some(dir) = plot {
                 let laws: Vec<(String, &linkfit::Model)> =
                     report.candidates.iter().map(|c| (c.kind().name().to_string(), &c.model)).collect();

@@ -7,8 +7,10 @@
 //! scenario's `max_duration_s` over `min_cycle_s`), from the same `delay::DelayLine` netem and
 //! the in-process loop use, at the send times the closed loop will have (`t_{k+1} = t_k +
 //! max(min_cycle_s, d_k)`, so a regime's dwell in seconds runs on the run's own clock), and
-//! clipped at `max_delay_s`. A trace is what every transport replays to the bit, what a
-//! failure is written as, and what `--shrink` shrinks.
+//! clipped at `max_delay_s`; the family's `loss` is the line's loss probability, and a message
+//! it loses is a `lost` entry ([`delay::LOST_S`]), which every transport drops. A trace is what
+//! every transport replays to the bit, what a failure is written as, and what `--shrink`
+//! shrinks.
 
 use delay::{DelayLine, DelaysTable, Direction};
 use hilbench_svc::sweep_table::{self, Family, FamilyChoice, SweepSection};
@@ -101,28 +103,36 @@ pub fn plan(sweep: &SweepSection, scenario: &Scenario, seed: u64, index: u64) ->
     let delay_seed = rng.random::<u64>();
     let clip = sweep.max_delay_s.unwrap_or(delay::MAX_DELAY_S);
     let cycles = max_cycles(scenario);
-    let delays_s: Vec<f64> = if family.kind == "traces" {
-        let delays = table.delays_s.clone().unwrap_or_default();
-        let looping = family.looping.unwrap_or(false);
-        let n = if looping { cycles } else { delays.len() };
-        delays.iter().cycle().take(n).map(|d| d.min(clip)).collect()
+    // A `traces` family's file replays as it is (as often as the run can need when it loops);
+    // the other kinds are drawn at the closed loop's send times. Through the table's delay
+    // line both ways, so that the family's `loss` (the line's loss probability) applies to
+    // either; a message the line loses (or the file records as lost) is a `lost` entry.
+    let entries = if family.kind == "traces" && !family.looping.unwrap_or(false) {
+        table.delays_s.as_ref().map_or(0, Vec::len)
     } else {
-        let network = table
-            .to_network(delay_seed, &mut |f| Err(format!("{f}: a family names no file")))
-            .map_err(|e| format!("family {}: {e}", family.name()))?;
-        let mut line = DelayLine::new(Direction::ControllerToPlant, network.to_plant)
-            .map_err(|e| format!("family {}: {e}", family.name()))?;
-        let cycle_ns = delay::s_to_ns(scenario.min_cycle_s).unwrap_or(0);
-        let mut t_ns = 0u64;
-        (0..cycles)
-            .map(|_| {
-                let d = line.sample_delay_at(t_ns);
-                let d = if d.is_nan() { 0.0 } else { d.clamp(0.0, clip) };
-                t_ns = t_ns.saturating_add(cycle_ns.max(delay::delay_ns(d)));
-                d
-            })
-            .collect()
+        cycles
     };
+    let network = table
+        .to_network(delay_seed, &mut |f| Err(format!("{f}: a family names no file")))
+        .map_err(|e| format!("family {}: {e}", family.name()))?;
+    let mut line = DelayLine::new(Direction::ControllerToPlant, network.to_plant)
+        .map_err(|e| format!("family {}: {e}", family.name()))?;
+    let cycle_ns = delay::s_to_ns(scenario.min_cycle_s).unwrap_or(0);
+    let mut t_ns = 0u64;
+    let delays_s: Vec<f64> = (0..entries)
+        .map(|_| {
+            let draw = line.draw(t_ns);
+            let d = if draw.lost && !draw.trace_ended {
+                delay::LOST_S
+            } else if draw.sampled_delay_s.is_nan() {
+                0.0
+            } else {
+                draw.sampled_delay_s.clamp(0.0, clip)
+            };
+            t_ns = t_ns.saturating_add(cycle_ns.max(delay::delay_ns(d)));
+            d
+        })
+        .collect();
     let trace_file = trace_index.and_then(|i| family.traces.get(i)).map(|(name, _)| name.clone());
     Ok(RunPlan { index, family: family.name().to_string(), params, delay_seed, trace_file, delays_s })
 }
@@ -161,6 +171,54 @@ mod tests {
         }
         // Clipped at max_delay_s: the heaviest Gamma draws hit the clip.
         assert!(plans.iter().any(|p| p.delays_s.contains(&0.33)));
+    }
+
+    #[test]
+    fn a_familys_loss_loses_its_share_of_the_runs_commands_and_moves_no_delay() {
+        let lossless = "[[families]]\nkind = \"gamma\"\nshape = 4.0\nscale_s = 0.01\n";
+        let lossy = sweep(&format!("{lossless}loss = [0.1, 0.3]\n"));
+        let fixed = sweep(&format!("{lossless}loss = 0.2\n"));
+        let lossless = sweep(lossless);
+        let scenario = Scenario::paper_2();
+        for i in 0..5 {
+            let a = plan(&lossy, &scenario, 7, i).expect("a plan");
+            let (key, loss) = a.params.last().cloned().expect("the loss drawn");
+            assert!(key == "loss" && (0.1..=0.3).contains(&loss), "{:?}", a.params);
+            assert!(a.params_text().contains("loss="), "{}", a.params_text());
+            let n = a.delays_s.len() as f64;
+            let lost = a.delays_s.iter().filter(|d| delay::is_lost(**d)).count() as f64;
+            // Within 5 standard deviations of the binomial.
+            let sd = (n * loss * (1.0 - loss)).sqrt();
+            assert!((lost - n * loss).abs() < 5.0 * sd, "run {i}: {lost} of {n} lost, p = {loss}");
+            // A fixed loss draws nothing from the run's generator: the commands that get through
+            // keep the delays of the run without loss (the loss has its own stream), whatever
+            // the send times a loss moves (a Gamma's draws do not depend on them).
+            let (f, b) = (
+                plan(&fixed, &scenario, 7, i).expect("a plan"),
+                plan(&lossless, &scenario, 7, i).expect("a plan"),
+            );
+            assert_eq!((f.delay_seed, f.delays_s.len()), (b.delay_seed, b.delays_s.len()));
+            assert!(f.params.is_empty(), "{:?}", f.params);
+            for (x, y) in f.delays_s.iter().zip(&b.delays_s) {
+                assert!(delay::is_lost(*x) || x == y, "run {i}: {x} vs {y}");
+            }
+            assert!(
+                f.delays_s.iter().any(|d| delay::is_lost(*d))
+                    && !b.delays_s.iter().any(|d| delay::is_lost(*d))
+            );
+        }
+        // A traces family: the file's own losses stay, the family's loss adds its share.
+        let mut traces = sweep("[[families]]\nkind = \"traces\"\ndir = \"t\"\nloss = 0.5\n");
+        let file: Vec<f64> = (0..2000).map(|k| if k % 10 == 0 { delay::LOST_S } else { 0.05 }).collect();
+        traces.families[0].traces = vec![("a.csv".into(), file.clone())];
+        let p = plan(&traces, &scenario, 7, 0).expect("a plan");
+        assert_eq!(p.delays_s.len(), file.len());
+        for (x, y) in p.delays_s.iter().zip(&file) {
+            assert!(delay::is_lost(*x) || x == y);
+            assert!(!delay::is_lost(*y) || delay::is_lost(*x), "a recorded loss stays");
+        }
+        let lost = p.delays_s.iter().filter(|d| delay::is_lost(**d)).count();
+        assert!((1000..1200).contains(&lost), "{lost} of 2000 lost: 200 recorded, half of the rest drawn");
     }
 
     #[test]

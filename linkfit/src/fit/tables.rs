@@ -92,8 +92,8 @@ impl FitReport {
     }
 
     /// The best replayable fit as a `[[sweep.families]]` table whose parameters range over
-    /// their 95 % intervals (the sweep has no loss key: the trace's loss rate is in a
-    /// comment, and in the `[scenario.delays]` table).
+    /// their 95 % intervals, and, when the trace lost probes, whose `loss` ranges over the
+    /// loss share's (Clopper–Pearson, exact).
     pub fn sweep_toml(&self) -> Result<String, TableError> {
         let best = self.best_replayable().ok_or(TableError::NothingReplayable)?;
         self.delays_table(best)?;
@@ -136,19 +136,26 @@ impl FitReport {
                 }
             }
         }
+        let losses = self.entries.saturating_sub(self.delivered) as u64;
+        let loss = if losses > 0 {
+            let share = crate::confidence::clopper_pearson(losses, self.entries as u64, 0.95)
+                .map_err(|e| TableError::Invalid(e.to_string()))?;
+            family.insert(
+                "loss".into(),
+                Value::Array(vec![Value::Float(share.lower), Value::Float(share.upper)]),
+            );
+            format!(
+                "# loss: the trace lost {losses} of {} probes ({:.4}); the range is that share's 95 % interval.\n",
+                self.entries, share.rate
+            )
+        } else {
+            String::new()
+        };
         let mut sweep = Table::new();
         sweep.insert("families".into(), Value::Array(vec![Value::Table(family)]));
         let mut doc = Table::new();
         doc.insert("sweep".into(), Value::Table(sweep));
         let body = toml::to_string(&doc).map_err(|e| TableError::Toml(e.to_string()))?;
-        let loss = if self.loss_probability > 0.0 {
-            format!(
-                "# The trace lost {:.4} of its probes; a sweep family has no loss key (the scenario's\n# [scenario.delays] table carries loss_probability).\n",
-                self.loss_probability
-            )
-        } else {
-            String::new()
-        };
         Ok(format!("{}# Ranges: the parameters' 95 % intervals.\n{loss}{body}", self.comment(best)))
     }
 

@@ -12,5 +12,6 @@ mod k8s;
 mod netem;
 mod plant;
 mod python;
+mod record;
 mod tls;
 mod udp;
