@@ -26,7 +26,7 @@ use mpc::{ControllerMode, CycleOutput, CycleTiming, Episode, EpisodeSettings, Ru
 use tokio::sync::{Notify, broadcast, watch};
 use tonic::transport::Channel;
 
-use crate::config::{ControllerConfig, TimeModeSetting};
+use crate::config::ControllerConfig;
 
 /// What the service reports in `GetStatus`.
 #[derive(Debug, Clone, Default)]
@@ -494,11 +494,9 @@ async fn fly(
 ) -> Result<Outcome, LoopError> {
     let description = within(config.rpc_timeout, "Describe", client.describe(pb::DescribeRequest {})).await?;
     shared.update(|st| st.plant_connected = true);
-    let lockstep = match config.time_mode {
-        TimeModeSetting::Lockstep => true,
-        TimeModeSetting::RealTime => false,
-        TimeModeSetting::Auto => description.time_mode == pb::TimeMode::Lockstep as i32,
-    };
+    let lockstep =
+        config.time_mode.resolve(hilbench_proto::convert::time_mode_of_plant(description.time_mode))
+            == mav::TimeMode::Lockstep;
     // A lockstep call does a whole cycle's integration before it answers, and a stall of the
     // machine must not turn into a link loss (the run would then depend on wall-clock time).
     let call_timeout =

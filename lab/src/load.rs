@@ -251,7 +251,7 @@ async fn rig(profile: DirectionProfile, limit: u64, burst: u64, stream_buffer: u
             .await;
     });
     let mut config = netem::Config::new(plant_addr.to_string());
-    config.time_mode = netem::TimeModeSetting::RealTime;
+    config.time_mode = mav::TimeModeChoice::Fixed(mav::TimeMode::RealTime);
     config.stream_buffer = stream_buffer;
     config.plant_to_controller = profile.clone();
     config.controller_to_plant = profile;

@@ -43,11 +43,11 @@ use delay::{Direction, Fate};
 use hilbench_proto::convert::netem::check_command;
 use hilbench_proto::pb;
 use hilbench_svc::streams::{Guarded, Pushed, Reader, Writer, drop_oldest};
+use mav::TimeMode;
 use tokio::sync::oneshot;
 use tonic::metadata::{MetadataMap, MetadataValue};
 use tonic::{Request, Response, Status};
 
-use crate::Mode;
 use crate::core::{Forward, Msg, PendingCommand, Shared};
 
 /// The Plant service as netem serves it.
@@ -76,12 +76,12 @@ fn stamp(md: &mut MetadataMap, prefix: &str, m: &Msg, outcome: &'static str) {
     }
 }
 
-fn respond<T>(body: T, md: MetadataMap, mode: Mode) -> Response<T> {
+fn respond<T>(body: T, md: MetadataMap, mode: TimeMode) -> Response<T> {
     let mut r = Response::new(body);
     *r.metadata_mut() = md;
     r.metadata_mut().insert(
         "netem-clock",
-        MetadataValue::from_static(if mode == Mode::Lockstep { "plant" } else { "netem" }),
+        MetadataValue::from_static(if mode == TimeMode::Lockstep { "plant" } else { "netem" }),
     );
     r
 }
@@ -461,7 +461,7 @@ impl pb::plant_server::Plant for Proxy {
         let mode = self.shared.mode().await?;
         let upstream =
             self.shared.up(self.shared.client().stream_state(request.into_inner())).await?.into_inner();
-        if mode == Mode::Lockstep {
+        if mode == TimeMode::Lockstep {
             let shared = self.shared.clone();
             let s = async_stream_map(upstream, shared);
             return Ok(Response::new(Box::pin(Guarded::new(s, slot))));
@@ -479,13 +479,13 @@ impl pb::plant_server::Plant for Proxy {
         let mode = self.shared.mode().await?;
         let mut md = MetadataMap::new();
         let sample = match mode {
-            Mode::Lockstep => {
+            TimeMode::Lockstep => {
                 let _guard = self.shared.lockstep.lock().await;
                 let s = self.up_state().await?;
                 self.shared.lock().plant_time_ns = Some(s.time_ns);
                 s
             }
-            Mode::RealTime => self.real_time_state(&mut md).await?,
+            TimeMode::RealTime => self.real_time_state(&mut md).await?,
         };
         Ok(respond(sample, md, mode))
     }
@@ -500,11 +500,11 @@ impl pb::plant_server::Plant for Proxy {
         let mode = self.shared.mode().await?;
         let mut md = MetadataMap::new();
         let applied = match mode {
-            Mode::Lockstep => {
+            TimeMode::Lockstep => {
                 let _guard = self.shared.lockstep.lock().await;
                 self.lockstep_command(command, &mut md).await?
             }
-            Mode::RealTime => self.real_time_command(command, &mut md).await?,
+            TimeMode::RealTime => self.real_time_command(command, &mut md).await?,
         };
         let applied = applied.and_then(|r| r.applied);
         Ok(respond(pb::ApplyCommandResponse { applied }, md, mode))
@@ -516,7 +516,7 @@ impl pb::plant_server::Plant for Proxy {
     ) -> Result<Response<pb::AdvanceResponse>, Status> {
         let req = request.into_inner();
         let mode = self.shared.mode().await?;
-        if mode == Mode::RealTime || (req.duration_ns == 0 && req.wait_for_command_seq == 0) {
+        if mode == TimeMode::RealTime || (req.duration_ns == 0 && req.wait_for_command_seq == 0) {
             // Let the plant answer what it does with it (it refuses both).
             return self.shared.up(self.shared.client().advance(req)).await;
         }
@@ -536,7 +536,7 @@ impl pb::plant_server::Plant for Proxy {
         let mode = self.shared.mode().await?;
         let mut md = MetadataMap::new();
         let sample = match mode {
-            Mode::Lockstep => {
+            TimeMode::Lockstep => {
                 let _guard = self.shared.lockstep.lock().await;
                 // The command, when due now, goes upstream with the first move: one `Step`.
                 let mut due = match req.command {
@@ -552,7 +552,7 @@ impl pb::plant_server::Plant for Proxy {
                     s
                 }
             }
-            Mode::RealTime => {
+            TimeMode::RealTime => {
                 if req.duration_ns > 0 {
                     return self.shared.up(self.shared.client().step(req)).await;
                 }

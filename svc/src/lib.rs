@@ -8,6 +8,7 @@
 //! waking at a deadline to tens of microseconds ([`realtime`]: netem's release thread, the
 //! plant's step loop).
 
+pub mod args;
 pub mod falsify_table;
 pub mod realtime;
 pub mod scenario_file;

@@ -2,10 +2,10 @@
 //! property; falsify.json, runs.csv, the worst runs' traces, report.md.
 
 use anyhow::Context;
+use mav::TimeMode;
 
 use super::{Exit, Options};
 use crate::cli::FalsifyArgs;
-use crate::drive::TimeMode;
 use crate::falsification::{Falsification, execute, output};
 use crate::output::out_dir::OutDir;
 use crate::scenario_file::ScenarioFile;
@@ -25,10 +25,10 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
     );
     let mode = match args.mode {
         Some(m) => match m.modes()[..] {
-            [one] => crate::run::controller_mode(one),
+            [one] => one,
             _ => anyhow::bail!("--mode: one controller per falsification (nmpc or multistage, not both)"),
         },
-        None => crate::run::controller_mode(spec.run.modes[0]),
+        None => spec.run.modes[0],
     };
     let seed = args.seed.or(table.seed).unwrap_or(spec.scenario.seed);
     let mut spaces = hilbench_svc::falsify_table::spaces(&table, spec.sweep.as_ref(), seed);

@@ -4,11 +4,11 @@
 use std::sync::Arc;
 
 use anyhow::Context;
+use mav::TimeMode;
 use serde_json::{Value, json};
 
 use super::{Exit, Options};
 use crate::cli::SweepArgs;
-use crate::drive::TimeMode;
 use crate::output::out_dir::OutDir;
 use crate::output::terminal;
 use crate::scenario_file::ScenarioFile;
@@ -34,8 +34,8 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
     let modes = match args.mode {
         // One flight per run for an external controller (the mode names no controller then).
         None if args.controller_cmd.is_some() => vec![mpc::ControllerMode::Multistage],
-        None => spec.run.modes.iter().map(|m| crate::run::controller_mode(*m)).collect(),
-        Some(m) => m.modes().into_iter().map(crate::run::controller_mode).collect(),
+        None => spec.run.modes.clone(),
+        Some(m) => m.modes(),
     };
     anyhow::ensure!(
         spec.run.time_mode == TimeMode::Lockstep,

@@ -7,9 +7,8 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, anyhow, bail};
-use hilbench_svc::scenario_file::TimeMode;
 use hilbench_svc::tls::{Tls, TlsFiles};
-use mav::Scenario;
+use mav::{Scenario, TimeMode};
 use mpc::ControllerMode;
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
@@ -28,19 +27,13 @@ pub fn netem_config(
     let mut config = netem::Config::new(upstream).with_preset("none", scenario.seed)?;
     config.controller_to_plant = network.to_plant;
     config.plant_to_controller = network.to_controller;
-    config.time_mode = match time_mode {
-        TimeMode::Lockstep => netem::TimeModeSetting::Lockstep,
-        TimeMode::RealTime => netem::TimeModeSetting::RealTime,
-    };
+    config.time_mode = time_mode.into();
     Ok(config)
 }
 
 /// The plant's settings for `scenario` in `time_mode`.
 pub fn plant_config(scenario: &Scenario, time_mode: TimeMode) -> plant::PlantConfig {
-    match time_mode {
-        TimeMode::Lockstep => plant::PlantConfig::lockstep(scenario.clone()),
-        TimeMode::RealTime => plant::PlantConfig::real_time(scenario.clone()),
-    }
+    plant::PlantConfig { time_mode, ..plant::PlantConfig::lockstep(scenario.clone()) }
 }
 
 /// A plant served in this process on a loopback port: the task and its address.
@@ -265,10 +258,7 @@ impl Services {
         let (listener, controller_addr) = bind().await?;
         let (stop, stopped) = oneshot::channel::<()>();
         let mut config = controller::ControllerConfig::new(netem_addr.clone(), scenario.clone(), mode);
-        config.time_mode = match endpoints.time_mode {
-            TimeMode::Lockstep => controller::TimeModeSetting::Lockstep,
-            TimeMode::RealTime => controller::TimeModeSetting::RealTime,
-        };
+        config.time_mode = endpoints.time_mode.into();
         config.autostart = false;
         tls.check_started("controller", &tls.controller)?;
         config.tls = tls.controller.clone();

@@ -48,7 +48,7 @@ impl NetemClients for RunningNetem {
 
 fn lockstep_netem(upstream: SocketAddr, c2p: DirectionProfile, p2c: DirectionProfile) -> netem::Config {
     let mut c = netem::Config::new(upstream.to_string());
-    c.time_mode = netem::TimeModeSetting::Lockstep;
+    c.time_mode = mav::TimeModeChoice::Fixed(mav::TimeMode::Lockstep);
     c.controller_to_plant = c2p;
     c.plant_to_controller = p2c;
     c
@@ -575,7 +575,7 @@ async fn real_time_netem_on_a_lockstep_plant(
 ) -> (hilbench_tests::RunningPlant, RunningNetem) {
     let plant = start_plant(PlantConfig::lockstep(Scenario::paper_1())).await;
     let mut config = netem::Config::new(plant.addr.to_string());
-    config.time_mode = netem::TimeModeSetting::RealTime;
+    config.time_mode = mav::TimeModeChoice::Fixed(mav::TimeMode::RealTime);
     tweak(&mut config);
     let netem = start_netem(config).await;
     (plant, netem)
