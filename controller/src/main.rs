@@ -150,7 +150,7 @@ fn main() -> anyhow::Result<()> {
                 // problems comes on stdin), read a line at a time, each line capped.
                 let meta =
                     std::fs::metadata(path).with_context(|| format!("cannot open {}", path.display()))?;
-                hilbench_svc::user_file::check_regular(&meta).map_err(|why| {
+                hilbench_scenario_file::user_file::check_regular(&meta).map_err(|why| {
                     anyhow::anyhow!("{}: {why} (a stream of problems goes on stdin)", path.display())
                 })?;
                 let f =
@@ -165,7 +165,7 @@ fn main() -> anyhow::Result<()> {
     }
     hilbench_svc::init_tracing();
     hilbench_svc::exit_on_panic();
-    let scenario = hilbench_svc::scenario_file::scenario_arg(&cli.scenario)
+    let scenario = hilbench_scenario_file::scenario_arg(&cli.scenario)
         .map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
     let mut config = ControllerConfig::new(cli.plant.clone(), scenario, cli.mode);
     // The floor goes with every scenario flown, those set later by SetScenario included.

@@ -113,16 +113,16 @@ async fn main() -> anyhow::Result<()> {
 /// (serde's with their line).
 fn load_profile_file(path: &std::path::Path, seed: u64) -> anyhow::Result<delay::NetworkProfile> {
     let shown = path.display();
-    let text = hilbench_svc::user_file::read_text(
+    let text = hilbench_scenario_file::user_file::read_text(
         path,
-        hilbench_svc::user_file::MAX_SCENARIO_FILE_BYTES,
+        hilbench_scenario_file::user_file::MAX_SCENARIO_FILE_BYTES,
         "a profile",
     )
     .map_err(|e| anyhow::anyhow!("--profile-file {e}"))?;
     let table: delay::DelaysTable =
         toml::from_str(&text).map_err(|e| anyhow::anyhow!("--profile-file {shown}: {e}"))?;
     let dir = path.parent().unwrap_or(std::path::Path::new("."));
-    let mut read_trace = |name: &str| hilbench_svc::scenario_file::read_trace(&dir.join(name));
+    let mut read_trace = |name: &str| hilbench_scenario_file::read_trace(&dir.join(name));
     table
         .to_network(seed, &mut read_trace)
         .map_err(|e| anyhow::anyhow!("--profile-file {shown}: field `{}`: {}", e.field, e.reason))

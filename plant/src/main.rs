@@ -48,7 +48,7 @@ struct Args {
 }
 
 fn config(args: &Args) -> anyhow::Result<PlantConfig> {
-    let scenario = hilbench_svc::scenario_file::scenario_arg(&args.scenario)
+    let scenario = hilbench_scenario_file::scenario_arg(&args.scenario)
         .map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
     let mut config = PlantConfig { time_mode: args.time_mode, ..PlantConfig::lockstep(scenario) };
     config.rate_hz = args.rate_hz;

@@ -31,7 +31,7 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
         None => spec.run.modes[0],
     };
     let seed = args.seed.or(table.seed).unwrap_or(spec.scenario.seed);
-    let mut spaces = hilbench_svc::falsify_table::spaces(&table, spec.sweep.as_ref(), seed);
+    let mut spaces = hilbench_scenario_file::falsify_table::spaces(&table, spec.sweep.as_ref(), seed);
     if !args.space.is_empty() {
         let names: Vec<String> = spaces.iter().map(|s| s.name.clone()).collect();
         if let Some(unknown) = args.space.iter().find(|s| !names.contains(s)) {
@@ -67,14 +67,14 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
         run_timeout: std::time::Duration::from_secs_f64(
             args.run_timeout_s
                 .or(sweep.and_then(|s| s.run_timeout_s))
-                .unwrap_or(hilbench_svc::sweep_table::DEFAULT_RUN_TIMEOUT_S),
+                .unwrap_or(hilbench_scenario_file::sweep_table::DEFAULT_RUN_TIMEOUT_S),
         ),
         shrink_runs: if args.no_shrink {
             0
         } else {
             args.shrink_runs
                 .or(sweep.and_then(|s| s.shrink_runs))
-                .unwrap_or(hilbench_svc::sweep_table::DEFAULT_SHRINK_RUNS)
+                .unwrap_or(hilbench_scenario_file::sweep_table::DEFAULT_SHRINK_RUNS)
         },
         scenario: spec.scenario,
     };

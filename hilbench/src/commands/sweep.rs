@@ -63,17 +63,17 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
         run_timeout: std::time::Duration::from_secs_f64(
             args.run_timeout_s
                 .or(table.run_timeout_s)
-                .unwrap_or(hilbench_svc::sweep_table::DEFAULT_RUN_TIMEOUT_S),
+                .unwrap_or(hilbench_scenario_file::sweep_table::DEFAULT_RUN_TIMEOUT_S),
         ),
         shrink: args.shrink,
         shrink_runs: args
             .shrink_runs
             .or(table.shrink_runs)
-            .unwrap_or(hilbench_svc::sweep_table::DEFAULT_SHRINK_RUNS),
+            .unwrap_or(hilbench_scenario_file::sweep_table::DEFAULT_SHRINK_RUNS),
         shrink_total_runs: args
             .shrink_total_runs
             .or(table.shrink_total_runs)
-            .unwrap_or(hilbench_svc::sweep_table::DEFAULT_SHRINK_TOTAL_RUNS),
+            .unwrap_or(hilbench_scenario_file::sweep_table::DEFAULT_SHRINK_TOTAL_RUNS),
         scenario: spec.scenario,
         table,
         batch: None,
@@ -147,7 +147,7 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
 /// Refuses a sweep whose process would fly more than `sweep_table::MAX_RUNS` runs (its shard's
 /// with `--shard`), naming where the number came from, before anything is allocated or flown.
 fn check_runs(sweep: &Sweep, from_flag: bool) -> anyhow::Result<()> {
-    let max = hilbench_svc::sweep_table::MAX_RUNS;
+    let max = hilbench_scenario_file::sweep_table::MAX_RUNS;
     let here = sweep.indices().end - sweep.indices().start;
     let source =
         if from_flag { "--runs".to_string() } else { format!("{}: sweep.runs", sweep.file.display()) };

@@ -18,6 +18,16 @@
 //!
 //! Every error names the file, the line and the field: parse and type errors through toml's
 //! spans, `Scenario::validate` errors by looking the field's path up in the parsed document.
+//!
+//! The crate is the format and its checks, and nothing of the programs that read it: no tokio,
+//! tonic or clap (a flag maps onto these types at the command line's edge). Beside the loader:
+//! [`sweep_table`] (`[sweep]`), [`falsify_table`] (`[falsify]`, the checks that need `[sweep]`)
+//! and [`user_file`], the one reader of every file a user names (the services' TLS files
+//! included).
+
+pub mod falsify_table;
+pub mod sweep_table;
+pub mod user_file;
 
 use std::fmt;
 use std::ops::Range;
