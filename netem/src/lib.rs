@@ -17,7 +17,8 @@
 //! clock, so a lockstep run through netem is as deterministic as the plant behind it.
 //!
 //! Stamps: see the header of `netem.proto`. Unary answers carry `netem-command-*` /
-//! `netem-sample-*` metadata; stream items are described on `NetemControl.StreamDeliveries`.
+//! `netem-sample-*` metadata, written and read only through `proto`'s
+//! `convert::netem::Stamp`; stream items are described on `NetemControl.StreamDeliveries`.
 
 pub mod clock;
 pub mod control;
