@@ -4,11 +4,13 @@
 //! the core's enums as flags ([`args`]); server streams that cannot exhaust a service
 //! ([`streams`]: a cap on open streams, and a bounded drop-oldest buffer per subscriber); mutual
 //! TLS for servers and clients ([`tls`]: the flags, the checked files, the server's config and
-//! the client's endpoint); and waking at a deadline to tens of microseconds ([`realtime`]:
-//! netem's release thread, the plant's step loop). The scenario file format is a crate of its
-//! own, `hilbench-scenario-file`.
+//! the client's endpoint); waking at a deadline to tens of microseconds ([`realtime`]:
+//! netem's release thread, the plant's step loop); and a service served in process on a
+//! loopback port ([`loopback`]: `hilbench`'s services of a run, the tests'). The scenario file
+//! format is a crate of its own, `hilbench-scenario-file`.
 
 pub mod args;
+pub mod loopback;
 pub mod realtime;
 pub mod streams;
 pub mod tls;

@@ -42,7 +42,7 @@ use mpc::{ControllerMode, RunEnd, RunSummary};
 use tokio::io::{AsyncBufReadExt, AsyncRead, BufReader};
 use tokio::process::{Child, Command};
 
-use super::services::{Running, connect, netem_config, plant_config, start_netem, start_plant};
+use super::services::{Running, connect, netem_config, plant_config, start_netem, start_plant, stop};
 use crate::run::{
     CycleRow, DelayProfileInForce, DelaySource, ExternalFacts, FinishedRun, Job, RunFailure, RunFaults,
     RunTiming,
@@ -153,7 +153,7 @@ pub async fn run_external(
     let (netem, netem_addr) = match netem {
         Ok(n) => n,
         Err(e) => {
-            let _ = plant.stop().await;
+            let _ = stop(plant).await;
             return Err(e.into());
         }
     };
@@ -181,7 +181,7 @@ fn stream_buffer(scenario: &Scenario, rate_hz: f64) -> usize {
 async fn stop_all(running: [Running; 2]) -> anyhow::Result<()> {
     let mut result = Ok(());
     for r in running {
-        let stopped = r.stop().await;
+        let stopped = stop(r).await;
         if result.is_ok() {
             result = stopped;
         }

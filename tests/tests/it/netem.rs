@@ -16,8 +16,6 @@ use hilbench_tests::start_plant;
 use hilbench_tests::streams::{assert_exhausted, open_when_a_slot_is_free};
 use mav::{CommandMeta, Input, PlantSim, Scenario, SimSettings, TimeMode};
 use plant::PlantConfig;
-use tokio::sync::oneshot;
-use tokio::task::JoinHandle;
 use tokio_stream::StreamExt;
 use tonic::transport::Channel;
 use tonic::{Code, Status};
@@ -355,7 +353,7 @@ async fn s_time(client: &mut PlantClient<Channel>) -> u64 {
 }
 
 /// Serves a lockstep plant on `addr` (a fixed port, so it can come back at the same address).
-async fn serve_plant_at(addr: SocketAddr) -> (oneshot::Sender<()>, JoinHandle<()>) {
+async fn serve_plant_at(addr: SocketAddr) -> Running<plant::PlantError> {
     let mut tries = 0;
     let listener = loop {
         match tokio::net::TcpListener::bind(addr).await {
@@ -367,15 +365,9 @@ async fn serve_plant_at(addr: SocketAddr) -> (oneshot::Sender<()>, JoinHandle<()
             Err(e) => panic!("cannot bind {addr} again: {e}"),
         }
     };
-    let (tx, rx) = oneshot::channel::<()>();
-    let task = tokio::spawn(async move {
-        plant::serve(listener, PlantConfig::lockstep(Scenario::paper_1()), async {
-            let _ = rx.await;
-        })
-        .await
-        .expect("plant serves");
-    });
-    (tx, task)
+    server::start_on("plant server", listener, |listener, shutdown| {
+        plant::serve(listener, PlantConfig::lockstep(Scenario::paper_1()), shutdown)
+    })
 }
 
 async fn sleep_ms(ms: u64) {
@@ -388,7 +380,7 @@ async fn upstream_loss_gives_unavailable_drops_in_flight_with_a_reason_then_reco
         let l = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
         l.local_addr().expect("addr")
     };
-    let (stop_plant, plant_task) = serve_plant_at(addr).await;
+    let plant = serve_plant_at(addr).await;
     let mut config = lockstep_netem(
         addr,
         DirectionProfile::with_delay(Distribution::Constant { delay_s: 0.1 }, 1),
@@ -404,8 +396,7 @@ async fn upstream_loss_gives_unavailable_drops_in_flight_with_a_reason_then_reco
     client.apply_command(command(1, &start)).await.expect("held command");
 
     // The plant goes away with the command in flight.
-    let _ = stop_plant.send(());
-    tokio::time::timeout(PATIENCE, plant_task).await.expect("plant stops").expect("plant task");
+    plant.stop().await.expect("plant serves");
     let err = client
         .advance(pb::AdvanceRequest { duration_ns: 200_000_000, ..Default::default() })
         .await
@@ -425,7 +416,7 @@ async fn upstream_loss_gives_unavailable_drops_in_flight_with_a_reason_then_reco
     assert_eq!(err.code(), Code::Unavailable);
 
     // The plant comes back at the same address; netem reconnects.
-    let (stop_plant, plant_task) = serve_plant_at(addr).await;
+    let plant = serve_plant_at(addr).await;
     let deadline = tokio::time::Instant::now() + PATIENCE;
     let reset = loop {
         match client.reset(pb::ResetRequest::default()).await {
@@ -449,8 +440,7 @@ async fn upstream_loss_gives_unavailable_drops_in_flight_with_a_reason_then_reco
     let stats = control.get_stats(pb::GetStatsRequest {}).await.expect("stats").into_inner();
     assert!(stats.upstream_connected);
     netem.stop().await.expect("netem served cleanly");
-    let _ = stop_plant.send(());
-    tokio::time::timeout(PATIENCE, plant_task).await.expect("plant stops").expect("plant task");
+    plant.stop().await.expect("plant serves");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
