@@ -1,5 +1,5 @@
-//! What to solve: the controller mode, the obstacle formulation and the problem's definition,
-//! and the check of each cycle's data.
+//! What to solve: the obstacle formulation and the problem's definition, and the check of each
+//! cycle's data (the controller mode is `mav`'s, re-exported here).
 
 pub use mav::ControllerMode;
 use mav::{Cylinder, InputBounds, ModelParams, Scenario};
