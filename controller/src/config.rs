@@ -2,17 +2,8 @@
 
 use std::time::Duration;
 
-use mav::Scenario;
+use mav::{Scenario, TimeModeChoice};
 use mpc::{ControllerMode, MpcSettings, SafetySettings};
-
-/// Lockstep or real time; `Auto` follows what the plant's `Describe` says.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum TimeModeSetting {
-    #[default]
-    Auto,
-    Lockstep,
-    RealTime,
-}
 
 #[derive(Debug, Clone)]
 pub struct ControllerConfig {
@@ -31,7 +22,8 @@ pub struct ControllerConfig {
     /// A floor for every scenario flown (`--min-altitude-m`), those asked for by `SetScenario`
     /// included; `None`: each scenario's own (none for the paper's).
     pub min_altitude_m: Option<f64>,
-    pub time_mode: TimeModeSetting,
+    /// Lockstep or real time; `Auto` (the default) follows what the plant's `Describe` says.
+    pub time_mode: TimeModeChoice,
     /// Reset the plant to the scenario when an episode starts (not on reconnection).
     pub reset_plant: bool,
     /// Start flying at once; otherwise wait for `SetScenario`.
@@ -83,7 +75,7 @@ impl ControllerConfig {
             safety: Some(SafetySettings::default()),
             fail_safe: false,
             min_altitude_m: None,
-            time_mode: TimeModeSetting::Auto,
+            time_mode: TimeModeChoice::Auto,
             reset_plant: true,
             autostart: true,
             deadline_fraction: 0.5,

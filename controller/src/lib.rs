@@ -18,7 +18,7 @@ pub mod runner;
 pub mod service;
 pub mod solve_lines;
 
-pub use config::{ControllerConfig, TimeModeSetting};
+pub use config::ControllerConfig;
 pub use service::ControllerService;
 
 use hilbench_proto::pb::controller_server::ControllerServer;

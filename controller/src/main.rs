@@ -6,8 +6,9 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand, ValueEnum};
+use controller::ControllerConfig;
 use controller::solve_lines::LineSolver;
-use controller::{ControllerConfig, TimeModeSetting};
+use mav::TimeModeChoice;
 use mpc::{
     ControllerMode, InactiveSetTolerances, MpcSettings, PanocSolver, QpSchedule, QpSettings, SafetySettings,
 };
@@ -31,12 +32,12 @@ struct Cli {
     #[arg(long, default_value = "paper-1", value_name = "NAME|FILE.toml")]
     scenario: String,
     /// Controller: the standard NMPC or the multi-stage NMPC.
-    #[arg(long, value_enum, default_value_t = Mode::Multistage)]
-    mode: Mode,
+    #[arg(long, value_parser = hilbench_svc::args::controller_mode(), default_value_t = ControllerMode::Multistage)]
+    mode: ControllerMode,
     /// How time moves. `auto` (the default) asks the plant (or netem) with Describe and follows
     /// it, so that only the plant's `--time-mode` has to be chosen.
-    #[arg(long, value_enum, default_value_t = TimeMode::Auto)]
-    time_mode: TimeMode,
+    #[arg(long, value_parser = hilbench_svc::args::time_mode_choice(), default_value_t = TimeModeChoice::Auto)]
+    time_mode: TimeModeChoice,
     /// Do not reset the plant when an episode starts.
     #[arg(long)]
     no_reset: bool,
@@ -136,19 +137,6 @@ enum Command {
     },
 }
 
-#[derive(ValueEnum, Clone, Copy, Debug)]
-enum Mode {
-    Nmpc,
-    Multistage,
-}
-
-#[derive(ValueEnum, Clone, Copy, Debug)]
-enum TimeMode {
-    Auto,
-    Lockstep,
-    RealTime,
-}
-
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     let settings = cli.mpc_settings();
@@ -162,7 +150,7 @@ fn main() -> anyhow::Result<()> {
                 // problems comes on stdin), read a line at a time, each line capped.
                 let meta =
                     std::fs::metadata(path).with_context(|| format!("cannot open {}", path.display()))?;
-                hilbench_svc::user_file::check_regular(&meta).map_err(|why| {
+                hilbench_scenario_file::user_file::check_regular(&meta).map_err(|why| {
                     anyhow::anyhow!("{}: {why} (a stream of problems goes on stdin)", path.display())
                 })?;
                 let f =
@@ -177,13 +165,9 @@ fn main() -> anyhow::Result<()> {
     }
     hilbench_svc::init_tracing();
     hilbench_svc::exit_on_panic();
-    let scenario = hilbench_svc::scenario_file::scenario_arg(&cli.scenario)
+    let scenario = hilbench_scenario_file::scenario_arg(&cli.scenario)
         .map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
-    let mode = match cli.mode {
-        Mode::Nmpc => ControllerMode::Nmpc,
-        Mode::Multistage => ControllerMode::Multistage,
-    };
-    let mut config = ControllerConfig::new(cli.plant.clone(), scenario, mode);
+    let mut config = ControllerConfig::new(cli.plant.clone(), scenario, cli.mode);
     // The floor goes with every scenario flown, those set later by SetScenario included.
     config.min_altitude_m = cli.min_altitude_m;
     config.adapt(config.scenario.clone()).validate().context("--min-altitude-m")?;
@@ -211,11 +195,7 @@ fn main() -> anyhow::Result<()> {
     config.connections = cli.server.connections.limits()?;
     config.reset_plant = !cli.no_reset;
     config.autostart = !cli.no_autostart;
-    config.time_mode = match cli.time_mode {
-        TimeMode::Auto => TimeModeSetting::Auto,
-        TimeMode::Lockstep => TimeModeSetting::Lockstep,
-        TimeMode::RealTime => TimeModeSetting::RealTime,
-    };
+    config.time_mode = cli.time_mode;
     let runtime = tokio::runtime::Runtime::new()?;
     runtime.block_on(async move {
         let listener = cli.server.bind().await?;

@@ -18,6 +18,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use hilbench_proto::convert::controller::telemetry_of;
+use hilbench_proto::convert::netem::{Stamp, StampOutcome, Stamped};
 use hilbench_proto::convert::plant::Command;
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
@@ -26,7 +27,7 @@ use mpc::{ControllerMode, CycleOutput, CycleTiming, Episode, EpisodeSettings, Ru
 use tokio::sync::{Notify, broadcast, watch};
 use tonic::transport::Channel;
 
-use crate::config::{ControllerConfig, TimeModeSetting};
+use crate::config::ControllerConfig;
 
 /// What the service reports in `GetStatus`.
 #[derive(Debug, Clone, Default)]
@@ -463,8 +464,6 @@ async fn within<T>(
     }
 }
 
-/// The delay netem stamped on a command it did not drop (`netem-command-delay-ns`), s; `None`
-/// without netem's stamps or for a dropped command.
 /// The answer to a cycle's command: lockstep's `Step` (with the next sample) or real time's
 /// `ApplyCommand`.
 enum Answer {
@@ -472,12 +471,11 @@ enum Answer {
     Command(tonic::Response<pb::ApplyCommandResponse>),
 }
 
+/// The delay netem stamped on a command it did not drop, s; `None` without netem's stamps (or
+/// with stamps that do not read), or for a dropped command.
 fn injected_delay_s(md: &tonic::metadata::MetadataMap) -> Option<f64> {
-    let text = |key: &str| md.get(key).and_then(|v| v.to_str().ok());
-    if text("netem-command-outcome")? == "dropped" {
-        return None;
-    }
-    text("netem-command-delay-ns")?.parse::<u64>().ok().map(mav::ns_to_s)
+    let stamp = Stamp::read(md, Stamped::Command).ok()??;
+    (stamp.outcome != StampOutcome::Dropped).then(|| mav::ns_to_s(stamp.delay_ns))
 }
 
 /// A sample from the plant, validated by `proto`'s conversion.
@@ -494,11 +492,9 @@ async fn fly(
 ) -> Result<Outcome, LoopError> {
     let description = within(config.rpc_timeout, "Describe", client.describe(pb::DescribeRequest {})).await?;
     shared.update(|st| st.plant_connected = true);
-    let lockstep = match config.time_mode {
-        TimeModeSetting::Lockstep => true,
-        TimeModeSetting::RealTime => false,
-        TimeModeSetting::Auto => description.time_mode == pb::TimeMode::Lockstep as i32,
-    };
+    let lockstep =
+        config.time_mode.resolve(hilbench_proto::convert::time_mode_of_plant(description.time_mode))
+            == mav::TimeMode::Lockstep;
     // A lockstep call does a whole cycle's integration before it answers, and a stall of the
     // machine must not turn into a link loss (the run would then depend on wall-clock time).
     let call_timeout =

@@ -25,7 +25,7 @@
 use std::io::{BufRead, Write};
 
 use hilbench_proto::convert::plant::check_state_envelope;
-use hilbench_svc::scenario_file::ScenarioFile;
+use hilbench_scenario_file::ScenarioFile;
 use mav::Scenario;
 use mpc::{ControllerMode, Mpc, MpcSettings, OcpDefinition, SolveBudget};
 use serde_json::{Value, json};

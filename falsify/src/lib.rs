@@ -6,7 +6,7 @@
 //! whether one exists within a budget and what it looks like.
 //!
 //! - [`table`]: the `[falsify]` table of a scenario file (parsed and checked by the scenario
-//!   file loader, `hilbench_svc::scenario_file`, which also checks its family names against
+//!   file loader, `hilbench_scenario_file`, which also checks its family names against
 //!   `[sweep]` and builds each family's [`Space`]).
 //! - [`space`]: a box of named ranges and the per-cycle delay trace of each of its points: a
 //!   segment-wise signal ([`Space::signal`]) or a delay family's parameters ([`Space::family`]).

@@ -123,8 +123,9 @@ pub fn signing_key_file(path: &std::path::Path) -> Result<mavbridge::SigningKey,
         return Err(KeyFileError::WorldReadable { path: path.into(), mode: mode & 0o777 });
     }
     // A regular file of at most a few bytes (a key is 32 bytes, or 64 hex digits and a newline).
-    let contents = hilbench_svc::user_file::read_bytes(path, MAX_KEY_FILE_BYTES, "a MAVLink signing key")
-        .map_err(|e| read(std::io::Error::other(e.reason)))?;
+    let contents =
+        hilbench_scenario_file::user_file::read_bytes(path, MAX_KEY_FILE_BYTES, "a MAVLink signing key")
+            .map_err(|e| read(std::io::Error::other(e.reason)))?;
     mavbridge::SigningKey::parse(&contents).map_err(|source| KeyFileError::Key { path: path.into(), source })
 }
 

@@ -76,7 +76,7 @@ struct Args {
 }
 
 fn config(args: &Args) -> anyhow::Result<GatewayConfig> {
-    let scenario = hilbench_svc::scenario_file::scenario_arg(&args.scenario)
+    let scenario = hilbench_scenario_file::scenario_arg(&args.scenario)
         .map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
     gateway::link::check_address(&args.mavlink)?;
     let mut config = GatewayConfig::new(args.mavlink.clone(), scenario);

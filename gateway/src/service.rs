@@ -495,7 +495,7 @@ impl GatewayService {
             watchdog_action: mav::WatchdogAction::Hover,
         };
         let implementation = format!("{IMPLEMENTATION} {}", self.shared.link.address);
-        conv::plant_description(inner.bridge.scenario(), &settings, pb::TimeMode::RealTime, &implementation)
+        conv::plant_description(inner.bridge.scenario(), &settings, mav::TimeMode::RealTime, &implementation)
     }
 
     /// Sends `msg` until the answer it awaits arrives, [`ACK_ATTEMPTS`] times [`ACK_WAIT`]

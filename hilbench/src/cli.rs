@@ -8,11 +8,9 @@ use anyhow::Context;
 use clap::builder::PossibleValuesParser;
 use clap::{Parser, Subcommand, ValueEnum};
 use hilbench_svc::tls::TlsFiles;
-use mav::Scenario;
+use mav::{ControllerMode, Scenario, TimeMode};
 
-use crate::drive::TimeMode;
 use crate::drive::services::{BenchTls, Endpoints};
-use crate::scenario_file::Mode;
 use crate::sweep::shard::ShardArg;
 
 #[derive(Parser, Debug)]
@@ -54,11 +52,11 @@ pub enum ModeArg {
 
 impl ModeArg {
     /// The controllers, in the order they fly.
-    pub fn modes(self) -> Vec<Mode> {
+    pub fn modes(self) -> Vec<ControllerMode> {
         match self {
-            ModeArg::Nmpc => vec![Mode::Nmpc],
-            ModeArg::Multistage => vec![Mode::Multistage],
-            ModeArg::Both => vec![Mode::Nmpc, Mode::Multistage],
+            ModeArg::Nmpc => vec![ControllerMode::Nmpc],
+            ModeArg::Multistage => vec![ControllerMode::Multistage],
+            ModeArg::Both => vec![ControllerMode::Nmpc, ControllerMode::Multistage],
         }
     }
 }
@@ -223,7 +221,7 @@ pub struct RunArgs {
     /// How plant time moves (default: the file's `run.time_mode`, lockstep unless the file
     /// says otherwise: a bench run should be deterministic; real time exercises the
     /// services on the wall clock, as a vehicle would).
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = hilbench_svc::args::time_mode())]
     pub time_mode: Option<TimeMode>,
     /// Seed of the delay process instead of the file's `scenario.seed`.
     #[arg(long)]

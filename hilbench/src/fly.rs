@@ -9,11 +9,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+use mav::TimeMode;
 use mpc::RunSummary;
 
 use anyhow::Context;
 
-use crate::drive::{Driver, TimeMode, grpc, in_process};
+use crate::drive::{Driver, grpc, in_process};
 use crate::run::{Batch, FinishedRun, Job, RunFailure};
 
 /// How often a real-time run without a terminal says it is still flying.

@@ -22,4 +22,4 @@ pub mod progress;
 pub mod run;
 pub mod shrink;
 pub mod sweep;
-pub use hilbench_svc::scenario_file;
+pub use hilbench_scenario_file as scenario_file;

@@ -14,7 +14,7 @@ use hilbench::output::summary::{OutputTimes, run_json, summary_json};
 use hilbench::output::terminal::run_table;
 use hilbench::run::Batch;
 use hilbench::run::{CycleRow, Job};
-use hilbench::scenario_file::{Mode, ScenarioFile};
+use hilbench::scenario_file::ScenarioFile;
 use mav::Scenario;
 use mpc::ControllerMode;
 
@@ -51,7 +51,7 @@ fn run_of_the_paper_3_file_gives_the_summary_of_reproduce_paper_3() {
         .into_iter()
         .filter(|j| j.mode == ControllerMode::Nmpc)
         .collect();
-    let run = file_jobs(&load("paper-3.toml"), Some(&[Mode::Nmpc]));
+    let run = file_jobs(&load("paper-3.toml"), Some(&[ControllerMode::Nmpc]));
     assert_eq!(run, reproduce);
     let a = fly_all(&reproduce, &grpc, false).expect("reproduce");
     let b = fly_all(&run, &grpc, false).expect("run");
@@ -100,8 +100,8 @@ fn a_user_scenario_over_grpc_is_identical_to_the_in_process_run() {
 #[test]
 fn the_run_table_prints_a_dash_for_a_clearance_or_solve_time_that_does_not_exist() {
     let file = load("slalom-4.toml");
-    let flown =
-        fly_all(&file_jobs(&file, Some(&[Mode::Multistage])), &Driver::InProcess, false).expect("in process");
+    let flown = fly_all(&file_jobs(&file, Some(&[ControllerMode::Multistage])), &Driver::InProcess, false)
+        .expect("in process");
     let mut run = flown.runs[0].summary.clone();
     let row = |table: &str| table.lines().nth(1).expect("a row").to_string();
     let numbers = row(&run_table(std::slice::from_ref(&run)));
@@ -122,10 +122,10 @@ fn the_fail_safe_check_of_a_scenario_file_reaches_the_controller_over_grpc() {
     let mut file = load("slalom-4.toml");
     assert!(file.scenario.fail_safe, "a file's default");
     file.scenario.fail_safe = false;
-    let without =
-        fly_all(&file_jobs(&file, Some(&[Mode::Nmpc])), &Driver::InProcess, false).expect("in process");
+    let without = fly_all(&file_jobs(&file, Some(&[ControllerMode::Nmpc])), &Driver::InProcess, false)
+        .expect("in process");
     file.scenario.fail_safe = true;
-    let jobs = file_jobs(&file, Some(&[Mode::Nmpc]));
+    let jobs = file_jobs(&file, Some(&[ControllerMode::Nmpc]));
     let grpc = fly_all(&jobs, &Driver::Services(Endpoints::default()), false).expect("grpc");
     let local = fly_all(&jobs, &Driver::InProcess, false).expect("in process");
     assert_eq!(deterministic(&grpc), deterministic(&local));

@@ -9,8 +9,8 @@ use std::time::Instant;
 
 use falsify::in_process::{evaluate, par_map};
 use falsify::{Method, SearchResult, SearchSettings, search};
-use hilbench_svc::falsify_table;
-use hilbench_svc::scenario_file::ScenarioFile;
+use hilbench_scenario_file::ScenarioFile;
+use hilbench_scenario_file::falsify_table;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

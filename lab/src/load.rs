@@ -29,7 +29,8 @@ use delay::{DirectionProfile, Distribution};
 use hilbench_proto::pb;
 use hilbench_proto::pb::netem_control_client::NetemControlClient;
 use hilbench_proto::pb::plant_client::PlantClient;
-use tokio::sync::{mpsc, oneshot};
+use hilbench_svc::loopback::{Served, serve_loopback};
+use tokio::sync::mpsc;
 use tokio_stream::StreamExt;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::transport::{Channel, Server};
@@ -225,7 +226,8 @@ impl pb::plant_server::Plant for EchoPlant {
 struct Rig {
     plant: EchoPlant,
     netem: Channel,
-    stops: Vec<oneshot::Sender<()>>,
+    /// netem and the plant, stopped when dropped (netem first).
+    stops: (Served<netem::NetemError>, Served<tonic::transport::Error>),
 }
 
 /// A constant `delay_s` (seed 42).
@@ -238,38 +240,28 @@ fn constant(delay_s: f64) -> DirectionProfile {
 async fn rig(profile: DirectionProfile, limit: u64, burst: u64, stream_buffer: usize) -> anyhow::Result<Rig> {
     let plant =
         EchoPlant { limit: Arc::new(AtomicU64::new(limit)), burst, applied: Arc::new(AtomicU64::new(0)) };
-    let pl = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-    let plant_addr = pl.local_addr()?;
-    let (stop_p, stopped_p) = oneshot::channel::<()>();
     let svc = pb::plant_server::PlantServer::new(plant.clone());
-    tokio::spawn(async move {
-        let incoming = tonic::transport::server::TcpIncoming::from(pl).with_nodelay(Some(true));
-        let _ = Server::builder()
-            .add_service(svc)
-            .serve_with_incoming_shutdown(incoming, async {
-                let _ = stopped_p.await;
-            })
-            .await;
-    });
-    let mut config = netem::Config::new(plant_addr.to_string());
-    config.time_mode = netem::TimeModeSetting::RealTime;
+    let served_plant = serve_loopback("echo plant", |listener, shutdown| async move {
+        let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
+        Server::builder().add_service(svc).serve_with_incoming_shutdown(incoming, shutdown).await
+    })
+    .await?;
+    let mut config = netem::Config::new(served_plant.addr.to_string());
+    config.time_mode = mav::TimeModeChoice::Fixed(mav::TimeMode::RealTime);
     config.stream_buffer = stream_buffer;
     config.plant_to_controller = profile.clone();
     config.controller_to_plant = profile;
-    let nl = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-    let netem_addr = nl.local_addr()?;
-    let (stop_n, stopped_n) = oneshot::channel::<()>();
-    tokio::spawn(async move {
-        if let Err(e) = netem::serve(nl, config, async {
-            let _ = stopped_n.await;
-        })
-        .await
-        {
+    let served_netem = serve_loopback("netem", |listener, shutdown| async move {
+        let served = netem::serve(listener, config, shutdown).await;
+        if let Err(e) = &served {
             eprintln!("netem failed: {e}");
         }
-    });
-    let netem = Channel::from_shared(format!("http://{netem_addr}"))?.tcp_nodelay(true).connect().await?;
-    Ok(Rig { plant, netem, stops: vec![stop_n, stop_p] })
+        served
+    })
+    .await?;
+    let netem =
+        Channel::from_shared(format!("http://{}", served_netem.addr))?.tcp_nodelay(true).connect().await?;
+    Ok(Rig { plant, netem, stops: (served_netem, served_plant) })
 }
 
 async fn stats(ch: &Channel) -> anyhow::Result<pb::NetemStats> {

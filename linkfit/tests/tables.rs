@@ -1,13 +1,13 @@
 //! The tables a fit writes load where the bench reads them: the scenario file loader
-//! (`hilbench_svc::scenario_file`, which checks `[scenario.delays]` through
+//! (`hilbench_scenario_file`, which checks `[scenario.delays]` through
 //! `delay::DelaysTable::to_network`) and its `[sweep]` table (`sweep_table`, every corner of
 //! the ranges checked the same way).
 
 use std::path::Path;
 
 use delay::{DelayLine, Direction, DirectionProfile, Distribution, Dwell, RegimeState};
-use hilbench_svc::scenario_file::ScenarioFile;
-use hilbench_svc::sweep_table::Param;
+use hilbench_scenario_file::ScenarioFile;
+use hilbench_scenario_file::sweep_table::Param;
 use linkfit::{FitOptions, Format, ImportOptions, Kind, fit, import};
 
 /// paper-2's scenario file, renamed, with its `[scenario.delays]` replaced by `tables`.

@@ -9,11 +9,13 @@
 pub mod command;
 mod exact;
 pub mod geometry;
+pub mod mode;
 pub mod model;
 pub mod scenario;
 pub mod sim;
 
 pub use geometry::{Cylinder, GROUND_INDEX};
+pub use mode::{ControllerMode, TimeMode, TimeModeChoice};
 pub use model::{Dynamics, Input, InputBounds, MavModel, ModelParams, State, euler_step, rk4_step};
 pub use scenario::{
     MAX_ABS_ANGLE_RAD, MAX_ABS_POSITION_M, MAX_ABS_VELOCITY_MPS, MAX_COEFFICIENT, MAX_CYCLE_S,

@@ -8,9 +8,10 @@
 //! curvature differs by orders of magnitude between variables, and PANOC's fixed-point
 //! residual test stops far from the optimum (see ARCHITECTURE.md).
 //!
-//! Code map: the problem's definition (`definition.rs`: [`OcpDefinition`], [`ControllerMode`],
-//! [`ObstacleFormulation`]); the evaluator's workspace (this file: [`Evaluator`]) and its
-//! passes (`passes.rs`: cost, objective, constraints and gradient, with the per-evaluator
+//! Code map: the problem's definition (`definition.rs`: [`OcpDefinition`],
+//! [`ObstacleFormulation`], and [`ControllerMode`], `mav`'s, re-exported); the evaluator's
+//! workspace (this file: [`Evaluator`]) and its passes (`passes.rs`: cost, objective,
+//! constraints and gradient, with the per-evaluator
 //! [`PassCounts`]); the variable scaling (`scaling.rs`: the preconditioner); the lane-parallel
 //! forward and adjoint passes over groups of scenarios (`lanes.rs`); the constraints
 //! (`constraints.rs`: cylinder and floor values and gradients, the active set); the scalar Euler

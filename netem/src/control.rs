@@ -11,7 +11,6 @@ use tokio_stream::StreamExt;
 use tokio_stream::wrappers::BroadcastStream;
 use tonic::{Request, Response, Status};
 
-use crate::Mode;
 use crate::core::Net;
 
 /// The control service.
@@ -96,11 +95,7 @@ impl pb::netem_control_server::NetemControl for Control {
             upstream_failures: inner.upstream_failures,
             deliveries_lagged: inner.deliveries_lagged,
             udp: inner.udp.as_ref().map(udp_stats),
-            time_mode: match inner.mode {
-                None => pb::TimeMode::Unspecified,
-                Some(Mode::RealTime) => pb::TimeMode::RealTime,
-                Some(Mode::Lockstep) => pb::TimeMode::Lockstep,
-            } as i32,
+            time_mode: inner.mode.map_or(pb::TimeMode::Unspecified, pb::TimeMode::from) as i32,
         }))
     }
 

@@ -10,13 +10,13 @@ use delay::{Decision, DelayLine, Direction, DirectionProfile, DirectionStats, Fa
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
 use hilbench_svc::streams::StreamSlots;
+use mav::{TimeMode, TimeModeChoice};
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tonic::transport::Channel;
 use tonic::{Response, Status};
 
 use crate::clock::Clock;
 use crate::release::Releaser;
-use crate::{Mode, TimeModeSetting};
 
 /// Largest number of records a trace recording keeps; later ones are counted but not kept.
 pub const MAX_TRACE_RECORDS: usize = 5_000_000;
@@ -75,7 +75,7 @@ pub struct Inner {
     pub in_flight: [u64; 2],
     pub recording: Option<Vec<Record>>,
     pub deliveries: broadcast::Sender<pb::TraceRecord>,
-    pub mode: Option<Mode>,
+    pub mode: Option<TimeMode>,
     /// Lockstep: plant time as of the last upstream answer; `None` until known again.
     pub plant_time_ns: Option<u64>,
     pub pending: ReleaseQueue<PendingCommand>,
@@ -159,7 +159,7 @@ impl Inner {
         let actual = (m.release_ns as i64 + release_error_ns).max(m.send_ns as i64) as u64;
         let delay_ns = actual - m.send_ns;
         self.stats[i].record_delivered(delay_ns);
-        if release_error_ns != 0 || self.mode == Some(Mode::RealTime) {
+        if release_error_ns != 0 || self.mode == Some(TimeMode::RealTime) {
             self.stats[i].record_release_error(release_error_ns);
         }
         self.record(Record {
@@ -284,7 +284,7 @@ pub struct Net {
 impl Net {
     /// The delay lines of `config` (validated) and a release thread on a new clock; `mode` is
     /// the time mode in force (`None`: not known yet).
-    pub fn new(config: &crate::Config, mode: Option<Mode>) -> Result<Arc<Self>, crate::NetemError> {
+    pub fn new(config: &crate::Config, mode: Option<TimeMode>) -> Result<Arc<Self>, crate::NetemError> {
         let line =
             |dir, p: &DirectionProfile| DelayLine::new(dir, p.clone()).map_err(crate::NetemError::Profile);
         let lines = [
@@ -343,7 +343,7 @@ pub struct Shared {
     pub upstream_addr: String,
     /// Serialises lockstep operations so that their order, and so the run, is deterministic.
     pub lockstep: tokio::sync::Mutex<()>,
-    pub setting: TimeModeSetting,
+    pub setting: TimeModeChoice,
     pub forward_tx: mpsc::UnboundedSender<Forward>,
     /// Samples a real-time state stream's buffer holds (`Config::stream_buffer`).
     pub stream_buffer: usize,
@@ -364,12 +364,7 @@ impl Shared {
         config: &crate::Config,
     ) -> Result<(Arc<Self>, mpsc::UnboundedReceiver<Forward>), crate::NetemError> {
         let setting = config.time_mode;
-        let mode = match setting {
-            TimeModeSetting::Auto => None,
-            TimeModeSetting::RealTime => Some(Mode::RealTime),
-            TimeModeSetting::Lockstep => Some(Mode::Lockstep),
-        };
-        let net = Net::new(config, mode)?;
+        let net = Net::new(config, setting.fixed())?;
         let (forward_tx, forward_rx) = mpsc::unbounded_channel();
         let shared = Arc::new(Self {
             net,
@@ -430,7 +425,7 @@ impl Shared {
     }
 
     /// The time mode: fixed by configuration, or asked from the upstream once.
-    pub async fn mode(&self) -> Result<Mode, Status> {
+    pub async fn mode(&self) -> Result<TimeMode, Status> {
         if let Some(m) = self.lock().mode {
             return Ok(m);
         }
@@ -440,16 +435,12 @@ impl Shared {
     }
 
     /// Takes the upstream's time mode into account (only when configured `auto`).
-    pub fn learn_mode(&self, time_mode: i32) -> Mode {
+    pub fn learn_mode(&self, time_mode: i32) -> TimeMode {
         let mut inner = self.lock();
-        if self.setting == TimeModeSetting::Auto {
-            inner.mode = Some(if time_mode == pb::TimeMode::Lockstep as i32 {
-                Mode::Lockstep
-            } else {
-                Mode::RealTime
-            });
+        if self.setting == TimeModeChoice::Auto {
+            inner.mode = Some(hilbench_proto::convert::time_mode_of_plant(time_mode));
         }
-        inner.mode.unwrap_or(Mode::RealTime)
+        inner.mode.unwrap_or(TimeMode::RealTime)
     }
 }
 

@@ -17,7 +17,8 @@
 //! clock, so a lockstep run through netem is as deterministic as the plant behind it.
 //!
 //! Stamps: see the header of `netem.proto`. Unary answers carry `netem-command-*` /
-//! `netem-sample-*` metadata; stream items are described on `NetemControl.StreamDeliveries`.
+//! `netem-sample-*` metadata, written and read only through `proto`'s
+//! `convert::netem::Stamp`; stream items are described on `NetemControl.StreamDeliveries`.
 
 pub mod clock;
 pub mod command_times;
@@ -34,27 +35,11 @@ use delay::{DirectionProfile, ProfileError};
 use hilbench_proto::pb::netem_control_server::NetemControlServer;
 use hilbench_proto::pb::plant_server::PlantServer;
 use hilbench_svc::{GrpcServer, ServeError};
+use mav::{TimeMode, TimeModeChoice};
 use tonic::server::NamedService;
 
 pub use control::Control;
 pub use proxy::Proxy;
-
-/// How netem decides between lockstep and real time.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum TimeModeSetting {
-    /// Ask the upstream plant (`Describe`), and follow it across resets.
-    #[default]
-    Auto,
-    RealTime,
-    Lockstep,
-}
-
-/// The time mode in force.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Mode {
-    RealTime,
-    Lockstep,
-}
 
 /// Default of [`Config::stream_buffer`], samples: a quarter second at 1 kHz, and 12.8 ms at
 /// the 20,000 samples/s netem must carry without loss (with 64, a reader on this 2-core VM
@@ -71,8 +56,9 @@ pub const DEFAULT_DELIVERIES_BUFFER: usize = 4096;
 pub struct Config {
     /// Upstream plant, `HOST:PORT` (or a full `http://` URI).
     pub upstream: String,
-    /// Lockstep, real time, or whatever the upstream says (default).
-    pub time_mode: TimeModeSetting,
+    /// Lockstep, real time, or whatever the upstream plant says (`Auto`, the default: asked
+    /// with `Describe`, and followed across resets).
+    pub time_mode: TimeModeChoice,
     /// Profile of state samples, plant to controller (default: no delay).
     pub plant_to_controller: DirectionProfile,
     /// Profile of commands, controller to plant (default: no delay).
@@ -105,7 +91,7 @@ impl Config {
     pub fn new(upstream: impl Into<String>) -> Self {
         Self {
             upstream: upstream.into(),
-            time_mode: TimeModeSetting::Auto,
+            time_mode: TimeModeChoice::Auto,
             plant_to_controller: DirectionProfile::default(),
             controller_to_plant: DirectionProfile::default(),
             seed: 42,
@@ -247,13 +233,13 @@ pub async fn serve_udp(
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), NetemError> {
     config.validate()?;
-    if config.time_mode == TimeModeSetting::Lockstep {
+    if config.time_mode == TimeModeChoice::Fixed(TimeMode::Lockstep) {
         return Err(NetemError::Config(
             "--time-mode lockstep needs a plant whose time netem moves; the UDP proxy runs in real time"
                 .into(),
         ));
     }
-    let net = core::Net::new(&config, Some(Mode::RealTime))?;
+    let net = core::Net::new(&config, Some(TimeMode::RealTime))?;
     let sockets = udp::Sockets::bind(&udp)
         .map_err(|e| NetemError::Udp(format!("--udp-listen {}: cannot bind: {e}", udp.listen)))?;
     let server = GrpcServer::new(

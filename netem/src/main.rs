@@ -3,17 +3,8 @@
 
 use anyhow::Context;
 use clap::Parser;
-use netem::{Config, TimeModeSetting};
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-enum TimeModeArg {
-    /// Follow the plant behind (asked with Describe).
-    Auto,
-    /// Release every message on netem's clock.
-    RealTime,
-    /// Advance the plant's virtual clock to each release (deterministic).
-    Lockstep,
-}
+use mav::{TimeMode, TimeModeChoice};
+use netem::Config;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 enum SideArg {
@@ -51,9 +42,11 @@ struct Args {
     #[arg(long, default_value_t = 42)]
     seed: u64,
     /// How time moves. `auto` (the default) asks the plant behind with Describe and follows
-    /// it, so that only the plant's `--time-mode` has to be chosen.
-    #[arg(long, value_enum, default_value_t = TimeModeArg::Auto)]
-    time_mode: TimeModeArg,
+    /// it, so that only the plant's `--time-mode` has to be chosen. In real time every message
+    /// is released on netem's clock; in lockstep netem advances the plant's virtual clock to
+    /// each release (deterministic).
+    #[arg(long, value_parser = hilbench_svc::args::time_mode_choice(), default_value_t = TimeModeChoice::Auto)]
+    time_mode: TimeModeChoice,
     /// Server streams served at once (StreamState and StreamDeliveries together); one more is
     /// refused with RESOURCE_EXHAUSTED.
     #[arg(long, default_value_t = hilbench_svc::streams::DEFAULT_MAX_STREAMS, value_parser = at_least_one())]
@@ -84,7 +77,7 @@ impl Args {
         let udp =
             netem::udp::UdpConfig::from_flags(self.udp_listen.as_deref(), self.udp_forward.as_deref(), side)
                 .map_err(|e| e.to_string())?;
-        if udp.is_some() && self.time_mode == TimeModeArg::Lockstep {
+        if udp.is_some() && self.time_mode == TimeModeChoice::Fixed(TimeMode::Lockstep) {
             return Err("--time-mode lockstep: the UDP proxy runs in real time (lockstep needs a plant whose time netem moves)".into());
         }
         Ok(udp)
@@ -105,11 +98,7 @@ async fn main() -> anyhow::Result<()> {
             .with_preset(&args.profile, args.seed)
             .with_context(|| format!("--profile {}", args.profile))?,
     };
-    config.time_mode = match args.time_mode {
-        TimeModeArg::Auto => TimeModeSetting::Auto,
-        TimeModeArg::RealTime => TimeModeSetting::RealTime,
-        TimeModeArg::Lockstep => TimeModeSetting::Lockstep,
-    };
+    config.time_mode = args.time_mode;
     config.max_streams = args.max_streams;
     config.tls = hilbench_svc::tls::TlsFiles::server_and_client(&args.server.tls, &args.trust).load()?;
     config.connections = args.server.connections.limits()?;
@@ -125,16 +114,16 @@ async fn main() -> anyhow::Result<()> {
 /// (serde's with their line).
 fn load_profile_file(path: &std::path::Path, seed: u64) -> anyhow::Result<delay::NetworkProfile> {
     let shown = path.display();
-    let text = hilbench_svc::user_file::read_text(
+    let text = hilbench_scenario_file::user_file::read_text(
         path,
-        hilbench_svc::user_file::MAX_SCENARIO_FILE_BYTES,
+        hilbench_scenario_file::user_file::MAX_SCENARIO_FILE_BYTES,
         "a profile",
     )
     .map_err(|e| anyhow::anyhow!("--profile-file {e}"))?;
     let table: delay::DelaysTable =
         toml::from_str(&text).map_err(|e| anyhow::anyhow!("--profile-file {shown}: {e}"))?;
     let dir = path.parent().unwrap_or(std::path::Path::new("."));
-    let mut read_trace = |name: &str| hilbench_svc::scenario_file::read_trace(&dir.join(name));
+    let mut read_trace = |name: &str| hilbench_scenario_file::read_trace(&dir.join(name));
     table
         .to_network(seed, &mut read_trace)
         .map_err(|e| anyhow::anyhow!("--profile-file {shown}: field `{}`: {}", e.field, e.reason))

@@ -40,14 +40,14 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering as AtomicOrdering};
 
 use delay::{Direction, Fate};
-use hilbench_proto::convert::netem::check_command;
+use hilbench_proto::convert::netem::{Stamp, StampOutcome, Stamped, check_command, write_clock};
 use hilbench_proto::pb;
 use hilbench_svc::streams::{Guarded, Pushed, Reader, Writer, drop_oldest};
+use mav::TimeMode;
 use tokio::sync::oneshot;
-use tonic::metadata::{MetadataMap, MetadataValue};
+use tonic::metadata::MetadataMap;
 use tonic::{Request, Response, Status};
 
-use crate::Mode;
 use crate::core::{Forward, Msg, PendingCommand, Shared};
 
 /// The Plant service as netem serves it.
@@ -56,33 +56,15 @@ pub struct Proxy {
     pub(crate) shared: Arc<Shared>,
 }
 
-const OUTCOME_DELIVERED: &str = "delivered";
-const OUTCOME_HELD: &str = "in-flight";
-const OUTCOME_DROPPED: &str = "dropped";
-
-/// Writes the stamps of one message into response metadata under `netem-<prefix>-*`.
-fn stamp(md: &mut MetadataMap, prefix: &str, m: &Msg, outcome: &'static str) {
-    let mut put = |key: &str, v: u64| {
-        if let Ok(k) = tonic::metadata::MetadataKey::from_bytes(format!("netem-{prefix}-{key}").as_bytes()) {
-            md.insert(k, MetadataValue::from(v));
-        }
-    };
-    put("seq", m.seq);
-    put("send-time-ns", m.send_ns);
-    put("release-time-ns", m.release_ns);
-    put("delay-ns", m.release_ns.saturating_sub(m.send_ns));
-    if let Ok(k) = tonic::metadata::MetadataKey::from_bytes(format!("netem-{prefix}-outcome").as_bytes()) {
-        md.insert(k, MetadataValue::from_static(outcome));
-    }
+/// Writes the stamps of `m` into response metadata (`convert::netem::Stamp`, the one format).
+fn stamp(md: &mut MetadataMap, stamped: Stamped, m: &Msg, outcome: StampOutcome) {
+    Stamp::new(m.seq, m.send_ns, m.release_ns, outcome).write(md, stamped);
 }
 
-fn respond<T>(body: T, md: MetadataMap, mode: Mode) -> Response<T> {
+fn respond<T>(body: T, md: MetadataMap, mode: TimeMode) -> Response<T> {
     let mut r = Response::new(body);
     *r.metadata_mut() = md;
-    r.metadata_mut().insert(
-        "netem-clock",
-        MetadataValue::from_static(if mode == Mode::Lockstep { "plant" } else { "netem" }),
-    );
+    write_clock(r.metadata_mut(), mode);
     r
 }
 
@@ -169,13 +151,17 @@ impl Proxy {
                         release_ns: t + delay::delay_ns(d.sampled_delay_s),
                         duplicate: false,
                     };
-                    stamp(md, "command", &m, OUTCOME_DROPPED);
+                    stamp(md, Stamped::Command, &m, StampOutcome::Dropped);
                 }
                 Fate::Delivered { .. } => {
                     for m in Msg::copies(&d, Direction::ControllerToPlant, command.command_seq) {
                         if !m.duplicate {
-                            let outcome = if m.release_ns <= t { OUTCOME_DELIVERED } else { OUTCOME_HELD };
-                            stamp(md, "command", &m, outcome);
+                            let outcome = if m.release_ns <= t {
+                                StampOutcome::Delivered
+                            } else {
+                                StampOutcome::InFlight
+                            };
+                            stamp(md, Stamped::Command, &m, outcome);
                         }
                         let p = PendingCommand { msg: m, command };
                         if m.release_ns <= t { due_now.push(p) } else { inner.pending.push(m.release_ns, p) }
@@ -310,10 +296,10 @@ impl Proxy {
         let sample = stale_sample.unwrap_or(end);
         let m = inner.lockstep_sample(t_s, target, &draw, sample.seq);
         let delivered = if draw.lost {
-            stamp(md, "sample", &m, OUTCOME_DROPPED);
+            stamp(md, Stamped::Sample, &m, StampOutcome::Dropped);
             inner.last_sample.clone().unwrap_or(sample)
         } else {
-            stamp(md, "sample", &m, OUTCOME_DELIVERED);
+            stamp(md, Stamped::Sample, &m, StampOutcome::Delivered);
             inner.last_sample = Some(sample.clone());
             sample
         };
@@ -350,7 +336,7 @@ impl Proxy {
                 release_ns: now + delay::delay_ns(d.sampled_delay_s),
                 duplicate: false,
             };
-            stamp(md, "command", &m, OUTCOME_DROPPED);
+            stamp(md, Stamped::Command, &m, StampOutcome::Dropped);
         }
         for m in Msg::copies(&d, Direction::ControllerToPlant, command.command_seq) {
             let reply = if !m.duplicate && m.release_ns == now {
@@ -361,7 +347,12 @@ impl Proxy {
                 None
             };
             if !m.duplicate {
-                stamp(md, "command", &m, if reply.is_some() { OUTCOME_DELIVERED } else { OUTCOME_HELD });
+                stamp(
+                    md,
+                    Stamped::Command,
+                    &m,
+                    if reply.is_some() { StampOutcome::Delivered } else { StampOutcome::InFlight },
+                );
             }
             let forward_tx = self.shared.forward_tx.clone();
             let action = Box::new(move |release_error_ns: i64| {
@@ -405,7 +396,7 @@ impl Proxy {
         match original {
             Some((m, rx)) => {
                 rx.await.map_err(|_| Status::unavailable("netem is shutting down"))?;
-                stamp(md, "sample", &m, OUTCOME_DELIVERED);
+                stamp(md, Stamped::Sample, &m, StampOutcome::Delivered);
                 self.shared.lock().last_sample = Some(sample.clone());
                 Ok(sample)
             }
@@ -418,7 +409,7 @@ impl Proxy {
                     release_ns: now + delay::delay_ns(d.sampled_delay_s),
                     duplicate: false,
                 };
-                stamp(md, "sample", &m, OUTCOME_DROPPED);
+                stamp(md, Stamped::Sample, &m, StampOutcome::Dropped);
                 Ok(self.shared.lock().last_sample.clone().unwrap_or(sample))
             }
         }
@@ -462,7 +453,7 @@ impl pb::plant_server::Plant for Proxy {
         let mode = self.shared.mode().await?;
         let upstream =
             self.shared.up(self.shared.client().stream_state(request.into_inner())).await?.into_inner();
-        if mode == Mode::Lockstep {
+        if mode == TimeMode::Lockstep {
             let shared = self.shared.clone();
             let s = async_stream_map(upstream, shared);
             return Ok(Response::new(Box::pin(Guarded::new(s, slot))));
@@ -480,13 +471,13 @@ impl pb::plant_server::Plant for Proxy {
         let mode = self.shared.mode().await?;
         let mut md = MetadataMap::new();
         let sample = match mode {
-            Mode::Lockstep => {
+            TimeMode::Lockstep => {
                 let _guard = self.shared.lockstep.lock().await;
                 let s = self.up_state().await?;
                 self.shared.lock().plant_time_ns = Some(s.time_ns);
                 s
             }
-            Mode::RealTime => self.real_time_state(&mut md).await?,
+            TimeMode::RealTime => self.real_time_state(&mut md).await?,
         };
         Ok(respond(sample, md, mode))
     }
@@ -501,11 +492,11 @@ impl pb::plant_server::Plant for Proxy {
         let mode = self.shared.mode().await?;
         let mut md = MetadataMap::new();
         let applied = match mode {
-            Mode::Lockstep => {
+            TimeMode::Lockstep => {
                 let _guard = self.shared.lockstep.lock().await;
                 self.lockstep_command(command, &mut md).await?
             }
-            Mode::RealTime => self.real_time_command(command, &mut md).await?,
+            TimeMode::RealTime => self.real_time_command(command, &mut md).await?,
         };
         let applied = applied.and_then(|r| r.applied);
         Ok(respond(pb::ApplyCommandResponse { applied }, md, mode))
@@ -517,7 +508,7 @@ impl pb::plant_server::Plant for Proxy {
     ) -> Result<Response<pb::AdvanceResponse>, Status> {
         let req = request.into_inner();
         let mode = self.shared.mode().await?;
-        if mode == Mode::RealTime || (req.duration_ns == 0 && req.wait_for_command_seq == 0) {
+        if mode == TimeMode::RealTime || (req.duration_ns == 0 && req.wait_for_command_seq == 0) {
             // Let the plant answer what it does with it (it refuses both).
             return self.shared.up(self.shared.client().advance(req)).await;
         }
@@ -537,7 +528,7 @@ impl pb::plant_server::Plant for Proxy {
         let mode = self.shared.mode().await?;
         let mut md = MetadataMap::new();
         let sample = match mode {
-            Mode::Lockstep => {
+            TimeMode::Lockstep => {
                 let _guard = self.shared.lockstep.lock().await;
                 // The command, when due now, goes upstream with the first move: one `Step`.
                 let mut due = match req.command {
@@ -553,7 +544,7 @@ impl pb::plant_server::Plant for Proxy {
                     s
                 }
             }
-            Mode::RealTime => {
+            TimeMode::RealTime => {
                 if req.duration_ns > 0 {
                     return self.shared.up(self.shared.client().step(req)).await;
                 }

@@ -1,49 +1,7 @@
 //! Settings of the plant service: validated data with documented defaults and units.
 
 use hilbench_svc::streams::DEFAULT_MAX_STREAMS;
-use mav::{Scenario, SimSettings, WatchdogAction};
-use std::fmt;
-use std::str::FromStr;
-
-/// How plant time moves.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum TimeMode {
-    /// Time advances only through `Advance`/`Step`: deterministic, faster than real time.
-    /// This is what the bench uses.
-    Lockstep,
-    /// A task integrates on the wall clock; plant time is the time since the last reset.
-    RealTime,
-}
-
-impl TimeMode {
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Lockstep => "lockstep",
-            Self::RealTime => "real-time",
-        }
-    }
-}
-
-impl fmt::Display for TimeMode {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-impl FromStr for TimeMode {
-    type Err = ConfigError;
-
-    fn from_str(s: &str) -> Result<Self, ConfigError> {
-        match s {
-            "lockstep" => Ok(Self::Lockstep),
-            "real-time" | "realtime" => Ok(Self::RealTime),
-            other => Err(ConfigError::new(
-                "time_mode",
-                format!("unknown time mode {other:?} (lockstep, real-time)"),
-            )),
-        }
-    }
-}
+use mav::{Scenario, SimSettings, TimeMode, WatchdogAction};
 
 /// An invalid setting.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -170,7 +128,5 @@ mod tests {
         assert_eq!(bad.validate().map_err(|e| e.field), Err("stream_buffer".to_string()));
         let bad = PlantConfig { max_streams: 0, ..Default::default() };
         assert_eq!(bad.validate().map_err(|e| e.field), Err("max_streams".to_string()));
-        assert_eq!("real-time".parse(), Ok(TimeMode::RealTime));
-        assert!("fast".parse::<TimeMode>().is_err());
     }
 }

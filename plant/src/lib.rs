@@ -19,12 +19,13 @@ pub mod service;
 pub mod step_loop;
 
 pub use clock::{Clock, ManualClock, WallClock};
-pub use config::{ConfigError, PlantConfig, TimeMode};
+pub use config::{ConfigError, PlantConfig};
 pub use service::PlantService;
 pub use step_loop::{StepLoop, StepStats};
 
 use hilbench_proto::pb::plant_server::PlantServer;
 use hilbench_svc::{GrpcServer, ServeError};
+use mav::TimeMode;
 use std::future::Future;
 use std::sync::Arc;
 use tonic::server::NamedService;

@@ -3,15 +3,8 @@
 
 use anyhow::Context;
 use clap::Parser;
-use plant::{PlantConfig, TimeMode};
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-enum Mode {
-    /// Integrate on the wall clock; Advance/Step with a duration are refused.
-    RealTime,
-    /// Time moves only through Advance/Step (deterministic; what the bench drives).
-    Lockstep,
-}
+use mav::TimeMode;
+use plant::PlantConfig;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 enum WatchdogArg {
@@ -34,9 +27,10 @@ struct Args {
     scenario: String,
     /// How plant time moves. The plant decides for the whole bench: netem and the controller
     /// follow it (their `--time-mode auto`). Real time by default, as a vehicle runs; the bench
-    /// (`hilbench`) starts its plants in lockstep, which is deterministic.
-    #[arg(long, value_enum, default_value_t = Mode::RealTime)]
-    time_mode: Mode,
+    /// (`hilbench`) starts its plants in lockstep, which is deterministic. In real time
+    /// Advance/Step with a duration are refused.
+    #[arg(long, value_parser = hilbench_svc::args::time_mode(), default_value_t = TimeMode::RealTime)]
+    time_mode: TimeMode,
     /// RK4 integration rate, Hz (the step is 1/rate).
     #[arg(long, default_value_t = 1000.0)]
     rate_hz: f64,
@@ -54,12 +48,9 @@ struct Args {
 }
 
 fn config(args: &Args) -> anyhow::Result<PlantConfig> {
-    let scenario = hilbench_svc::scenario_file::scenario_arg(&args.scenario)
+    let scenario = hilbench_scenario_file::scenario_arg(&args.scenario)
         .map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
-    let mut config = match args.time_mode {
-        Mode::RealTime => PlantConfig::real_time(scenario),
-        Mode::Lockstep => PlantConfig::lockstep(scenario),
-    };
+    let mut config = PlantConfig { time_mode: args.time_mode, ..PlantConfig::lockstep(scenario) };
     config.rate_hz = args.rate_hz;
     config.max_streams = args.max_streams;
     config.watchdog_action = match args.watchdog_action {
@@ -75,7 +66,6 @@ fn config(args: &Args) -> anyhow::Result<PlantConfig> {
         };
     }
     config.validate()?;
-    debug_assert_eq!(config.time_mode == TimeMode::Lockstep, args.time_mode == Mode::Lockstep);
     Ok(config)
 }
 

@@ -3,12 +3,12 @@
 //! into the simulation.
 
 use crate::clock::Clock;
-use crate::config::{ConfigError, PlantConfig, TimeMode};
+use crate::config::{ConfigError, PlantConfig};
 use hilbench_proto::convert::FieldError;
 use hilbench_proto::convert::plant::{self as conv, Command, Reset, Step, StreamState};
 use hilbench_proto::pb;
 use hilbench_svc::streams::{Guarded, Pushed, StreamSlots, Writer, drop_oldest};
-use mav::{PlantSim, Scenario, SimSettings};
+use mav::{PlantSim, Scenario, SimSettings, TimeMode};
 use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use tokio_stream::StreamExt;
@@ -198,11 +198,7 @@ impl Shared {
     }
 
     fn describe(&self, inner: &Inner) -> pb::PlantDescription {
-        let mode = match self.time_mode {
-            TimeMode::Lockstep => pb::TimeMode::Lockstep,
-            TimeMode::RealTime => pb::TimeMode::RealTime,
-        };
-        conv::plant_description(&inner.scenario, &self.settings, mode, IMPLEMENTATION)
+        conv::plant_description(&inner.scenario, &self.settings, self.time_mode, IMPLEMENTATION)
     }
 }
 

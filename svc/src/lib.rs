@@ -1,21 +1,20 @@
 //! `hilbench-svc` owns what the services (`plant`, `netem`, `controller`) do the same way: in
 //! their libraries' `serve`, the gRPC server with health and reflection ([`GrpcServer`]); in
-//! their `main`s, structured logs with `tracing` and the shutdown signal passed to `serve`;
-//! server streams that cannot exhaust a service ([`streams`]: a cap on open streams, and a
-//! bounded drop-oldest buffer per subscriber); and the scenario file loader
-//! ([`scenario_file`]) behind `--scenario FILE`; and mutual TLS for servers and clients
-//! ([`tls`]: the flags, the checked files, the server's config and the client's endpoint); and
-//! waking at a deadline to tens of microseconds ([`realtime`]: netem's release thread, the
-//! plant's step loop).
+//! their `main`s, structured logs with `tracing` and the shutdown signal passed to `serve`, and
+//! the core's enums as flags ([`args`]); server streams that cannot exhaust a service
+//! ([`streams`]: a cap on open streams, and a bounded drop-oldest buffer per subscriber); mutual
+//! TLS for servers and clients ([`tls`]: the flags, the checked files, the server's config and
+//! the client's endpoint); waking at a deadline to tens of microseconds ([`realtime`]:
+//! netem's release thread, the plant's step loop); and a service served in process on a
+//! loopback port ([`loopback`]: `hilbench`'s services of a run, the tests'). The scenario file
+//! format is a crate of its own, `hilbench-scenario-file`.
 
+pub mod args;
 pub mod connections;
-pub mod falsify_table;
+pub mod loopback;
 pub mod realtime;
-pub mod scenario_file;
 pub mod streams;
-pub mod sweep_table;
 pub mod tls;
-pub mod user_file;
 
 use std::future::Future;
 use std::net::SocketAddr;

@@ -364,7 +364,7 @@ fn server_config(cert: &[u8], key: &[u8], client_ca: Option<&[u8]>) -> Result<Se
 /// A certificate or key file: a regular file of at most `user_file::MAX_PEM_FILE_BYTES`
 /// (`--tls-cert /dev/zero` read until memory ran out).
 fn read(flag: &'static str, path: &Path) -> Result<Vec<u8>, TlsError> {
-    use crate::user_file::{MAX_PEM_FILE_BYTES, read_bytes};
+    use hilbench_scenario_file::user_file::{MAX_PEM_FILE_BYTES, read_bytes};
     read_bytes(path, MAX_PEM_FILE_BYTES, "PEM").map_err(|e| TlsError::Read {
         flag,
         path: e.path,

@@ -1,41 +1,30 @@
-//! A service served in-process on an ephemeral loopback port and stopped with a oneshot: the
-//! shape every service's test helper shares (see `controller.rs`, `plant.rs`).
+//! A service served in-process on an ephemeral loopback port and stopped with a oneshot
+//! (`hilbench_svc::loopback`, the way `hilbench` starts its services too), with the tests'
+//! conveniences: a connected channel, and a panic for a set-up failure or a hang at shutdown.
 
 use std::future::Future;
 use std::net::SocketAddr;
-use std::pin::Pin;
 use std::time::Duration;
+
+use hilbench_svc::loopback::{self, Served};
 use tokio::net::TcpListener;
-use tokio::sync::oneshot;
-use tokio::task::JoinHandle;
 use tonic::transport::Channel;
+
+pub use hilbench_svc::loopback::Shutdown;
 
 /// How long `stop` waits for a clean shutdown before calling it a failure.
 const STOP_TIMEOUT: Duration = Duration::from_secs(30);
 
-/// The shutdown signal handed to a service's `serve`: resolves on `stop()` or drop.
-pub type Shutdown = Pin<Box<dyn Future<Output = ()> + Send>>;
-
-/// A service served on `127.0.0.1:<ephemeral>` whose `serve` returns `Result<(), E>`; stopped
-/// on `stop()` (or when dropped).
+/// A service served on `127.0.0.1:<port>` whose `serve` returns `Result<(), E>`; stopped on
+/// `stop()` (or when dropped).
 pub struct Running<E> {
     pub addr: SocketAddr,
-    /// What the panics call it ("plant server", "controller").
-    name: &'static str,
-    stop: Option<oneshot::Sender<()>>,
-    task: Option<JoinHandle<Result<(), E>>>,
+    served: Served<E>,
 }
 
 /// Binds an ephemeral loopback port (panics if it cannot: a test set-up failure).
 pub async fn bind_loopback() -> (TcpListener, SocketAddr) {
-    let listener = match TcpListener::bind("127.0.0.1:0").await {
-        Ok(l) => l,
-        Err(e) => panic!("cannot bind a loopback port: {e}"),
-    };
-    match listener.local_addr() {
-        Ok(addr) => (listener, addr),
-        Err(e) => panic!("no local address: {e}"),
-    }
+    loopback::bind_loopback().await.unwrap_or_else(|e| panic!("cannot bind a loopback port: {e}"))
 }
 
 /// Binds a loopback port and spawns `serve(listener, shutdown)`. The listener is bound before
@@ -45,15 +34,25 @@ where
     E: Send + 'static,
     F: Future<Output = Result<(), E>> + Send + 'static,
 {
-    let (listener, addr) = bind_loopback().await;
-    let (stop, stopped) = oneshot::channel::<()>();
-    let task = tokio::spawn(serve(
-        listener,
-        Box::pin(async {
-            let _ = stopped.await;
-        }),
-    ));
-    Running { addr, name, stop: Some(stop), task: Some(task) }
+    let (listener, _) = bind_loopback().await;
+    start_on(name, listener, serve)
+}
+
+/// Spawns `serve(listener, shutdown)` on a listener bound by the caller (a fixed port, for a
+/// service that comes back at the same address).
+pub fn start_on<E, F>(
+    name: &'static str,
+    listener: TcpListener,
+    serve: impl FnOnce(TcpListener, Shutdown) -> F,
+) -> Running<E>
+where
+    E: Send + 'static,
+    F: Future<Output = Result<(), E>> + Send + 'static,
+{
+    match loopback::serve_on(name, listener, serve) {
+        Ok(served) => Running { addr: served.addr, served },
+        Err(e) => panic!("the {name}'s listener has no address: {e}"),
+    }
 }
 
 impl<E> Running<E> {
@@ -68,31 +67,15 @@ impl<E> Running<E> {
         match Channel::from_shared(self.uri()) {
             Ok(endpoint) => match endpoint.connect().await {
                 Ok(c) => c,
-                Err(e) => panic!("cannot connect to the {} at {}: {e}", self.name, self.addr),
+                Err(e) => panic!("cannot connect to the {} at {}: {e}", self.served.name, self.addr),
             },
             Err(e) => panic!("bad uri: {e}"),
         }
     }
 
     /// Shuts the server (and whatever it runs) down and returns what `serve` returned. Panics
-    /// if it does not stop within 30 s (a hang at shutdown is a bug).
-    pub async fn stop(mut self) -> Result<(), E> {
-        if let Some(stop) = self.stop.take() {
-            let _ = stop.send(());
-        }
-        let Some(task) = self.task.take() else { return Ok(()) };
-        match tokio::time::timeout(STOP_TIMEOUT, task).await {
-            Ok(Ok(result)) => result,
-            Ok(Err(join)) => panic!("{} task failed: {join}", self.name),
-            Err(_) => panic!("{} did not shut down within {STOP_TIMEOUT:?}", self.name),
-        }
-    }
-}
-
-impl<E> Drop for Running<E> {
-    fn drop(&mut self) {
-        if let Some(stop) = self.stop.take() {
-            let _ = stop.send(());
-        }
+    /// if its task panicked or it does not stop within 30 s (a hang at shutdown is a bug).
+    pub async fn stop(self) -> Result<(), E> {
+        self.served.stop(STOP_TIMEOUT).await.unwrap_or_else(|e| panic!("{e}"))
     }
 }

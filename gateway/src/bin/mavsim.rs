@@ -72,7 +72,7 @@ fn main() -> anyhow::Result<()> {
     hilbench_svc::init_tracing();
     hilbench_svc::exit_on_panic();
     let args = Args::parse();
-    let scenario = hilbench_svc::scenario_file::scenario_arg(&args.scenario)
+    let scenario = hilbench_scenario_file::scenario_arg(&args.scenario)
         .map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
     if !args.yaw_deg.is_finite() || args.yaw_deg.abs() > 360.0 {
         anyhow::bail!("--yaw-deg: must be in [-360, 360], got {}", args.yaw_deg);

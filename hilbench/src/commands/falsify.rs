@@ -2,10 +2,10 @@
 //! property; falsify.json, runs.csv, the worst runs' traces, report.md.
 
 use anyhow::Context;
+use mav::TimeMode;
 
 use super::{Exit, Options};
 use crate::cli::FalsifyArgs;
-use crate::drive::TimeMode;
 use crate::falsification::{Falsification, execute, output};
 use crate::output::out_dir::OutDir;
 use crate::scenario_file::ScenarioFile;
@@ -25,13 +25,13 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
     );
     let mode = match args.mode {
         Some(m) => match m.modes()[..] {
-            [one] => crate::run::controller_mode(one),
+            [one] => one,
             _ => anyhow::bail!("--mode: one controller per falsification (nmpc or multistage, not both)"),
         },
-        None => crate::run::controller_mode(spec.run.modes[0]),
+        None => spec.run.modes[0],
     };
     let seed = args.seed.or(table.seed).unwrap_or(spec.scenario.seed);
-    let mut spaces = hilbench_svc::falsify_table::spaces(&table, spec.sweep.as_ref(), seed);
+    let mut spaces = hilbench_scenario_file::falsify_table::spaces(&table, spec.sweep.as_ref(), seed);
     if !args.space.is_empty() {
         let names: Vec<String> = spaces.iter().map(|s| s.name.clone()).collect();
         if let Some(unknown) = args.space.iter().find(|s| !names.contains(s)) {
@@ -67,14 +67,14 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
         run_timeout: std::time::Duration::from_secs_f64(
             args.run_timeout_s
                 .or(sweep.and_then(|s| s.run_timeout_s))
-                .unwrap_or(hilbench_svc::sweep_table::DEFAULT_RUN_TIMEOUT_S),
+                .unwrap_or(hilbench_scenario_file::sweep_table::DEFAULT_RUN_TIMEOUT_S),
         ),
         shrink_runs: if args.no_shrink {
             0
         } else {
             args.shrink_runs
                 .or(sweep.and_then(|s| s.shrink_runs))
-                .unwrap_or(hilbench_svc::sweep_table::DEFAULT_SHRINK_RUNS)
+                .unwrap_or(hilbench_scenario_file::sweep_table::DEFAULT_SHRINK_RUNS)
         },
         scenario: spec.scenario,
     };

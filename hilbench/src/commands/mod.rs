@@ -115,8 +115,8 @@ fn lockstep_driver(
     tls: &crate::cli::TlsArgs,
     what: &str,
 ) -> anyhow::Result<Driver> {
-    use crate::drive::TimeMode;
     use crate::drive::external::{ExternalController, ExternalSettings};
+    use mav::TimeMode;
     Ok(match controller_cmd {
         Some(command) => Driver::External(ExternalController {
             command,

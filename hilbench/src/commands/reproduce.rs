@@ -1,12 +1,12 @@
 //! `hilbench reproduce`: the paper's three scenarios with the standard and the multi-stage
 //! NMPC in paper mode, and the paper's tables beside what the bench measures.
 
-use mav::Scenario;
+use mav::{Scenario, TimeMode};
 use mpc::ControllerMode;
 
 use super::{Exit, Options, Written, exit_of, fly_and_write};
 use crate::cli::ReproduceArgs;
-use crate::drive::{Driver, TimeMode};
+use crate::drive::Driver;
 use crate::output::{ReportParts, paper, terminal};
 use crate::run::Job;
 

@@ -4,14 +4,15 @@
 use std::path::Path;
 
 use anyhow::Context;
+use mav::{ControllerMode, TimeMode};
 
 use super::{Exit, Options, Written, exit_of, fly_and_write};
 use crate::cli::RunArgs;
+use crate::drive::Driver;
 use crate::drive::external::{ExternalController, ExternalSettings};
-use crate::drive::{Driver, TimeMode};
 use crate::output::{ReportParts, terminal};
-use crate::run::{CycleSink, Job, controller_mode};
-use crate::scenario_file::{Mode, ScenarioFile};
+use crate::run::{CycleSink, Job};
+use crate::scenario_file::ScenarioFile;
 
 pub fn run(args: RunArgs, opts: &Options) -> anyhow::Result<Exit> {
     anyhow::ensure!(
@@ -25,7 +26,7 @@ pub fn run(args: RunArgs, opts: &Options) -> anyhow::Result<Exit> {
     let jobs = match driver {
         // One run of the file's scenario; the mode of the job is not used.
         Driver::External(_) => {
-            vec![Job { scenario: spec.scenario.clone(), mode: mpc::ControllerMode::Multistage }]
+            vec![Job { scenario: spec.scenario.clone(), mode: ControllerMode::Multistage }]
         }
         _ => file_jobs(&spec, modes.as_deref()),
     };
@@ -135,7 +136,7 @@ fn driver(
 }
 
 /// The file's scenario with `modes`, or with the file's `run.modes`.
-pub fn file_jobs(file: &ScenarioFile, modes: Option<&[Mode]>) -> Vec<Job> {
+pub fn file_jobs(file: &ScenarioFile, modes: Option<&[ControllerMode]>) -> Vec<Job> {
     let modes = modes.unwrap_or(&file.run.modes);
-    modes.iter().map(|m| Job { scenario: file.scenario.clone(), mode: controller_mode(*m) }).collect()
+    modes.iter().map(|&mode| Job { scenario: file.scenario.clone(), mode }).collect()
 }

@@ -4,11 +4,11 @@
 use std::sync::Arc;
 
 use anyhow::Context;
+use mav::TimeMode;
 use serde_json::{Value, json};
 
 use super::{Exit, Options};
 use crate::cli::SweepArgs;
-use crate::drive::TimeMode;
 use crate::output::out_dir::OutDir;
 use crate::output::terminal;
 use crate::scenario_file::ScenarioFile;
@@ -34,8 +34,8 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
     let modes = match args.mode {
         // One flight per run for an external controller (the mode names no controller then).
         None if args.controller_cmd.is_some() => vec![mpc::ControllerMode::Multistage],
-        None => spec.run.modes.iter().map(|m| crate::run::controller_mode(*m)).collect(),
-        Some(m) => m.modes().into_iter().map(crate::run::controller_mode).collect(),
+        None => spec.run.modes.clone(),
+        Some(m) => m.modes(),
     };
     anyhow::ensure!(
         spec.run.time_mode == TimeMode::Lockstep,
@@ -63,17 +63,17 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
         run_timeout: std::time::Duration::from_secs_f64(
             args.run_timeout_s
                 .or(table.run_timeout_s)
-                .unwrap_or(hilbench_svc::sweep_table::DEFAULT_RUN_TIMEOUT_S),
+                .unwrap_or(hilbench_scenario_file::sweep_table::DEFAULT_RUN_TIMEOUT_S),
         ),
         shrink: args.shrink,
         shrink_runs: args
             .shrink_runs
             .or(table.shrink_runs)
-            .unwrap_or(hilbench_svc::sweep_table::DEFAULT_SHRINK_RUNS),
+            .unwrap_or(hilbench_scenario_file::sweep_table::DEFAULT_SHRINK_RUNS),
         shrink_total_runs: args
             .shrink_total_runs
             .or(table.shrink_total_runs)
-            .unwrap_or(hilbench_svc::sweep_table::DEFAULT_SHRINK_TOTAL_RUNS),
+            .unwrap_or(hilbench_scenario_file::sweep_table::DEFAULT_SHRINK_TOTAL_RUNS),
         scenario: spec.scenario,
         table,
         batch: None,
@@ -147,7 +147,7 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
 /// Refuses a sweep whose process would fly more than `sweep_table::MAX_RUNS` runs (its shard's
 /// with `--shard`), naming where the number came from, before anything is allocated or flown.
 fn check_runs(sweep: &Sweep, from_flag: bool) -> anyhow::Result<()> {
-    let max = hilbench_svc::sweep_table::MAX_RUNS;
+    let max = hilbench_scenario_file::sweep_table::MAX_RUNS;
     let here = sweep.indices().end - sweep.indices().start;
     let source =
         if from_flag { "--runs".to_string() } else { format!("{}: sweep.runs", sweep.file.display()) };

@@ -148,9 +148,9 @@ pub fn trace(args: TraceArgs, opts: &Options) -> anyhow::Result<Exit> {
 }
 
 /// A regular file's text, at most [`MAX_FILE_BYTES`], named in every error (the bench's one
-/// reader of user files, `hilbench_svc::user_file::read_text`).
+/// reader of user files, `hilbench_scenario_file::user_file::read_text`).
 fn read(path: &Path) -> anyhow::Result<String> {
-    Ok(hilbench_svc::user_file::read_text(path, MAX_FILE_BYTES, "a trace or an import")?)
+    Ok(hilbench_scenario_file::user_file::read_text(path, MAX_FILE_BYTES, "a trace or an import")?)
 }
 
 /// A trace file (`delay`'s format: losses and provenance included).

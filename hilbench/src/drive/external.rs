@@ -37,18 +37,17 @@ use anyhow::{Context, anyhow, bail};
 use hilbench_proto::pb;
 use hilbench_proto::pb::netem_control_client::NetemControlClient;
 use hilbench_proto::pb::plant_client::PlantClient;
-use mav::{PlantSample, Scenario, ns_to_s};
+use mav::{PlantSample, Scenario, TimeMode, ns_to_s};
 use mpc::{ControllerMode, RunEnd, RunSummary};
 use tokio::io::{AsyncBufReadExt, AsyncRead, BufReader};
 use tokio::process::{Child, Command};
 
-use super::TimeMode;
-use super::services::{Running, connect, netem_config, plant_config, start_netem, start_plant};
+use super::services::{Running, connect, netem_config, plant_config, start_netem, start_plant, stop};
 use crate::run::{
     CycleRow, DelayProfileInForce, DelaySource, ExternalFacts, FinishedRun, Job, RunFailure, RunFaults,
     RunTiming,
 };
-use crate::scenario_file::{Mode, ScenarioFile};
+use crate::scenario_file::ScenarioFile;
 
 /// `RunSummary::controller` of an external controller's run (and its CSV's name).
 pub const CONTROLLER_NAME: &str = "external";
@@ -154,7 +153,7 @@ pub async fn run_external(
     let (netem, netem_addr) = match netem {
         Ok(n) => n,
         Err(e) => {
-            let _ = plant.stop().await;
+            let _ = stop(plant).await;
             return Err(e.into());
         }
     };
@@ -188,7 +187,7 @@ fn stream_buffer(scenario: &Scenario, rate_hz: f64) -> usize {
 async fn stop_all(running: [Running; 2]) -> anyhow::Result<()> {
     let mut result = Ok(());
     for r in running {
-        let stopped = r.stop().await;
+        let stopped = stop(r).await;
         if result.is_ok() {
             result = stopped;
         }
@@ -582,7 +581,8 @@ impl ScenarioTempFile {
         let dir = std::env::temp_dir().join(format!("hilbench-external-{}-{n}", std::process::id()));
         std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
         let path = dir.join(format!("{}.toml", scenario.name));
-        let text = ScenarioFile::as_flown(scenario, vec![Mode::Multistage]).map_err(anyhow::Error::msg)?;
+        let text =
+            ScenarioFile::as_flown(scenario, vec![ControllerMode::Multistage]).map_err(anyhow::Error::msg)?;
         std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
         Ok(Self { dir, path })
     }

@@ -38,14 +38,12 @@ use hilbench_proto::pb::netem_control_client::NetemControlClient;
 use hilbench_proto::pb::plant_client::PlantClient;
 use hilbench_proto::pb::vehicle_control_client::VehicleControlClient;
 use hilbench_svc::tls::Tls;
-use mav::{PlantSample, Scenario};
+use mav::{PlantSample, Scenario, TimeMode};
 use mpc::{ControllerMode, CycleRecord, RunEnd, RunSummary};
 
 use super::services::{Endpoints, Services, connect_with, netem_config};
 use crate::run::CycleSink;
 use crate::run::{DelayProfileInForce, DelaySource, FinishedRun, Job, RunFailure, RunFaults, RunTiming};
-
-pub use super::TimeMode;
 
 /// How often the driver polls `GetStatus` while telemetry streams in.
 const STATUS_POLL: Duration = Duration::from_millis(10);
@@ -317,7 +315,7 @@ async fn drive(
     let mut plant = PlantClient::new(connect_with(state_addr, tls, deadline).await?);
     let real_time = services.time_mode == TimeMode::RealTime;
     let described = plant.describe(pb::DescribeRequest {}).await.context("plant Describe")?.into_inner();
-    let wanted = if real_time { pb::TimeMode::RealTime } else { pb::TimeMode::Lockstep };
+    let wanted = pb::TimeMode::from(services.time_mode);
     if described.time_mode != wanted as i32 {
         bail!(
             "the plant at {state_addr} runs in {:?}, this run needs {:?}",

@@ -11,7 +11,7 @@ pub mod grpc;
 pub mod in_process;
 pub mod services;
 
-pub use hilbench_svc::scenario_file::TimeMode;
+use mav::TimeMode;
 
 /// How the runs reach a plant.
 #[derive(Debug, Clone)]

@@ -2,17 +2,15 @@
 //! its own loopback port (one fresh set per run) or running elsewhere ([`Endpoints`]), with
 //! their TLS ([`BenchTls`]); and connecting to them.
 
-use std::net::SocketAddr;
+use std::future::Future;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, anyhow, bail};
-use hilbench_svc::scenario_file::TimeMode;
+use hilbench_svc::loopback::{Served, Shutdown, serve_loopback};
 use hilbench_svc::tls::{Tls, TlsFiles};
-use mav::Scenario;
+use mav::{Scenario, TimeMode};
 use mpc::ControllerMode;
-use tokio::sync::oneshot;
-use tokio::task::JoinHandle;
 use tonic::transport::Channel;
 
 use crate::run::CycleSink;
@@ -28,84 +26,59 @@ pub fn netem_config(
     let mut config = netem::Config::new(upstream).with_preset("none", scenario.seed)?;
     config.controller_to_plant = network.to_plant;
     config.plant_to_controller = network.to_controller;
-    config.time_mode = match time_mode {
-        TimeMode::Lockstep => netem::TimeModeSetting::Lockstep,
-        TimeMode::RealTime => netem::TimeModeSetting::RealTime,
-    };
+    config.time_mode = time_mode.into();
     Ok(config)
 }
 
 /// The plant's settings for `scenario` in `time_mode`.
 pub fn plant_config(scenario: &Scenario, time_mode: TimeMode) -> plant::PlantConfig {
-    match time_mode {
-        TimeMode::Lockstep => plant::PlantConfig::lockstep(scenario.clone()),
-        TimeMode::RealTime => plant::PlantConfig::real_time(scenario.clone()),
-    }
+    plant::PlantConfig { time_mode, ..plant::PlantConfig::lockstep(scenario.clone()) }
 }
+
+/// A service served in this process on a loopback port, its error as text (so that the
+/// plant's, netem's and the controller's are one type).
+pub(crate) type Running = Served<String>;
+
+/// How long a service started here gets to stop.
+const STOP_PATIENCE: Duration = Duration::from_secs(10);
 
 /// A plant served in this process on a loopback port: the task and its address.
 pub(crate) async fn start_plant(config: plant::PlantConfig) -> anyhow::Result<(Running, String)> {
-    let (listener, addr) = bind().await?;
-    let (stop, stopped) = oneshot::channel::<()>();
-    let task = tokio::spawn(async move {
-        plant::serve(listener, config, async {
-            let _ = stopped.await;
-        })
-        .await
-        .map_err(|e| e.to_string())
-    });
-    Ok((Running { name: "plant", stop: Some(stop), task: Some(task) }, addr.to_string()))
+    start("plant", |listener, shutdown| plant::serve(listener, config, shutdown)).await
 }
 
 /// A netem served in this process on a loopback port: the task and its address.
 pub(crate) async fn start_netem(config: netem::Config) -> anyhow::Result<(Running, String)> {
-    let (listener, addr) = bind().await?;
-    let (stop, stopped) = oneshot::channel::<()>();
-    let task = tokio::spawn(async move {
-        netem::serve(listener, config, async {
-            let _ = stopped.await;
-        })
-        .await
-        .map_err(|e| e.to_string())
-    });
-    Ok((Running { name: "netem", stop: Some(stop), task: Some(task) }, addr.to_string()))
+    start("netem", |listener, shutdown| netem::serve(listener, config, shutdown)).await
 }
 
-/// A service task with its stop signal.
-pub(crate) struct Running {
+/// `serve` on a loopback port (`svc::loopback`, the tests' way too): the task and its address.
+async fn start<E, F>(
     name: &'static str,
-    stop: Option<oneshot::Sender<()>>,
-    task: Option<JoinHandle<Result<(), String>>>,
+    serve: impl FnOnce(tokio::net::TcpListener, Shutdown) -> F,
+) -> anyhow::Result<(Running, String)>
+where
+    E: std::fmt::Display,
+    F: Future<Output = Result<(), E>> + Send + 'static,
+{
+    let running = serve_loopback(name, |listener, shutdown| {
+        let served = serve(listener, shutdown);
+        async move { served.await.map_err(|e| e.to_string()) }
+    })
+    .await
+    .context("cannot bind a loopback port")?;
+    let addr = running.addr.to_string();
+    Ok((running, addr))
 }
 
-impl Running {
-    pub(crate) async fn stop(mut self) -> anyhow::Result<()> {
-        if let Some(stop) = self.stop.take() {
-            let _ = stop.send(());
-        }
-        let Some(task) = self.task.take() else { return Ok(()) };
-        match tokio::time::timeout(Duration::from_secs(10), task).await {
-            Ok(Ok(Ok(()))) => Ok(()),
-            Ok(Ok(Err(e))) => Err(anyhow!("{} failed: {e}", self.name)),
-            Ok(Err(join)) => Err(anyhow!("{} task failed: {join}", self.name)),
-            Err(_) => Err(anyhow!("{} did not stop within 10 s", self.name)),
-        }
+/// Stops a service started here: its error, or why it did not stop.
+pub(crate) async fn stop(running: Running) -> anyhow::Result<()> {
+    let name = running.name;
+    match running.stop(STOP_PATIENCE).await {
+        Ok(Ok(())) => Ok(()),
+        Ok(Err(e)) => Err(anyhow!("{name} failed: {e}")),
+        Err(e) => Err(e.into()),
     }
-}
-
-impl Drop for Running {
-    fn drop(&mut self) {
-        if let Some(stop) = self.stop.take() {
-            let _ = stop.send(());
-        }
-    }
-}
-
-async fn bind() -> anyhow::Result<(tokio::net::TcpListener, SocketAddr)> {
-    let listener =
-        tokio::net::TcpListener::bind("127.0.0.1:0").await.context("cannot bind a loopback port")?;
-    let addr = listener.local_addr()?;
-    Ok((listener, addr))
 }
 
 /// Services already running elsewhere (`HOST:PORT` or `http://...`); what is not given is
@@ -274,24 +247,13 @@ impl Services {
                 (Some(running), addr)
             }
         };
-        let (listener, controller_addr) = bind().await?;
-        let (stop, stopped) = oneshot::channel::<()>();
         let mut config = controller::ControllerConfig::new(netem_addr.clone(), scenario.clone(), mode);
-        config.time_mode = match endpoints.time_mode {
-            TimeMode::Lockstep => controller::TimeModeSetting::Lockstep,
-            TimeMode::RealTime => controller::TimeModeSetting::RealTime,
-        };
+        config.time_mode = endpoints.time_mode.into();
         config.autostart = false;
         tls.check_started("controller", &tls.controller)?;
         config.tls = tls.controller.clone();
-        let task = tokio::spawn(async move {
-            controller::serve(listener, config, async {
-                let _ = stopped.await;
-            })
-            .await
-            .map_err(|e| e.to_string())
-        });
-        let controller = Running { name: "controller", stop: Some(stop), task: Some(task) };
+        let (controller, controller_addr) =
+            start("controller", |listener, shutdown| controller::serve(listener, config, shutdown)).await?;
         Ok(Self {
             plant,
             netem,
@@ -300,7 +262,7 @@ impl Services {
             configure_netem: endpoints.netem.is_some(),
             keep_netem_profile: endpoints.keep_netem_profile,
             netem_addr: Some(netem_addr),
-            controller_addr: controller_addr.to_string(),
+            controller_addr,
             time_mode: endpoints.time_mode,
             client_tls: tls.client.clone(),
         })
@@ -323,7 +285,7 @@ impl Services {
     pub async fn stop(self) -> anyhow::Result<()> {
         let mut result = Ok(());
         for running in [self.controller, self.netem, self.plant].into_iter().flatten() {
-            let r = running.stop().await;
+            let r = stop(running).await;
             if result.is_ok() {
                 result = r;
             }

@@ -3,7 +3,6 @@
 //! (where the time went, faults, the delays in force, an external controller's process, the
 //! per-cycle rows). Plain data: this module imports no other module of the crate.
 
-use hilbench_svc::scenario_file::Mode;
 use mav::Scenario;
 use mpc::{ControllerMode, CycleRecord, RunSummary};
 
@@ -28,7 +27,7 @@ pub struct Batch {
     pub interrupted: bool,
     /// The driver's `summary.json` name (`transport`).
     pub driver: &'static str,
-    pub time_mode: hilbench_svc::scenario_file::TimeMode,
+    pub time_mode: mav::TimeMode,
     pub wall_time_s: f64,
 }
 
@@ -58,22 +57,6 @@ impl Batch {
 /// solver time, printed as "-0.0"; every time the bench adds up goes through here.
 pub fn total(values: impl IntoIterator<Item = f64>) -> f64 {
     values.into_iter().fold(0.0, |a, b| a + b)
-}
-
-/// The bench's controller a scenario file's or the command line's mode names.
-pub fn controller_mode(mode: Mode) -> ControllerMode {
-    match mode {
-        Mode::Nmpc => ControllerMode::Nmpc,
-        Mode::Multistage => ControllerMode::Multistage,
-    }
-}
-
-/// The scenario file's name of a controller (`run.modes`).
-pub fn file_mode(mode: ControllerMode) -> Mode {
-    match mode {
-        ControllerMode::Nmpc => Mode::Nmpc,
-        ControllerMode::Multistage => Mode::Multistage,
-    }
 }
 
 /// Where a run's cycles also go as they arrive (the live Foxglove view of `--foxglove-ws`).

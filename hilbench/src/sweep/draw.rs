@@ -13,7 +13,7 @@
 //! shrinks.
 
 use delay::{DelayLine, DelaysTable, Direction};
-use hilbench_svc::sweep_table::{self, Family, FamilyChoice, SweepSection};
+use hilbench_scenario_file::sweep_table::{self, Family, FamilyChoice, SweepSection};
 use mav::Scenario;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

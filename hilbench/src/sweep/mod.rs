@@ -23,7 +23,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, mpsc};
 use std::time::{Duration, Instant};
 
-use hilbench_svc::sweep_table::SweepSection;
+use hilbench_scenario_file::sweep_table::SweepSection;
 use mav::Scenario;
 use mpc::ControllerMode;
 

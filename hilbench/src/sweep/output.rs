@@ -347,7 +347,11 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
             dir.display()
         );
         let path = dir.join("sweep.json");
-        let text = hilbench_svc::user_file::read_text(&path, MAX_SWEEP_JSON_BYTES, "a sweep's sweep.json")?;
+        let text = hilbench_scenario_file::user_file::read_text(
+            &path,
+            MAX_SWEEP_JSON_BYTES,
+            "a sweep's sweep.json",
+        )?;
         let v: Value =
             serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
         let strings = |key: &str| -> Vec<String> {
@@ -382,7 +386,11 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
         run_wall_s += v["timing"]["run_wall_s"].as_f64().unwrap_or(0.0);
         solver_s += v["timing"]["solver_s"].as_f64().unwrap_or(0.0);
         let csv_path = dir.join("runs.csv");
-        let csv = hilbench_svc::user_file::read_text(&csv_path, MAX_RUNS_CSV_BYTES, "a sweep's runs.csv")?;
+        let csv = hilbench_scenario_file::user_file::read_text(
+            &csv_path,
+            MAX_RUNS_CSV_BYTES,
+            "a sweep's runs.csv",
+        )?;
         rows.extend(stats::from_csv(&csv).map_err(|e| anyhow::anyhow!("{}: {e}", csv_path.display()))?);
         for failure in v["failures"].as_array().into_iter().flatten() {
             if let Some(trace) = failure["trace_file"].as_str() {

@@ -1,36 +1,10 @@
-//! What to solve: the controller mode, the obstacle formulation and the problem's definition,
-//! and the check of each cycle's data.
+//! What to solve: the obstacle formulation and the problem's definition, and the check of each
+//! cycle's data (the controller mode is `mav`'s, re-exported here).
 
+pub use mav::ControllerMode;
 use mav::{Cylinder, InputBounds, ModelParams, Scenario};
 
 use crate::error::{MpcError, invalid_input};
-
-/// Which controller of the paper.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ControllerMode {
-    /// Standard NMPC: one scenario at the nominal sampling time, weight 1.
-    Nmpc,
-    /// Multi-stage NMPC: one scenario per sampling time, weighted by delay probability.
-    Multistage,
-}
-
-impl ControllerMode {
-    pub fn name(self) -> &'static str {
-        match self {
-            ControllerMode::Nmpc => "nmpc",
-            ControllerMode::Multistage => "multistage",
-        }
-    }
-
-    pub fn parse(s: &str) -> Option<Self> {
-        match s {
-            "nmpc" => Some(Self::Nmpc),
-            "multistage" | "multi-stage" => Some(Self::Multistage),
-            _ => None,
-        }
-    }
-}
 
 /// How the cylinder constraint enters the solver.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]

@@ -96,6 +96,22 @@ pub fn required<'a, T>(field: &str, v: &'a Option<T>) -> Result<&'a T, FieldErro
     v.as_ref().ok_or_else(|| FieldError::new(field, "is required"))
 }
 
+impl From<mav::TimeMode> for pb::TimeMode {
+    fn from(mode: mav::TimeMode) -> Self {
+        match mode {
+            mav::TimeMode::Lockstep => pb::TimeMode::Lockstep,
+            mav::TimeMode::RealTime => pb::TimeMode::RealTime,
+        }
+    }
+}
+
+/// The time mode a plant's `PlantDescription.time_mode` says it runs in: lockstep only when it
+/// says so; any other value (unspecified, or a mode of a newer contract) is a plant on its own
+/// clock, real time.
+pub fn time_mode_of_plant(time_mode: i32) -> mav::TimeMode {
+    if time_mode == pb::TimeMode::Lockstep as i32 { mav::TimeMode::Lockstep } else { mav::TimeMode::RealTime }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -228,6 +228,146 @@ pub fn check_command(field: &str, c: &pb::Command) -> Result<(), FieldError> {
     Ok(())
 }
 
+/// What a stamp in a unary Plant answer is about (`netem.proto`'s header): the command of
+/// `ApplyCommand`/`Step` (`netem-command-*`) or the sample answered (`netem-sample-*`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stamped {
+    Command,
+    Sample,
+}
+
+impl Stamped {
+    /// The metadata keys of [`Stamp`]'s fields, in its order: seq, send time, release time,
+    /// delay, outcome.
+    fn keys(self) -> [&'static str; 5] {
+        match self {
+            Stamped::Command => [
+                "netem-command-seq",
+                "netem-command-send-time-ns",
+                "netem-command-release-time-ns",
+                "netem-command-delay-ns",
+                "netem-command-outcome",
+            ],
+            Stamped::Sample => [
+                "netem-sample-seq",
+                "netem-sample-send-time-ns",
+                "netem-sample-release-time-ns",
+                "netem-sample-delay-ns",
+                "netem-sample-outcome",
+            ],
+        }
+    }
+}
+
+/// What netem did with a message it stamped, as the `-outcome` key spells it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StampOutcome {
+    /// Released upstream (a command) or to the controller (a sample).
+    Delivered,
+    /// Held: released later, after the answer (a command in real time or lockstep's `Step`).
+    InFlight,
+    Dropped,
+}
+
+impl StampOutcome {
+    pub fn name(self) -> &'static str {
+        match self {
+            StampOutcome::Delivered => "delivered",
+            StampOutcome::InFlight => "in-flight",
+            StampOutcome::Dropped => "dropped",
+        }
+    }
+}
+
+/// netem's stamps of one message in a unary answer's metadata: the one writer (netem) and
+/// reader (the controller, the tests) of the `netem-command-*` and `netem-sample-*` keys.
+/// Times are ns on netem's clock (`netem-clock`: plant time in lockstep, netem's own in real
+/// time).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Stamp {
+    /// netem's number of the message in its direction (a trace record's `message_seq`).
+    pub seq: u64,
+    pub send_time_ns: u64,
+    pub release_time_ns: u64,
+    /// `release_time_ns - send_time_ns` (0 when released at once).
+    pub delay_ns: u64,
+    pub outcome: StampOutcome,
+}
+
+impl Stamp {
+    /// The stamp of a message sent at `send_time_ns` and released at `release_time_ns`.
+    pub fn new(seq: u64, send_time_ns: u64, release_time_ns: u64, outcome: StampOutcome) -> Self {
+        let delay_ns = release_time_ns.saturating_sub(send_time_ns);
+        Self { seq, send_time_ns, release_time_ns, delay_ns, outcome }
+    }
+
+    /// Writes the stamp under `stamped`'s keys.
+    pub fn write(&self, md: &mut tonic::metadata::MetadataMap, stamped: Stamped) {
+        let [seq, send, release, delay, outcome] = stamped.keys();
+        for (key, value) in [
+            (seq, self.seq),
+            (send, self.send_time_ns),
+            (release, self.release_time_ns),
+            (delay, self.delay_ns),
+        ] {
+            md.insert(key, value.into());
+        }
+        md.insert(outcome, tonic::metadata::MetadataValue::from_static(self.outcome.name()));
+    }
+
+    /// The stamp under `stamped`'s keys; `Ok(None)` when there is none (no netem on the link),
+    /// an error naming the key when one is missing or does not parse.
+    pub fn read(md: &tonic::metadata::MetadataMap, stamped: Stamped) -> Result<Option<Self>, FieldError> {
+        let [seq, send, release, delay, outcome] = stamped.keys();
+        let text = |key: &str| -> Result<&str, FieldError> {
+            let value = md.get(key).ok_or_else(|| FieldError::new(key, "is missing"))?;
+            value.to_str().map_err(|_| FieldError::new(key, "is not text"))
+        };
+        let number = |key: &str| -> Result<u64, FieldError> {
+            let t = text(key)?;
+            t.parse().map_err(|_| FieldError::new(key, format!("{t:?} is not a number of ns")))
+        };
+        if md.get(outcome).is_none() {
+            return Ok(None);
+        }
+        let outcome = match text(outcome)? {
+            "delivered" => StampOutcome::Delivered,
+            "in-flight" => StampOutcome::InFlight,
+            "dropped" => StampOutcome::Dropped,
+            other => return Err(FieldError::new(outcome, format!("unknown outcome {other:?}"))),
+        };
+        Ok(Some(Self {
+            seq: number(seq)?,
+            send_time_ns: number(send)?,
+            release_time_ns: number(release)?,
+            delay_ns: number(delay)?,
+            outcome,
+        }))
+    }
+}
+
+/// The `netem-clock` key: whose clock a stamp's times are on, `plant` (lockstep: plant time)
+/// or `netem` (real time: ns since netem started).
+pub const CLOCK_KEY: &str = "netem-clock";
+
+/// Writes [`CLOCK_KEY`] for a netem in `mode`.
+pub fn write_clock(md: &mut tonic::metadata::MetadataMap, mode: mav::TimeMode) {
+    let clock = match mode {
+        mav::TimeMode::Lockstep => "plant",
+        mav::TimeMode::RealTime => "netem",
+    };
+    md.insert(CLOCK_KEY, tonic::metadata::MetadataValue::from_static(clock));
+}
+
+/// The time mode of the netem whose answer carries `md` ([`CLOCK_KEY`]); `None` without it.
+pub fn read_clock(md: &tonic::metadata::MetadataMap) -> Option<mav::TimeMode> {
+    match md.get(CLOCK_KEY)?.to_str().ok()? {
+        "plant" => Some(mav::TimeMode::Lockstep),
+        "netem" => Some(mav::TimeMode::RealTime),
+        _ => None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -298,5 +438,27 @@ mod tests {
         }
         assert_eq!(profile_from_pb(&m).map_err(|e| e.field), Err("delay.regime.states[0].mean_dwell".into()));
         Ok(())
+    }
+
+    #[test]
+    fn stamps_read_back_as_written_under_their_own_keys_and_a_bad_one_is_named() {
+        let mut md = tonic::metadata::MetadataMap::new();
+        assert_eq!(Stamp::read(&md, Stamped::Command), Ok(None));
+        let command = Stamp::new(7, 1_000, 31_000, StampOutcome::InFlight);
+        let sample = Stamp::new(9, 2_000, 2_000, StampOutcome::Delivered);
+        command.write(&mut md, Stamped::Command);
+        sample.write(&mut md, Stamped::Sample);
+        write_clock(&mut md, mav::TimeMode::Lockstep);
+        assert_eq!(command.delay_ns, 30_000);
+        assert_eq!(Stamp::read(&md, Stamped::Command), Ok(Some(command)));
+        assert_eq!(Stamp::read(&md, Stamped::Sample), Ok(Some(sample)));
+        assert_eq!(read_clock(&md), Some(mav::TimeMode::Lockstep));
+        assert_eq!(md.get("netem-command-delay-ns").and_then(|v| v.to_str().ok()), Some("30000"));
+        assert_eq!(md.get("netem-command-outcome").and_then(|v| v.to_str().ok()), Some("in-flight"));
+        md.insert("netem-command-send-time-ns", tonic::metadata::MetadataValue::from_static("soon"));
+        let e = Stamp::read(&md, Stamped::Command).expect_err("refused");
+        assert_eq!(e.field, "netem-command-send-time-ns");
+        md.remove("netem-sample-seq");
+        assert_eq!(Stamp::read(&md, Stamped::Sample).map_err(|e| e.field), Err("netem-sample-seq".into()));
     }
 }

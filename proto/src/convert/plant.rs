@@ -305,7 +305,7 @@ impl From<&InputBounds> for pb::InputLimits {
 pub fn plant_description(
     scenario: &Scenario,
     settings: &SimSettings,
-    time_mode: pb::TimeMode,
+    time_mode: mav::TimeMode,
     implementation: &str,
 ) -> pb::PlantDescription {
     pb::PlantDescription {
@@ -313,7 +313,7 @@ pub fn plant_description(
         model: Some((&scenario.model).into()),
         limits: Some((&scenario.bounds).into()),
         obstacles: scenario.obstacles.iter().map(Into::into).collect(),
-        time_mode: time_mode as i32,
+        time_mode: pb::TimeMode::from(time_mode) as i32,
         step_ns: settings.step_ns,
         watchdog_timeout_ns: settings.watchdog_timeout_ns.unwrap_or(0),
         start: Some((&scenario.start_state()).into()),
@@ -465,7 +465,7 @@ mod tests {
     fn a_controller_counts_on_the_watchdog_only_when_the_plant_describes_a_braking_one() {
         let scenario = Scenario::paper_2();
         let describe =
-            |settings: SimSettings| plant_description(&scenario, &settings, pb::TimeMode::Lockstep, "test");
+            |settings: SimSettings| plant_description(&scenario, &settings, mav::TimeMode::Lockstep, "test");
         let brake = describe(SimSettings::default());
         assert_eq!(brake.watchdog_action, pb::WatchdogAction::Brake as i32);
         assert_eq!(braking_watchdog_s(&brake), Some(0.5));
@@ -626,7 +626,7 @@ mod tests {
     fn descriptions_carry_the_scenario() {
         let s = Scenario::paper_2();
         let settings = SimSettings { watchdog_timeout_ns: Some(5), ..Default::default() };
-        let d = plant_description(&s, &settings, pb::TimeMode::Lockstep, "test");
+        let d = plant_description(&s, &settings, mav::TimeMode::Lockstep, "test");
         assert_eq!(d.obstacles.len(), 3);
         assert_eq!(d.time_mode, pb::TimeMode::Lockstep as i32);
         assert_eq!(d.watchdog_timeout_ns, 5);

@@ -122,7 +122,7 @@ async fn a_run_against_given_services_sets_the_netem_profile_and_is_bit_identica
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind");
     let netem_addr = listener.local_addr().expect("address");
     let mut netem_config = netem::Config::new(plant.addr.to_string());
-    netem_config.time_mode = netem::TimeModeSetting::Lockstep;
+    netem_config.time_mode = mav::TimeModeChoice::Fixed(mav::TimeMode::Lockstep);
     let (stop_netem, netem_stopped) = tokio::sync::oneshot::channel::<()>();
     let netem_task = tokio::spawn(netem::serve(listener, netem_config, async {
         let _ = netem_stopped.await;

@@ -6,7 +6,7 @@
 
 use std::time::Duration;
 
-use controller::{ControllerConfig, TimeModeSetting};
+use controller::ControllerConfig;
 use hilbench_proto::pb;
 use hilbench_proto::pb::controller_client::ControllerClient;
 use hilbench_tests::streams::{assert_exhausted, open_when_a_slot_is_free};
@@ -48,7 +48,7 @@ async fn nmpc_reaches_the_goal_of_paper_3_against_a_lockstep_plant() {
     let scenario = Scenario::by_name("paper-3").expect("built-in");
     let plant = start_plant(PlantConfig::lockstep(scenario.clone())).await;
     let mut config = ControllerConfig::new(plant.addr.to_string(), scenario.clone(), ControllerMode::Nmpc);
-    config.time_mode = TimeModeSetting::Lockstep;
+    config.time_mode = mav::TimeModeChoice::Fixed(mav::TimeMode::Lockstep);
     let ctl = start_controller(config).await;
     let mut client = ctl.client().await;
 

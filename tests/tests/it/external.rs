@@ -7,13 +7,13 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use hilbench::drive::TimeMode;
 use hilbench::drive::external::{
     ExternalController, ExternalFailure, ExternalRun, ExternalSettings, run_external,
 };
 use hilbench::scenario_file::ScenarioFile;
 use hilbench_tests::TempDir;
 use hilbench_tests::python::python;
+use mav::TimeMode;
 
 /// Longer than any run here takes: a hang is the failure these tests catch.
 const PATIENCE: Duration = Duration::from_secs(120);

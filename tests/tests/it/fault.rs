@@ -15,7 +15,6 @@
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use hilbench::drive::TimeMode;
 use hilbench::drive::grpc::{GrpcRun, GrpcSettings, run_against};
 use hilbench::drive::services::{Endpoints, netem_config};
 use hilbench::run::RunFailure;
@@ -23,6 +22,7 @@ use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
 use hilbench_tests::{Service, TempDir, free_loopback_address, start_plant, wait_for_state};
 use mav::Scenario;
+use mav::TimeMode;
 use mpc::ControllerMode;
 use plant::PlantConfig;
 use tokio::sync::oneshot;

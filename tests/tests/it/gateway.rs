@@ -22,7 +22,6 @@ use std::time::Duration;
 
 use gateway::mavsim::{Mavsim, MavsimConfig};
 use gateway::{GatewayConfig, GatewayError, Link};
-use hilbench::drive::TimeMode;
 use hilbench::drive::grpc::{GrpcSettings, run_against};
 use hilbench::drive::services::{Endpoints, netem_config};
 use hilbench_proto::pb;
@@ -30,6 +29,7 @@ use hilbench_proto::pb::plant_client::PlantClient;
 use hilbench_proto::pb::vehicle_control_client::VehicleControlClient;
 use hilbench_tests::server::{self, Running};
 use mav::Scenario;
+use mav::TimeMode;
 use mavbridge::{AutopilotSettings, Firmware};
 use mpc::ControllerMode;
 use tonic::transport::Channel;

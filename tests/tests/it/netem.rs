@@ -7,16 +7,15 @@ use std::net::SocketAddr;
 use std::time::Duration;
 
 use delay::{DelayLine, Direction, DirectionProfile, Distribution, Fate, Ordering};
+use hilbench_proto::convert::netem::{Stamp, StampOutcome, Stamped, read_clock};
 use hilbench_proto::pb;
 use hilbench_proto::pb::netem_control_client::NetemControlClient;
 use hilbench_proto::pb::plant_client::PlantClient;
 use hilbench_tests::server::{self, Running};
 use hilbench_tests::start_plant;
 use hilbench_tests::streams::{assert_exhausted, open_when_a_slot_is_free};
-use mav::{CommandMeta, Input, PlantSim, Scenario, SimSettings};
+use mav::{CommandMeta, Input, PlantSim, Scenario, SimSettings, TimeMode};
 use plant::PlantConfig;
-use tokio::sync::oneshot;
-use tokio::task::JoinHandle;
 use tokio_stream::StreamExt;
 use tonic::transport::Channel;
 use tonic::{Code, Status};
@@ -48,7 +47,7 @@ impl NetemClients for RunningNetem {
 
 fn lockstep_netem(upstream: SocketAddr, c2p: DirectionProfile, p2c: DirectionProfile) -> netem::Config {
     let mut c = netem::Config::new(upstream.to_string());
-    c.time_mode = netem::TimeModeSetting::Lockstep;
+    c.time_mode = mav::TimeModeChoice::Fixed(TimeMode::Lockstep);
     c.controller_to_plant = c2p;
     c.plant_to_controller = p2c;
     c
@@ -73,15 +72,13 @@ fn bits(s: &pb::StateSample) -> Vec<u64> {
     s.state.as_ref().expect("sample carries a state").x.iter().map(|v| v.to_bits()).collect()
 }
 
-fn md_u64(md: &tonic::metadata::MetadataMap, key: &str) -> u64 {
-    md.get(key)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse().ok())
-        .unwrap_or_else(|| panic!("metadata `{key}` missing in {md:?}"))
-}
-
-fn md_str(md: &tonic::metadata::MetadataMap, key: &str) -> String {
-    md.get(key).and_then(|v| v.to_str().ok()).unwrap_or_default().to_string()
+/// netem's stamp of the command an answer's metadata carries.
+fn command_stamp(md: &tonic::metadata::MetadataMap) -> Stamp {
+    match Stamp::read(md, Stamped::Command) {
+        Ok(Some(stamp)) => stamp,
+        Ok(None) => panic!("no command stamp in {md:?}"),
+        Err(e) => panic!("{e} in {md:?}"),
+    }
 }
 
 fn assert_invalid<T: std::fmt::Debug>(r: Result<T, Status>, field: &str) {
@@ -117,10 +114,9 @@ async fn lockstep_run(
             })
             .await
             .expect("step through netem");
-        let md = r.metadata().clone();
-        stamps
-            .push((md_u64(&md, "netem-command-send-time-ns"), md_u64(&md, "netem-command-release-time-ns")));
-        assert_eq!(md_str(&md, "netem-clock"), "plant");
+        let stamp = command_stamp(r.metadata());
+        stamps.push((stamp.send_time_ns, stamp.release_time_ns));
+        assert_eq!(read_clock(r.metadata()), Some(TimeMode::Lockstep), "plant time");
         last = r.into_inner().sample.expect("sample");
         samples.push(last.clone());
     }
@@ -283,8 +279,8 @@ async fn profiles_change_at_run_time_and_invalid_ones_are_refused_keeping_the_ol
     let reset = client.reset(pb::ResetRequest::default()).await.expect("reset").into_inner();
     let start = reset.sample.expect("sample");
     let r = client.apply_command(command(1, &start)).await.expect("apply");
-    assert_eq!(md_u64(r.metadata(), "netem-command-delay-ns"), 30_000_000);
-    assert_eq!(md_str(r.metadata(), "netem-command-outcome"), "in-flight");
+    let stamp = command_stamp(r.metadata());
+    assert_eq!((stamp.delay_ns, stamp.outcome), (30_000_000, StampOutcome::InFlight));
     assert!(r.into_inner().applied.is_none(), "a held command has not been applied yet");
 
     // Bad input while the command is in flight: refused, naming the field; nothing changes.
@@ -369,7 +365,7 @@ async fn s_time(client: &mut PlantClient<Channel>) -> u64 {
 }
 
 /// Serves a lockstep plant on `addr` (a fixed port, so it can come back at the same address).
-async fn serve_plant_at(addr: SocketAddr) -> (oneshot::Sender<()>, JoinHandle<()>) {
+async fn serve_plant_at(addr: SocketAddr) -> Running<plant::PlantError> {
     let mut tries = 0;
     let listener = loop {
         match tokio::net::TcpListener::bind(addr).await {
@@ -381,15 +377,9 @@ async fn serve_plant_at(addr: SocketAddr) -> (oneshot::Sender<()>, JoinHandle<()
             Err(e) => panic!("cannot bind {addr} again: {e}"),
         }
     };
-    let (tx, rx) = oneshot::channel::<()>();
-    let task = tokio::spawn(async move {
-        plant::serve(listener, PlantConfig::lockstep(Scenario::paper_1()), async {
-            let _ = rx.await;
-        })
-        .await
-        .expect("plant serves");
-    });
-    (tx, task)
+    server::start_on("plant server", listener, |listener, shutdown| {
+        plant::serve(listener, PlantConfig::lockstep(Scenario::paper_1()), shutdown)
+    })
 }
 
 async fn sleep_ms(ms: u64) {
@@ -402,7 +392,7 @@ async fn upstream_loss_gives_unavailable_drops_in_flight_with_a_reason_then_reco
         let l = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
         l.local_addr().expect("addr")
     };
-    let (stop_plant, plant_task) = serve_plant_at(addr).await;
+    let plant = serve_plant_at(addr).await;
     let mut config = lockstep_netem(
         addr,
         DirectionProfile::with_delay(Distribution::Constant { delay_s: 0.1 }, 1),
@@ -418,8 +408,7 @@ async fn upstream_loss_gives_unavailable_drops_in_flight_with_a_reason_then_reco
     client.apply_command(command(1, &start)).await.expect("held command");
 
     // The plant goes away with the command in flight.
-    let _ = stop_plant.send(());
-    tokio::time::timeout(PATIENCE, plant_task).await.expect("plant stops").expect("plant task");
+    plant.stop().await.expect("plant serves");
     let err = client
         .advance(pb::AdvanceRequest { duration_ns: 200_000_000, ..Default::default() })
         .await
@@ -439,7 +428,7 @@ async fn upstream_loss_gives_unavailable_drops_in_flight_with_a_reason_then_reco
     assert_eq!(err.code(), Code::Unavailable);
 
     // The plant comes back at the same address; netem reconnects.
-    let (stop_plant, plant_task) = serve_plant_at(addr).await;
+    let plant = serve_plant_at(addr).await;
     let deadline = tokio::time::Instant::now() + PATIENCE;
     let reset = loop {
         match client.reset(pb::ResetRequest::default()).await {
@@ -463,8 +452,7 @@ async fn upstream_loss_gives_unavailable_drops_in_flight_with_a_reason_then_reco
     let stats = control.get_stats(pb::GetStatsRequest {}).await.expect("stats").into_inner();
     assert!(stats.upstream_connected);
     netem.stop().await.expect("netem served cleanly");
-    let _ = stop_plant.send(());
-    tokio::time::timeout(PATIENCE, plant_task).await.expect("plant stops").expect("plant task");
+    plant.stop().await.expect("plant serves");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -486,8 +474,8 @@ async fn real_time_streams_and_commands_are_delayed_and_stamped() {
     let first =
         tokio::time::timeout(PATIENCE, stream.next()).await.expect("a sample").expect("open").expect("ok");
     let r = client.apply_command(command(9, &first)).await.expect("apply");
-    assert_eq!(md_str(r.metadata(), "netem-clock"), "netem");
-    assert_eq!(md_u64(r.metadata(), "netem-command-delay-ns"), 20_000_000);
+    assert_eq!(read_clock(r.metadata()), Some(TimeMode::RealTime), "netem's clock");
+    assert_eq!(command_stamp(r.metadata()).delay_ns, 20_000_000);
     assert!(r.into_inner().applied.is_none());
     // The command shows up in a later sample.
     let deadline = tokio::time::Instant::now() + PATIENCE;
@@ -591,7 +579,7 @@ async fn real_time_netem_on_a_lockstep_plant(
 ) -> (hilbench_tests::RunningPlant, RunningNetem) {
     let plant = start_plant(PlantConfig::lockstep(Scenario::paper_1())).await;
     let mut config = netem::Config::new(plant.addr.to_string());
-    config.time_mode = netem::TimeModeSetting::RealTime;
+    config.time_mode = mav::TimeModeChoice::Fixed(TimeMode::RealTime);
     tweak(&mut config);
     let netem = start_netem(config).await;
     (plant, netem)

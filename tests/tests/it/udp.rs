@@ -181,7 +181,7 @@ async fn paper_2_over_netems_udp_link_to_mavsim_reaches_the_goal_and_the_datagra
     // this run is the UDP link's.
     let netem_config = netem::Config::new(gateway.addr.to_string())
         .with_preset("none", 42)
-        .map(|c| netem::Config { time_mode: netem::TimeModeSetting::RealTime, ..c })
+        .map(|c| netem::Config { time_mode: mav::TimeModeChoice::Fixed(mav::TimeMode::RealTime), ..c })
         .expect("netem config");
     let grpc_netem =
         server::start("netem", move |listener, shutdown| netem::serve(listener, netem_config, shutdown))

@@ -18,59 +18,27 @@
 //!
 //! Every error names the file, the line and the field: parse and type errors through toml's
 //! spans, `Scenario::validate` errors by looking the field's path up in the parsed document.
+//!
+//! The crate is the format and its checks, and nothing of the programs that read it: no tokio,
+//! tonic or clap (a flag maps onto these types at the command line's edge). Beside the loader:
+//! [`sweep_table`] (`[sweep]`), [`falsify_table`] (`[falsify]`, the checks that need `[sweep]`)
+//! and [`user_file`], the one reader of every file a user names (the services' TLS files
+//! included).
+
+pub mod falsify_table;
+pub mod sweep_table;
+pub mod user_file;
 
 use std::fmt;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
-use mav::{PanocSolver, Scenario, ScenarioError};
+use mav::{ControllerMode, PanocSolver, Scenario, ScenarioError, TimeMode};
 use toml::Spanned;
 use toml::de::{DeTable, DeValue};
 
-/// A controller to run, as written in a file or on the command line.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Mode {
-    Nmpc,
-    Multistage,
-}
-
-impl Mode {
-    /// As written in files and on the command line.
-    pub fn name(self) -> &'static str {
-        match self {
-            Mode::Nmpc => "nmpc",
-            Mode::Multistage => "multistage",
-        }
-    }
-}
-
-/// How plant time moves.
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize, clap::ValueEnum,
-)]
-#[serde(rename_all = "kebab-case")]
-pub enum TimeMode {
-    /// Deterministic: time moves only through `Advance`/`Step` (paper mode).
-    #[default]
-    Lockstep,
-    /// The wall clock: the plant integrates in real time (with its command watchdog), netem
-    /// releases on its own thread, the controller solves under a deadline once per cycle.
-    RealTime,
-}
-
-impl TimeMode {
-    /// As written in files and on the command line.
-    pub fn name(self) -> &'static str {
-        match self {
-            TimeMode::Lockstep => "lockstep",
-            TimeMode::RealTime => "real-time",
-        }
-    }
-}
-
-fn default_modes() -> Vec<Mode> {
-    vec![Mode::Nmpc, Mode::Multistage]
+fn default_modes() -> Vec<ControllerMode> {
+    vec![ControllerMode::Nmpc, ControllerMode::Multistage]
 }
 
 /// The `[run]` table: what the bench does with the scenario.
@@ -79,7 +47,7 @@ fn default_modes() -> Vec<Mode> {
 pub struct RunSection {
     /// Controllers to run, in order.
     #[serde(default = "default_modes")]
-    pub modes: Vec<Mode>,
+    pub modes: Vec<ControllerMode>,
     /// `lockstep` (deterministic, the default) or `real-time`.
     #[serde(default)]
     pub time_mode: TimeMode,
@@ -221,7 +189,7 @@ impl ScenarioFile {
     /// The text of a file that holds `scenario` exactly as flown, its controller options in
     /// `[run]` (where files keep them) and its traces inline: what `hilbench` writes beside a
     /// run's results, and what [`ScenarioFile::parse`] reads back into the same scenario.
-    pub fn as_flown(scenario: &Scenario, modes: Vec<Mode>) -> Result<String, String> {
+    pub fn as_flown(scenario: &Scenario, modes: Vec<ControllerMode>) -> Result<String, String> {
         let run = RunSection {
             modes,
             time_mode: TimeMode::Lockstep,
@@ -532,7 +500,7 @@ mod tests {
         let mut flown = Scenario::paper_2();
         flown.name = "mine".into();
         flown.solver = Some(PanocSolver::Own);
-        let text = ScenarioFile::as_flown(&flown, vec![Mode::Multistage]).expect("TOML");
+        let text = ScenarioFile::as_flown(&flown, vec![ControllerMode::Multistage]).expect("TOML");
         assert!(text.contains("solver = \"own\""), "{text}");
         let back = ScenarioFile::parse(Path::new("as-flown.toml"), &text).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(back.scenario, flown);
@@ -836,7 +804,8 @@ mod tests {
             let mut flown = Scenario::by_name(name).expect("built in");
             flown.seed = 7;
             flown.continue_after_collision = true;
-            let text = ScenarioFile::as_flown(&flown, vec![Mode::Nmpc, Mode::Multistage]).expect("TOML");
+            let text = ScenarioFile::as_flown(&flown, vec![ControllerMode::Nmpc, ControllerMode::Multistage])
+                .expect("TOML");
             let back =
                 ScenarioFile::parse(Path::new("as-flown.toml"), &text).unwrap_or_else(|e| panic!("{e}"));
             assert_eq!(back.scenario, flown, "{name}");
