@@ -17,6 +17,14 @@ fn long_delays() -> String {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/sweep-long-delays.toml").display().to_string()
 }
 
+/// `hilbench run FILE --in-process --no-plots --quiet ARGS --out OUT` to its end: a sweep's run
+/// alone (`--sweep-run I`) or a failure's replay (`--delay-trace`).
+fn run_alone(file: &str, args: &[&str], out: &Path) -> std::process::Output {
+    hilbench(
+        &[&["run", file, "--in-process", "--no-plots", "--quiet"][..], args, &["--out", s(out)]].concat(),
+    )
+}
+
 fn rows_of(dir: &Path) -> Vec<RunRow> {
     from_csv(&std::fs::read_to_string(dir.join("runs.csv")).expect("runs.csv")).expect("a sweep's runs.csv")
 }
@@ -97,17 +105,7 @@ fn a_sweep_writes_its_outputs_with_the_stable_keys_and_run_i_flies_again_alone_b
     for row in [&rows[1], &rows[4]] {
         let i = row.run.to_string();
         let alone = out_dir(&format!("sweep-run-{i}"));
-        let run = hilbench(&[
-            "run",
-            &file,
-            "--in-process",
-            "--no-plots",
-            "--quiet",
-            "--sweep-run",
-            &i,
-            "--out",
-            s(&alone),
-        ]);
+        let run = run_alone(&file, &["--sweep-run", &i], &alone);
         assert!(run.status.code() == Some(0) || run.status.code() == Some(3), "{run:?}");
         let r = &json_of(&alone.join("summary.json"))["runs"][0];
         assert_eq!(r["min_clearance_m"].as_f64(), row.min_clearance_m, "run {i}");
@@ -140,19 +138,7 @@ fn a_failures_trace_replays_it_bit_for_bit_shrunk_or_not() {
                 assert_eq!(kept, flown, "{failure}");
             }
             let replay = out_dir(&format!("sweep-replay-{shrink}-{}", failure["run"]));
-            let run = hilbench(&[
-                "run",
-                &file,
-                "--in-process",
-                "--mode",
-                "multistage",
-                "--no-plots",
-                "--quiet",
-                "--delay-trace",
-                s(&trace),
-                "--out",
-                s(&replay),
-            ]);
+            let run = run_alone(&file, &["--mode", "multistage", "--delay-trace", s(&trace)], &replay);
             assert_eq!(run.status.code(), Some(3), "a collision again: {run:?}");
             let r = &json_of(&replay.join("summary.json"))["runs"][0];
             let want = &failure["replay"];
@@ -619,17 +605,7 @@ fn a_familys_loss_is_drawn_per_run_recorded_flown_as_lost_commands_and_kept_in_t
         // commands (an empty injected_delay_s) within 5 standard deviations of the binomial.
         let alone = dir.join(format!("run-{}", row.run));
         let i = row.run.to_string();
-        let run = hilbench(&[
-            "run",
-            s(&lossy),
-            "--in-process",
-            "--no-plots",
-            "--quiet",
-            "--sweep-run",
-            &i,
-            "--out",
-            s(&alone),
-        ]);
+        let run = run_alone(s(&lossy), &["--sweep-run", &i], &alone);
         assert!(run.status.code() == Some(0) || run.status.code() == Some(3), "{run:?}");
         let csv = std::fs::read_to_string(alone.join(format!("paper-2-long-delays-{}.csv", row.controller)))
             .expect("the per-cycle CSV");
@@ -666,17 +642,7 @@ fn a_familys_loss_is_drawn_per_run_recorded_flown_as_lost_commands_and_kept_in_t
     let entries = delay::parse_trace(&text).unwrap_or_else(|e| panic!("{e}\n{text}"));
     assert!(entries.iter().any(|d| delay::is_lost(*d)), "no lost command in\n{text}");
     let replay = dir.join("replay");
-    let run = hilbench(&[
-        "run",
-        s(&long_lossy),
-        "--in-process",
-        "--no-plots",
-        "--quiet",
-        "--delay-trace",
-        s(&trace),
-        "--out",
-        s(&replay),
-    ]);
+    let run = run_alone(s(&long_lossy), &["--delay-trace", s(&trace)], &replay);
     assert!(run.status.code() == Some(0) || run.status.code() == Some(3), "{run:?}");
     let r = &json_of(&replay.join("summary.json"))["runs"][0];
     for key in ["min_clearance_m", "path_length_m", "cycles", "end_reason"] {
