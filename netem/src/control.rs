@@ -146,7 +146,7 @@ impl pb::netem_control_server::NetemControl for Control {
     ) -> Result<Response<pb::CommandsSentBeforeResponse>, Status> {
         let t = request.get_ref().before_plant_time_ns;
         let inner = self.shared.lock();
-        if inner.mode != Some(Mode::Lockstep) {
+        if inner.mode != Some(mav::TimeMode::Lockstep) {
             return Err(Status::failed_precondition(
                 "commands are counted by plant time in lockstep only (netem's clock is not the plant's)",
             ));

@@ -127,7 +127,7 @@ impl Inner {
         let ended = self.trace_ended(dir);
         let d = self.lines[dir.index()].send(send_ns);
         self.stats[dir.index()].record_decision(&d);
-        if dir == Direction::ControllerToPlant && self.mode == Some(Mode::Lockstep) {
+        if dir == Direction::ControllerToPlant && self.mode == Some(TimeMode::Lockstep) {
             // In lockstep a command's send time is the plant time netem knows.
             self.command_times.push(send_ns);
         }
