@@ -172,12 +172,15 @@ impl ConnectionStats {
     }
 }
 
+/// A kind of log line: its reason and detail.
+type LogKind = (&'static str, String);
+
 /// At most one warning a second per kind (reason and detail); the events of a kind left out
 /// in that second are said a second after its first line, with their count.
 struct RateLimitedLog {
     service: &'static str,
     /// Per kind: when its last line was written, and the events left out since.
-    last: Arc<Mutex<HashMap<(&'static str, String), (Instant, u64)>>>,
+    last: Arc<Mutex<HashMap<LogKind, (Instant, u64)>>>,
 }
 
 impl RateLimitedLog {
@@ -462,6 +465,11 @@ impl<IO: AsyncRead + AsyncWrite + Unpin + Send + 'static> Stream for Incoming<IO
     }
 }
 
+/// When a connection's handshakes must be over.
+type Deadline = Pin<Box<tokio::time::Sleep>>;
+/// A newer connection's request that this one close.
+type Eviction = Pin<Box<tokio::sync::futures::OwnedNotified>>;
+
 /// A connection through its TLS handshake, still held to the handshake's deadline until it
 /// has sent HTTP/2's preface and first frame header; it holds its place under the cap until
 /// dropped.
@@ -469,7 +477,7 @@ pub struct Watched<IO> {
     io: IO,
     peer: SocketAddr,
     /// Until HTTP/2's preface and a frame header were read: the deadline, and the eviction.
-    handshake: Option<(Pin<Box<tokio::time::Sleep>>, Pin<Box<tokio::sync::futures::OwnedNotified>>)>,
+    handshake: Option<(Deadline, Eviction)>,
     pending: Arc<Pending>,
     timeout_s: f64,
     read: u64,
