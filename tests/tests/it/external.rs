@@ -187,13 +187,8 @@ fn a_controller_printing_bytes_that_are_not_utf8_keeps_its_output_pipes_and_reac
     assert_eq!(run["external_controller"]["exit"], "stopped by the bench");
 }
 
-#[test]
-fn commands_refused_as_invalid_are_counted_in_the_summary_and_explained() {
-    // Three NaN commands, each refused to the controller with INVALID_ARGUMENT, then the flight.
-    let (code, stderr, summary) = fly_wrapped("invalid_first_controller.py", "external-test-invalid");
-    assert_eq!(code, Some(0), "{stderr}");
-    let run = &summary["runs"][0];
-    assert_eq!(run["reached"], true, "{run:#}");
+/// summary.json's run counts the three commands netem refused and explains them.
+fn assert_three_refusals_counted_and_explained(run: &serde_json::Value) {
     assert_eq!(run["external_controller"]["commands_refused"], 3, "{run:#}");
     let explanation = run["explanation"].as_array().expect("explanation");
     assert!(
@@ -202,6 +197,16 @@ fn commands_refused_as_invalid_are_counted_in_the_summary_and_explained() {
             .any(|e| e.as_str().is_some_and(|e| e.contains("netem refused 3 of the controller's commands"))),
         "{explanation:?}"
     );
+}
+
+#[test]
+fn commands_refused_as_invalid_are_counted_in_the_summary_and_explained() {
+    // Three NaN commands, each refused to the controller with INVALID_ARGUMENT, then the flight.
+    let (code, stderr, summary) = fly_wrapped("invalid_first_controller.py", "external-test-invalid");
+    assert_eq!(code, Some(0), "{stderr}");
+    let run = &summary["runs"][0];
+    assert_eq!(run["reached"], true, "{run:#}");
+    assert_three_refusals_counted_and_explained(run);
 }
 
 #[test]
@@ -220,14 +225,7 @@ fn commands_refused_before_a_controller_gives_up_are_still_counted_in_the_failed
     assert_ne!(code, Some(0), "a controller that gave up: {stderr}");
     let run = &summary["runs"][0];
     assert_eq!(run["end_reason"], "error", "{run:#}");
-    assert_eq!(run["external_controller"]["commands_refused"], 3, "{run:#}");
-    let explanation = run["explanation"].as_array().expect("explanation");
-    assert!(
-        explanation
-            .iter()
-            .any(|e| e.as_str().is_some_and(|e| e.contains("netem refused 3 of the controller's commands"))),
-        "{explanation:?}"
-    );
+    assert_three_refusals_counted_and_explained(run);
 }
 
 #[test]
