@@ -82,13 +82,14 @@ fn run(service: &PlantService, stop: &AtomicBool) -> StepStats {
     let priority = realtime::promote_current_thread("plant-steps");
     let mut lateness = delay::Window::default();
     let (mut ticks, mut late_steps) = (0, 0);
+    let mut margin = realtime::SpinMargin::new();
     while !stop.load(Ordering::Acquire) {
         // The service's clock is read before `CLOCK_MONOTONIC`, so the deadline is never
         // before the boundary on the wall clock (`Instant`, the same clock on Linux): a tick
         // never stops just short of it, which would leave its sample to the next tick.
         let wait = service.until_next_step_ns();
         let due = realtime::monotonic_ns() + wait;
-        let now = realtime::wait_until(due, realtime::SPIN_NS);
+        let now = realtime::wait_until_learning(due, &mut margin);
         lateness.push(now - due);
         late_steps += service.tick().saturating_sub(1);
         ticks += 1;
