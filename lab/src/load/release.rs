@@ -13,7 +13,8 @@
 //! The copies' scheduled release times are then replayed, shifted to now, by bare threads
 //! that only sleep to each deadline and read the clock: the machine's floor, in three
 //! variants (a plain thread; a `SCHED_FIFO` thread; a `SCHED_FIFO` thread that sleeps to
-//! [`SPIN_NS`] before and spins, as netem's release thread does). The plant's step loop runs
+//! a fixed [`SPIN_NS`] before and spins; one that learns its margin from its own sleeps, as
+//! netem's release thread and the plant's step loop do, [`realtime::SpinMargin`]). The plant's step loop runs
 //! as the `plant` service runs it, at 1 kHz on the wall clock, for the same time.
 //! Nothing here asserts a timing: it prints what it measured.
 
@@ -52,16 +53,19 @@ enum Floor {
     Fifo,
     /// The same, sleeping to [`SPIN_NS`] before the deadline and spinning to it.
     FifoSpin,
+    /// The same with the margin learned from the thread's own sleeps, as the services wait.
+    FifoLearned,
 }
 
 impl Floor {
-    const ALL: [Floor; 3] = [Floor::Plain, Floor::Fifo, Floor::FifoSpin];
+    const ALL: [Floor; 4] = [Floor::Plain, Floor::Fifo, Floor::FifoSpin, Floor::FifoLearned];
 
     fn name(self) -> String {
         match self {
             Floor::Plain => "floor: clock_nanosleep, normal thread".into(),
             Floor::Fifo => "floor: clock_nanosleep, real-time thread".into(),
             Floor::FifoSpin => format!("floor: sleep + {} µs spin, real-time thread", SPIN_NS / 1000),
+            Floor::FifoLearned => "floor: sleep + learned spin, real-time thread".into(),
         }
     }
 }
@@ -74,15 +78,19 @@ fn replay(deadlines: &[u64], floor: Floor) -> anyhow::Result<(Window, Priority)>
         let t = std::thread::Builder::new().name("lab-floor".into()).spawn_scoped(s, || {
             let priority = match floor {
                 Floor::Plain => Priority::Normal,
-                Floor::Fifo | Floor::FifoSpin => realtime::promote_current_thread("lab-floor"),
+                Floor::Fifo | Floor::FifoSpin | Floor::FifoLearned => {
+                    realtime::promote_current_thread("lab-floor")
+                }
             };
             let origin = realtime::monotonic_ns() + 20_000_000;
             let mut late = Window::default();
+            let mut margin = realtime::SpinMargin::new();
             for d in deadlines {
                 let due = origin + (d - first);
                 let now = match floor {
                     Floor::Plain | Floor::Fifo => realtime::sleep_until(due),
                     Floor::FifoSpin => realtime::wait_until(due, SPIN_NS),
+                    Floor::FifoLearned => realtime::wait_until_learning(due, &mut margin),
                 };
                 late.push(now - due);
             }
@@ -90,6 +98,23 @@ fn replay(deadlines: &[u64], floor: Floor) -> anyhow::Result<(Window, Priority)>
         })?;
         t.join().map_err(|_| anyhow::anyhow!("the floor's thread panicked"))
     })
+}
+
+/// The time the hypervisor ran something else while this VM's vCPUs wanted to run, summed
+/// over them ("steal" in /proc/stat, USER_HZ = 100 ticks a second on Linux), ms; `None` where
+/// there is no /proc/stat.
+fn steal_ms() -> Option<u64> {
+    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    let cpu = stat.lines().next()?.strip_prefix("cpu ")?;
+    cpu.split_whitespace().nth(7)?.parse::<u64>().ok().map(|ticks| ticks * 10)
+}
+
+/// Steal time since `from` (a [`steal_ms`] reading), per second of `seconds`, for a note.
+fn steal_since(from: Option<u64>, seconds: f64) -> String {
+    match (from, steal_ms()) {
+        (Some(a), Some(b)) => format!("steal {:.0} ms/s", (b.saturating_sub(a)) as f64 / seconds.max(1e-3)),
+        _ => "steal unknown".into(),
+    }
 }
 
 fn row(what: &str, n: u64, p: Percentiles, note: &str) {
@@ -140,62 +165,80 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         }
         for (kind, delay) in &kinds {
             let case = format!("{rate} Hz, {kind}");
+            let steal = steal_ms();
             let run =
                 super::real_time(DirectionProfile::with_delay(delay.clone(), 42), args.seconds, rate, true)
                     .await
                     .with_context(|| case.clone())?;
+            let grpc_steal = steal_since(steal, args.seconds);
             lost |= run.check().is_err();
             let delivered: Vec<&pb::TraceRecord> = run.records.iter().filter(|r| !r.dropped).collect();
-            let (errors, early) = release_errors(&run.records);
+            let errors = ReleaseErrors::of(&run.records);
             let mut deadlines: Vec<u64> = delivered.iter().map(|r| r.release_time_ns).collect();
             deadlines.sort_unstable();
             for floor in Floor::ALL {
                 let d = deadlines.clone();
+                let steal = steal_ms();
                 let (late, priority) = tokio::task::spawn_blocking(move || replay(&d, floor)).await??;
                 row(
                     &format!("{case} | {}", floor.name()),
                     late.count(),
                     late.percentiles().unwrap_or_default(),
-                    priority.as_str(),
+                    &format!("{}; {}", priority.as_str(), steal_since(steal, args.seconds)),
                 );
             }
-            let note =
-                format!("{} of {} copies delivered; {early} early", delivered.len(), run.records.len());
+            let note = format!(
+                "{} of {} copies delivered; {} early; {}; {grpc_steal}",
+                delivered.len(),
+                run.records.len(),
+                errors.early,
+                errors.bunches()
+            );
             row(
                 &format!("{case} | netem, gRPC path"),
-                errors.count(),
-                errors.percentiles().unwrap_or_default(),
+                errors.all.count(),
+                errors.all.percentiles().unwrap_or_default(),
                 &note,
             );
             let profile = DirectionProfile::with_delay(delay.clone(), 42);
+            let steal = steal_ms();
             let udp = udp_run(profile, args.seconds, rate).await.with_context(|| format!("{case}, UDP"))?;
+            let udp_steal = steal_since(steal, args.seconds);
             lost |= udp.lost();
-            let (errors, early) = release_errors(&udp.records);
+            let errors = ReleaseErrors::of(&udp.records);
             let seen = udp.received.percentiles().unwrap_or_default();
             let us = |ns: u64| ns as f64 / 1e3;
             let note = format!(
-                "{} of {} datagrams delivered; {early} early; receivers' view, above its fastest: {:.1} / {:.1} / {:.1}",
-                errors.count(),
+                "{} of {} datagrams delivered; {} early; {}; receivers' view, above its fastest: {:.1} / {:.1} / {:.1}; {udp_steal}",
+                errors.all.count(),
                 2 * udp.sent,
+                errors.early,
+                errors.bunches(),
                 us(seen.p50_ns),
                 us(seen.p99_ns),
                 us(seen.max_ns)
             );
             row(
                 &format!("{case} | netem, UDP path"),
-                errors.count(),
-                errors.percentiles().unwrap_or_default(),
+                errors.all.count(),
+                errors.all.percentiles().unwrap_or_default(),
                 &note,
             );
         }
     }
     let seconds = args.seconds;
+    let steal = steal_ms();
     let steps = tokio::task::spawn_blocking(move || plant_steps(seconds)).await??;
     row(
         "1000 Hz | plant step loop",
         steps.lateness.count(),
         steps.lateness.percentiles().unwrap_or_default(),
-        &format!("{}; {} steps a step late or more", steps.priority, steps.late_steps),
+        &format!(
+            "{}; {} steps a step late or more; {}",
+            steps.priority,
+            steps.late_steps,
+            steal_since(steal, seconds)
+        ),
     );
     println!();
     println!("load average at the end {}", load_average());
@@ -205,16 +248,51 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The release errors of the delivered copies of `records` (their magnitudes), and how many
-/// were early.
-fn release_errors(records: &[pb::TraceRecord]) -> (Window, u64) {
-    let mut errors = Window::default();
-    let mut early = 0u64;
-    for r in records.iter().filter(|r| !r.dropped) {
-        early += u64::from(r.release_error_ns < 0);
-        errors.push(r.release_error_ns.unsigned_abs());
+/// The release errors of the delivered copies of `records` (their magnitudes).
+struct ReleaseErrors {
+    /// Every delivered copy.
+    all: Window,
+    /// The copies first at their release time on their direction: the timer's error alone.
+    /// A FIFO line releases a message no earlier than the one before it, so under Gamma
+    /// delays at 1 kHz runs of copies share one release time (the 99th percentile of a
+    /// copy's place in its run is about 110 at Gamma(6, 15 ms)), and the copies behind the
+    /// first wait for those before them to be sent: a cost per copy, not the timer's.
+    first_of_bunch: Window,
+    /// Copies released before their time (there should be none).
+    early: u64,
+}
+
+impl ReleaseErrors {
+    fn of(records: &[pb::TraceRecord]) -> Self {
+        let mut delivered: Vec<&pb::TraceRecord> = records.iter().filter(|r| !r.dropped).collect();
+        delivered.sort_by_key(|r| (r.direction, r.release_time_ns));
+        let (mut all, mut first_of_bunch, mut early) = (Window::default(), Window::default(), 0u64);
+        let mut previous: Option<(i32, u64)> = None;
+        for r in delivered {
+            early += u64::from(r.release_error_ns < 0);
+            let error = r.release_error_ns.unsigned_abs();
+            all.push(error);
+            if previous != Some((r.direction, r.release_time_ns)) {
+                first_of_bunch.push(error);
+            }
+            previous = Some((r.direction, r.release_time_ns));
+        }
+        Self { all, first_of_bunch, early }
     }
-    (errors, early)
+
+    /// The note's words on the first copies of each release time.
+    fn bunches(&self) -> String {
+        let p = self.first_of_bunch.percentiles().unwrap_or_default();
+        let us = |ns: u64| ns as f64 / 1e3;
+        format!(
+            "first copy of each release time ({} of {}): {:.1} / {:.1} / {:.1}",
+            self.first_of_bunch.count(),
+            self.all.count(),
+            us(p.p50_ns),
+            us(p.p99_ns),
+            us(p.max_ns)
+        )
+    }
 }
 
 /// What [`udp_run`] measured.
