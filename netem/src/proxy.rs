@@ -382,11 +382,13 @@ impl Proxy {
                 let _ = self.shared.releaser.schedule(m.release_ns, action);
                 continue;
             }
-            let (tx, rx) = oneshot::channel();
+            // Counted by this task when it wakes (or by whoever drops the delivery), not by the
+            // release thread under netem's lock: a task holding it may be preempted, and the
+            // real-time thread would wait for it.
+            let (tx, rx) = oneshot::channel::<Delivery>();
             let shared = self.shared.clone();
-            let action = Box::new(move |e: i64| {
-                shared.lock().delivered(&m, e);
-                let _ = tx.send(());
+            let action = Box::new(move |release_error_ns: i64| {
+                let _ = tx.send(Delivery { shared, msg: m, release_error_ns });
             });
             if self.shared.releaser.schedule(m.release_ns, action).is_err() {
                 return Err(Status::unavailable("netem is shutting down"));
@@ -395,7 +397,7 @@ impl Proxy {
         }
         match original {
             Some((m, rx)) => {
-                rx.await.map_err(|_| Status::unavailable("netem is shutting down"))?;
+                drop(rx.await.map_err(|_| Status::unavailable("netem is shutting down"))?);
                 stamp(md, Stamped::Sample, &m, StampOutcome::Delivered);
                 self.shared.lock().last_sample = Some(sample.clone());
                 Ok(sample)
@@ -636,6 +638,20 @@ async fn pump_samples(
 }
 
 /// The release of one copy into a real-time stream's buffer (on the release thread).
+/// A real-time sample released to its request: counted as delivered when dropped, so by the
+/// request's task once it has it, and still counted if the request is gone.
+struct Delivery {
+    shared: Arc<Shared>,
+    msg: Msg,
+    release_error_ns: i64,
+}
+
+impl Drop for Delivery {
+    fn drop(&mut self) {
+        self.shared.lock().delivered(&self.msg, self.release_error_ns);
+    }
+}
+
 fn release_sample(
     shared: &Shared,
     writer: &Writer<Released>,
