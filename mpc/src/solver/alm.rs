@@ -152,8 +152,10 @@ impl Mpc {
                 self.rescale_at_solution(c);
             }
         }
+        // Not on a budget of zero: its caller asked for the warm start, unsolved.
         if own_alm
             && status == SolveStatus::IterationLimit
+            && max_total > 0
             && s.restoration_iterations > 0
             && self.plan_inside_obstacle()
         {

@@ -110,6 +110,32 @@ fn the_iteration_budget_is_respected_and_reported() {
 }
 
 #[test]
+fn a_budget_of_zero_runs_no_iteration_not_even_the_restoration_from_a_plan_inside() {
+    let s = Scenario::paper_1();
+    // Our PANOC (the restoration is its), the paper's exact problem.
+    let settings = MpcSettings { solver: PanocSolver::Own, obstacle_margin_m: 0.0, ..Default::default() };
+    assert!(settings.restoration_iterations > 0);
+    // A plan inside paper-1's cylinder: two iterations from hover, without the restoration.
+    let inside = {
+        let unrestored = MpcSettings { restoration_iterations: 0, ..settings };
+        let mut mpc = mpc_for(&s, ControllerMode::Multistage, unrestored);
+        let two = SolveBudget { max_inner_iterations: Some(2), deadline: None };
+        let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &two).expect("valid");
+        assert_eq!(r.status, SolveStatus::InfeasibleAtLimit, "the warm start must be inside: {r:?}");
+        mpc.solution().to_vec()
+    };
+    let mut mpc = mpc_for(&s, ControllerMode::Multistage, settings);
+    mpc.set_warm_start(&inside).expect("valid");
+    let zero = SolveBudget { max_inner_iterations: Some(0), deadline: None };
+    let r = mpc.solve(&s.start, &[9.81, 0.0, 0.0], &W5, &zero).expect("valid");
+    assert_eq!(r.iterations, 0, "{r:?}");
+    assert_eq!(r.status, SolveStatus::InfeasibleAtLimit, "{r:?}");
+    for (got, want) in mpc.solution().iter().zip(&inside) {
+        assert!((got - want).abs() < 1e-12, "{got} vs {want}");
+    }
+}
+
+#[test]
 fn each_solve_reports_its_own_passes_and_an_identical_solve_reports_the_same() {
     // Two workspaces solving the same instance: per-evaluator counts, so neither sees the
     // other's passes (a process-global counter would count both).
