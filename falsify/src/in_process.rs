@@ -4,7 +4,7 @@
 use mav::Scenario;
 use mpc::{ClosedLoopSettings, ControllerMode, RunSummary, run_closed_loop};
 
-use crate::score::RunFacts;
+use crate::score::{RunFacts, closest_approach_s};
 use crate::space::Space;
 use crate::table::Property;
 
@@ -14,6 +14,8 @@ pub struct Evaluation {
     pub score: f64,
     pub facts: RunFacts,
     pub summary: RunSummary,
+    /// When the run came closest to a cylinder ([`crate::score::closest_approach_s`]), s.
+    pub closest_s: Option<f64>,
     /// The scenario flown (the point's delays as its trace).
     pub scenario: Scenario,
 }
@@ -29,10 +31,17 @@ pub fn evaluate(
     point: &[f64],
 ) -> Result<Evaluation, String> {
     let flown = space.scenario(scenario, point, &format!("falsify-{}", space.name))?;
-    let (summary, _) = run_closed_loop(&flown, &ClosedLoopSettings::paper(mode))
+    let (summary, traces) = run_closed_loop(&flown, &ClosedLoopSettings::paper(mode))
         .map_err(|e| format!("{}: the run failed: {e}", space.name))?;
     let facts = RunFacts::of(&summary, &flown);
-    Ok(Evaluation { score: property.robustness(&facts), facts, summary, scenario: flown })
+    let closest_s = closest_approach_s(
+        &flown.obstacles,
+        traces.iter().map(|t| {
+            let [x, y, z, ..] = t.record.state;
+            (mav::ns_to_s(t.record.sample_time_ns), [x, y, z])
+        }),
+    );
+    Ok(Evaluation { score: property.robustness(&facts), facts, summary, closest_s, scenario: flown })
 }
 
 /// `f` of every item on up to `jobs` threads, in the items' order.

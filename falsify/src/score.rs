@@ -12,6 +12,26 @@
 
 use crate::table::Property;
 
+/// When a run came closest to a cylinder: the time of the smallest clearance among its
+/// `samples` (`(time_s, position_m)`, the controller's samples, one per cycle), s; `None` for a
+/// run without a sample or a scenario without a cylinder. The first such sample on ties.
+///
+/// What a run says beyond its score: a long delay matters when the vehicle is near an
+/// obstacle, and this says when that was (`lab falsify --dump` writes it beside each run).
+pub fn closest_approach_s(
+    obstacles: &[mav::Cylinder],
+    samples: impl IntoIterator<Item = (f64, [f64; 3])>,
+) -> Option<f64> {
+    let mut best: Option<(f64, f64)> = None;
+    for (t_s, [x, y, z]) in samples {
+        let (clearance, _) = mav::geometry::min_clearance(obstacles, x, y, z);
+        if clearance.is_finite() && best.is_none_or(|(c, _)| clearance < c) {
+            best = Some((clearance, t_s));
+        }
+    }
+    best.map(|(_, t)| t)
+}
+
 /// What the score reads of a run.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RunFacts {
@@ -104,6 +124,17 @@ mod tests {
         assert_eq!(Property::Collision.robustness(&into_ground), -0.02);
         // An entry recorded 0 deep is still a collision.
         assert!(Property::Collision.fails(&run(false, true, 0.3, 0.0, 1.0)));
+    }
+
+    #[test]
+    fn the_closest_approach_is_the_sample_nearest_any_cylinder_first_on_ties() {
+        let obstacles = [mav::Cylinder::new(0.0, 0.0, 1.0), mav::Cylinder::new(5.0, 0.0, 1.0)];
+        let at = |x: f64| [x, 0.0, 0.5];
+        // Clearances 1.5, 0.5 (to the second), 1.0, 0.5 again: the first 0.5 wins.
+        let samples = [(0.0, at(2.5)), (0.1, at(3.5)), (0.2, at(3.0)), (0.3, at(1.5))];
+        assert_eq!(closest_approach_s(&obstacles, samples), Some(0.1));
+        assert_eq!(closest_approach_s(&[], samples), None, "no cylinder");
+        assert_eq!(closest_approach_s(&obstacles, []), None, "no sample");
     }
 
     #[test]

@@ -2,7 +2,8 @@
 //! searches every space with the same budget from `--seeds` seeds (each seed also seeds the
 //! families' processes), every run in process on `--jobs` threads, and the table gives the
 //! falsification rate (searches that found a failure) and the median runs to the first failure
-//! (a search that found none counts as more than the budget).
+//! (a search that found none counts as more than the budget). `--dump` writes every run (its
+//! point, score and closest approach's time) for a look at the score's landscape.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -44,6 +45,10 @@ pub struct Args {
     /// CMA-ES's first step, a fraction of each range (default: the file's `falsify.sigma0`).
     #[arg(long, env = "SIGMA0")]
     sigma0: Option<f64>,
+    /// Write every run (space, method, seed, run, score, closest approach time, point) to this
+    /// CSV file.
+    #[arg(long, env = "DUMP")]
+    dump: Option<PathBuf>,
     /// Print each search's convergence: the best score after each batch.
     #[arg(long, env = "VERBOSE", value_parser = clap::builder::BoolishValueParser::new())]
     verbose: bool,
@@ -78,6 +83,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         args.first_seed,
         args.jobs
     );
+    let mut dump: Vec<String> = vec!["space,method,seed,run,score_m,closest_s,point".into()];
     println!("space     method  found  rate   median runs to failure (all / found)  runs  wall [s]  s/run");
     for name in names.iter().filter(|n| args.spaces.is_empty() || args.spaces.contains(n)) {
         for &m in &methods {
@@ -97,19 +103,31 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 let warmup = args.warmup.or(table.warmup.map(|w| w as usize)).unwrap_or(settings.warmup);
                 let settings = SearchSettings { warmup, ..settings };
                 let one = Instant::now();
+                let mut flown = 0u64;
                 let r = search(
                     &space.dims,
                     &settings,
                     |batch| {
-                        par_map(batch, args.jobs, |p| {
+                        let told = par_map(batch, args.jobs, |p| {
                             match evaluate(&space, &file.scenario, mode, table.property, p) {
-                                Ok(e) => e.score,
+                                Ok(e) => (e.score, e.closest_s),
                                 Err(e) => {
                                     eprintln!("  {name} {} seed {seed}: {e}", m.name());
-                                    f64::NAN
+                                    (f64::NAN, None)
                                 }
                             }
-                        })
+                        });
+                        for (p, (score, closest_s)) in batch.iter().zip(&told) {
+                            flown += 1;
+                            let point: Vec<String> = p.iter().map(|v| format!("{v:.5}")).collect();
+                            dump.push(format!(
+                                "{name},{},{seed},{flown},{score},{},{}",
+                                m.name(),
+                                closest_s.map_or(String::new(), |c| format!("{c:.3}")),
+                                point.join(";")
+                            ));
+                        }
+                        told.into_iter().map(|(score, _)| score).collect()
                     },
                     |g| {
                         if args.verbose {
@@ -160,6 +178,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 wall / runs.max(1) as f64,
             );
         }
+    }
+    if let Some(path) = &args.dump {
+        std::fs::write(path, dump.join("\n") + "\n")?;
     }
     Ok(())
 }
