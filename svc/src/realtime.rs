@@ -231,7 +231,11 @@ fn wait(due_ns: u64, spin_ns: u64, mut slept: impl FnMut(u64, u64)) -> u64 {
             Wait::Spin => {}
             Wait::SleepUntil(t) => {
                 imp::sleep_until(t);
-                slept(t, monotonic_ns());
+                // A sleep cut short (a signal) says nothing of how late the machine wakes.
+                let woke = monotonic_ns();
+                if woke >= t {
+                    slept(t, woke);
+                }
             }
         }
     }
