@@ -6,6 +6,8 @@
 //! point, score and closest approach's time) for a look at the score's landscape.
 
 use std::path::PathBuf;
+
+use anyhow::Context;
 use std::time::Instant;
 
 use falsify::in_process::{evaluate, par_map};
@@ -66,6 +68,15 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let file = ScenarioFile::load(&args.file)?;
     let table =
         file.falsify.clone().ok_or_else(|| anyhow::anyhow!("{}: no [falsify] table", args.file.display()))?;
+    // The dump's file is made before the searches, so a bad --dump is refused at once, not
+    // after the campaign.
+    let dump_file = match &args.dump {
+        Some(path) => Some(
+            std::fs::File::create(path)
+                .with_context(|| format!("--dump: cannot write {}", path.display()))?,
+        ),
+        None => None,
+    };
     let methods: Vec<Method> = args.methods.iter().map(|m| method(m)).collect::<Result<_, _>>()?;
     let mode = crate::mode(file.run.modes[0].name()).map_err(anyhow::Error::msg)?;
     let budget = args.budget.unwrap_or(table.budget_or_default());
@@ -179,8 +190,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             );
         }
     }
-    if let Some(path) = &args.dump {
-        std::fs::write(path, dump.join("\n") + "\n")?;
+    if let (Some(mut f), Some(path)) = (dump_file, &args.dump) {
+        use std::io::Write;
+        f.write_all((dump.join("\n") + "\n").as_bytes())
+            .with_context(|| format!("--dump: cannot write {}", path.display()))?;
     }
     Ok(())
 }
