@@ -270,12 +270,28 @@ pub struct Event {
 }
 
 /// A stamp that showed a reboot, waiting for [`REBOOT_CONFIRMATIONS`] more.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 struct PendingReboot {
     reboot: Reboot,
     /// Gateway time of the stamp, ns.
     heard_ns: u64,
     confirmations: u32,
+    /// The newest state of each kind on the restarted clock, with the gateway time it arrived,
+    /// ns: kept so that the confirmed reboot starts with both kinds, and a `Reset` right after it
+    /// finds a state (else it would wait for the next message of the kind that did not confirm).
+    position: Option<(LOCAL_POSITION_NED_DATA, u64)>,
+    attitude: Option<(Attitude, u64)>,
+}
+
+/// What a state message's stamp means ([`Bridge::is_new_stamp`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stamp {
+    /// Newer than the last of its kind: used.
+    New,
+    /// On the clock of a reboot not confirmed yet: kept in the pending reboot, not used.
+    Held,
+    /// Older than the last of its kind, or refused: not used.
+    Old,
 }
 
 #[derive(Debug, Clone)]
@@ -505,10 +521,18 @@ impl Bridge {
                     return event;
                 }
                 let old_ms = self.position.as_ref().map(|old| old.time_boot_ms);
-                if self.is_new_stamp(old_ms, self.position_heard_ns, t, now_ns, &mut event) {
-                    self.position = Some(p.clone());
-                    self.position_heard_ns = now_ns;
-                    event.sample = self.produce(u64::from(t) * 1_000_000, now_ns);
+                match self.is_new_stamp(old_ms, self.position_heard_ns, t, now_ns, &mut event) {
+                    Stamp::New => {
+                        self.position = Some(p.clone());
+                        self.position_heard_ns = now_ns;
+                        event.sample = self.produce(u64::from(t) * 1_000_000, now_ns);
+                    }
+                    Stamp::Held => {
+                        if let Some(pending) = &mut self.pending_reboot {
+                            pending.position = Some((p.clone(), now_ns));
+                        }
+                    }
+                    Stamp::Old => {}
                 }
             }
             _ => {}
@@ -518,8 +542,15 @@ impl Bridge {
 
     fn on_attitude(&mut self, att: Attitude, now_ns: u64, event: &mut Event) {
         let old_ms = self.attitude.as_ref().map(|old| old.time_boot_ms);
-        if !self.is_new_stamp(old_ms, self.attitude_heard_ns, att.time_boot_ms, now_ns, event) {
-            return;
+        match self.is_new_stamp(old_ms, self.attitude_heard_ns, att.time_boot_ms, now_ns, event) {
+            Stamp::New => {}
+            Stamp::Held => {
+                if let Some(pending) = &mut self.pending_reboot {
+                    pending.attitude = Some((att, now_ns));
+                }
+                return;
+            }
+            Stamp::Old => return,
         }
         if !self.heard.as_ref().is_some_and(|h| h.armed) {
             self.yaw_hold_rad = att.yaw_rad;
@@ -559,8 +590,8 @@ impl Bridge {
     /// and heard at `heard_ns`: whether it is newer (else it is counted stale). A stamp that
     /// shows a reboot ([`shows_reboot`]) is held as a candidate and the message not used; the
     /// next [`REBOOT_CONFIRMATIONS`] state messages on the restarted clock confirm it (the
-    /// reboot is then recorded in `event` and the confirming message starts afresh), and one on
-    /// any other clock refuses it (counted).
+    /// reboot is then recorded in `event` and the confirming message starts afresh, with the
+    /// held messages of the other kind), and one on any other clock refuses it (counted).
     fn is_new_stamp(
         &mut self,
         old_ms: Option<u32>,
@@ -568,54 +599,63 @@ impl Bridge {
         t_ms: u32,
         now_ns: u64,
         event: &mut Event,
-    ) -> bool {
+    ) -> Stamp {
         if let Some(pending) = &mut self.pending_reboot {
             let elapsed_ms = now_ns.saturating_sub(pending.heard_ns) / 1_000_000;
             let expected_ms = u64::from(pending.reboot.after_ms) + elapsed_ms;
             if u64::from(t_ms).abs_diff(expected_ms) <= u64::from(REBOOT_CLOCK_JUMP_MS) {
                 pending.confirmations += 1;
                 if pending.confirmations < REBOOT_CONFIRMATIONS {
-                    return false;
+                    return Stamp::Held;
                 }
-                let Reboot { before_ms, after_ms, silence_ns } = pending.reboot;
-                self.pending_reboot = None;
-                event.reboot = Some(self.on_reboot(before_ms, after_ms, silence_ns, now_ns));
-                return true;
+                if let Some(pending) = self.pending_reboot.take() {
+                    event.reboot = Some(self.on_reboot(pending, now_ns));
+                }
+                return Stamp::New;
             }
             self.pending_reboot = None;
             self.counters.reboot_stamps_refused += 1;
         }
-        let Some(old_ms) = old_ms else { return true };
+        let Some(old_ms) = old_ms else { return Stamp::New };
         let silence_ns = now_ns.saturating_sub(heard_ns);
         if shows_reboot(old_ms, t_ms, silence_ns) {
             self.pending_reboot = Some(PendingReboot {
                 reboot: Reboot { before_ms: old_ms, after_ms: t_ms, silence_ns },
                 heard_ns: now_ns,
                 confirmations: 0,
+                position: None,
+                attitude: None,
             });
-            return false;
+            return Stamp::Held;
         }
         if old_ms > t_ms {
             self.counters.stale_messages += 1;
-            return false;
+            return Stamp::Old;
         }
-        true
+        Stamp::New
     }
 
     /// The vehicle's boot clock went from `before_ms` to `after_ms` in a way that shows a reboot
-    /// ([`shows_reboot`]), `silence_ns` apart. What was measured on its old clock is forgotten
-    /// (the clock offset, the last state and its stamps, the plant-time epoch, the last
+    /// ([`shows_reboot`]), `silence_ns` apart, and the next messages confirmed it. What was
+    /// measured on its old clock is forgotten (the clock offset, the last state and its stamps,
+    /// which become the messages held on the new clock, the plant-time epoch, the last
     /// command's stamps), as is its armed state (a rebooted autopilot is disarmed; the next
     /// heartbeat says so, and an arming after it takes the yaw to hold again). The setpoint goes
     /// back to level hover, and no sample is made until the next [`Bridge::reset`]. Nothing is
     /// sent to the vehicle.
-    fn on_reboot(&mut self, before_ms: u32, after_ms: u32, silence_ns: u64, now_ns: u64) -> Reboot {
-        let reboot = Reboot { before_ms, after_ms, silence_ns };
+    fn on_reboot(&mut self, pending: PendingReboot, now_ns: u64) -> Reboot {
+        let reboot = pending.reboot;
         self.counters.reboots += 1;
         self.rebooted = Some(reboot);
         self.timesync.restart(now_ns);
-        self.position = None;
-        self.attitude = None;
+        (self.position, self.position_heard_ns) = match pending.position {
+            Some((p, heard_ns)) => (Some(p), heard_ns),
+            None => (None, now_ns),
+        };
+        (self.attitude, self.attitude_heard_ns) = match pending.attitude {
+            Some((a, heard_ns)) => (Some(a), heard_ns),
+            None => (None, now_ns),
+        };
         self.epoch_vehicle_ns = None;
         self.current = None;
         self.last_command = initial_command(&self.scenario);

@@ -327,6 +327,31 @@ fn a_vehicle_silent_longer_than_its_new_uptime_is_a_reboot_though_its_clock_came
     assert_eq!(p.bridge.counters().reboots, 1);
 }
 
+/// The reboot is confirmed by one message of one kind (a position or an attitude); the
+/// messages of the other kind on the new clock, held while it was being confirmed, come with
+/// it: a `Reset` the moment the reboot is reported finds the vehicle's state (it was refused
+/// with "no state yet" until the next message of the other kind).
+#[test]
+fn a_reset_the_moment_a_reboot_is_confirmed_finds_the_state_held_on_the_new_clock() {
+    let scenario = Scenario::paper_2();
+    let mut p = Pair::booted_before(&scenario, 2_000 * MS);
+    p.run(1_000);
+    p.silent_vehicle = true;
+    p.run(500);
+    p.reboot_vehicle(&scenario);
+    p.run(5_000);
+    p.silent_vehicle = false;
+    let mut waited_ms = 0;
+    while p.reboots.is_empty() {
+        p.run(1);
+        waited_ms += 1;
+        assert!(waited_ms < 1_000, "the reboot was never confirmed");
+    }
+    let s = p.bridge.reset(scenario.clone(), None, p.now_ns, 2).expect("a state on the new clock");
+    assert_eq!((s.seq, s.time_ns, s.flight_id), (0, 0, 2));
+    assert_eq!(p.bridge.awaiting_reset(), None);
+}
+
 /// A link that holds the vehicle's messages back for 1.5 s, then delivers one: its stamp is a
 /// little ahead of the last after a long wait, as a restarted clock's would be, but it reads
 /// the vehicle's ten minutes of uptime, which a clock restarted in the silence cannot. Nor is a
