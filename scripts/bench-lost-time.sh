@@ -1,0 +1,73 @@
+#!/usr/bin/env bash
+# The fail-safe check's lost time (issue 39; docs/robustness.md, "Where that time goes";
+# BENCHMARKS.md's target row): the same runs flown with the fail-safe check and with the plan
+# check, in process, compared run by run where both reached the goal without a collision:
+#   1. the survey, scenarios/sweeps/paper-2-delays.toml and its -plan-check twin (120 runs);
+#   2. scenarios/fields/paper-2-field.toml and the same file with `fail_safe = false` (RUNS).
+# Prints per campaign each side's collisions, overrides (fallback cycles) per run, best-effort
+# cycles, worst clearance, and the median time-to-goal and path-length ratios (fail-safe /
+# plan check) with their 10th and 90th percentiles, and the time ratio per delay family.
+# Lockstep runs are deterministic: the same commit prints the same numbers on any machine.
+#
+#   scripts/bench-lost-time.sh [RUNS] [JOBS]     (default 250 field runs, 2 at once)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+RUNS=${1:-250}
+JOBS=${2:-2}
+
+nice -n 5 cargo build --release -p hilbench
+HB=target/release/hilbench
+WORK=$(mktemp -d /tmp/bench-lost-time.XXXXXX)
+trap 'rm -rf "$WORK"' EXIT
+echo "commit: $(git rev-parse --short HEAD 2>/dev/null || echo unknown)"
+
+sed 's/^fail_safe = true$/fail_safe = false/' scenarios/fields/paper-2-field.toml > "$WORK/paper-2-field-plan-check.toml"
+grep -q '^fail_safe = false$' "$WORK/paper-2-field-plan-check.toml" || { echo "paper-2-field.toml: no 'fail_safe = true' line to turn off" >&2; exit 1; }
+
+sweep() { "$HB" sweep "$1" --jobs "$JOBS" --no-plots --quiet --out "$2" "${@:3}"; }
+sweep scenarios/sweeps/paper-2-delays.toml "$WORK/survey-fail-safe"
+sweep scenarios/sweeps/paper-2-delays-plan-check.toml "$WORK/survey-plan-check"
+sweep scenarios/fields/paper-2-field.toml "$WORK/field-fail-safe" --runs "$RUNS"
+sweep "$WORK/paper-2-field-plan-check.toml" "$WORK/field-plan-check" --runs "$RUNS"
+
+compare() {
+    python3 - "$1" "$2" "$3" <<'PY'
+import csv, statistics, sys
+
+name, fail_safe_dir, plan_check_dir = sys.argv[1:4]
+def runs(d):
+    with open(d + "/runs.csv") as f:
+        return {r["run"]: r for r in csv.DictReader(f)}
+fs, pc = runs(fail_safe_dir), runs(plan_check_dir)
+def clear(r):
+    return r["outcome"] == "reached" and float(r["min_clearance_m"]) > 0
+def quantile(v, q):
+    v = sorted(v)
+    return v[int(q * (len(v) - 1))]
+print(f"{name}:")
+for label, d in (("fail-safe", fs), ("plan check", pc)):
+    rs = list(d.values())
+    print(f"  {label:10}: {len(rs)} runs, {sum(r['outcome'] == 'collided' for r in rs)} collided, "
+          f"{sum(int(r['fallbacks']) for r in rs) / len(rs):.2f} overrides a run, "
+          f"{sum(int(r['best_effort_cycles']) for r in rs)} best-effort cycles, "
+          f"worst clearance {min(float(r['min_clearance_m']) for r in rs):+.3f} m")
+time, path, by_family = [], [], {}
+for k, a in fs.items():
+    b = pc.get(k)
+    if b is None or not (clear(a) and clear(b)):
+        continue
+    t = float(a["time_to_goal_s"]) / float(b["time_to_goal_s"])
+    time.append(t)
+    path.append(float(a["path_length_m"]) / float(b["path_length_m"]))
+    by_family.setdefault(a["family"], []).append(t)
+if not time:
+    sys.exit(f"{name}: no run reached the goal clear both ways")
+print(f"  both clear: {len(time)}; time ratio median {statistics.median(time):.3f} "
+      f"(p10-p90 {quantile(time, .1):.2f}-{quantile(time, .9):.2f}), path ratio median "
+      f"{statistics.median(path):.3f} (p10-p90 {quantile(path, .1):.2f}-{quantile(path, .9):.2f})")
+print("  time ratio by family: " + ", ".join(
+    f"{f} {statistics.median(v):.3f}" for f, v in sorted(by_family.items())))
+PY
+}
+compare "survey (paper-2-delays, 120 runs)" "$WORK/survey-fail-safe" "$WORK/survey-plan-check"
+compare "paper-2-field ($RUNS runs)" "$WORK/field-fail-safe" "$WORK/field-plan-check"
