@@ -63,8 +63,14 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             fallbacks += s.fallbacks;
             let run_unverified =
                 records.iter().filter(|r| r.selection.is_some_and(|s| !s.verified_safe)).count();
-            if run_unverified > 0 && args.verbose {
-                println!("  {kind} seed {seed}: {run_unverified} unverified cycles");
+            if args.verbose {
+                // One line a run, to compare runs across settings (time, path, overrides).
+                println!(
+                    "  {kind} seed {seed}: time {} path {:.3} m, {} overrides, {run_unverified} unverified cycles",
+                    s.time_to_goal_s.map_or("-".to_string(), |t| format!("{t:.3} s")),
+                    s.path_length_m,
+                    s.fallbacks,
+                );
             }
             unverified += run_unverified;
             worst = worst.min(s.min_clearance_m);

@@ -253,6 +253,13 @@ pub struct SurveyFlags {
     /// The fail-safe check's delays per cycle.
     #[arg(long, env = "SAMPLES")]
     pub delay_samples: Option<usize>,
+    /// The fail-safe check's `plan_coast_s` (s; the plans keep their coast clear over twice
+    /// the longest delay plus this); default: the check's.
+    #[arg(long, env = "PLAN_COAST")]
+    pub plan_coast_s: Option<f64>,
+    /// The plans keep only their points clear (`plan_coast_s = None`).
+    #[arg(long, env = "NO_PLAN_COAST", value_parser = BoolishValueParser::new())]
+    pub no_plan_coast: bool,
     /// Width of the uniform jitter (s): delays uniform in `[a, a + width]`, `a` random.
     #[arg(long, env = "WIDTH", default_value_t = 0.33)]
     pub width_s: f64,
@@ -273,6 +280,12 @@ impl SurveyFlags {
             }
             if let Some(n) = self.delay_samples {
                 check.delay_samples = n;
+            }
+            if self.plan_coast_s.is_some() {
+                check.plan_coast_s = self.plan_coast_s;
+            }
+            if self.no_plan_coast {
+                check.plan_coast_s = None;
             }
             safety.braking_check = Some(check);
         }

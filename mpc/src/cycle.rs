@@ -5,7 +5,7 @@
 
 use crate::command::sanitize_command;
 use crate::error::MpcError;
-use crate::problem::{OcpDefinition, validate_instance};
+use crate::problem::{ObstacleFormulation, OcpDefinition, validate_instance};
 use crate::qp::QpBudget;
 use crate::safety::{SafetyLayer, SafetySettings, Selection};
 use crate::solver::{Mpc, MpcSettings, SolveBudget, SolveReport};
@@ -79,7 +79,7 @@ impl CycleController {
         let safety = safety.map(|s| SafetyLayer::new(&def, s)).transpose()?;
         let mpc = Mpc::new(def, mpc)?;
         let plan = mpc.solution().to_vec();
-        Ok(Self {
+        let mut controller = Self {
             scratch: plan.clone(),
             plan,
             mpc,
@@ -87,7 +87,22 @@ impl CycleController {
             #[cfg(feature = "fault-injection")]
             fault: None,
             last_sample_ns: None,
-        })
+        };
+        controller.follow_the_checks_coast();
+        Ok(controller)
+    }
+
+    /// With the fail-safe check and its `plan_coast_s`, the problem's coast is the check's
+    /// ([`crate::fail_safe::BrakingCheck::plan_coast_time_s`]; the distance form only, the
+    /// penalty form has none); otherwise the definition's stays.
+    fn follow_the_checks_coast(&mut self) {
+        let check = self.safety.as_ref().and_then(|layer| layer.braking_check());
+        let Some(coast_s) = check.filter(|c| c.plan_coast_s.is_some()).map(|c| c.plan_coast_time_s()) else {
+            return;
+        };
+        if self.mpc.definition().formulation == ObstacleFormulation::DistanceAlm {
+            self.mpc.set_coast_time(coast_s).expect("plan_coast_time_s is in [0, MAX_COAST_TIME_S]");
+        }
     }
 
     /// Forces `fault` on PANOC on the given cycles (tests of the fallbacks).
@@ -123,10 +138,13 @@ impl CycleController {
     /// See [`SafetyLayer::set_in_flight`] (nothing without the layer).
     /// The longest delay measured lately, for the safety layer's fail-safe check
     /// ([`SafetyLayer::cover_delays_up_to`]).
+    /// The plans' coast follows the check's range
+    /// ([`crate::fail_safe::BrakingCheck::plan_coast_time_s`]; the distance form only).
     pub fn cover_delays_up_to(&mut self, observed_max_s: Option<f64>) {
         if let Some(layer) = self.safety.as_mut() {
             layer.cover_delays_up_to(observed_max_s);
         }
+        self.follow_the_checks_coast();
     }
 
     pub fn set_in_flight(&mut self, in_flight: Option<&[crate::fail_safe::InFlight]>) {

@@ -47,6 +47,13 @@ pub const MAX_BRAKING_CYCLES: usize = 100_000;
 /// Longest `horizon_s` of the check, s.
 pub const MAX_HORIZON_S: f64 = 60.0;
 
+/// [`BrakingCheck::plan_coast_s`]'s default, s: a coast of 0.96 s over the tree's 0.33 s range.
+/// Measured (`scripts/bench-lost-time.sh`, docs/robustness.md "Where that time goes"): 0.3
+/// to 0.8 and fixed coasts of 0.5 to 2 s all kept the survey and the paper-2 field free of
+/// collisions and cut the lost time, within a few per cent of each other (the closed loops
+/// are chaotic: nearby settings fly other paths); this one was among the best on both.
+pub const DEFAULT_PLAN_COAST_S: Option<f64> = Some(0.3);
+
 /// Settings of the fail-safe check (validated with the safety layer's settings).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -79,6 +86,13 @@ pub struct BrakingCheck {
     /// there is one, is checked instead. A vehicle already lower may not sink further. `None`:
     /// no ground (only the floor, if any).
     pub ground_z_m: Option<f64>,
+    /// The plans' side of the check, s: with it, the problem keeps each predicted point's
+    /// straight coast clear of the inflated cylinders ([`crate::OcpDefinition::coast_time_s`])
+    /// over [`BrakingCheck::plan_coast_time_s`], the longest time before a brake lands plus
+    /// this, so that PANOC plans the room to stop that the check asks for (it grows with the
+    /// speed toward a cylinder) instead of grazing the cylinders at full speed and being
+    /// refused. `None`: the plans keep only their points clear.
+    pub plan_coast_s: Option<f64>,
 }
 
 impl Default for BrakingCheck {
@@ -92,6 +106,7 @@ impl Default for BrakingCheck {
             stop_speed_mps: 0.005,
             plant_watchdog_s: Some(mav::ns_to_s(mav::DEFAULT_WATCHDOG_TIMEOUT_NS)),
             ground_z_m: Some(0.0),
+            plan_coast_s: DEFAULT_PLAN_COAST_S,
         }
     }
 }
@@ -135,6 +150,10 @@ impl BrakingCheck {
         if self.ground_z_m.is_some_and(|z| !z.is_finite()) {
             return bad("braking_check.ground_z_m", "must be finite");
         }
+        if self.plan_coast_s.is_some_and(|c| !(c.is_finite() && (0.0..=crate::MAX_COAST_TIME_S).contains(&c)))
+        {
+            return bad("braking_check.plan_coast_s", "must be finite and in [0, MAX_COAST_TIME_S] (5 s)");
+        }
         Ok(())
     }
 
@@ -145,6 +164,17 @@ impl BrakingCheck {
     pub fn covering(self, base_max_delay_s: f64, observed_max_s: Option<f64>) -> Self {
         let observed = observed_max_s.filter(|d| d.is_finite()).unwrap_or(0.0);
         Self { max_delay_s: base_max_delay_s.max(observed.min(MAX_COVERED_DELAY_S)), ..self }
+    }
+
+    /// The coast the plans keep clear ([`BrakingCheck::plan_coast_s`]), s: the longest time
+    /// before a brake lands, twice the longest delay covered (the command lands after one, the
+    /// brake computed at the next sample after another), at most twice the plant's watchdog
+    /// (past it the plant brakes by itself), plus `plan_coast_s`; at most
+    /// [`crate::MAX_COAST_TIME_S`]. 0 without `plan_coast_s`.
+    pub fn plan_coast_time_s(&self) -> f64 {
+        let Some(extra_s) = self.plan_coast_s else { return 0.0 };
+        let delay_s = self.plant_watchdog_s.map_or(self.max_delay_s, |w| self.max_delay_s.min(w));
+        (2.0 * delay_s + extra_s).clamp(0.0, crate::MAX_COAST_TIME_S)
     }
 
     /// The sampled delays, s: `delay_samples` evenly over `[0, max_delay_s]` (ends

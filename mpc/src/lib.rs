@@ -42,7 +42,9 @@ pub use delays::{DelayWindow, GammaParams, ScenarioWeights, WeightSettings, Weig
 pub use episode::{CycleOutput, CycleTiming, Episode, EpisodeSettings, RunEnd};
 pub use error::MpcError;
 pub use fail_safe::{BrakingCheck, Envelope, FailSafe, InFlight};
-pub use problem::{ControllerMode, Evaluator, ObstacleFormulation, OcpDefinition, PassCounts};
+pub use problem::{
+    ControllerMode, Evaluator, MAX_COAST_TIME_S, ObstacleFormulation, OcpDefinition, PassCounts,
+};
 pub use qp::{QpBudget, QpFallback, QpReport, QpSettings, QpStatus};
 pub use record::{CycleRecord, PredictedPath, RunOutcome, RunSummary, SolveStats, summarize};
 pub use safety::{Decision, QpSchedule, Rejection, SafetyLayer, SafetySettings, Selection};

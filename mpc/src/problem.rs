@@ -30,7 +30,7 @@ use mav::ModelParams;
 
 use constraints::{ActiveTerm, ObstacleTerm};
 pub(crate) use definition::validate_instance;
-pub use definition::{ControllerMode, ObstacleFormulation, OcpDefinition};
+pub use definition::{ControllerMode, MAX_COAST_TIME_S, ObstacleFormulation, OcpDefinition};
 pub(crate) use euler::euler_predict;
 pub use passes::{PassCounts, check_gradient};
 pub(crate) use scaling::Scaling;
@@ -58,6 +58,8 @@ pub struct Evaluator {
     pub(crate) u_ref: [f64; 3],
     obstacles: Vec<ObstacleTerm>,
     min_altitude_m: Option<f64>,
+    /// [`OcpDefinition::coast_time_s`].
+    coast_s: f64,
     /// Constraint values per predicted point (cylinders, then the floor).
     n_con: usize,
     formulation: ObstacleFormulation,
@@ -133,6 +135,7 @@ impl Evaluator {
             u_ref: def.u_ref,
             obstacles,
             min_altitude_m: def.min_altitude_m,
+            coast_s: def.coast_time_s,
             n_con: def.constraints_per_point(),
             formulation: def.formulation,
             delay_compensation: def.delay_compensation,
@@ -189,6 +192,14 @@ impl Evaluator {
         self.weight_sum = weights.iter().sum();
         self.forward_valid = false;
         self.update_scaling();
+    }
+
+    /// Sets [`OcpDefinition::coast_time_s`] (validated by the caller).
+    pub(crate) fn set_coast_time(&mut self, coast_s: f64) {
+        if coast_s != self.coast_s {
+            self.coast_s = coast_s;
+            self.forward_valid = false;
+        }
     }
 
     /// Predicted states of scenario `i` after the last forward pass: `N + 1` points.

@@ -127,6 +127,12 @@ impl SafetyLayer {
         &self.settings
     }
 
+    /// The fail-safe check's settings as they stand (its range widened to the delays measured
+    /// lately), `None` without the check.
+    pub fn braking_check(&self) -> Option<&crate::fail_safe::BrakingCheck> {
+        self.fail_safe.as_ref().map(|fs| &fs.check)
+    }
+
     /// Widens the fail-safe check's delay range to the longest delay measured lately,
     /// `observed_max_s` (never below the range it was set up with; see
     /// [`crate::fail_safe::BrakingCheck::covering`]). No effect without the check.

@@ -20,7 +20,7 @@ use optimization_engine::alm::AlmCache;
 use optimization_engine::panoc::PANOCCache;
 
 use crate::error::MpcError;
-use crate::problem::{Evaluator, ObstacleFormulation, OcpDefinition, validate_instance};
+use crate::problem::{Evaluator, MAX_COAST_TIME_S, ObstacleFormulation, OcpDefinition, validate_instance};
 
 use alm::AlmRun;
 pub use report::{INSIDE_TOLERANCE_M, SolveReport, SolveStatus};
@@ -75,6 +75,7 @@ impl Mpc {
         if def.sampling_times_s.iter().any(|t| !(t.is_finite() && *t > 0.0)) {
             return Err(MpcError::InvalidProblem("sampling times must be finite and > 0".into()));
         }
+        check_coast_time(def.formulation, def.coast_time_s)?;
         let evaluator = Evaluator::new(&def);
         let n = def.num_variables();
         let nc = def.num_constraints();
@@ -117,6 +118,16 @@ impl Mpc {
             restoration_z: vec![0.0; n],
             def,
         })
+    }
+
+    /// Sets the problem's [`OcpDefinition::coast_time_s`] from the next solve on (the fail-safe
+    /// check's range follows the delays measured, and the coast with it). `Err` (nothing
+    /// changes) outside `[0, MAX_COAST_TIME_S]`, or above 0 with the penalty form.
+    pub fn set_coast_time(&mut self, coast_time_s: f64) -> Result<(), MpcError> {
+        check_coast_time(self.def.formulation, coast_time_s)?;
+        self.def.coast_time_s = coast_time_s;
+        self.evaluator.get_mut().set_coast_time(coast_time_s);
+        Ok(())
     }
 
     pub fn definition(&self) -> &OcpDefinition {
@@ -229,4 +240,17 @@ impl Mpc {
     pub fn has_solution(&self) -> bool {
         self.has_solution
     }
+}
+
+/// [`OcpDefinition::coast_time_s`] is in range and the formulation has it.
+fn check_coast_time(formulation: ObstacleFormulation, coast_time_s: f64) -> Result<(), MpcError> {
+    if !(coast_time_s.is_finite() && (0.0..=MAX_COAST_TIME_S).contains(&coast_time_s)) {
+        return Err(MpcError::InvalidProblem(format!(
+            "coast_time_s must be in [0, {MAX_COAST_TIME_S}] s, got {coast_time_s}"
+        )));
+    }
+    if coast_time_s > 0.0 && formulation != ObstacleFormulation::DistanceAlm {
+        return Err(MpcError::InvalidProblem("coast_time_s > 0 needs the distance_alm formulation".into()));
+    }
+    Ok(())
 }

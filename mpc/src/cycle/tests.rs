@@ -25,6 +25,36 @@ fn a_good_panoc_plan_is_selected_and_sent() {
 }
 
 #[test]
+fn with_the_fail_safe_check_the_plans_coast_follows_the_delays_it_covers() {
+    use crate::fail_safe::BrakingCheck;
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+    let check = BrakingCheck::default();
+    let with = |check: BrakingCheck| SafetySettings { braking_check: Some(check), ..Default::default() };
+    let mut c = controller(Some(with(check)));
+    assert!(close(c.definition().coast_time_s, 0.96), "{}", c.definition().coast_time_s);
+    c.cover_delays_up_to(Some(0.45));
+    assert!(close(c.definition().coast_time_s, 1.2), "{}", c.definition().coast_time_s);
+    c.cover_delays_up_to(Some(0.1));
+    assert!(close(c.definition().coast_time_s, 0.96), "back with the range");
+    // The plan check, no layer, or the check without a coast: the definition's (none).
+    for c in [
+        controller(Some(SafetySettings::default())),
+        controller(None),
+        controller(Some(with(BrakingCheck { plan_coast_s: None, ..check }))),
+    ] {
+        assert_eq!(c.definition().coast_time_s, 0.0);
+    }
+    // The penalty form has no coast: the check leaves it without one.
+    let s = Scenario::paper_2();
+    let def =
+        OcpDefinition::from_scenario(&s, ControllerMode::Multistage, 0.1, ObstacleFormulation::PaperPenalty);
+    let settings = MpcSettings { formulation: ObstacleFormulation::PaperPenalty, ..MpcSettings::default() };
+    let mut paper = CycleController::new(def, settings, Some(with(check))).expect("valid");
+    paper.cover_delays_up_to(Some(0.45));
+    assert_eq!(paper.definition().coast_time_s, 0.0);
+}
+
+#[test]
 #[cfg(feature = "fault-injection")]
 fn forced_faults_hand_over_to_a_fallback_with_a_bounded_command() {
     for fault in [PanocFault::ZeroBudget, PanocFault::NanPlan] {

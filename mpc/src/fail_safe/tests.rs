@@ -135,6 +135,28 @@ fn the_check_widens_to_the_longest_delay_measured_never_narrows_below_the_tree_a
     assert_eq!(wide.covering(0.33, Some(0.2)).max_delay_s, 0.33);
 }
 
+#[test]
+fn the_plans_coast_is_twice_the_longest_delay_up_to_the_watchdog_plus_plan_coast_s() {
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+    // The defaults: delays up to 0.33 s, the plant's watchdog at 0.5 s, 0.3 s more.
+    let base = BrakingCheck::default();
+    assert_eq!(base.plan_coast_s, Some(0.3));
+    assert!(close(base.plan_coast_time_s(), 0.96), "{}", base.plan_coast_time_s());
+    assert!(close(base.covering(0.33, Some(0.4)).plan_coast_time_s(), 1.1), "a longer delay measured");
+    assert!(
+        close(base.covering(0.33, Some(1.2)).plan_coast_time_s(), 1.3),
+        "past the watchdog the plant brakes"
+    );
+    let no_watchdog = BrakingCheck { plant_watchdog_s: None, ..base };
+    assert!(close(no_watchdog.covering(0.33, Some(1.2)).plan_coast_time_s(), 2.7));
+    assert_eq!(no_watchdog.covering(0.33, Some(3.0)).plan_coast_time_s(), crate::MAX_COAST_TIME_S, "capped");
+    assert_eq!(BrakingCheck { plan_coast_s: None, ..base }.plan_coast_time_s(), 0.0, "off");
+    for bad in [-0.1, f64::NAN, f64::INFINITY, 5.5] {
+        let err = BrakingCheck { plan_coast_s: Some(bad), ..base }.validate().expect_err("refused");
+        assert!(err.to_string().contains("braking_check.plan_coast_s"), "{bad}: {err}");
+    }
+}
+
 /// The pair-by-pair flights the check made before it shared the prefix of each `d`
 /// (`FailSafe::worst_over_delays`): every pair `(d, d')` flown whole from `x0`. The
 /// yardstick of the shared flights, bit for bit.

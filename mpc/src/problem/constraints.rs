@@ -56,11 +56,11 @@ impl Evaluator {
         active_start[m] = active.len();
     }
 
-    /// Gradient in `(px, py, pz)` of constraint `o` of a point (cylinders, then the floor) at
-    /// state `x`.
+    /// Gradient in `(px, py, pz, vx, vy)` of constraint `o` of a point (cylinders, then the
+    /// floor) at state `x`.
     #[inline]
-    pub(super) fn constraint_gradient(&self, o: usize, x: &[f64; 8]) -> [f64; 3] {
-        constraint_gradient(&self.obstacles, self.formulation, self.min_altitude_m, o, x)
+    pub(super) fn constraint_gradient(&self, o: usize, x: &[f64; 8]) -> [f64; 5] {
+        constraint_gradient(&self.obstacles, self.formulation, self.min_altitude_m, self.coast_s, o, x)
     }
 }
 
@@ -113,6 +113,35 @@ pub(super) fn for_each_positive(
     }
 }
 
+/// Where the straight coast `p + s v`, `s` in `[0, coast_s]`, from a point at horizontal
+/// offset `(dx, dy)` from a cylinder's axis with horizontal velocity `(vx, vy)` comes closest
+/// to the axis: that offset, and `s`. With `coast_s = 0` the point itself.
+///
+/// Why: the fail-safe check (`crate::fail_safe`) wants room to stop in front of a cylinder, and
+/// that room grows with the speed toward it (the delays before a brake lands, the attitude's
+/// lag): a plan that grazes the inflated cylinder at speed is refused, and the vehicle brakes
+/// instead. Keeping the coasting segment clear asks the plan for that room where it heads for a
+/// cylinder and not where it passes one (its segment runs along the surface).
+#[inline(always)]
+pub(super) fn closest_coast_point(dx: f64, dy: f64, vx: f64, vy: f64, coast_s: f64) -> (f64, f64, f64) {
+    let speed2 = vx * vx + vy * vy;
+    let toward = -(dx * vx + dy * vy);
+    let s = (toward.max(0.0) / speed2.max(1e-12)).min(coast_s);
+    (dx + s * vx, dy + s * vy, s)
+}
+
+/// The distance form's value along a coast (see [`closest_coast_point`]): `min(R - d_q,
+/// zo - pz)` with `d_q` the coast's closest horizontal distance to the axis.
+#[inline(always)]
+pub(super) fn coasting_value(ob: &ObstacleTerm, coast_s: f64, x: [f64; 5]) -> f64 {
+    let [px, py, pz, vx, vy] = x;
+    let (qx, qy, _) = closest_coast_point(px - ob.xo, py - ob.yo, vx, vy, coast_s);
+    let d = (qx * qx + qy * qy).sqrt().max(1e-9);
+    let radial = ob.r - d;
+    let hz = ob.zo - pz;
+    if radial <= hz { radial } else { hz }
+}
+
 /// One constraint value alone at position `(px, py, pz)`: the same arithmetic as
 /// [`constraint`] without the gradient's divisions.
 #[inline(always)]
@@ -144,54 +173,65 @@ pub(super) fn constraint_gradient(
     obstacles: &[ObstacleTerm],
     formulation: ObstacleFormulation,
     min_altitude_m: Option<f64>,
+    coast_s: f64,
     o: usize,
     x: &[f64; 8],
-) -> [f64; 3] {
+) -> [f64; 5] {
     match obstacles.get(o) {
-        Some(ob) => constraint(formulation, ob, x).1,
+        Some(ob) => constraint(formulation, ob, coast_s, x).1,
         None => floor_constraint(formulation, min_altitude_m.unwrap_or(0.0), x).1,
     }
 }
 
-/// One constraint value and its gradient with respect to `(px, py, pz)`.
+/// One constraint value and its gradient with respect to `(px, py, pz, vx, vy)` (the velocity
+/// enters the distance form with a coast, [`closest_coast_point`]; PaperPenalty has none).
 #[inline]
 pub(super) fn constraint(
     formulation: ObstacleFormulation,
     ob: &ObstacleTerm,
+    coast_s: f64,
     x: &[f64; 8],
-) -> (f64, [f64; 3]) {
+) -> (f64, [f64; 5]) {
     let (dx, dy) = (x[0] - ob.xo, x[1] - ob.yo);
     let hz = ob.zo - x[2];
     match formulation {
         ObstacleFormulation::PaperPenalty => {
             let hc = ob.r2 - dx * dx - dy * dy;
             if hc > 0.0 && hz > 0.0 {
-                (hc * hz, [-2.0 * dx * hz, -2.0 * dy * hz, -hc])
+                (hc * hz, [-2.0 * dx * hz, -2.0 * dy * hz, -hc, 0.0, 0.0])
             } else {
-                (0.0, [0.0; 3])
+                (0.0, [0.0; 5])
             }
         }
         ObstacleFormulation::DistanceAlm => {
+            // By the envelope theorem the closest point's `s` does not move the gradient: in
+            // `p` it is the unit offset's, in `v` that times `s`.
+            let (qx, qy, s) = closest_coast_point(dx, dy, x[3], x[4], coast_s);
             // The axis itself is never a solution; keep the gradient finite there.
-            let d = (dx * dx + dy * dy).sqrt().max(1e-9);
+            let d = (qx * qx + qy * qy).sqrt().max(1e-9);
             let radial = ob.r - d;
-            if radial <= hz { (radial, [-dx / d, -dy / d, 0.0]) } else { (hz, [0.0, 0.0, -1.0]) }
+            if radial <= hz {
+                let (nx, ny) = (-qx / d, -qy / d);
+                (radial, [nx, ny, 0.0, s * nx, s * ny])
+            } else {
+                (hz, [0.0, 0.0, -1.0, 0.0, 0.0])
+            }
         }
     }
 }
 
-/// The floor constraint `min_altitude_m - z <= 0` and its gradient in `(px, py, pz)`: in metres
-/// for ALM, as a hinge `[min_altitude_m - z]_+ = 0` for the penalty method.
+/// The floor constraint `min_altitude_m - z <= 0` and its gradient in `(px, py, pz, vx, vy)`:
+/// in metres for ALM, as a hinge `[min_altitude_m - z]_+ = 0` for the penalty method.
 #[inline]
 pub(super) fn floor_constraint(
     formulation: ObstacleFormulation,
     min_altitude_m: f64,
     x: &[f64; 8],
-) -> (f64, [f64; 3]) {
+) -> (f64, [f64; 5]) {
     let below = min_altitude_m - x[2];
     match formulation {
-        ObstacleFormulation::PaperPenalty if below <= 0.0 => (0.0, [0.0; 3]),
-        _ => (below, [0.0, 0.0, -1.0]),
+        ObstacleFormulation::PaperPenalty if below <= 0.0 => (0.0, [0.0; 5]),
+        _ => (below, [0.0, 0.0, -1.0, 0.0, 0.0]),
     }
 }
 

@@ -6,6 +6,9 @@ use mav::{Cylinder, InputBounds, ModelParams, Scenario};
 
 use crate::error::{MpcError, invalid_input};
 
+/// Longest [`OcpDefinition::coast_time_s`], s.
+pub const MAX_COAST_TIME_S: f64 = 5.0;
+
 /// How the cylinder constraint enters the solver.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -51,6 +54,12 @@ pub struct OcpDefinition {
     /// command stays on), then applies the plan. Off in paper mode (the paper predicts from
     /// the measured state at once).
     pub delay_compensation: bool,
+    /// The distance form only: each predicted point keeps the cylinders' inflated radius not
+    /// only where it is but along the straight line it would coast in this time at its
+    /// horizontal velocity, s: a clearance that grows with the speed toward a cylinder and
+    /// not with the speed past it, the room the fail-safe check wants to stop in. 0 (the
+    /// default, and paper mode): the point alone.
+    pub coast_time_s: f64,
 }
 
 impl OcpDefinition {
@@ -85,6 +94,7 @@ impl OcpDefinition {
             u_ref: [g, 0.0, 0.0],
             min_altitude_m: scenario.min_altitude_m,
             delay_compensation: scenario.delay_compensation,
+            coast_time_s: 0.0,
         }
     }
 

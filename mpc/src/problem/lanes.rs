@@ -2,7 +2,7 @@
 //! LLVM vectorizes each step's arithmetic across them, with every lane doing the scalar
 //! recursion's operations in the same order (bit-identical results).
 
-use super::constraints::{constraint_gradient, constraint_value, floor_value};
+use super::constraints::{coasting_value, constraint_gradient, constraint_value, floor_value};
 use super::euler::{cos_series, sin_series};
 use super::{Evaluator, ObstacleFormulation};
 
@@ -51,6 +51,7 @@ impl Evaluator {
             obstacles,
             formulation,
             min_altitude_m,
+            coast_s,
             n_con,
             u,
             states,
@@ -60,7 +61,7 @@ impl Evaluator {
             state_costs,
             ..
         } = self;
-        let (n, n_con, x_ref, q_x, formulation) = (*n, *n_con, *x_ref, *q_x, *formulation);
+        let (n, n_con, x_ref, q_x, formulation, coast_s) = (*n, *n_con, *x_ref, *q_x, *formulation, *coast_s);
         let p = *params;
         let (g, ax, ay, az) = (p.gravity_mps2, p.drag_x_per_s, p.drag_y_per_s, p.drag_z_per_s);
         let (kr, kp) = (p.gain_roll / p.tau_roll_s, p.gain_pitch / p.tau_pitch_s);
@@ -122,6 +123,10 @@ impl Evaluator {
                     ObstacleFormulation::PaperPenalty => cylinders.for_each(|(ob, c)| {
                         *c = constraint_value(ObstacleFormulation::PaperPenalty, ob, px, py, pz);
                     }),
+                    ObstacleFormulation::DistanceAlm if coast_s > 0.0 => {
+                        let point = [px, py, pz, x[3][0], x[4][0]];
+                        cylinders.for_each(|(ob, c)| *c = coasting_value(ob, coast_s, point));
+                    }
                     ObstacleFormulation::DistanceAlm => cylinders.for_each(|(ob, c)| {
                         *c = constraint_value(ObstacleFormulation::DistanceAlm, ob, px, py, pz);
                     }),
@@ -134,6 +139,9 @@ impl Evaluator {
                     let value: [f64; L] = match formulation {
                         ObstacleFormulation::PaperPenalty => lanes(|l| {
                             constraint_value(ObstacleFormulation::PaperPenalty, ob, x[0][l], x[1][l], x[2][l])
+                        }),
+                        ObstacleFormulation::DistanceAlm if coast_s > 0.0 => lanes(|l| {
+                            coasting_value(ob, coast_s, [x[0][l], x[1][l], x[2][l], x[3][l], x[4][l]])
                         }),
                         ObstacleFormulation::DistanceAlm => lanes(|l| {
                             constraint_value(ObstacleFormulation::DistanceAlm, ob, x[0][l], x[1][l], x[2][l])
@@ -180,6 +188,7 @@ impl Evaluator {
             obstacles,
             formulation,
             min_altitude_m,
+            coast_s,
             ..
         } = self;
         let (n, q_x, x_ref) = (*n, *q_x, *x_ref);
@@ -227,11 +236,19 @@ impl Evaluator {
                 }
                 let x = &states[(first + l) * (n + 1) + j + 1];
                 for term in &active[lo..end[l]] {
-                    let dg =
-                        constraint_gradient(obstacles, *formulation, *min_altitude_m, term.constraint, x);
+                    let dg = constraint_gradient(
+                        obstacles,
+                        *formulation,
+                        *min_altitude_m,
+                        *coast_s,
+                        term.constraint,
+                        x,
+                    );
                     lam[0][l] += term.value * dg[0];
                     lam[1][l] += term.value * dg[1];
                     lam[2][l] += term.value * dg[2];
+                    lam[3][l] += term.value * dg[3];
+                    lam[4][l] += term.value * dg[4];
                 }
                 end[l] = lo;
                 next[l] = if lo > start[l] { active[lo - 1].step } else { n };

@@ -10,7 +10,18 @@ fn evaluator(
     x0: [f64; 8],
     weights: &[f64],
 ) -> Evaluator {
-    let def = OcpDefinition::from_scenario(&Scenario::paper_2(), mode, 0.1, formulation);
+    coasting_evaluator(mode, formulation, 0.0, x0, weights)
+}
+
+fn coasting_evaluator(
+    mode: ControllerMode,
+    formulation: ObstacleFormulation,
+    coast_time_s: f64,
+    x0: [f64; 8],
+    weights: &[f64],
+) -> Evaluator {
+    let mut def = OcpDefinition::from_scenario(&Scenario::paper_2(), mode, 0.1, formulation);
+    def.coast_time_s = coast_time_s;
     let mut ev = Evaluator::new(&def);
     ev.set_instance(&x0, &[9.81, 0.01, -0.02], weights);
     ev
@@ -54,10 +65,12 @@ proptest! {
         c in prop::sample::select(vec![0.0, 1e2, 1e4]),
         y_scale in 0.0f64..50.0,
         paper_form in any::<bool>(),
+        coast_s in prop::sample::select(vec![0.0, 0.7]),
     ) {
         let form = if paper_form { ObstacleFormulation::PaperPenalty } else { ObstacleFormulation::DistanceAlm };
+        let coast_s = if paper_form { 0.0 } else { coast_s };
         let x0 = [px, py, 0.8, 0.1, vy, 0.0, 0.02, -0.03];
-        let mut ev = evaluator(ControllerMode::Nmpc, form, x0, &[1.0]);
+        let mut ev = coasting_evaluator(ControllerMode::Nmpc, form, coast_s, x0, &[1.0]);
         let nc = 40 * 3;
         let y: Vec<f64> = if paper_form { Vec::new() } else { (0..nc).map(|k| y_scale * ((k % 5) as f64) / 5.0).collect() };
         prop_assert!(check_gradient(&mut ev, &z, c, &y).is_ok(), "{:?}", check_gradient(&mut ev, &z, c, &y));
@@ -70,12 +83,14 @@ proptest! {
         c in prop::sample::select(vec![0.0, 1e2, 1e4]),
         y_scale in 0.0f64..50.0,
         paper_form in any::<bool>(),
+        coast_s in prop::sample::select(vec![0.0, 0.7]),
     ) {
         let form = if paper_form { ObstacleFormulation::PaperPenalty } else { ObstacleFormulation::DistanceAlm };
+        let coast_s = if paper_form { 0.0 } else { coast_s };
         let mut w = w;
         w[2] += 0.1;
         let x0 = [px, py, 0.8, 0.1, vy, 0.0, 0.02, -0.03];
-        let mut ev = evaluator(ControllerMode::Multistage, form, x0, &w);
+        let mut ev = coasting_evaluator(ControllerMode::Multistage, form, coast_s, x0, &w);
         let nc = 5 * 40 * 3;
         let y: Vec<f64> = if paper_form { Vec::new() } else { (0..nc).map(|k| y_scale * ((k % 5) as f64) / 5.0).collect() };
         prop_assert!(check_gradient(&mut ev, &z, c, &y).is_ok(), "{:?}", check_gradient(&mut ev, &z, c, &y));
@@ -111,6 +126,62 @@ fn obstacles_are_active_in_the_gradient_tests() {
         let z = vec![0.0; 120];
         assert_eq!(ev.cost(&z, 1e3, &[]), ev.cost(&z, 0.0, &[]), "{mode:?}");
         assert!(check_gradient(&mut ev, &z, 1e3, &[]).is_ok(), "{mode:?}");
+    }
+}
+
+/// The coast's closest point to an axis, against the geometry worked by hand.
+#[test]
+fn a_coast_comes_closest_where_it_heads_for_the_axis_and_nowhere_else() {
+    use super::constraints::closest_coast_point;
+    // 2 m east of the axis, 1 m/s west: 0.7 s of coasting ends 1.3 m from it.
+    assert_eq!(closest_coast_point(2.0, 0.0, -1.0, 0.0, 0.7), (1.3, 0.0, 0.7));
+    // Past the axis within the coast: the closest point is abeam of it (its offset 0.5 m).
+    let (qx, qy, s) = closest_coast_point(1.0, 0.5, -2.0, 0.0, 0.7);
+    assert!((qx.abs() < 1e-12) && (qy - 0.5).abs() < 1e-12 && (s - 0.5).abs() < 1e-12);
+    // Moving away, or along the surface, or hovering: the point itself.
+    assert_eq!(closest_coast_point(2.0, 0.0, 1.0, 0.0, 0.7), (2.0, 0.0, 0.0));
+    assert_eq!(closest_coast_point(2.0, 0.0, 0.0, 1.0, 0.7), (2.0, 0.0, 0.0));
+    assert_eq!(closest_coast_point(2.0, 0.0, 0.0, 0.0, 0.7), (2.0, 0.0, 0.0));
+    // No coast: the point itself whatever the velocity.
+    assert_eq!(closest_coast_point(2.0, 0.0, -1.0, 0.0, 0.0), (2.0, 0.0, 0.0));
+}
+
+/// A point clear of the inflated cylinder but heading for it fast enough to reach it within
+/// the coast is a violation with a coast and none without, and the coast's gradient (checked
+/// against finite differences) pulls the velocity away from the cylinder.
+#[test]
+fn a_coast_makes_a_point_heading_for_a_cylinder_a_violation_and_one_passing_it_none() {
+    let def = OcpDefinition::from_scenario(
+        &Scenario::paper_2(),
+        ControllerMode::Nmpc,
+        0.1,
+        ObstacleFormulation::DistanceAlm,
+    );
+    let cyl = def.obstacles[0];
+    let r = cyl.radius_m + 0.1;
+    // 0.3 m outside the inflated radius, west of the axis, below the top.
+    let (px, py, pz) = (cyl.x_m - r - 0.3, cyl.y_m, 0.5 * cyl.height_m);
+    let ob = super::constraints::ObstacleTerm { xo: cyl.x_m, yo: cyl.y_m, r2: r * r, zo: cyl.height_m, r };
+    let toward = [px, py, pz, 1.0, 0.0, 0.0, 0.0, 0.0];
+    let past = [px, py, pz, 0.0, 1.0, 0.0, 0.0, 0.0];
+    let g = |coast_s: f64, x: &[f64; 8]| constraint(ObstacleFormulation::DistanceAlm, &ob, coast_s, x);
+    assert!((g(0.0, &toward).0 + 0.3).abs() < 1e-12, "no coast: 0.3 m clear");
+    assert!((g(0.5, &toward).0 - (0.5 - 0.3)).abs() < 1e-12, "0.5 m of coast at 1 m/s: 0.2 m inside");
+    assert!((g(2.0, &toward).0 - r).abs() < 1e-6, "a coast through the axis: the whole radius");
+    assert_eq!(g(0.7, &past).0, g(0.0, &past).0, "passing it: the point alone");
+    let (_, dg) = g(0.5, &toward);
+    assert!(dg[3] > 0.0 && dg[4] == 0.0, "more speed toward it, more violation: {dg:?}");
+    // The gradient against central differences in (px, py, vx, vy), heading for the cylinder
+    // at an angle (the closest point then moves with every component).
+    let angled = [px, py - 0.2, pz, 1.0, 0.4, 0.0, 0.0, 0.0];
+    let (_, dg) = g(0.7, &angled);
+    for k in [0usize, 1, 3, 4] {
+        let h = 1e-6;
+        let (mut a, mut b) = (angled, angled);
+        a[k] += h;
+        b[k] -= h;
+        let fd = (g(0.7, &a).0 - g(0.7, &b).0) / (2.0 * h);
+        assert!((fd - dg[k]).abs() < 1e-6, "component {k}: {fd} against {}", dg[k]);
     }
 }
 
@@ -206,7 +277,7 @@ fn scalar_reference(ev: &Evaluator, c: f64, y: &[f64]) -> (f64, Vec<f64>, Vec<f6
                 state_cost += qk * e * e;
             }
             for (ob, c) in ev.obstacles.iter().zip(&mut con[j * n_con..j * n_con + n_obs]) {
-                *c = constraint(ev.formulation, ob, &x).0;
+                *c = constraint(ev.formulation, ob, ev.coast_s, &x).0;
             }
             if let Some(floor) = ev.min_altitude_m {
                 con[j * n_con + n_obs] = floor_constraint(ev.formulation, floor, &x).0;
@@ -261,6 +332,8 @@ fn scalar_reference(ev: &Evaluator, c: f64, y: &[f64]) -> (f64, Vec<f64>, Vec<f6
                         l[0] += v * dg[0];
                         l[1] += v * dg[1];
                         l[2] += v * dg[2];
+                        l[3] += v * dg[3];
+                        l[4] += v * dg[4];
                     }
                 }
             }
@@ -285,17 +358,19 @@ fn lane_parallel_passes_are_bit_identical_to_one_scenario_at_a_time() {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
     let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
     for m in [1usize, 2, 3, 4, 5, 7, 8, 9, 13] {
-        for (form, floor, compensation) in [
-            (ObstacleFormulation::DistanceAlm, None, false),
-            (ObstacleFormulation::DistanceAlm, Some(0.4), true),
-            (ObstacleFormulation::PaperPenalty, None, true),
-            (ObstacleFormulation::PaperPenalty, Some(0.4), false),
+        for (form, floor, compensation, coast_s) in [
+            (ObstacleFormulation::DistanceAlm, None, false, 0.0),
+            (ObstacleFormulation::DistanceAlm, Some(0.4), true, 0.0),
+            (ObstacleFormulation::DistanceAlm, Some(0.4), true, 0.6),
+            (ObstacleFormulation::PaperPenalty, None, true, 0.0),
+            (ObstacleFormulation::PaperPenalty, Some(0.4), false, 0.0),
         ] {
             let mut def =
                 OcpDefinition::from_scenario(&Scenario::paper_2(), ControllerMode::Multistage, 0.1, form);
             def.sampling_times_s = (0..m).map(|i| 0.05 + 0.025 * i as f64).collect();
             def.min_altitude_m = floor;
             def.delay_compensation = compensation;
+            def.coast_time_s = coast_s;
             let mut ev = Evaluator::new(&def);
             let n = ev.num_variables();
             for point in 0..4 {
@@ -327,7 +402,7 @@ fn lane_parallel_passes_are_bit_identical_to_one_scenario_at_a_time() {
                     ev.constraints(&z, &mut con);
                     let (ref_cost, ref_grad, ref_con, ref_states) = scalar_reference(&ev, c, &y);
                     let case = format!(
-                        "M = {m}, {form:?}, floor {floor:?}, compensation {compensation}, point {point}, c = {c}"
+                        "M = {m}, {form:?}, floor {floor:?}, compensation {compensation}, coast {coast_s} s, point {point}, c = {c}"
                     );
                     assert_eq!(cost.to_bits(), ref_cost.to_bits(), "cost: {case}");
                     assert_eq!(bits(&grad), bits(&ref_grad), "gradient: {case}");
