@@ -18,7 +18,7 @@
 //! out with the plan predicted inside a cylinder), `iterations`, `solve_ms`, `cost` (the
 //! spec's objective, unscaled), `u` (N x 3), `multipliers`, `min_clearance_m`, `depth_m` (how
 //! deep the plan's deepest point is inside a cylinder, 0 when clear), `constraint_violation`,
-//! and the problem solved: `obstacle_margin_m`, `floor_m`, `delay_compensation`; or `line`, `error` and `field`. Unknown and repeated
+//! and the problem solved: `obstacle_margin_m`, `floor_m`, `delay_compensation`, `coast_time_s`; or `line`, `error` and `field`. Unknown and repeated
 //! keys are errors naming the key, and a line longer than [`MAX_LINE_BYTES`] is refused
 //! without being held in memory.
 
@@ -269,12 +269,18 @@ impl LineSolver {
                 SolveBudget { max_inner_iterations: Some(n as usize), ..SolveBudget::default() }
             }
         };
-        let def = OcpDefinition::from_scenario(
+        let mut def = OcpDefinition::from_scenario(
             &scenario,
             mode,
             self.settings.obstacle_margin_m,
             self.settings.formulation,
         );
+        // With the fail-safe check (a scenario file's default) the controller's plans keep
+        // their coast clear: the same problem here (the check's range before any delay is
+        // measured, the plant's default watchdog).
+        if scenario.fail_safe && def.formulation == mpc::ObstacleFormulation::DistanceAlm {
+            def.coast_time_s = mpc::BrakingCheck::for_scenario(&scenario).plan_coast_time_s();
+        }
         let mpc = self.workspace(def)?;
         let bounds = mpc.definition().bounds;
         if let Some(i) = (0..3).find(|&i| !(bounds.min[i]..=bounds.max[i]).contains(&u_prev[i])) {
@@ -329,6 +335,7 @@ impl LineSolver {
             "obstacle_margin_m": def.obstacle_margin_m,
             "floor_m": def.min_altitude_m,
             "delay_compensation": def.delay_compensation,
+            "coast_time_s": def.coast_time_s,
         }))
     }
 
@@ -581,6 +588,19 @@ mod whole_problem_tests {
         assert_eq!(out[1]["scenario"], "my-copy");
         assert_eq!(problem_answer(out[1].clone()), problem_answer(out[0].clone()));
         assert_eq!(problem_answer(out[2].clone()), problem_answer(out[0].clone()));
+    }
+
+    #[test]
+    fn a_scenario_file_with_the_fail_safe_check_is_solved_with_the_plans_coast() {
+        let file = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenarios/fields/paper-2-field.toml");
+        let out = solve(&[
+            format!(r#"{{"scenario_file":{file:?},{PAPER_2}}}"#),
+            format!(r#"{{"scenario":"paper-2",{PAPER_2}}}"#),
+        ]);
+        // Twice the tree's longest sampling time (0.33 s) plus the check's 0.3 s.
+        let coast = out[0]["coast_time_s"].as_f64().expect("a number");
+        assert!((coast - 0.96).abs() < 1e-9, "{}", out[0]);
+        assert_eq!(out[1]["coast_time_s"], 0.0, "paper mode has no check: {}", out[1]);
     }
 
     #[test]

@@ -255,7 +255,7 @@ pub struct SurveyFlags {
     pub delay_samples: Option<usize>,
     /// The fail-safe check's `plan_coast_s` (s; the plans keep their coast clear over twice
     /// the longest delay plus this); default: the check's.
-    #[arg(long, env = "PLAN_COAST")]
+    #[arg(long, env = "PLAN_COAST", conflicts_with = "no_plan_coast")]
     pub plan_coast_s: Option<f64>,
     /// The plans keep only their points clear (`plan_coast_s = None`).
     #[arg(long, env = "NO_PLAN_COAST", value_parser = BoolishValueParser::new())]

@@ -182,7 +182,7 @@ impl Mpc {
         let status = status.with_clearance(min_clearance_m);
         if status != SolveStatus::NumericalFailure {
             // Keep the penalty that was needed (warm start of the outer loop); relax it
-            // when no predicted point enters an inflated cylinder any more.
+            // when no predicted point (nor its coast) enters an inflated cylinder any more.
             let s = &self.settings;
             self.penalty = if violation == 0.0 { penalty / s.penalty_update_factor } else { penalty }
                 .clamp(s.initial_penalty, s.max_penalty);

@@ -203,21 +203,48 @@ pub(super) fn constraint(
                 (0.0, [0.0; 5])
             }
         }
+        ObstacleFormulation::DistanceAlm if coast_s > 0.0 => coasting_constraint(ob, coast_s, x),
         ObstacleFormulation::DistanceAlm => {
-            // By the envelope theorem the closest point's `s` does not move the gradient: in
-            // `p` it is the unit offset's, in `v` that times `s`.
-            let (qx, qy, s) = closest_coast_point(dx, dy, x[3], x[4], coast_s);
             // The axis itself is never a solution; keep the gradient finite there.
-            let d = (qx * qx + qy * qy).sqrt().max(1e-9);
+            let d = (dx * dx + dy * dy).sqrt().max(1e-9);
             let radial = ob.r - d;
             if radial <= hz {
-                let (nx, ny) = (-qx / d, -qy / d);
-                (radial, [nx, ny, 0.0, s * nx, s * ny])
+                (radial, [-dx / d, -dy / d, 0.0, 0.0, 0.0])
             } else {
                 (hz, [0.0, 0.0, -1.0, 0.0, 0.0])
             }
         }
     }
+}
+
+/// [`coasting_value`] and its gradient in `(px, py, pz, vx, vy)`. By the envelope theorem the
+/// closest point's `s` does not move the gradient: in `p` it is the outward normal's, in `v`
+/// that times `s`.
+#[inline]
+fn coasting_constraint(ob: &ObstacleTerm, coast_s: f64, x: &[f64; 8]) -> (f64, [f64; 5]) {
+    let (vx, vy) = (x[3], x[4]);
+    let (qx, qy, s) = closest_coast_point(x[0] - ob.xo, x[1] - ob.yo, vx, vy, coast_s);
+    let dq = (qx * qx + qy * qy).sqrt();
+    // The value as `coasting_value` computes it, to the bit.
+    let d = dq.max(1e-9);
+    let radial = ob.r - d;
+    let hz = ob.zo - x[2];
+    if !(radial <= hz) {
+        return (hz, [0.0, 0.0, -1.0, 0.0, 0.0]);
+    }
+    // The outward normal at the coast's closest point. A coast through the axis (a point
+    // heading straight at it, as on paper-1's start-goal line) has none: either side is a
+    // subgradient, and `q / d` would be about zero there, leaving the solver nothing to turn
+    // by; take the left of the velocity.
+    let speed = vx.hypot(vy);
+    let (nx, ny) = if dq > 1e-12 {
+        (qx / dq, qy / dq)
+    } else if speed > 0.0 {
+        (-vy / speed, vx / speed)
+    } else {
+        (1.0, 0.0)
+    };
+    (radial, [-nx, -ny, 0.0, -s * nx, -s * ny])
 }
 
 /// The floor constraint `min_altitude_m - z <= 0` and its gradient in `(px, py, pz, vx, vy)`:

@@ -20,7 +20,8 @@ pub enum ObstacleFormulation {
     /// Measured on the paper loops: the penalty method either left violations or, uncapped,
     /// multiplied the penalty to 1e42 and drove the vehicle into the ground.
     PaperPenalty,
-    /// `g = min(R - d, zo - z) <= 0` per point (horizontal distance `d` to the axis), handled
+    /// `g = min(R - d, zo - z) <= 0` per point (horizontal distance `d` to the axis, or to
+    /// the point's coast with [`OcpDefinition::coast_time_s`]), handled
     /// by OpEn's augmented Lagrangian (ALM) with multipliers warm-started across cycles. The
     /// same feasible set, in metres for every cylinder, and exact feasibility with a moderate
     /// penalty. The default.

@@ -79,7 +79,8 @@ impl Evaluator {
     /// Adds the penalty's Gauss-Newton diagonal to the hover preconditioner: for every
     /// constraint of the last forward pass that is active or nearly so (`g + y / c > -slack_m`),
     /// `c (dg/du)^2` with `dg/du` from the constraint's gradient in position and the hover
-    /// position response of each channel along its own axis. With the penalty at 1e3..1e4 this
+    /// position response of each channel along its own axis (a coast's gradient in velocity
+    /// is left out: an approximation, and the preconditioner is off by default). With the penalty at 1e3..1e4 this
     /// term dominates the curvature of the inputs that move an active point, which the
     /// objective's diagonal alone misses by orders of magnitude.
     pub(crate) fn update_scaling_with_penalty(&mut self, penalty: f64, multipliers: &[f64], slack_m: f64) {

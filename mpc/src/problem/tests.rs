@@ -150,7 +150,8 @@ fn a_coast_comes_closest_where_it_heads_for_the_axis_and_nowhere_else() {
 /// the coast is a violation with a coast and none without, and the coast's gradient (checked
 /// against finite differences) pulls the velocity away from the cylinder.
 #[test]
-fn a_coast_makes_a_point_heading_for_a_cylinder_a_violation_and_one_passing_it_none() {
+fn a_coast_makes_a_point_heading_for_a_cylinder_a_violation_one_passing_it_none_and_one_through_its_axis_turn_aside()
+ {
     let def = OcpDefinition::from_scenario(
         &Scenario::paper_2(),
         ControllerMode::Nmpc,
@@ -171,6 +172,16 @@ fn a_coast_makes_a_point_heading_for_a_cylinder_a_violation_and_one_passing_it_n
     assert_eq!(g(0.7, &past).0, g(0.0, &past).0, "passing it: the point alone");
     let (_, dg) = g(0.5, &toward);
     assert!(dg[3] > 0.0 && dg[4] == 0.0, "more speed toward it, more violation: {dg:?}");
+    // Straight at the axis, the coast through it: a unit normal to one side (the left of the
+    // velocity), not the zero that `q / |q|` with `|q|` at rounding level would give.
+    let (_, dg) = g(2.0, &toward);
+    assert!((dg[0].hypot(dg[1]) - 1.0).abs() < 1e-12, "a unit normal: {dg:?}");
+    assert!(dg[0].abs() < 1e-12 && dg[1] < 0.0, "sideways, the left of +x pushed out: {dg:?}");
+    let s = r + 0.3;
+    assert!(
+        (dg[3] - s * dg[0]).abs() < 1e-9 && (dg[4] - s * dg[1]).abs() < 1e-9,
+        "in v, s times that: {dg:?}"
+    );
     // The gradient against central differences in (px, py, vx, vy), heading for the cylinder
     // at an angle (the closest point then moves with every component).
     let angled = [px, py - 0.2, pz, 1.0, 0.4, 0.0, 0.0, 0.0];

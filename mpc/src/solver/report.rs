@@ -82,7 +82,8 @@ pub struct SolveReport {
     pub solve_time: Duration,
     /// The spec's objective `sum_i w_i J_i` at the returned inputs (no penalty, unscaled).
     pub cost: f64,
-    /// `|F2|` at the returned inputs (0 when no predicted point enters an inflated cylinder).
+    /// `|F2|` at the returned inputs (0 when no predicted point, nor its coast with
+    /// [`crate::OcpDefinition::coast_time_s`], enters an inflated cylinder).
     pub constraint_violation: f64,
     /// Penalty parameter of the last outer iteration.
     pub penalty_parameter: f64,
