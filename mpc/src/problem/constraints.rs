@@ -229,22 +229,23 @@ fn coasting_constraint(ob: &ObstacleTerm, coast_s: f64, x: &[f64; 8]) -> (f64, [
     let d = dq.max(1e-9);
     let radial = ob.r - d;
     let hz = ob.zo - x[2];
-    if !(radial <= hz) {
-        return (hz, [0.0, 0.0, -1.0, 0.0, 0.0]);
-    }
-    // The outward normal at the coast's closest point. A coast through the axis (a point
-    // heading straight at it, as on paper-1's start-goal line) has none: either side is a
-    // subgradient, and `q / d` would be about zero there, leaving the solver nothing to turn
-    // by; take the left of the velocity.
-    let speed = vx.hypot(vy);
-    let (nx, ny) = if dq > 1e-12 {
-        (qx / dq, qy / dq)
-    } else if speed > 0.0 {
-        (-vy / speed, vx / speed)
+    if radial <= hz {
+        // The outward normal at the coast's closest point. A coast through the axis (a point
+        // heading straight at it, as on paper-1's start-goal line) has none: either side is a
+        // subgradient, and `q / d` would be about zero there, leaving the solver nothing to
+        // turn by; take the left of the velocity.
+        let speed = vx.hypot(vy);
+        let (nx, ny) = if dq > 1e-12 {
+            (qx / dq, qy / dq)
+        } else if speed > 0.0 {
+            (-vy / speed, vx / speed)
+        } else {
+            (1.0, 0.0)
+        };
+        (radial, [-nx, -ny, 0.0, -s * nx, -s * ny])
     } else {
-        (1.0, 0.0)
-    };
-    (radial, [-nx, -ny, 0.0, -s * nx, -s * ny])
+        (hz, [0.0, 0.0, -1.0, 0.0, 0.0])
+    }
 }
 
 /// The floor constraint `min_altitude_m - z <= 0` and its gradient in `(px, py, pz, vx, vy)`:
