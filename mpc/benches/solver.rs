@@ -8,11 +8,20 @@ use mpc::fixtures::eval_case;
 
 fn cost_and_gradient(c: &mut Criterion) {
     let scenario = mav::Scenario::paper_2();
-    for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
-        let def = OcpDefinition::from_scenario(&scenario, mode, 0.1, mpc::ObstacleFormulation::DistanceAlm);
+    // And the multi-stage problem with the fail-safe check's coast (0.96 s over 0.33 s): every
+    // point's constraint along its coast.
+    let cases = [
+        (ControllerMode::Nmpc, 0.0, ""),
+        (ControllerMode::Multistage, 0.0, ""),
+        (ControllerMode::Multistage, 0.96, "_coast"),
+    ];
+    for (mode, coast_time_s, suffix) in cases {
+        let mut def =
+            OcpDefinition::from_scenario(&scenario, mode, 0.1, mpc::ObstacleFormulation::DistanceAlm);
+        def.coast_time_s = coast_time_s;
         let (mut ev, mut z, y, mut grad) = eval_case(&def);
         let mut flip = 0.0;
-        c.bench_function(&format!("cost_and_gradient/{}", mode.name()), |b| {
+        c.bench_function(&format!("cost_and_gradient/{}{suffix}", mode.name()), |b| {
             b.iter(|| {
                 // Perturb so the forward cache cannot serve the call.
                 flip = 1e-9 - flip;
