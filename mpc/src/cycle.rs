@@ -135,10 +135,8 @@ impl CycleController {
         self.mpc.predictions_of(&self.plan)
     }
 
-    /// See [`SafetyLayer::set_in_flight`] (nothing without the layer).
     /// The longest delay measured lately, for the safety layer's fail-safe check
-    /// ([`SafetyLayer::cover_delays_up_to`]).
-    /// The plans' coast follows the check's range
+    /// ([`SafetyLayer::cover_delays_up_to`]). The plans' coast follows the check's range
     /// ([`crate::fail_safe::BrakingCheck::plan_coast_time_s`]; the distance form only).
     pub fn cover_delays_up_to(&mut self, observed_max_s: Option<f64>) {
         if let Some(layer) = self.safety.as_mut() {
@@ -147,6 +145,7 @@ impl CycleController {
         self.follow_the_checks_coast();
     }
 
+    /// See [`SafetyLayer::set_in_flight`] (nothing without the layer).
     pub fn set_in_flight(&mut self, in_flight: Option<&[crate::fail_safe::InFlight]>) {
         if let Some(layer) = self.safety.as_mut() {
             layer.set_in_flight(in_flight);

@@ -48,7 +48,7 @@ pub const MAX_BRAKING_CYCLES: usize = 100_000;
 pub const MAX_HORIZON_S: f64 = 60.0;
 
 /// [`BrakingCheck::plan_coast_s`]'s default, s: a coast of 0.96 s over the tree's 0.33 s range.
-/// Measured (`scripts/bench-lost-time.sh`, docs/robustness.md "Where that time goes"): 0.3
+/// Measured (`scripts/bench-lost-time.sh`, docs/robustness.md "Where the time goes"): 0.3
 /// to 0.8 and fixed coasts of 0.5 to 2 s all kept the survey and the paper-2 field free of
 /// collisions and cut the lost time, within a few per cent of each other (the closed loops
 /// are chaotic: nearby settings fly other paths); this one was among the best on both.
