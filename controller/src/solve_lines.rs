@@ -278,8 +278,12 @@ impl LineSolver {
         // With the fail-safe check (a scenario file's default) the controller's plans keep
         // their coast clear: the same problem here (the check's range before any delay is
         // measured, the plant's default watchdog).
-        if scenario.fail_safe && def.formulation == mpc::ObstacleFormulation::DistanceAlm {
-            def.coast_time_s = mpc::BrakingCheck::for_scenario(&scenario).plan_coast_time_s();
+        if let Some(coast_s) = scenario
+            .fail_safe
+            .then(|| mpc::BrakingCheck::for_scenario(&scenario).coast_for(def.formulation))
+            .flatten()
+        {
+            def.coast_time_s = coast_s;
         }
         let mpc = self.workspace(def)?;
         let bounds = mpc.definition().bounds;

@@ -5,7 +5,7 @@
 
 use crate::command::sanitize_command;
 use crate::error::MpcError;
-use crate::problem::{ObstacleFormulation, OcpDefinition, validate_instance};
+use crate::problem::{OcpDefinition, validate_instance};
 use crate::qp::QpBudget;
 use crate::safety::{SafetyLayer, SafetySettings, Selection};
 use crate::solver::{Mpc, MpcSettings, SolveBudget, SolveReport};
@@ -96,11 +96,9 @@ impl CycleController {
     /// ([`crate::fail_safe::BrakingCheck::plan_coast_time_s`]; the distance form only, the
     /// penalty form has none); otherwise the definition's stays.
     fn follow_the_checks_coast(&mut self) {
+        let formulation = self.mpc.definition().formulation;
         let check = self.safety.as_ref().and_then(|layer| layer.braking_check());
-        let Some(coast_s) = check.filter(|c| c.plan_coast_s.is_some()).map(|c| c.plan_coast_time_s()) else {
-            return;
-        };
-        if self.mpc.definition().formulation == ObstacleFormulation::DistanceAlm {
+        if let Some(coast_s) = check.and_then(|c| c.coast_for(formulation)) {
             self.mpc.set_coast_time(coast_s).expect("plan_coast_time_s is in [0, MAX_COAST_TIME_S]");
         }
     }

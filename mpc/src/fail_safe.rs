@@ -177,6 +177,15 @@ impl BrakingCheck {
         (2.0 * delay_s + extra_s).clamp(0.0, crate::MAX_COAST_TIME_S)
     }
 
+    /// The coast a problem in `formulation` keeps with this check: [`Self::plan_coast_time_s`]
+    /// for the distance form, `None` without `plan_coast_s` or for the penalty form (it has no
+    /// coast; the problem's own stays). The one rule the controller and `controller solve`
+    /// follow.
+    pub fn coast_for(&self, formulation: crate::ObstacleFormulation) -> Option<f64> {
+        (self.plan_coast_s.is_some() && formulation == crate::ObstacleFormulation::DistanceAlm)
+            .then(|| self.plan_coast_time_s())
+    }
+
     /// The sampled delays, s: `delay_samples` evenly over `[0, max_delay_s]` (ends
     /// included), or with the plant's watchdog over `[0, min(max_delay_s, plant_watchdog_s)]`
     /// and then [`MAX_COVERED_DELAY_S`] for the delays past it (see
