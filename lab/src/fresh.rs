@@ -47,6 +47,15 @@ pub struct Args {
     /// Write the sample as `controller solve` JSON lines to this file.
     #[arg(long)]
     lines: Option<std::path::PathBuf>,
+    /// Solve each state this many times with each solver, alternating the solvers, and take the
+    /// least time of each: a time that other processes on the machine lengthen less (the answers
+    /// of the repeats must be identical, or the command fails).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    repeat: u32,
+    /// The best known cost from the two answers alone, no careful reference: quick, for timing
+    /// and profiling (the gaps are then to the better answer, not to the best known cost).
+    #[arg(long)]
+    answers_only: bool,
     /// The settings of the cold solves (`--solver` is ignored: both solvers run).
     #[command(flatten)]
     mpc: MpcFlags,
@@ -60,6 +69,9 @@ struct Stats {
     gaps: Vec<Option<f64>>,
     times: Vec<f64>,
     iterations: Vec<f64>,
+    /// Forward and adjoint passes, summed over the sample.
+    forward_passes: u64,
+    adjoint_passes: u64,
     /// Answers at the iteration limit whose plan is clear.
     limits_clear: usize,
     /// Depths of the answers whose plan is predicted inside a cylinder, by status name.
@@ -136,23 +148,37 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                     });
                     writeln!(f, "{line}")?;
                 }
-                let mut answers = Vec::new();
-                for &solver in &solvers {
-                    let settings = mpc::MpcSettings { solver, ..cold };
-                    let mut m = Mpc::new(def.clone(), settings)?;
-                    m.reset_warm_start();
-                    m.set_warm_start(&i.warm_start)?;
-                    let r = m.solve(&i.x0, &i.u_prev, &i.weights, &SolveBudget::default())?;
-                    if args.verbose && r.min_clearance_m < -INSIDE_TOLERANCE_M {
-                        println!("    {} inside: {}", solver.name(), inside_points(&m));
+                let mut answers: Vec<(mpc::SolveReport, Vec<f64>)> = Vec::new();
+                for repeat in 0..args.repeat {
+                    for (si, &solver) in solvers.iter().enumerate() {
+                        let settings = mpc::MpcSettings { solver, ..cold };
+                        let mut m = Mpc::new(def.clone(), settings)?;
+                        m.reset_warm_start();
+                        m.set_warm_start(&i.warm_start)?;
+                        let r = m.solve(&i.x0, &i.u_prev, &i.weights, &SolveBudget::default())?;
+                        if repeat == 0 {
+                            if args.verbose && r.min_clearance_m < -INSIDE_TOLERANCE_M {
+                                println!("    {} inside: {}", solver.name(), inside_points(&m));
+                            }
+                            answers.push((r, m.solution().to_vec()));
+                            continue;
+                        }
+                        let (first, plan) = &mut answers[si];
+                        anyhow::ensure!(
+                            plan.as_slice() == m.solution() && first.iterations == r.iterations,
+                            "{name} cycle {k}: {} answered differently on repeat {repeat}",
+                            solver.name()
+                        );
+                        first.solve_time = first.solve_time.min(r.solve_time);
                     }
-                    answers.push((r, m.solution().to_vec()));
                 }
                 let mut candidates: Vec<(f64, f64)> =
                     answers.iter().map(|(r, _)| (r.min_clearance_m, r.cost)).collect();
-                candidates.push(reference_solve(&def, &cold, i, &i.warm_start)?);
-                for (_, plan) in &answers {
-                    candidates.push(reference_solve(&def, &cold, i, plan)?);
+                if !args.answers_only {
+                    candidates.push(reference_solve(&def, &cold, i, &i.warm_start)?);
+                    for (_, plan) in &answers {
+                        candidates.push(reference_solve(&def, &cold, i, plan)?);
+                    }
                 }
                 let best = candidates
                     .iter()
@@ -172,6 +198,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                     let s = &mut stats[si];
                     s.times.push(r.solve_time.as_secs_f64() * 1e3);
                     s.iterations.push(r.iterations as f64);
+                    s.forward_passes += r.passes.forward;
+                    s.adjoint_passes += r.passes.adjoint;
                     let clear = r.min_clearance_m >= -INSIDE_TOLERANCE_M;
                     if !clear {
                         s.inside.push((r.status.name(), -r.min_clearance_m));
@@ -183,11 +211,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                     let miss = gap.is_none_or(|g| g > 0.01);
                     if args.verbose || miss {
                         println!(
-                            "  {name} {} cycle {k} {}: {} {} it., cost {:.4} (best {best:.4}), gap {}, clearance {:+.4} m",
+                            "  {name} {} cycle {k} {}: {} {} it. {:.3} ms, cost {:.4} (best {best:.4}), gap {}, clearance {:+.4} m",
                             mode.name(),
                             solvers[si].name(),
                             r.status.name(),
                             r.iterations,
+                            r.solve_time.as_secs_f64() * 1e3,
                             r.cost,
                             gap.map_or("-".to_string(), |g| format!("{g:.4}")),
                             r.min_clearance_m,
@@ -207,12 +236,14 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                     m
                 });
             println!(
-                "  {:4}: {within}/{n} within 1% with a clear plan; ms median {:.3} total {:.1}; iterations median {} total {}; at the limit and clear {}; inside a cylinder {} {:?} (depth max {:.4} m, median {:.4} m)",
+                "  {:4}: {within}/{n} within 1% with a clear plan; ms median {:.3} total {:.1}; iterations median {} total {} (forward / adjoint passes {} / {}); at the limit and clear {}; inside a cylinder {} {:?} (depth max {:.4} m, median {:.4} m)",
                 solvers[si].name(),
                 percentile(&mut s.times.clone(), 50.0),
                 s.times.iter().sum::<f64>(),
                 percentile(&mut s.iterations.clone(), 50.0),
                 s.iterations.iter().sum::<f64>(),
+                s.forward_passes,
+                s.adjoint_passes,
                 s.limits_clear,
                 s.inside.len(),
                 statuses,

@@ -74,6 +74,7 @@ fn values_that_do_not_parse_are_usage_errors() {
         &["accuracy", "--inactive-set", "1,2"],
         &["cycles", "paper-4", "nmpc"],
         &["qp-states", "0"],
+        &["fresh", "--repeat", "0"],
     ] {
         let e = parse(args).expect_err(&format!("{args:?} must be refused"));
         assert!(
