@@ -6,7 +6,8 @@
 #   2. scenarios/fields/paper-2-field.toml and the same file with `fail_safe = false` (RUNS).
 # Prints per campaign each side's collisions, overrides (fallback cycles) per run, best-effort
 # cycles, worst clearance, and the median time-to-goal and path-length ratios (fail-safe /
-# plan check) with their 10th and 90th percentiles, and the time ratio per delay family.
+# plan check) with their 10th and 90th percentiles, the time ratio per delay family, and both
+# ratios by how near the plan check's run came to a cylinder (its min_clearance_m).
 # Lockstep runs are deterministic: the same commit prints the same numbers on any machine.
 #
 #   scripts/bench-lost-time.sh [RUNS] [JOBS]     (default 250 field runs, 2 at once)
@@ -52,14 +53,24 @@ for label, d in (("fail-safe", fs), ("plan check", pc)):
           f"{sum(int(r['best_effort_cycles']) for r in rs)} best-effort cycles, "
           f"worst clearance {min(float(r['min_clearance_m']) for r in rs):+.3f} m")
 time, path, by_family = [], [], {}
+# By how near the plan check's run came to a cylinder: where it cut into its own margin the
+# fail-safe controller, which keeps it, flies the longer way round.
+BANDS = ((0.0, 0.05), (0.05, 0.1), (0.1, 0.15), (0.15, 0.2), (0.2, float("inf")))
+by_band = {band: ([], []) for band in BANDS}
 for k, a in fs.items():
     b = pc.get(k)
     if b is None or not (clear(a) and clear(b)):
         continue
     t = float(a["time_to_goal_s"]) / float(b["time_to_goal_s"])
+    p = float(a["path_length_m"]) / float(b["path_length_m"])
     time.append(t)
-    path.append(float(a["path_length_m"]) / float(b["path_length_m"]))
+    path.append(p)
     by_family.setdefault(a["family"], []).append(t)
+    clearance = float(b["min_clearance_m"])
+    for lo, hi in BANDS:
+        if lo <= clearance < hi:
+            by_band[(lo, hi)][0].append(t)
+            by_band[(lo, hi)][1].append(p)
 if not time:
     sys.exit(f"{name}: no run reached the goal clear both ways")
 print(f"  both clear: {len(time)}; time ratio median {statistics.median(time):.3f} "
@@ -67,6 +78,13 @@ print(f"  both clear: {len(time)}; time ratio median {statistics.median(time):.3
       f"{statistics.median(path):.3f} (p10-p90 {quantile(path, .1):.2f}-{quantile(path, .9):.2f})")
 print("  time ratio by family: " + ", ".join(
     f"{f} {statistics.median(v):.3f}" for f, v in sorted(by_family.items())))
+print("  by the plan check's clearance (runs: time / path ratio medians): " + ", ".join(
+    f"[{lo:.2f}, {hi:.2f}) m {len(t)}: {statistics.median(t):.3f} / {statistics.median(p):.3f}"
+    for (lo, hi), (t, p) in by_band.items() if t))
+kept = [(t, p) for (lo, _), (ts, ps) in by_band.items() if lo >= 0.1 for t, p in zip(ts, ps)]
+if kept:
+    print(f"  where the plan check kept 0.1 m or more: {len(kept)} runs, time ratio median "
+          f"{statistics.median(t for t, _ in kept):.3f}, path {statistics.median(p for _, p in kept):.3f}")
 PY
 }
 compare "survey (paper-2-delays, 120 runs)" "$WORK/survey-fail-safe" "$WORK/survey-plan-check"
