@@ -13,7 +13,9 @@
 //!
 //! The best known cost of a state is the least cost of a clear plan (no predicted point inside
 //! a cylinder, [`mpc::INSIDE_TOLERANCE_M`]) among both answers and the careful reference
-//! (`mpc::accuracy`) started from the warm start and from each answer.
+//! (`mpc::accuracy`) started from the warm start and from each answer (`--answers-only`: the
+//! two answers alone). Times are one solve's each, or with `--repeat K` the least of K solves
+//! (the solvers alternating): the medians and totals compared with OpEn's then hold under load.
 use std::io::Write;
 
 use mpc::{
