@@ -194,6 +194,7 @@ pub struct VehicleStatus {
 /// What the bridge counted since start: every fault and best-effort decision.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Counters {
+    /// `SET_ATTITUDE_TARGET`s sent; none is sent before the vehicle's attitude is heard.
     pub setpoints_sent: u64,
     /// Commands whose thrust fell outside `[0, 1]` after calibration and was clamped.
     pub thrust_clamped: u64,
@@ -751,7 +752,12 @@ impl Bridge {
 
     /// What is due at gateway time `now_ns` (the command timeout's hover, the setpoint resent,
     /// the gateway's heartbeat, a `TIMESYNC` request), appended to `out`.
+    /// No setpoint goes out (or is counted) before the vehicle's attitude is known: before it
+    /// there is no vehicle to hold the yaw of, and on a `udpin` link no address to send to, so
+    /// `setpoints_sent` counts only setpoints a vehicle could have heard (what a client waits
+    /// for before asking for OFFBOARD).
     pub fn poll(&mut self, now_ns: u64, out: &mut Vec<MavMessage>) {
+        let vehicle_known = self.attitude.is_some();
         if !self.watchdog_hover
             && now_ns.saturating_sub(self.command_local_ns) >= self.settings.command_timeout_ns
         {
@@ -759,8 +765,10 @@ impl Bridge {
             self.watchdog_hover = true;
             self.counters.watchdog_holds += 1;
             self.setpoint = hover(&self.scenario);
-            out.push(self.setpoint_message(now_ns));
-        } else if now_ns >= self.next_setpoint_ns {
+            if vehicle_known {
+                out.push(self.setpoint_message(now_ns));
+            }
+        } else if vehicle_known && now_ns >= self.next_setpoint_ns {
             out.push(self.setpoint_message(now_ns));
         }
         if now_ns >= self.next_heartbeat_ns {

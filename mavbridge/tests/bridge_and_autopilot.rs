@@ -174,6 +174,31 @@ fn offboard_needs_the_setpoint_stream_and_the_gateway_never_arms_or_switches_on_
 }
 
 #[test]
+fn setpoints_are_sent_and_counted_only_once_the_vehicle_is_heard_so_five_counted_let_offboard_in() {
+    let scenario = Scenario::paper_2();
+    // The vehicle's heartbeat locked the link, then nothing reaches either side for 200 ms
+    // (on a `udpin` link the gateway has no address yet to send to).
+    let mut p = Pair::new(&scenario);
+    p.silent_vehicle = true;
+    p.run(200);
+    assert_eq!(p.bridge.counters().setpoints_sent, 0, "no setpoint a vehicle could hear");
+    // The link carries: once five setpoints are counted (what vehiclectl and the tests wait
+    // for), the vehicle has heard them and takes arming and OFFBOARD at once.
+    p.silent_vehicle = false;
+    while p.bridge.counters().setpoints_sent < 5 {
+        assert!(p.now_ns < 1_000 * MS, "setpoints within 0.8 s of the vehicle's attitude");
+        p.run(1);
+    }
+    assert!(p.bridge.link_alive(p.now_ns));
+    assert_eq!(
+        p.command(p.bridge.arm_message(true)),
+        (MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, MavResult::MAV_RESULT_ACCEPTED)
+    );
+    let ask = p.bridge.mode_message(ModeRequest::Px4Offboard);
+    assert_eq!(p.command(ask), (MavCmd::MAV_CMD_DO_SET_MODE, MavResult::MAV_RESULT_ACCEPTED));
+}
+
+#[test]
 fn commands_fly_the_vehicle_and_the_samples_carry_the_plants_stamps() {
     let scenario = Scenario::paper_2();
     let mut p = Pair::new(&scenario);
