@@ -238,8 +238,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                     m
                 });
             println!(
-                "  {:4}: {within}/{n} within 1% with a clear plan; ms median {:.3} total {:.1}; iterations median {} total {} (forward / adjoint passes {} / {}); at the limit and clear {}; inside a cylinder {} {:?} (depth max {:.4} m, median {:.4} m)",
+                "  {:4}: {within}/{n} within 1% with a clear plan ({:.1} % of the {} states with a clear plan known); ms median {:.3} total {:.1}; iterations median {} total {} (forward / adjoint passes {} / {}); at the limit and clear {}; inside a cylinder {} {:?} (depth max {:.4} m, median {:.4} m)",
                 solvers[si].name(),
+                100.0 * within as f64 / (n - no_clear_known).max(1) as f64,
+                n - no_clear_known,
                 percentile(&mut s.times.clone(), 50.0),
                 s.times.iter().sum::<f64>(),
                 percentile(&mut s.iterations.clone(), 50.0),
