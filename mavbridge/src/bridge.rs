@@ -752,6 +752,7 @@ impl Bridge {
 
     /// What is due at gateway time `now_ns` (the command timeout's hover, the setpoint resent,
     /// the gateway's heartbeat, a `TIMESYNC` request), appended to `out`.
+    ///
     /// No setpoint goes out (or is counted) before the vehicle's attitude is known: before it
     /// there is no vehicle to hold the yaw of, and on a `udpin` link no address to send to, so
     /// `setpoints_sent` counts only setpoints a vehicle could have heard (what a client waits
