@@ -3,10 +3,13 @@
 # BENCHMARKS.md's target row): the same runs flown with the fail-safe check and with the plan
 # check, in process, compared run by run where both reached the goal without a collision:
 #   1. the survey, scenarios/sweeps/paper-2-delays.toml and its -plan-check twin (120 runs);
-#   2. scenarios/fields/paper-2-field.toml and the same file with `fail_safe = false` (RUNS).
+#   2. each field of scenarios/fields/ (paper-2-field first) and the same file with
+#      `fail_safe = false` (RUNS runs each; FIELDS="paper-2-field ..." picks some).
 # Prints per campaign each side's collisions, overrides (fallback cycles) per run, best-effort
 # cycles, worst clearance, and the median time-to-goal and path-length ratios (fail-safe /
-# plan check) with their 10th and 90th percentiles, the time ratio per delay family, and both
+# plan check) with their 10th and 90th percentiles and a 95 % bootstrap interval of each median
+# (2,000 resamples of the runs, seeded: the median of a few hundred chaotic runs moves by a
+# few percent, which is the size of the target), the time ratio per delay family, and both
 # ratios by how near the plan check's run came to a cylinder (its min_clearance_m).
 # Lockstep runs are deterministic: the same commit prints the same numbers on any machine.
 #
@@ -22,18 +25,23 @@ WORK=$(mktemp -d /tmp/bench-lost-time.XXXXXX)
 trap 'rm -rf "$WORK"' EXIT
 echo "commit: $(git rev-parse --short HEAD 2>/dev/null || echo unknown)"
 
-sed 's/^fail_safe = true$/fail_safe = false/' scenarios/fields/paper-2-field.toml > "$WORK/paper-2-field-plan-check.toml"
-grep -q '^fail_safe = false$' "$WORK/paper-2-field-plan-check.toml" || { echo "paper-2-field.toml: no 'fail_safe = true' line to turn off" >&2; exit 1; }
+FIELDS=${FIELDS:-paper-2-field paper-1-field staggered-slalom narrow-gap asymmetric-single}
+for field in $FIELDS; do
+    sed 's/^fail_safe = true$/fail_safe = false/' "scenarios/fields/$field.toml" > "$WORK/$field-plan-check.toml"
+    grep -q '^fail_safe = false$' "$WORK/$field-plan-check.toml" || { echo "$field.toml: no 'fail_safe = true' line to turn off" >&2; exit 1; }
+done
 
 sweep() { "$HB" sweep "$1" --jobs "$JOBS" --no-plots --quiet --out "$2" "${@:3}"; }
 sweep scenarios/sweeps/paper-2-delays.toml "$WORK/survey-fail-safe"
 sweep scenarios/sweeps/paper-2-delays-plan-check.toml "$WORK/survey-plan-check"
-sweep scenarios/fields/paper-2-field.toml "$WORK/field-fail-safe" --runs "$RUNS"
-sweep "$WORK/paper-2-field-plan-check.toml" "$WORK/field-plan-check" --runs "$RUNS"
+for field in $FIELDS; do
+    sweep "scenarios/fields/$field.toml" "$WORK/$field-fail-safe" --runs "$RUNS"
+    sweep "$WORK/$field-plan-check.toml" "$WORK/$field-plan-check" --runs "$RUNS"
+done
 
 compare() {
     python3 - "$1" "$2" "$3" <<'PY'
-import csv, statistics, sys
+import csv, random, statistics, sys
 
 name, fail_safe_dir, plan_check_dir = sys.argv[1:4]
 def runs(d):
@@ -45,6 +53,15 @@ def clear(r):
 def quantile(v, q):
     v = sorted(v)
     return v[int(q * (len(v) - 1))]
+def median_interval(v):
+    # The 95 % percentile-bootstrap interval of the median, seeded so that the same runs print
+    # the same interval.
+    rng = random.Random(0)
+    medians = sorted(statistics.median(rng.choices(v, k=len(v))) for _ in range(2000))
+    return medians[49], medians[1949]
+def median_with_interval(v):
+    lo, hi = median_interval(v)
+    return f"{statistics.median(v):.3f} [95 % {lo:.3f}-{hi:.3f}]"
 print(f"{name}:")
 for label, d in (("fail-safe", fs), ("plan check", pc)):
     rs = list(d.values())
@@ -73,9 +90,9 @@ for k, a in fs.items():
             by_band[(lo, hi)][1].append(p)
 if not time:
     sys.exit(f"{name}: no run reached the goal clear both ways")
-print(f"  both clear: {len(time)}; time ratio median {statistics.median(time):.3f} "
+print(f"  both clear: {len(time)}; time ratio median {median_with_interval(time)} "
       f"(p10-p90 {quantile(time, .1):.2f}-{quantile(time, .9):.2f}), path ratio median "
-      f"{statistics.median(path):.3f} (p10-p90 {quantile(path, .1):.2f}-{quantile(path, .9):.2f})")
+      f"{median_with_interval(path)} (p10-p90 {quantile(path, .1):.2f}-{quantile(path, .9):.2f})")
 print("  time ratio by family: " + ", ".join(
     f"{f} {statistics.median(v):.3f}" for f, v in sorted(by_family.items())))
 print("  by the plan check's clearance (runs: time / path ratio medians): " + ", ".join(
@@ -84,8 +101,10 @@ print("  by the plan check's clearance (runs: time / path ratio medians): " + ",
 kept = [(t, p) for (lo, _), (ts, ps) in by_band.items() if lo >= 0.1 for t, p in zip(ts, ps)]
 if kept:
     print(f"  where the plan check kept 0.1 m or more: {len(kept)} runs, time ratio median "
-          f"{statistics.median(t for t, _ in kept):.3f}, path {statistics.median(p for _, p in kept):.3f}")
+          f"{median_with_interval([t for t, _ in kept])}, path {median_with_interval([p for _, p in kept])}")
 PY
 }
 compare "survey (paper-2-delays, 120 runs)" "$WORK/survey-fail-safe" "$WORK/survey-plan-check"
-compare "paper-2-field ($RUNS runs)" "$WORK/field-fail-safe" "$WORK/field-plan-check"
+for field in $FIELDS; do
+    compare "$field ($RUNS runs)" "$WORK/$field-fail-safe" "$WORK/$field-plan-check"
+done
