@@ -84,6 +84,9 @@ pub struct MpcFlags {
     /// Our PANOC: the restoration's shift outwards, m.
     #[arg(long, env = "MPC_RESTORE_SHIFT")]
     pub restoration_shift_m: Option<f64>,
+    /// Our PANOC: the second restoration's shift outwards, m (0: none).
+    #[arg(long, env = "MPC_RESTORE_RETRY_SHIFT")]
+    pub restoration_retry_shift_m: Option<f64>,
     /// Multi-stage inactive-set tolerances: `measured` or `TOL,AKKT,GRAD`.
     #[arg(long, env = "MPC_INACTIVE", value_parser = inactive_set)]
     pub inactive_set: Option<InactiveSetTolerances>,
@@ -128,6 +131,7 @@ impl MpcFlags {
             restoration_iterations: self.restoration_iterations.unwrap_or(d.restoration_iterations),
             restoration_penalty: self.restoration_penalty.unwrap_or(d.restoration_penalty),
             restoration_shift_m: self.restoration_shift_m.unwrap_or(d.restoration_shift_m),
+            restoration_retry_shift_m: self.restoration_retry_shift_m.unwrap_or(d.restoration_retry_shift_m),
             ..d
         }
     }

@@ -188,8 +188,10 @@ impl Mpc {
 
     /// The restoration phase ([`MpcSettings::restoration_iterations`]): our PANOC on the
     /// augmented Lagrangian at the restoration penalty with the constraints shifted outwards,
-    /// from `self.z`; kept only if its plan is clear of the cylinders. Returns the iterations
-    /// and the time it took.
+    /// from `self.z`; when its plan is still inside a cylinder, once more from its result with
+    /// the constraints shifted further ([`MpcSettings::restoration_retry_shift_m`]). The first
+    /// clear plan is kept; with none, the plan it started from comes back. Returns the
+    /// iterations and the time it took.
     fn restore_clearance(&mut self, budget: &SolveBudget, elapsed: Duration) -> (usize, Duration) {
         let start = Instant::now();
         let s = self.settings;
@@ -197,20 +199,32 @@ impl Mpc {
             return (0, Duration::ZERO);
         };
         let c = s.restoration_penalty;
-        for (r, y) in self.restoration_multipliers.iter_mut().zip(&self.warm_multipliers) {
-            *r = (y + c * s.restoration_shift_m).min(s.max_multiplier);
-        }
         self.restoration_z.copy_from_slice(&self.z);
-        let exit = self.inner_solve(
-            c,
-            InnerMultipliers::Restoration,
-            s.restoration_iterations,
-            remaining.map(|r| start + r),
-        );
-        if exit.status == PanocStatus::NotFinite || self.plan_inside_obstacle() {
-            self.z.copy_from_slice(&self.restoration_z);
+        let mut iterations = 0;
+        let retry = (s.restoration_retry_shift_m > 0.0).then_some(s.restoration_retry_shift_m);
+        for shift_m in std::iter::once(s.restoration_shift_m).chain(retry) {
+            for (r, y) in self.restoration_multipliers.iter_mut().zip(&self.warm_multipliers) {
+                *r = (y + c * shift_m).min(s.max_multiplier);
+            }
+            let exit = self.inner_solve(
+                c,
+                InnerMultipliers::Restoration,
+                s.restoration_iterations,
+                remaining.map(|r| start + r),
+            );
+            iterations += exit.iterations;
+            if exit.status == PanocStatus::NotFinite {
+                break;
+            }
+            if !self.plan_inside_obstacle() {
+                return (iterations, start.elapsed());
+            }
+            if exit.status == PanocStatus::Deadline {
+                break;
+            }
         }
-        (exit.iterations, start.elapsed())
+        self.z.copy_from_slice(&self.restoration_z);
+        (iterations, start.elapsed())
     }
 
     /// Our PANOC on `ψ(z; c, y)` over the box from and into `self.z`, with at most

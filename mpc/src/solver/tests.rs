@@ -561,6 +561,41 @@ fn our_restoration_phase_clears_a_plan_the_budget_left_inside_a_cylinder() {
 }
 
 #[test]
+fn a_second_restoration_further_out_clears_a_plan_the_first_left_inside() {
+    // Cycle 12 of OpEn's paper-1 multi-stage loop, solved cold by ours with no margin: the
+    // budget and the first restoration (3 mm out) leave the plan 6 cm inside the cylinder;
+    // the second, 2 cm out from the first's result, takes it out. Without the second phase
+    // the answer says so.
+    let scenario = Scenario::paper_1();
+    let mode = ControllerMode::Multistage;
+    let logged =
+        crate::accuracy::loop_solves(&scenario, mode, &MpcSettings::default()).expect("the loop flies");
+    let i = &logged[12].instance;
+    let mut cold_scenario = scenario.clone();
+    cold_scenario.obstacle_margin_m = Some(0.0);
+    let base = MpcSettings { solver: PanocSolver::Own, obstacle_margin_m: 0.0, ..MpcSettings::default() };
+    let solve = |settings: MpcSettings| {
+        let mut mpc = mpc_for(&cold_scenario, mode, settings);
+        mpc.set_warm_start(&i.warm_start).expect("the logged warm start fits");
+        mpc.solve(&i.x0, &i.u_prev, &i.weights, &SolveBudget::default()).expect("valid")
+    };
+    let once = solve(MpcSettings { restoration_retry_shift_m: 0.0, ..base });
+    assert_eq!(once.status, SolveStatus::InfeasibleAtLimit, "{once:?}");
+    assert!(once.min_clearance_m < -0.01, "{once:?}");
+    let twice = solve(base);
+    assert_eq!(twice.status, SolveStatus::IterationLimit, "{twice:?}");
+    assert!(twice.min_clearance_m >= 0.0, "{twice:?}");
+    assert!(twice.iterations > once.iterations, "{twice:?} against {once:?}");
+    assert!(twice.iterations <= base.own_max_inner_iterations + 2 * base.restoration_iterations, "{twice:?}");
+    for bad in [-0.01, f64::NAN, f64::INFINITY] {
+        assert!(matches!(
+            MpcSettings { restoration_retry_shift_m: bad, ..base }.validate(),
+            Err(MpcError::InvalidSetting { field: "restoration_retry_shift_m", .. })
+        ));
+    }
+}
+
+#[test]
 fn a_coast_time_out_of_range_or_with_the_penalty_form_is_refused_and_changes_nothing() {
     let s = Scenario::paper_2();
     let mut mpc = mpc_for(&s, ControllerMode::Multistage, MpcSettings::default());
