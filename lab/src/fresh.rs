@@ -17,8 +17,9 @@
 //! two answers alone). Where any of those ends inside a cylinder, a careful solve of the
 //! constraints alone from the same starts looks for clear plans too, which count as they are
 //! and as the starts of careful solves of the true problem: a state with no clear plan known
-//! has none that these found, not merely none the careful references kept. Times are one solve's each, or with `--repeat K` the least of K solves
-//! (the solvers alternating): the medians and totals compared with OpEn's then hold under load.
+//! has none that these found, not merely none the careful references kept. Times are one
+//! solve's each, or with `--repeat K` the least of K solves (the solvers alternating): the
+//! medians and totals compared with OpEn's then hold under load.
 use std::io::Write;
 
 use mpc::{
