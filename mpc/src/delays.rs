@@ -119,8 +119,18 @@ impl DelayWindow {
     }
 }
 
-/// `w_1 = G(ts_1)`, `w_i = G(ts_i) - G(ts_{i-1})`. Writes into `out` (one per sampling time).
-/// Returns `false` (and leaves `out` unspecified) if the CDF cannot be evaluated.
+/// Least share of a Gamma's probability at or below the longest sampling time for the paper's
+/// weights to stand as they are. Below it the link is slower than every scenario (a
+/// near-constant 0.5 s delay fits a Gamma whose CDF is 0 at 0.33 s), and the paper's weights
+/// would all be zero or nearly so: an objective that no longer weighs the goal.
+pub const MIN_MASS_WITHIN_SAMPLING_TIMES: f64 = 1e-3;
+
+/// The paper's weights, `w_1 = G(ts_1)`, `w_i = G(ts_i) - G(ts_{i-1})` (docs/spec.md), into
+/// `out` (one per sampling time). Where `G(ts_M)` is below [`MIN_MASS_WITHIN_SAMPLING_TIMES`]
+/// the mass beyond the longest sampling time belongs to the last scenario, `w_M = 1 -
+/// G(ts_{M-1})`, the one that stands for the longest delays: the weights are then defined for
+/// every window a link can produce, and paper mode's stay the paper's wherever they carry
+/// weight. Returns `false` (and leaves `out` unspecified) if the CDF cannot be evaluated.
 pub fn weights_from_gamma(gamma: &GammaParams, sampling_times_s: &[f64], out: &mut [f64]) -> bool {
     let Ok(g) = Gamma::new(gamma.shape, 1.0 / gamma.scale_s) else {
         return false;
@@ -133,6 +143,11 @@ pub fn weights_from_gamma(gamma: &GammaParams, sampling_times_s: &[f64], out: &m
         }
         *w = (cdf - previous).max(0.0);
         previous = previous.max(cdf);
+    }
+    let n = out.len().min(sampling_times_s.len());
+    if n > 0 && previous < MIN_MASS_WITHIN_SAMPLING_TIMES {
+        let before_last: f64 = out[..n - 1].iter().sum();
+        out[n - 1] = (1.0 - before_last).max(0.0);
     }
     true
 }

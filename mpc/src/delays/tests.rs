@@ -92,6 +92,27 @@ fn prior_until_enough_samples_or_when_the_window_is_degenerate_then_the_fit() {
     assert_eq!(fixed.weights(), &[0.05, 0.15, 0.45, 0.30, 0.05]);
 }
 
+#[test]
+fn a_near_constant_link_slower_than_every_sampling_time_weighs_the_last_scenario() {
+    // What ping reports on a saturated uplink (500/501 ms), and two delays 1 ms apart: the
+    // fitted Gamma's CDF is 0 at every sampling time, so the paper's weights are all zero.
+    for delays in [&[0.500, 0.501][..], &[0.4759, 0.4749]] {
+        let mut sw = ScenarioWeights::new(WeightSettings::default(), &TS, None);
+        for k in 0..60 {
+            sw.observe(delays[k % delays.len()]);
+        }
+        assert!(matches!(sw.source(), WeightSource::Fitted(_)), "{:?}", sw.source());
+        let w = sw.weights();
+        assert_eq!(w[..4], [0.0; 4], "{w:?}");
+        assert_relative_eq!(w[4], 1.0, max_relative = 1e-12);
+    }
+    // The paper's prior and a link within the sampling times keep the paper's weights.
+    let g = GammaParams { shape: 12.0, scale_s: 0.015 };
+    let mut w = [0.0; 5];
+    assert!(weights_from_gamma(&g, &TS, &mut w));
+    assert_relative_eq!(w.iter().sum::<f64>(), g.cdf(0.33).expect("valid"), max_relative = 1e-12);
+}
+
 proptest! {
     #[test]
     fn weights_are_non_negative_and_sum_to_the_cdf_at_the_last_time(
@@ -103,7 +124,35 @@ proptest! {
         prop_assert!(weights_from_gamma(&g, &TS, &mut w));
         prop_assert!(w.iter().all(|v| *v >= 0.0));
         let total = g.cdf(0.33).expect("valid");
-        prop_assert!((w.iter().sum::<f64>() - total).abs() < 1e-12);
+        if total >= MIN_MASS_WITHIN_SAMPLING_TIMES {
+            // The paper's weights, as they are.
+            prop_assert!((w.iter().sum::<f64>() - total).abs() < 1e-12);
+        } else {
+            // A link slower than every scenario: the mass beyond 0.33 s on the last one.
+            prop_assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        }
+    }
+
+    /// Windows of any shape a link can produce (near-constant at any level, jittered by
+    /// milliseconds or by rounding, spread, spiky): the weights are finite, non-negative, and
+    /// carry weight, so every problem they make is one the solver accepts.
+    #[test]
+    fn the_weights_of_any_window_are_finite_non_negative_and_never_all_zero(
+        level in 0.0f64..5.0,
+        jitter in prop::sample::select(vec![0.0, 1e-15, 1e-12, 1e-9, 1e-6, 1e-3, 0.05, 1.0]),
+        spikes in prop::collection::vec((0usize..50, 0.0f64..30.0), 0..5),
+        pattern in prop::collection::vec(-1.0f64..1.0, 2..120),
+    ) {
+        let mut sw = ScenarioWeights::new(WeightSettings::default(), &TS, None);
+        for (i, p) in pattern.iter().enumerate() {
+            let spike = spikes.iter().find(|(at, _)| *at == i % 50).map_or(0.0, |(_, s)| *s);
+            sw.observe((level + jitter * p + spike).max(0.0));
+            let w = sw.weights();
+            prop_assert!(w.iter().all(|v| v.is_finite() && *v >= 0.0), "{w:?}");
+            prop_assert!(w.iter().sum::<f64>() >= MIN_MASS_WITHIN_SAMPLING_TIMES, "{w:?} after {i} delays");
+            let accepted = crate::problem::validate_instance(5, &[0.0; 8], &[9.81, 0.0, 0.0], w);
+            prop_assert!(accepted.is_ok(), "{accepted:?}");
+        }
     }
 
     #[test]
