@@ -258,6 +258,11 @@ impl Default for FitOptions {
     }
 }
 
+/// Least variance of a trace, relative to its mean squared, that the fits take as a spread:
+/// below it the delays are one value up to rounding. The controller's delay fit draws the same
+/// line (`mpc::delays`, `GammaParams::from_moments`).
+pub const MIN_RELATIVE_VARIANCE: f64 = 1e-12;
+
 /// Why a trace cannot be fitted.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum FitError {
@@ -267,6 +272,13 @@ pub enum FitError {
     NotPositive { index: usize, value: f64 },
     #[error("every delay is {0} s: no law with a spread fits a constant")]
     Constant(f64),
+    /// A spread too small for any law with one: its fit would be a point mass in disguise (a
+    /// Gamma of shape 1e13, whose CDF alone takes minutes).
+    #[error(
+        "the delays are constant but for rounding (mean {mean_s} s, variance {relative_variance:e} of the mean squared, \
+         below {MIN_RELATIVE_VARIANCE:e}): no law with a spread fits them; replay the trace, or a constant delay"
+    )]
+    NearlyConstant { mean_s: f64, relative_variance: f64 },
     #[error("{0}")]
     Option(String),
 }
@@ -499,6 +511,12 @@ pub fn fit(delays_s: &[f64], options: &FitOptions) -> Result<FitReport, FitError
     }
     if x.iter().all(|v| *v == x[0]) {
         return Err(FitError::Constant(x[0]));
+    }
+    let mean = x.iter().sum::<f64>() / x.len() as f64;
+    let relative_variance =
+        x.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / x.len() as f64 / (mean * mean);
+    if relative_variance < MIN_RELATIVE_VARIANCE {
+        return Err(FitError::NearlyConstant { mean_s: mean, relative_variance });
     }
     let ln_x: Vec<f64> = x.iter().map(|v| v.ln()).collect();
     let sample = Sample { x, ln_x };

@@ -178,9 +178,18 @@ fn the_fit_is_deterministic_for_a_seed_and_moves_with_it() {
 }
 
 #[test]
-fn too_few_zero_or_constant_delays_are_refused() {
+fn too_few_zero_constant_or_constant_but_for_rounding_delays_are_refused() {
     assert_eq!(fit(&[0.1; 5], &opts()), Err(FitError::TooFew(5)));
     assert_eq!(fit(&[0.1; 20], &opts()), Err(FitError::Constant(0.1)));
+    // Constant but for rounding (the probe's: 1,000 x 0.05 s and one 0.0500001 s, or 0.05 +
+    // 1e-12): refused at once, not fitted for minutes with a Gamma of shape 1e13.
+    for odd in [0.050_000_1, 0.05 + 1e-12] {
+        let mut x = vec![0.05; 1000];
+        x[500] = odd;
+        let e = fit(&x, &opts()).expect_err("near-constant");
+        assert!(matches!(e, FitError::NearlyConstant { .. }), "{e:?}");
+        assert!(e.to_string().contains("constant but for rounding"), "{e}");
+    }
     let mut z = vec![0.1; 20];
     z[3] = 0.0;
     assert_eq!(fit(&z, &opts()), Err(FitError::NotPositive { index: 3, value: 0.0 }));
