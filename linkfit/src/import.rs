@@ -223,6 +223,11 @@ pub fn import(text: &str, options: &ImportOptions) -> Result<Imported, ImportErr
     }
 }
 
+/// Most entries an imported trace holds (ten million probes: 28 hours at 100 Hz). A log that
+/// claims more (a `packets transmitted` count or a sequence number far past the probes it
+/// holds) is refused before anything is allocated for it.
+pub const MAX_ENTRIES: u64 = 10_000_000;
+
 /// Probes by (unwrapped) number: the delay of each reply, for ping and irtt.
 struct Probes {
     /// `(probe number, delay_s)`; `None` for a probe known lost (irtt).
@@ -231,9 +236,17 @@ struct Probes {
 
 impl Probes {
     /// The entries from `first` to `last` (inclusive), a loss where no delay was seen; the
-    /// duplicates found.
-    fn entries(mut self, first: u64, last: u64) -> (Vec<f64>, usize) {
-        let n = usize::try_from(last.saturating_sub(first) + 1).unwrap_or(usize::MAX);
+    /// duplicates found. Refused past [`MAX_ENTRIES`], naming `claim`, what set the span.
+    fn entries(mut self, first: u64, last: u64, claim: &str) -> Result<(Vec<f64>, usize), ImportError> {
+        let span = last.saturating_sub(first).saturating_add(1);
+        if span > MAX_ENTRIES {
+            return Err(ImportError::Text(format!(
+                "{claim}: probes {first} to {last} would be {span} entries, more than the {MAX_ENTRIES} a trace \
+                 holds ({} replies seen); import a part of the log",
+                self.seen.len()
+            )));
+        }
+        let n = usize::try_from(span).unwrap_or(usize::MAX);
         let mut out = vec![LOST_S; n];
         let mut filled = vec![false; n];
         let mut duplicates = 0;
@@ -251,7 +264,7 @@ impl Probes {
                 out[i] = d;
             }
         }
-        (out, duplicates)
+        Ok((out, duplicates))
     }
 }
 
@@ -397,11 +410,13 @@ fn ping(text: &str, skip_bad: bool) -> Result<Imported, ImportError> {
         }
         None => lo,
     };
-    let last = match transmitted {
-        Some(n) if n > 0 => (first + n - 1).max(hi),
-        _ => hi,
+    let (last, claim) = match transmitted {
+        Some(n) if n > 0 && first.saturating_add(n - 1) > hi => {
+            (first.saturating_add(n - 1), format!("`{n} packets transmitted`"))
+        }
+        _ => (hi, format!("icmp_seq up to {hi}")),
     };
-    let (delays_s, repeated) = probes.entries(first, last);
+    let (delays_s, repeated) = probes.entries(first, last, &claim)?;
     finish(delays_s, provenance, bad, dup_lines + repeated)
 }
 
@@ -541,7 +556,7 @@ fn irtt(text: &str, which: IrttDelay, skip_bad: bool) -> Result<Imported, Import
     if lo > hi {
         return Err(ImportError::Text("irtt's JSON holds no round trip".into()));
     }
-    let (delays_s, duplicates) = probes.entries(lo, hi);
+    let (delays_s, duplicates) = probes.entries(lo, hi, &format!("seqno {lo} to {hi}"))?;
     let mut provenance = Provenance::default();
     if let Some(c) = &out.config {
         provenance.source = c.remote_address.clone();

@@ -168,3 +168,28 @@ fn unit_and_column_apply_to_csv_only() {
     let o = ImportOptions { unit: Some(Unit::Ms), ..ImportOptions::new(Format::Ping) };
     assert!(matches!(import("", &o), Err(ImportError::Text(_))));
 }
+
+#[test]
+fn a_log_claiming_more_probes_than_a_trace_holds_is_refused_naming_the_claim_before_allocating() {
+    let ping = |text: &str| import(text, &ImportOptions::new(Format::Ping));
+    // Three replies and a summary claiming 10^15 packets (an 8 PB allocation before).
+    let claim = "64 bytes from h: icmp_seq=1 ttl=64 time=1.0 ms\n\
+                 64 bytes from h: icmp_seq=2 ttl=64 time=1.0 ms\n\
+                 1000000000000000 packets transmitted, 2 received, 0% packet loss\n";
+    let e = ping(claim).expect_err("refused").to_string();
+    assert!(
+        e.contains("`1000000000000000 packets transmitted`") && e.contains("more than the 10000000"),
+        "{e}"
+    );
+    // icmp_seq jumping by 32,767 a line: unwrapped, 65.5 M entries from a 100 kB log.
+    let mut jumps = String::new();
+    for k in 0..2_000u64 {
+        jumps.push_str(&format!("64 bytes from h: icmp_seq={} ttl=64 time=1.0 ms\n", (k * 32_767) % 65_536));
+    }
+    let e = ping(&jumps).expect_err("refused").to_string();
+    assert!(e.contains("icmp_seq up to") && e.contains("entries"), "{e}");
+    // irtt's seqno of 10^15.
+    let irtt = r#"{"round_trips":[{"seqno":0,"lost":"false","delay":{"rtt":1000000}},{"seqno":1000000000000000,"lost":"false","delay":{"rtt":1000000}}]}"#;
+    let e = import(irtt, &ImportOptions::new(Format::Irtt)).expect_err("refused").to_string();
+    assert!(e.contains("seqno 0 to 1000000000000000"), "{e}");
+}
