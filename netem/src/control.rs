@@ -192,5 +192,7 @@ fn udp_stats(p: &crate::udp::Peers) -> pb::UdpStats {
         refused_foreign_forward: p.refused_foreign_forward,
         refused_no_client: p.refused_no_client,
         send_errors: p.send_errors,
+        dropped_held_cap: p.dropped_held_cap,
+        held_bytes: p.held_bytes,
     }
 }

@@ -65,6 +65,10 @@ struct Args {
     /// (to_plant) and which samples (to_controller).
     #[arg(long, value_enum, default_value_t = SideArg::Listen, requires = "udp_listen")]
     udp_plant_side: SideArg,
+    /// UDP mode: most bytes of delayed datagrams held at once (default 64 MiB); a datagram
+    /// past it is dropped and counted (`dropped_held_cap` in GetStats).
+    #[arg(long, value_name = "BYTES", requires = "udp_listen", value_parser = clap::value_parser!(u64).range(1..=(16u64 << 30)))]
+    udp_max_held_bytes: Option<u64>,
 }
 
 impl Args {
@@ -76,7 +80,11 @@ impl Args {
         };
         let udp =
             netem::udp::UdpConfig::from_flags(self.udp_listen.as_deref(), self.udp_forward.as_deref(), side)
-                .map_err(|e| e.to_string())?;
+                .map_err(|e| e.to_string())?
+                .map(|mut u| {
+                    u.max_held_bytes = self.udp_max_held_bytes.unwrap_or(netem::udp::DEFAULT_MAX_HELD_BYTES);
+                    u
+                });
         if udp.is_some() && self.time_mode == TimeModeChoice::Fixed(TimeMode::Lockstep) {
             return Err("--time-mode lockstep: the UDP proxy runs in real time (lockstep needs a plant whose time netem moves)".into());
         }

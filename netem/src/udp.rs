@@ -82,7 +82,18 @@ pub struct UdpConfig {
     /// Where they go, and whose answers go back to the client.
     pub forward: SocketAddr,
     pub plant_side: Side,
+    /// Most bytes of delayed datagrams netem holds at once; a datagram past it is dropped,
+    /// counted (`UdpStats.dropped_held_cap`, and as a drop with [`HELD_CAP_REASON`]).
+    pub max_held_bytes: u64,
 }
+
+/// Default of [`UdpConfig::max_held_bytes`]: 64 MiB, a second of a 500 Mbit/s link held.
+/// Whoever speaks first would otherwise make netem hold every delayed datagram (20,000 of
+/// 60 kB at a 30 s delay took it to 1.2 GB).
+pub const DEFAULT_MAX_HELD_BYTES: u64 = 64 << 20;
+
+/// The drop reason of a datagram past [`UdpConfig::max_held_bytes`].
+pub const HELD_CAP_REASON: &str = "netem holds --udp-max-held-bytes of delayed datagrams already";
 
 /// A UDP flag that cannot be used, naming the flag.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -145,7 +156,7 @@ impl UdpConfig {
         if forward == listen {
             return Err(err("is --udp-listen itself: netem would send every datagram to itself"));
         }
-        Ok(Some(Self { listen, forward, plant_side }))
+        Ok(Some(Self { listen, forward, plant_side, max_held_bytes: DEFAULT_MAX_HELD_BYTES }))
     }
 }
 
@@ -174,6 +185,12 @@ pub struct Peers {
     pub refused_no_client: u64,
     /// Released copies the socket did not take.
     pub send_errors: u64,
+    /// Bytes of the copies held for their release now.
+    pub held_bytes: u64,
+    /// [`UdpConfig::max_held_bytes`].
+    pub max_held_bytes: u64,
+    /// Copies dropped because `held_bytes` would have passed `max_held_bytes`.
+    pub dropped_held_cap: u64,
     /// Datagrams taken per direction (`Direction::index`): the next one's `payload_seq`.
     pub taken: [u64; 2],
 }
@@ -190,8 +207,27 @@ impl Peers {
             refused_foreign_forward: 0,
             refused_no_client: 0,
             send_errors: 0,
+            held_bytes: 0,
+            max_held_bytes: config.max_held_bytes,
+            dropped_held_cap: 0,
             taken: [0; 2],
         }
+    }
+
+    /// A copy of `bytes` to hold until its release: taken (counted as held) when it fits
+    /// under the cap, else refused and counted.
+    pub fn hold(&mut self, bytes: u64) -> bool {
+        if self.held_bytes.saturating_add(bytes) > self.max_held_bytes {
+            self.dropped_held_cap += 1;
+            return false;
+        }
+        self.held_bytes += bytes;
+        true
+    }
+
+    /// A held copy of `bytes` left netem (sent, failed, or dropped at shutdown).
+    pub fn release(&mut self, bytes: u64) {
+        self.held_bytes = self.held_bytes.saturating_sub(bytes);
     }
 
     /// A datagram on the listen socket from `from`: taken (learning the client from the first
@@ -244,6 +280,7 @@ impl Peers {
         self.refused_foreign_forward = 0;
         self.refused_no_client = 0;
         self.send_errors = 0;
+        self.dropped_held_cap = 0;
     }
 }
 
@@ -302,6 +339,7 @@ pub async fn run(net: Arc<Net>, sockets: Sockets, config: UdpConfig) -> std::io:
 /// A copy the release thread sent, or failed to send (where to, and why).
 struct Sent {
     msg: Msg,
+    bytes: u64,
     release_error_ns: i64,
     failed: Option<(SocketAddr, std::io::Error)>,
 }
@@ -322,6 +360,9 @@ async fn keep_books(
     while sent.recv_many(&mut batch, 64).await > 0 {
         let mut inner = net.lock();
         for s in batch.drain(..) {
+            if let Some(p) = inner.udp.as_mut() {
+                p.release(s.bytes);
+            }
             match s.failed {
                 None => inner.delivered(&s.msg, s.release_error_ns),
                 Some((to, e)) => {
@@ -389,13 +430,30 @@ async fn receive(
         let d = inner.decide(dir, now, payload_seq);
         drop(inner);
         for m in Msg::copies(&d, dir, payload_seq) {
+            let bytes = n as u64;
+            {
+                let mut inner = net.lock();
+                let held = inner.udp.as_mut().is_some_and(|p| p.hold(bytes));
+                if !held {
+                    let count = inner.udp.as_ref().map_or(0, |p| p.dropped_held_cap);
+                    if count.is_power_of_two() {
+                        tracing::warn!(dropped = count, "UDP datagram dropped: {HELD_CAP_REASON}");
+                    }
+                    inner.dropped(&m, HELD_CAP_REASON);
+                    continue;
+                }
+            }
             let (socket, sent, datagram) = (out.socket.clone(), out.sent.clone(), buf[..n].to_vec());
             let action = Box::new(move |release_error_ns: i64| {
                 let failed = socket.send_to(&datagram, to).err().map(|e| (to, e));
-                let _ = sent.send(Sent { msg: m, release_error_ns, failed });
+                let _ = sent.send(Sent { msg: m, bytes, release_error_ns, failed });
             });
             if net.releaser.schedule(m.release_ns, action).is_err() {
-                net.lock().dropped(&m, "netem is shutting down");
+                let mut inner = net.lock();
+                if let Some(p) = inner.udp.as_mut() {
+                    p.release(bytes);
+                }
+                inner.dropped(&m, "netem is shutting down");
             }
         }
     }

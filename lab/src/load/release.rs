@@ -326,6 +326,7 @@ async fn udp_run(profile: DirectionProfile, seconds: f64, rate_hz: f64) -> anyho
         listen: "127.0.0.1:0".parse()?,
         forward: far.local_addr()?,
         plant_side: netem::udp::Side::Listen,
+        max_held_bytes: netem::udp::DEFAULT_MAX_HELD_BYTES,
     };
     let mut config = netem::Config::new("unused");
     config.plant_to_controller = profile.clone();

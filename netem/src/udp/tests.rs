@@ -5,8 +5,12 @@ fn addr(s: &str) -> SocketAddr {
 }
 
 fn peers(side: Side) -> Peers {
-    let config =
-        UdpConfig { listen: addr("127.0.0.1:0"), forward: addr("127.0.0.1:14580"), plant_side: side };
+    let config = UdpConfig {
+        listen: addr("127.0.0.1:0"),
+        forward: addr("127.0.0.1:14580"),
+        plant_side: side,
+        max_held_bytes: 1000,
+    };
     Peers::new(&config, addr("127.0.0.1:14540"))
 }
 
@@ -67,4 +71,19 @@ fn an_address_without_a_port_or_host_is_refused_naming_the_flag() {
         assert!(e.to_string().starts_with("--udp-listen"), "{e}");
     }
     assert_eq!(parse_address("--udp-listen", "[::1]:14540"), Ok(addr("[::1]:14540")));
+}
+
+#[test]
+fn datagrams_past_the_held_bytes_cap_are_refused_and_counted_and_room_comes_back_at_release() {
+    let mut p = peers(Side::Listen);
+    assert!(p.hold(600));
+    assert!(p.hold(400), "exactly at the cap");
+    assert!(!p.hold(1), "past it");
+    assert_eq!((p.held_bytes, p.dropped_held_cap), (1000, 1));
+    p.release(600);
+    assert!(p.hold(500));
+    assert!(!p.hold(200));
+    assert_eq!((p.held_bytes, p.dropped_held_cap), (900, 2));
+    p.reset_counts();
+    assert_eq!((p.held_bytes, p.dropped_held_cap), (900, 0), "held bytes are a state, not a count");
 }
