@@ -20,7 +20,7 @@ RUNS=${1:-250}
 JOBS=${2:-2}
 
 nice -n 5 cargo build --release -p hilbench
-HB=target/release/hilbench
+HB="${CARGO_TARGET_DIR:-target}"/release/hilbench
 WORK=$(mktemp -d /tmp/bench-lost-time.XXXXXX)
 trap 'rm -rf "$WORK"' EXIT
 echo "commit: $(git rev-parse --short HEAD 2>/dev/null || echo unknown)"

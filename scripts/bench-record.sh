@@ -16,8 +16,8 @@ RATE=${2:-1000}
 DELAY_MS=10
 
 nice -n 5 cargo build --release -p hilbench -p netem
-HB=target/release/hilbench
-NETEM=target/release/netem
+HB="${CARGO_TARGET_DIR:-target}"/release/hilbench
+NETEM="${CARGO_TARGET_DIR:-target}"/release/netem
 WORK=$(mktemp -d /tmp/bench-record.XXXXXX)
 PIDS=()
 cleanup() {

@@ -17,7 +17,7 @@ RATES=50,1000
 DELAY_MS=20
 
 nice -n 5 cargo build --release -p lab
-LAB=target/release/lab
+LAB="${CARGO_TARGET_DIR:-target}"/release/lab
 
 echo "machine: $(lscpu | sed -n 's/^Model name:[[:space:]]*//p' | head -1), $(nproc) cores, kernel $(uname -r)"
 echo

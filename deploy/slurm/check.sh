@@ -7,7 +7,7 @@
 # munge when they are missing; skips with a message (exit 0) where it cannot run (not root, no
 # apt-get, the install fails). Stops whatever it started, whatever happens.
 #
-#   deploy/slurm/check.sh            (from the repository; uses target/release/hilbench)
+#   deploy/slurm/check.sh            (from the repository; uses ${CARGO_TARGET_DIR:-target}/release/hilbench)
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/../.."
 NAME=slurm-check
@@ -30,7 +30,7 @@ if missing; then
         || skip "apt-get install slurm-wlm munge failed"
     missing && skip "slurm-wlm and munge installed, but one of $daemons is not on PATH"
 fi
-hilbench=target/release/hilbench
+hilbench="${CARGO_TARGET_DIR:-target}/release/hilbench"
 [ -x "$hilbench" ] || cargo build --release -p hilbench
 started=$SECONDS
 

@@ -8,7 +8,7 @@
 #
 # Knobs (environment): PARTITION (default: the cluster's default partition), TIME (per task,
 # default 02:00:00), CPUS (CPUs per task, which is `--jobs`, default 2), MEM_PER_CPU (default
-# 1G), HILBENCH (the binary, default target/release/hilbench), SWEEP_ARGS (more flags of
+# 1G), HILBENCH (the binary, default ${CARGO_TARGET_DIR:-target}/release/hilbench), SWEEP_ARGS (more flags of
 # `hilbench sweep`), SBATCH_ARGS (more flags of both sbatch calls, e.g. "--account=lab").
 # OUT and the binary must be on a file system every node sees.
 set -euo pipefail
@@ -20,7 +20,7 @@ file=$1 runs=$2 shards=$3 out=$4
 [[ $shards =~ ^[1-9][0-9]*$ ]] || { echo "$0: SHARDS must be a number of shards, got '$shards'" >&2; exit 2; }
 [ "$shards" -le "$runs" ] || { echo "$0: SHARDS ($shards) is more than RUNS ($runs)" >&2; exit 2; }
 [ -f "$file" ] || { echo "$0: FILE '$file' is not a file" >&2; exit 2; }
-hilbench=${HILBENCH:-target/release/hilbench}
+hilbench=${HILBENCH:-${CARGO_TARGET_DIR:-target}/release/hilbench}
 [ -x "$hilbench" ] || { echo "$0: $hilbench is not an executable (set HILBENCH)" >&2; exit 2; }
 mkdir -p "$out/logs"
 export HILBENCH SWEEP_FILE SWEEP_RUNS SWEEP_OUT SWEEP_ARGS
