@@ -15,10 +15,12 @@ use mpc::RunSummary;
 use anyhow::Context;
 
 use crate::drive::{Driver, grpc, in_process};
-use crate::run::{Batch, FinishedRun, Job, RunFailure};
+use crate::run::{Batch, FinishedRun, Job, RunError, RunFailure};
 
 /// How often a real-time run without a terminal says it is still flying.
 const HEARTBEAT: Duration = Duration::from_secs(5);
+/// How long a run interrupted by Ctrl-C is given to hand back what it flew.
+const INTERRUPT_GRACE: Duration = Duration::from_secs(3);
 
 /// Runs every job in order (in lockstep, or in real time when the driver says so). `progress`
 /// shows a progress bar on stderr when it is a terminal, and a line per finished run (and
@@ -70,12 +72,26 @@ pub fn fly_all(jobs: &[Job], driver: &Driver, progress: bool) -> anyhow::Result<
                     crate::progress::line(&bar, progress, &text);
                 }
             };
+            let flying = fly(job, driver, ctrl_c.clone());
+            tokio::pin!(flying);
             tokio::select! {
-                flown = fly(job, driver) => Some(flown),
-                Ok(()) = ctrl_c.changed() => None,
+                flown = &mut flying => Some(flown),
+                Ok(()) = ctrl_c.changed() => {
+                    // The driver sees the same Ctrl-C and ends with what it flew: a moment for
+                    // it to say so (a driver that cannot is abandoned, its run lost).
+                    tokio::time::timeout(INTERRUPT_GRACE, &mut flying).await.ok()
+                }
                 () = heartbeat, if real_time && bar.is_hidden() => None,
             }
         });
+        if *ctrl_c.borrow() {
+            // Ctrl-C: the run as far as it flew, kept with its error ("interrupted").
+            if let Some(Err((_, partial))) = flown {
+                runs.extend(partial);
+            }
+            interrupted = true;
+            break;
+        }
         let Some(flown) = flown else {
             interrupted = true;
             break;
@@ -156,8 +172,9 @@ impl Flight {
 #[derive(Debug, Clone)]
 pub enum RunFate {
     Flown(Box<Flight>),
-    /// The run stopped with an error (a trace that ran out, a service that failed, ...).
-    Failed(String),
+    /// The run stopped with an error (a trace that ran out, a service that failed, the
+    /// controller that stopped, ...).
+    Failed(RunError),
     /// The run took longer than the time limit; its thread is left to finish on its own.
     TimedOut(Duration),
     /// Ctrl-C.
@@ -173,7 +190,7 @@ pub fn fly_one(job: &Job, driver: &Driver, timeout: Duration) -> RunFate {
         let _ = tx.send(fly_all(&[job], &driver, false));
     });
     if let Err(e) = spawned {
-        return RunFate::Failed(format!("cannot start the run's thread: {e}"));
+        return RunFate::Failed(RunError::bench(format!("cannot start the run's thread: {e}")));
     }
     match rx.recv_timeout(timeout) {
         Ok(Ok(mut batch)) => {
@@ -185,12 +202,14 @@ pub fn fly_one(job: &Job, driver: &Driver, timeout: Duration) -> RunFate {
             }
             match batch.runs.pop() {
                 Some(run) => RunFate::Flown(Box::new(Flight::of(run))),
-                None => RunFate::Failed("the run ended without a summary".into()),
+                None => RunFate::Failed(RunError::bench("the run ended without a summary")),
             }
         }
-        Ok(Err(e)) => RunFate::Failed(format!("{e:#}")),
+        Ok(Err(e)) => RunFate::Failed(RunError::bench(format!("{e:#}"))),
         Err(mpsc::RecvTimeoutError::Timeout) => RunFate::TimedOut(timeout),
-        Err(mpsc::RecvTimeoutError::Disconnected) => RunFate::Failed("the run's thread panicked".into()),
+        Err(mpsc::RecvTimeoutError::Disconnected) => {
+            RunFate::Failed(RunError::bench("the run's thread panicked"))
+        }
     }
 }
 
@@ -234,20 +253,25 @@ fn settle<R: DriverRun>(
     job: &Job,
     what: &str,
     task: Result<Result<R, RunFailure<R>>, String>,
-) -> Result<FinishedRun, (String, Option<FinishedRun>)> {
+) -> Result<FinishedRun, (RunError, Option<FinishedRun>)> {
     match task {
         Ok(Ok(run)) => Ok(run.finished(job.clone(), None)),
         Ok(Err(f)) => {
-            let e = format!("{what}: {:#}", f.error);
-            Err((e.clone(), f.partial.map(|p| p.finished(job.clone(), Some(e)))))
+            let e = RunError::of(what, &f.error);
+            let partial = f.partial.map(|p| p.finished(job.clone(), Some(e.message.clone())));
+            Err((e, partial))
         }
-        Err(failed) => Err((format!("{what}: {failed}"), None)),
+        Err(failed) => Err((RunError::bench(format!("{what}: {failed}")), None)),
     }
 }
 
 /// One run, or its error (`what` failed: ...) with the part that flew, if any. Each driver's
 /// run is a task of its own: a panic in it is this run's error.
-async fn fly(job: &Job, driver: &Driver) -> Result<FinishedRun, (String, Option<FinishedRun>)> {
+async fn fly(
+    job: &Job,
+    driver: &Driver,
+    cancel: tokio::sync::watch::Receiver<bool>,
+) -> Result<FinishedRun, (RunError, Option<FinishedRun>)> {
     let name = &job.scenario.name;
     let failed = |e: tokio::task::JoinError| format!("the run {}", hilbench_svc::task_failure(e));
     match driver {
@@ -255,7 +279,7 @@ async fn fly(job: &Job, driver: &Driver) -> Result<FinishedRun, (String, Option<
             let what = format!("{name} with {} over gRPC", job.mode.name());
             let (task_job, endpoints) = (job.clone(), endpoints.clone());
             let task = tokio::spawn(async move {
-                let settings = grpc::GrpcSettings::default();
+                let settings = grpc::GrpcSettings { cancel: Some(cancel), ..grpc::GrpcSettings::default() };
                 grpc::run_against(&task_job.scenario, task_job.mode, &settings, &endpoints).await
             });
             settle(job, &what, task.await.map_err(failed))
@@ -274,10 +298,11 @@ async fn fly(job: &Job, driver: &Driver) -> Result<FinishedRun, (String, Option<
             let task_job = job.clone();
             match tokio::task::spawn_blocking(move || in_process::fly(task_job)).await {
                 Ok(Ok(run)) => Ok(run),
-                Ok(Err(e)) => Err((format!("{what}: {e}"), None)),
-                Err(join) => {
-                    Err((format!("{what}: the closed loop {}", hilbench_svc::task_failure(join)), None))
-                }
+                Ok(Err(e)) => Err((RunError { message: format!("{what}: {}", e.message), ..e }, None)),
+                Err(join) => Err((
+                    RunError::bench(format!("{what}: the closed loop {}", hilbench_svc::task_failure(join))),
+                    None,
+                )),
             }
         }
     }

@@ -166,7 +166,7 @@ pub fn run_closed_loop(
         }
         // A trace that ends the run: an error naming it and the cycle, never a made-up delay.
         if let Some(Err(ended)) = delay_line.as_ref().map(|line| line.check_next()) {
-            return Err(crate::error::invalid_input("delays", format!("cycle {}: {ended}", traces.len())));
+            return Err(MpcError::TraceEnded { cycle: traces.len(), reason: ended.to_string() });
         }
         let delay_ns = match delay_line.as_mut().map(|line| line.send(sample.time_ns).fate) {
             None => Some(0),

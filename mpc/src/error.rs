@@ -16,6 +16,10 @@ pub enum MpcError {
         "the plant was reset or restarted during the episode: its sample at {time_s} s of plant time belongs to another flight than the episode's (the last sample of the episode's flight was at {last_time_s} s)"
     )]
     PlantReset { last_time_s: f64, time_s: f64 },
+    /// The delays ran out before the run's end (a trace shorter than the flight): an error
+    /// naming the cycle, never a made-up delay.
+    #[error("invalid `delays`: cycle {cycle}: {reason}")]
+    TraceEnded { cycle: usize, reason: String },
 }
 
 pub(crate) fn invalid_input(field: impl Into<String>, reason: impl Into<String>) -> MpcError {

@@ -44,8 +44,8 @@ use tokio::process::{Child, Command};
 
 use super::services::{Running, connect, netem_config, plant_config, start_netem, start_plant, stop};
 use crate::run::{
-    CycleRow, DelayProfileInForce, DelaySource, ExternalFacts, FinishedRun, Job, RunFailure, RunFaults,
-    RunTiming,
+    ControllerStopped, CycleRow, DelayProfileInForce, DelaySource, ExternalFacts, FinishedRun, Job,
+    RunFailure, RunFaults, RunTiming,
 };
 use crate::scenario_file::ScenarioFile;
 
@@ -301,16 +301,17 @@ impl<'a> ExternalFlight<'a> {
                         }
                     }
                     if self.judge.end.is_none() {
-                        bail!(
+                        return Err(ControllerStopped(format!(
                             "the controller exited ({status}) before the run ended ({}){}",
                             self.judge.where_now(),
                             process.tail_text()
-                        );
+                        ))
+                        .into());
                     }
                 }
                 () = tokio::time::sleep_until(stall) => {
                     process.kill();
-                    bail!(
+                    let message = format!(
                         "plant time has not moved for {:.0} s ({}): the controller {}{}",
                         settings.stall_timeout.as_secs_f64(),
                         self.judge.where_now(),
@@ -320,6 +321,11 @@ impl<'a> ExternalFlight<'a> {
                         },
                         process.tail_text()
                     );
+                    // In lockstep only the controller moves plant time.
+                    if self.controller.time_mode == TimeMode::Lockstep {
+                        return Err(ControllerStopped(message).into());
+                    }
+                    bail!(message);
                 }
                 () = tokio::time::sleep_until(tokio::time::Instant::from_std(deadline)) => {
                     process.kill();

@@ -43,10 +43,21 @@ use mpc::{ControllerMode, CycleRecord, RunEnd, RunSummary};
 
 use super::services::{Endpoints, Services, connect_with, netem_config};
 use crate::run::CycleSink;
-use crate::run::{DelayProfileInForce, DelaySource, FinishedRun, Job, RunFailure, RunFaults, RunTiming};
+use crate::run::{
+    ControllerStopped, DelayProfileInForce, DelaySource, FinishedRun, Job, RunFailure, RunFaults, RunTiming,
+};
 
 /// How often the driver polls `GetStatus` while telemetry streams in.
 const STATUS_POLL: Duration = Duration::from_millis(10);
+/// How long one call of the run's loop may take: a controller that does not answer a
+/// `GetStatus` within this is frozen (a stopped process, a paused VM, a deadlock), and the run
+/// ends naming it rather than waiting on it for good.
+const CALL_DEADLINE: Duration = Duration::from_secs(5);
+/// How often the stall and the services are checked, on a timer of its own (not behind a
+/// call that may hang).
+const HEALTH_CHECK: Duration = Duration::from_secs(1);
+/// How long a probe of the plant or netem (`Describe`) may take.
+const PROBE_DEADLINE: Duration = Duration::from_secs(2);
 
 /// One run over gRPC.
 #[derive(Debug, Clone)]
@@ -88,11 +99,55 @@ pub struct GrpcSettings {
     /// of its plant link: a plant or netem that died does not leave the run waiting for
     /// `timeout`. Outages shorter than this are survived and counted.
     pub stall_timeout: Duration,
+    /// A plant or netem that this driver cannot reach either (its `Describe` unanswered) for
+    /// this long while no cycle comes ends the run, naming the service: a killed or stopped
+    /// service ends a run within seconds, a short outage (a restart) is survived.
+    pub service_timeout: Duration,
+    /// Set to `true` by Ctrl-C: the run ends as interrupted with what it flew so far.
+    pub cancel: Option<tokio::sync::watch::Receiver<bool>>,
 }
 
 impl Default for GrpcSettings {
     fn default() -> Self {
-        Self { timeout: Duration::from_secs(600), stall_timeout: Duration::from_secs(30) }
+        Self {
+            timeout: Duration::from_secs(600),
+            stall_timeout: Duration::from_secs(30),
+            service_timeout: Duration::from_secs(10),
+            cancel: None,
+        }
+    }
+}
+
+/// The message of a run ended by Ctrl-C (`crate::fly` keeps what it flew, as interrupted).
+pub const INTERRUPTED: &str = "interrupted (Ctrl-C)";
+
+/// Resolves when `cancel` turns `true`; never without one.
+async fn cancelled(cancel: &mut Option<tokio::sync::watch::Receiver<bool>>) {
+    match cancel {
+        Some(rx) => {
+            if rx.wait_for(|stop| *stop).await.is_err() {
+                std::future::pending::<()>().await;
+            }
+        }
+        None => std::future::pending::<()>().await,
+    }
+}
+
+/// `call` of the service at `addr`, given up after `deadline` with an error naming both.
+async fn within<T>(
+    deadline: Duration,
+    service: &str,
+    addr: &str,
+    call: &str,
+    fut: impl std::future::Future<Output = Result<tonic::Response<T>, tonic::Status>>,
+) -> anyhow::Result<Result<T, tonic::Status>> {
+    match tokio::time::timeout(deadline, fut).await {
+        Ok(answer) => Ok(answer.map(tonic::Response::into_inner)),
+        Err(_) => bail!(
+            "the {service} at {addr} did not answer {call} within {:.0} s: it is frozen (a stopped \
+             process, a paused VM, a deadlock) or the link to it drops everything",
+            deadline.as_secs_f64()
+        ),
     }
 }
 
@@ -314,7 +369,10 @@ async fn drive(
         .ok_or_else(|| anyhow!("no plant or netem address to read the final state from"))?;
     let mut plant = PlantClient::new(connect_with(state_addr, tls, deadline).await?);
     let real_time = services.time_mode == TimeMode::RealTime;
-    let described = plant.describe(pb::DescribeRequest {}).await.context("plant Describe")?.into_inner();
+    let described =
+        within(CALL_DEADLINE, "plant", state_addr, "Describe", plant.describe(pb::DescribeRequest {}))
+            .await?
+            .context("plant Describe")?;
     let wanted = pb::TimeMode::from(services.time_mode);
     if described.time_mode != wanted as i32 {
         bail!(
@@ -325,12 +383,25 @@ async fn drive(
     }
     vehicle_ready(state_addr, tls, deadline).await?;
     // Subscribe before the episode starts: the response headers mean the server subscribed.
-    let mut stream = controller
-        .stream_telemetry(pb::StreamTelemetryRequest {})
-        .await
-        .context("controller StreamTelemetry")?
-        .into_inner();
-    let before = controller.get_status(pb::GetStatusRequest {}).await?.into_inner();
+    let controller_addr = services.controller_addr();
+    let mut stream = within(
+        CALL_DEADLINE,
+        "controller",
+        controller_addr,
+        "StreamTelemetry",
+        controller.stream_telemetry(pb::StreamTelemetryRequest {}),
+    )
+    .await?
+    .context("controller StreamTelemetry")?;
+    let before = within(
+        CALL_DEADLINE,
+        "controller",
+        controller_addr,
+        "GetStatus",
+        controller.get_status(pb::GetStatusRequest {}),
+    )
+    .await?
+    .context("controller GetStatus")?;
     let setup_s = started.elapsed().as_secs_f64();
     progress.setup_s = setup_s;
 
@@ -338,13 +409,13 @@ async fn drive(
     progress.episode_started = Some(episode_started);
     // The whole scenario travels with the request, so a controller started elsewhere flies a
     // scenario file exactly as a built-in one (and resets the plant with it).
-    controller
-        .set_scenario(pb::SetScenarioRequest {
-            scenario: String::new(),
-            mode: mode.name().into(),
-            definition: Some(scenario.into()),
-        })
-        .await
+    let request = pb::SetScenarioRequest {
+        scenario: String::new(),
+        mode: mode.name().into(),
+        definition: Some(scenario.into()),
+    };
+    within(CALL_DEADLINE, "controller", controller_addr, "SetScenario", controller.set_scenario(request))
+        .await?
         .context("controller SetScenario")?;
     // The episode that runs this request is the last one started after `before`: one that was
     // running (or about to start at autostart) is restarted by the request, and a pending
@@ -355,6 +426,11 @@ async fn drive(
     // Real time: the episode whose telemetry ended the run, and how it ended (the controller
     // keeps its vehicle under control past the end; the run is over here).
     let mut real_time_end: Option<(u64, RunEnd)> = None;
+    // The services the controller flies against, probed by this driver when no cycle comes.
+    let mut probes = Probes::new(services, tls, deadline).await?;
+    let mut health = tokio::time::interval(HEALTH_CHECK);
+    health.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut cancel = settings.cancel.clone();
     let (status, telemetry) = loop {
         if Instant::now() >= deadline {
             bail!(
@@ -370,8 +446,34 @@ async fn drive(
                 let what = panic.ok().and_then(|()| panicked.borrow().clone());
                 bail!("a task of the run panicked: {}", what.unwrap_or_default());
             }
+            () = cancelled(&mut cancel) => bail!(INTERRUPTED),
+            _ = health.tick() => {
+                // On its own timer, so that no hung call can keep it from running.
+                let idle = last_cycle_at.elapsed();
+                if idle > settings.stall_timeout {
+                    let s = progress.status.clone().unwrap_or_default();
+                    let message = format!(
+                        "{} with {}: no control cycle for {:.0} s (the controller's plant link is {}; its last error: {})",
+                        scenario.name,
+                        mode.name(),
+                        settings.stall_timeout.as_secs_f64(),
+                        if s.plant_connected { "up" } else { "down" },
+                        if s.last_error.is_empty() { "none" } else { &s.last_error }
+                    );
+                    // With its plant link up, the controller is the one that stopped.
+                    if s.plant_connected {
+                        return Err(ControllerStopped(message).into());
+                    }
+                    bail!(message);
+                }
+                if idle > HEALTH_CHECK {
+                    probes.check(settings.service_timeout).await?;
+                } else {
+                    probes.clear();
+                }
+            }
             item = stream.message() => {
-                let mut item = item.map_err(|e| lost_controller(services.controller_addr(), "telemetry stream", e))?
+                let mut item = item.map_err(|e| lost_controller(controller_addr, "telemetry stream", e))?
                     .ok_or_else(|| anyhow!("the controller ended the telemetry stream"))?;
                 if item.episode <= before.episode {
                     continue;
@@ -403,24 +505,16 @@ async fn drive(
                 progress.last_sample = item.sample.take();
             }
             _ = poll.tick() => {
-                let s = controller.get_status(pb::GetStatusRequest {}).await
-                    .map_err(|e| lost_controller(services.controller_addr(), "GetStatus", e))?.into_inner();
+                let s = within(CALL_DEADLINE, "controller", controller_addr, "GetStatus", controller.get_status(pb::GetStatusRequest {}))
+                    .await
+                    .map_err(|e| ControllerStopped(format!("{e:#}")))?
+                    .map_err(|e| lost_controller(controller_addr, "GetStatus", e))?;
                 progress.status = Some(s.clone());
                 if let Some((episode, _)) = real_time_end
                     && s.episode == episode
                 {
                     let telemetry = progress.episodes.remove(&episode).unwrap_or_default();
                     break (s, telemetry);
-                }
-                if last_cycle_at.elapsed() > settings.stall_timeout {
-                    bail!(
-                        "{} with {}: no control cycle for {:.0} s (the controller's plant link is {}; its last error: {})",
-                        scenario.name,
-                        mode.name(),
-                        settings.stall_timeout.as_secs_f64(),
-                        if s.plant_connected { "up" } else { "down" },
-                        if s.last_error.is_empty() { "none" } else { &s.last_error }
-                    );
                 }
                 // An episode that failed before its first cycle (a plant that refused the
                 // Reset: a vehicle away from the start) ends without a new episode number:
@@ -429,12 +523,17 @@ async fn drive(
                     && s.episode_finished
                     && s.finish_reason == pb::FinishReason::Error as i32
                 {
-                    bail!(
+                    let message = format!(
                         "{} with {}: the controller's episode ended with an error: {}",
                         scenario.name,
                         mode.name(),
                         s.last_error
                     );
+                    // A plant reset under the episode is not the controller's doing.
+                    if s.plant_resets > before.plant_resets {
+                        bail!(message);
+                    }
+                    return Err(ControllerStopped(message).into());
                 }
                 let seen = progress.episodes.get(&s.episode).map_or(0, Vec::len) as u64;
                 if !real_time && s.episode > before.episode && s.episode_finished && seen >= s.cycles {
@@ -457,7 +556,10 @@ async fn drive(
             mode.name()
         );
     }
-    let final_sample = plant.get_state(pb::GetStateRequest {}).await.context("plant GetState")?.into_inner();
+    let final_sample =
+        within(CALL_DEADLINE, "plant", state_addr, "GetState", plant.get_state(pb::GetStateRequest {}))
+            .await?
+            .context("plant GetState")?;
     let final_sample =
         PlantSample::try_from(&final_sample).map_err(|e| anyhow!("the plant's last sample: {e}"))?;
     let end = match real_time_end {
@@ -478,6 +580,57 @@ async fn drive(
         faults,
         delay_profile,
     })
+}
+
+/// The plant and netem of a run as this driver reaches them: when no cycle comes, each is
+/// asked `Describe` (the Plant API both serve); one that has not answered for the service
+/// timeout ends the run, named.
+struct Probes {
+    services: Vec<(&'static str, String, PlantClient<tonic::transport::Channel>, Option<Instant>)>,
+}
+
+impl Probes {
+    async fn new(services: &Services, tls: &Tls, deadline: Instant) -> anyhow::Result<Self> {
+        let mut probes = Vec::new();
+        for (name, addr) in [("plant", services.plant_addr()), ("netem", services.netem_addr())] {
+            if let Some(addr) = addr {
+                let client = PlantClient::new(connect_with(addr, tls, deadline).await?);
+                probes.push((name, addr.to_string(), client, None));
+            }
+        }
+        Ok(Self { services: probes })
+    }
+
+    /// A cycle came: whatever did not answer before is up again.
+    fn clear(&mut self) {
+        for probe in &mut self.services {
+            probe.3 = None;
+        }
+    }
+
+    /// Asks each service once; an error naming the first that has not answered for `timeout`.
+    async fn check(&mut self, timeout: Duration) -> anyhow::Result<()> {
+        for (name, addr, client, down_since) in &mut self.services {
+            let answer = tokio::time::timeout(PROBE_DEADLINE, client.describe(pb::DescribeRequest {})).await;
+            let why = match answer {
+                Ok(Ok(_)) => {
+                    *down_since = None;
+                    continue;
+                }
+                Ok(Err(e)) => format!("Describe: {}", e.message()),
+                Err(_) => format!("Describe unanswered for {:.0} s", PROBE_DEADLINE.as_secs_f64()),
+            };
+            let since = *down_since.get_or_insert_with(Instant::now);
+            if since.elapsed() >= timeout {
+                bail!(
+                    "the {name} at {addr} has not answered for {:.0} s ({why}): it was killed or stopped, or \
+                     the link to it is cut; the run cannot go on",
+                    since.elapsed().as_secs_f64()
+                );
+            }
+        }
+        Ok(())
+    }
 }
 
 /// The run's faults: the controller's status (link outages, plant resets), the telemetry and
@@ -508,13 +661,14 @@ fn lost_controller(addr: &str, call: &str, status: tonic::Status) -> anyhow::Err
             .any(|w| status.message().to_lowercase().contains(w)),
         _ => false,
     };
-    if transport {
-        anyhow!(
+    let message = if transport {
+        format!(
             "the controller at {addr} went away during the run ({call}: {}): its process was killed or \
              crashed, or the link to it was cut",
             status.message()
         )
     } else {
-        anyhow!("controller {call}: {}: {}", status.code(), status.message())
-    }
+        format!("controller {call}: {}: {}", status.code(), status.message())
+    };
+    ControllerStopped(message).into()
 }

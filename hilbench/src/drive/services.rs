@@ -307,6 +307,11 @@ pub async fn connect(addr: &str, deadline: Instant) -> anyhow::Result<Channel> {
     connect_with(addr, &Tls::plaintext(), deadline).await
 }
 
+/// How often a client's connection pings its service (HTTP/2 PING).
+pub const KEEPALIVE_INTERVAL: Duration = Duration::from_secs(5);
+/// How long a ping may go unanswered before the connection is given up.
+pub const KEEPALIVE_TIMEOUT: Duration = Duration::from_secs(5);
+
 /// As [`connect`], with `tls`'s client side (https with a CA, plaintext without). A service
 /// that does not answer within 2 s is said to be waited for, on stderr, with the reason.
 pub async fn connect_with(addr: &str, tls: &Tls, deadline: Instant) -> anyhow::Result<Channel> {
@@ -314,7 +319,13 @@ pub async fn connect_with(addr: &str, tls: &Tls, deadline: Instant) -> anyhow::R
         .endpoint(addr)
         .with_context(|| format!("bad address {addr:?}"))?
         .connect_timeout(Duration::from_secs(2))
-        .tcp_nodelay(true);
+        .tcp_nodelay(true)
+        // HTTP/2 pings: a peer that stopped answering (a frozen process, a paused VM, a cut
+        // link that drops packets) fails the connection's calls and streams within about
+        // 10 s instead of leaving them waiting on TCP for good.
+        .http2_keep_alive_interval(KEEPALIVE_INTERVAL)
+        .keep_alive_timeout(KEEPALIVE_TIMEOUT)
+        .keep_alive_while_idle(true);
     let started = Instant::now();
     let deadline = deadline.min(started + CONNECT_PATIENCE);
     let (mut said, mut pause) = (false, Duration::from_millis(10));

@@ -21,8 +21,8 @@ pub struct Batch {
     /// it had flown at least one cycle.
     pub runs: Vec<FinishedRun>,
     /// The error that ended the command early (a run that failed: a service died, a trace ran
-    /// out, ...): no later run started.
-    pub error: Option<String>,
+    /// out, the controller stopped, ...): no later run started.
+    pub error: Option<RunError>,
     /// Ctrl-C stopped the command: `runs` holds the runs that finished before it.
     pub interrupted: bool,
     /// The driver's `summary.json` name (`transport`).
@@ -174,6 +174,77 @@ impl RunFaults {
         }
     }
 }
+
+/// Whose doing it was that a run stopped before its end: it decides what a sweep or a
+/// falsification makes of the run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RunErrorKind {
+    /// The controller stopped the run: it ended its episode with an error (a problem it could
+    /// not solve), froze, went away, exited early or stopped stepping the plant. A failure of
+    /// the controller, and so of any property asked of it.
+    Controller,
+    /// Anything else: a trace that ran out, a plant or netem that died, a run that could not
+    /// start.
+    Bench,
+}
+
+/// Why a run stopped before its end, in words, and whose doing it was.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunError {
+    pub kind: RunErrorKind,
+    pub message: String,
+}
+
+impl RunError {
+    pub fn bench(message: impl Into<String>) -> Self {
+        Self { kind: RunErrorKind::Bench, message: message.into() }
+    }
+
+    pub fn controller(message: impl Into<String>) -> Self {
+        Self { kind: RunErrorKind::Controller, message: message.into() }
+    }
+
+    /// The error of a driver's run, `what` in front: the controller's when a
+    /// [`ControllerStopped`] is in its chain.
+    pub fn of(what: &str, error: &anyhow::Error) -> Self {
+        let kind = if error.chain().any(|e| e.is::<ControllerStopped>()) {
+            RunErrorKind::Controller
+        } else {
+            RunErrorKind::Bench
+        };
+        Self { kind, message: format!("{what}: {error:#}") }
+    }
+
+    /// The controller stopped the run.
+    pub fn is_controllers(&self) -> bool {
+        self.kind == RunErrorKind::Controller
+    }
+}
+
+impl std::fmt::Display for RunError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+/// In `summary.json` a run's error is its message.
+impl serde::Serialize for RunError {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(&self.message)
+    }
+}
+
+/// A driver's error that says the controller stopped the run ([`RunErrorKind::Controller`]).
+#[derive(Debug)]
+pub struct ControllerStopped(pub String);
+
+impl std::fmt::Display for ControllerStopped {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for ControllerStopped {}
 
 /// A run that failed part-way: the error, and what it flew before it (`None` when it failed
 /// before its first cycle). The partial run's summary ends with `end_reason` "error", from the

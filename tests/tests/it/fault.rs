@@ -396,3 +396,111 @@ async fn a_panic_in_any_task_of_a_run_ends_it_with_exit_1_and_a_message_naming_i
     assert!(stderr.contains("injected panic at controller-cycle"), "{stderr}");
     plant.stop().await.expect("plant stops cleanly");
 }
+
+/// A `hilbench run` of paper-2 (NMPC) against services started by the test, in `time_mode`,
+/// writing into `out`.
+fn run_against_services(
+    plant: &str,
+    netem: &str,
+    controller: &str,
+    time_mode: &str,
+    out: &std::path::Path,
+) -> std::process::Child {
+    let file = scenario_file("paper-2.toml");
+    let out_arg = out.display().to_string();
+    hilbench(
+        &[
+            "run",
+            &file,
+            "--mode",
+            "nmpc",
+            "--time-mode",
+            time_mode,
+            "--plant",
+            plant,
+            "--netem",
+            netem,
+            "--controller",
+            controller,
+            "--no-plots",
+            "--quiet",
+            "--out",
+            &out_arg,
+        ],
+        &[],
+    )
+}
+
+/// The services of one run, each a process of its own, in `time_mode`.
+fn services(time_mode: &str) -> ((String, String, String), (Service, Service, Service)) {
+    let (plant, netem, controller) =
+        (free_loopback_address(), free_loopback_address(), free_loopback_address());
+    let p = Service::start("plant", &["--listen", &plant, "--time-mode", time_mode]);
+    let n = Service::start("netem", &["--listen", &netem, "--plant", &plant, "--time-mode", time_mode]);
+    let c = Service::start(
+        "controller",
+        &["--listen", &controller, "--plant", &netem, "--time-mode", time_mode, "--no-autostart"],
+    );
+    ((plant, netem, controller), (p, n, c))
+}
+
+/// summary.json of `out`: its first run's cycles (at least 10 flew) and error.
+fn partial_run_of(out: &std::path::Path) -> (u64, String) {
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary.json"))
+            .expect("JSON");
+    let run = &summary["runs"][0];
+    let cycles = run["cycles"].as_u64().unwrap_or_else(|| panic!("no run kept: {summary:#}"));
+    assert!(cycles >= 10, "{cycles} cycles: {summary:#}");
+    (cycles, run["error"].as_str().unwrap_or_default().to_string())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_frozen_controller_ends_a_lockstep_run_naming_it_frozen_and_keeping_the_flight_so_far() {
+    let ((plant, netem, controller), (_p, _n, controller_process)) = services("lockstep");
+    let out = TempDir::new("controller-frozen");
+    let run = run_against_services(&plant, &netem, &controller, "lockstep", &out);
+    wait_until_flying(&plant, 20).await;
+    // A paused VM, a deadlock: the process stays, its socket open, and answers nothing.
+    controller_process.signal("STOP");
+    let (code, stderr) = exited(run).await;
+    controller_process.signal("CONT");
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains(&format!("the controller at {controller} did not answer"))
+            && stderr.contains("frozen"),
+        "{stderr}"
+    );
+    let (_, error) = partial_run_of(&out);
+    assert!(error.contains("frozen"), "{error}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_netem_killed_mid_run_ends_it_naming_netem_not_after_the_stall_timeout() {
+    let ((plant, netem, controller), (_p, netem_process, _c)) = services("real-time");
+    let out = TempDir::new("netem-killed");
+    let run = run_against_services(&plant, &netem, &controller, "real-time", &out);
+    wait_until_flying(&plant, 20).await;
+    netem_process.signal("KILL");
+    let (code, stderr) = exited(run).await;
+    assert_eq!(code, Some(1), "{stderr}");
+    // Named by the driver's own probe, not the 30 s stall check's "no control cycle".
+    assert!(stderr.contains(&format!("the netem at {netem} has not answered for")), "{stderr}");
+    assert!(!stderr.contains("no control cycle"), "{stderr}");
+    partial_run_of(&out);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ctrl_c_mid_run_writes_the_flight_so_far_as_interrupted_and_exits_130() {
+    let ((plant, netem, controller), _services) = services("real-time");
+    let out = TempDir::new("ctrl-c-mid-run");
+    let run = run_against_services(&plant, &netem, &controller, "real-time", &out);
+    wait_until_flying(&plant, 20).await;
+    let pid = run.id().to_string();
+    let signalled = std::process::Command::new("kill").args(["-INT", &pid]).status().expect("kill runs");
+    assert!(signalled.success());
+    let (code, stderr) = exited(run).await;
+    assert_eq!(code, Some(130), "{stderr}");
+    let (_, error) = partial_run_of(&out);
+    assert!(error.contains("interrupted (Ctrl-C)"), "{error}");
+}
