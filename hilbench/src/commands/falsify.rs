@@ -115,5 +115,15 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
         eprintln!("interrupted: what had flown is in {}", dir.join("falsify.json").display());
         return Ok(Exit::Interrupted);
     }
+    // Nothing evaluated is no finding: said, and not a success.
+    let runs: usize = result.searches.iter().map(|s| s.evaluations.len()).sum();
+    if result.evaluated() == 0 {
+        let first = result.searches.iter().flat_map(|s| &s.evaluations).find(|e| !e.error.is_empty());
+        anyhow::bail!(
+            "no run was evaluated: all {runs} run(s) ended with the bench's own errors{} (falsify.json in {})",
+            first.map_or(String::new(), |e| format!("; the first: {}", e.error)),
+            dir.display()
+        );
+    }
     Ok(if result.found() { Exit::Falsified } else { Exit::Success })
 }

@@ -62,9 +62,11 @@ pub struct Evaluation {
     pub run: u64,
     /// In the space's units, one value per dim.
     pub point: Vec<f64>,
-    /// The robustness (m, `< 0`: the property fails); NaN for a run that did not finish.
+    /// The robustness (m, `< 0`: the property fails); `-inf` for a run the controller
+    /// stopped or that timed out (a failure of the property outright); NaN for one the bench
+    /// could not fly (an error of its own: not evaluated).
     pub score: f64,
-    /// reached, collided, missed, error, timeout.
+    /// reached, collided, missed, aborted (the controller stopped the run), timeout, error.
     pub outcome: String,
     /// Why a run did not finish (its error), else empty.
     pub error: String,
@@ -97,7 +99,7 @@ pub struct SearchRecord {
 }
 
 impl SearchRecord {
-    /// Runs that did not finish (an error or a time-out): scored as the worst.
+    /// Runs the bench could not fly (its own errors): not evaluated, ranked last.
     pub fn errors(&self) -> usize {
         self.evaluations.iter().filter(|e| e.score.is_nan()).count()
     }
@@ -120,6 +122,12 @@ impl FalsifyResult {
     /// Whether some search found a run that fails the property.
     pub fn found(&self) -> bool {
         self.searches.iter().any(|s| s.first_failure().is_some())
+    }
+
+    /// Runs that were evaluated (flown to an outcome, a controller's stop and a time-out
+    /// included), over every search.
+    pub fn evaluated(&self) -> usize {
+        self.searches.iter().map(|s| s.evaluations.len() - s.errors()).sum()
     }
 }
 
@@ -194,9 +202,18 @@ impl Falsification {
                 evaluation.end_time_s = Some(s.end_time_s);
                 flight = Some(f);
             }
-            RunFate::Failed(e) => evaluation.error = e,
+            // The controller stopping the run fails the property outright; the bench's own
+            // error leaves the point unevaluated.
+            RunFate::Failed(e) => {
+                if e.is_controllers() {
+                    evaluation.outcome = "aborted".into();
+                    evaluation.score = f64::NEG_INFINITY;
+                }
+                evaluation.error = e.message;
+            }
             RunFate::TimedOut(limit) => {
                 evaluation.outcome = "timeout".into();
+                evaluation.score = f64::NEG_INFINITY;
                 evaluation.error =
                     format!("the run took longer than the per-run time limit of {} s", limit.as_secs_f64());
             }
@@ -242,8 +259,9 @@ fn search_one(
     let started = Instant::now();
     let mut search = Search::new(&space.dims, &f.settings(method));
     let mut evaluations: Vec<Evaluation> = Vec::new();
-    // The worst run so far: its evaluation's score, run, delays and flight.
-    let mut worst: Option<(f64, u64, Vec<f64>, Box<Flight>)> = None;
+    // The worst run so far: its evaluation's score, run, delays and flight (none for a run the
+    // controller stopped or that timed out).
+    let mut worst: Option<(f64, u64, Vec<f64>, Option<Box<Flight>>)> = None;
     let mut interrupted = false;
     while !search.done() {
         if stop.load(Ordering::Relaxed) {
@@ -264,10 +282,10 @@ fn search_one(
         for p in flown.into_iter().flatten().filter(|p| !p.interrupted) {
             let score = p.evaluation.score;
             scores.push(score);
-            if let Some(flight) = p.flight
+            if (p.flight.is_some() || score == f64::NEG_INFINITY)
                 && worst.as_ref().is_none_or(|(s, ..)| score < *s)
             {
-                worst = Some((score, p.evaluation.run, p.delays_s, flight));
+                worst = Some((score, p.evaluation.run, p.delays_s, p.flight));
             }
             evaluations.push(p.evaluation);
         }
@@ -279,12 +297,15 @@ fn search_one(
         progress(&space.name, method, search.tell(&scores));
     }
     let worst = worst.map(|(score, run, delays_s, flight)| {
-        let trace = if score < 0.0 && f.shrink_runs > 0 {
-            let fails = |flight: &Flight| f.score(flight) < 0.0;
-            let failure = FailureTrace::unshrunk(&delays_s, &flight);
-            shrink::shrink(&f.rerun(space, stop), f.shrink_runs, failure, shrink::Passes::All, &fails)
-        } else {
-            FailureTrace::unshrunk(&delays_s, &flight)
+        let trace = match flight {
+            Some(flight) if score < 0.0 && f.shrink_runs > 0 => {
+                let fails = |flight: &Flight| f.score(flight) < 0.0;
+                let failure = FailureTrace::unshrunk(&delays_s, &flight);
+                shrink::shrink(&f.rerun(space, stop), f.shrink_runs, failure, shrink::Passes::All, &fails)
+            }
+            Some(flight) => FailureTrace::unshrunk(&delays_s, &flight),
+            // Stopped by the controller or timed out: every delay the point drew, unshrunk.
+            None => FailureTrace::whole(&delays_s),
         };
         Worst { run, score, trace }
     });

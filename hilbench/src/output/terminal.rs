@@ -105,9 +105,22 @@ pub fn sweep_runs(v: &serde_json::Value) -> u64 {
 /// The counts of `a` (an entry of [`sweep_sections`]) in words.
 fn sweep_counts(a: &serde_json::Value) -> String {
     format!(
-        "{} reached, {} collided ({} with the ground), {} missed, {} errors",
-        a["reached"], a["collided"], a["collided_ground"], a["missed"], a["errors"]
+        "{} reached, {} collided ({} with the ground), {} missed, {}{} errors",
+        a["reached"],
+        a["collided"],
+        a["collided_ground"],
+        a["missed"],
+        aborted_text(a),
+        a["errors"]
     )
+}
+
+/// "N aborted, " when the controller stopped some runs (a failure of it), else nothing.
+pub fn aborted_text(a: &serde_json::Value) -> String {
+    match a["aborted"].as_u64() {
+        Some(n) if n > 0 => format!("{n} aborted (the controller stopped), "),
+        _ => String::new(),
+    }
 }
 
 /// The sweep's counts and distributions, per controller and family, on stdout.
@@ -187,6 +200,9 @@ pub fn sweep_text(v: &serde_json::Value, dir: &std::path::Path) -> String {
         for (what, key) in [("collisions", "collision"), ("missed goals", "missed"), ("any failure", "any")] {
             let _ = writeln!(out, "{}", failure_text(what, &p[key]));
         }
+        if section["aborted"].as_u64().is_some_and(|n| n > 0) {
+            let _ = writeln!(out, "{}", failure_text("runs the controller stopped", &p["aborted"]));
+        }
         for family in families.iter().filter_map(|n| n.as_str()) {
             let p = &section["families"][family]["failure_probability"];
             let _ = writeln!(out, "  {family}: {}", failure_text("any failure", &p["any"]));
@@ -249,10 +265,12 @@ pub fn print_falsify(v: &serde_json::Value, dir: &std::path::Path) {
     for s in v["searches"].as_array().into_iter().flatten() {
         let first = s["first_failure_run"].as_u64().map_or("none".to_string(), |r| format!("run {r}"));
         // JSON has no infinity: a best run with no obstacle near and no miss scores +inf.
-        let best = match (s["best"]["score_m"].as_f64(), s["best"].is_object()) {
+        let best = match (s["best"]["score_m"].as_f64(), s["best"]["outcome"].as_str()) {
             (Some(b), _) => format!("{b:+.4}"),
-            (None, true) => "+inf".to_string(),
-            (None, false) => "-".to_string(),
+            // A failure outright: the controller stopped the run, or it timed out.
+            (None, Some(o @ ("aborted" | "timeout"))) => format!("-inf ({o})"),
+            (None, Some(_)) => "+inf".to_string(),
+            (None, None) => "-".to_string(),
         };
         let trace = s["worst_trace"]["file"].as_str().unwrap_or("-");
         println!(

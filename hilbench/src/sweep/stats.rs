@@ -24,7 +24,9 @@ pub struct RunRow {
     pub family: String,
     /// The family's drawn parameters, `key=value;...`.
     pub params: String,
-    /// `reached`, `collided`, `missed` (the time limit without a collision), `error`, `timeout`.
+    /// `reached`, `collided`, `missed` (the time limit without a collision), `aborted` (the
+    /// controller stopped the run: its own error, a freeze, an early exit), `error` (the
+    /// bench's: a trace that ran out, a service that died), `timeout`.
     pub outcome: String,
     /// Some collision was with the ground.
     pub collided_ground: bool,
@@ -312,6 +314,7 @@ pub fn aggregate(rows: &[&RunRow]) -> Value {
         "collided": count("collided"),
         "collided_ground": rows.iter().filter(|r| r.collided_ground).count(),
         "missed": count("missed"),
+        "aborted": count("aborted"),
         "errors": count("error") + count("timeout"),
         "timeouts": count("timeout"),
         "best_effort_cycles": rows.iter().map(|r| r.best_effort_cycles).sum::<u64>(),
@@ -327,13 +330,16 @@ pub fn aggregate(rows: &[&RunRow]) -> Value {
 /// Confidence level of the failure probabilities' intervals.
 pub const CONFIDENCE: f64 = 0.95;
 
-/// The probability of each kind of failure (a collision, a missed goal, either) estimated from
-/// the runs that flew (errors and time-outs are not outcomes), with its two-sided
+/// The probability of each kind of failure (a collision, a missed goal, the controller
+/// stopping the run, any of them) estimated from the runs that flew (the bench's errors and
+/// time-outs are not outcomes), with its two-sided
 /// Clopper-Pearson interval at [`CONFIDENCE`]: `{failures, runs, rate, lower, upper, level}`,
 /// `null` without a run.
 pub fn failure_probability(rows: &[&RunRow]) -> Value {
-    let flown =
-        rows.iter().filter(|r| matches!(r.outcome.as_str(), "reached" | "collided" | "missed")).count();
+    let flown = rows
+        .iter()
+        .filter(|r| matches!(r.outcome.as_str(), "reached" | "collided" | "missed" | "aborted"))
+        .count();
     let of = |failed: &dyn Fn(&str) -> bool| -> Value {
         let failures = rows.iter().filter(|r| failed(&r.outcome)).count() as u64;
         match linkfit::clopper_pearson(failures, flown as u64, CONFIDENCE) {
@@ -351,7 +357,8 @@ pub fn failure_probability(rows: &[&RunRow]) -> Value {
     json!({
         "collision": of(&|o| o == "collided"),
         "missed": of(&|o| o == "missed"),
-        "any": of(&|o| o == "collided" || o == "missed"),
+        "aborted": of(&|o| o == "aborted"),
+        "any": of(&|o| o == "collided" || o == "missed" || o == "aborted"),
     })
 }
 

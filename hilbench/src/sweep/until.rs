@@ -66,7 +66,7 @@ fn decide(done: &[Done], modes: &[String], bound: f64) -> Option<(u64, Stopped)>
         while i < done.len() && done[i].row.run == run {
             let row = &done[i].row;
             match row.outcome.as_str() {
-                "collided" | "missed" => failed = true,
+                "collided" | "missed" | "aborted" => failed = true,
                 "reached" => {
                     if let Some(k) = modes.iter().position(|m| *m == row.controller) {
                         counts[k] += 1;
