@@ -649,3 +649,104 @@ fn a_familys_loss_is_drawn_per_run_recorded_flown_as_lost_commands_and_kept_in_t
         assert_eq!(r[key], failure["replay"][key], "{key} of {}", trace.display());
     }
 }
+
+/// Every file below `dir` with its contents, for "left as it was".
+fn snapshot(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).expect("a directory") {
+            let path = entry.expect("an entry").path();
+            if path.is_dir() {
+                stack.push(path);
+            } else {
+                out.push((path.display().to_string(), std::fs::read(&path).expect("a file")));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn a_merge_into_one_of_its_shards_or_of_shards_that_disagree_is_refused_leaving_every_directory_as_it_was() {
+    let base = out_dir("sweep-merge-refused");
+    std::fs::create_dir_all(&base).expect("dir");
+    let file = long_delays();
+    let shard = |i: usize, file: &str| {
+        let dir = base.join(format!("sh{i}"));
+        let shard = format!("{i}/2");
+        let out = hilbench(&[
+            "sweep",
+            file,
+            "--runs",
+            "4",
+            "--shard",
+            &shard,
+            "--no-plots",
+            "--quiet",
+            "--out",
+            s(&dir),
+        ]);
+        assert!(out.status.success(), "{out:?}");
+        dir
+    };
+    let (a, b) = (shard(0, &file), shard(1, &file));
+    let before = (snapshot(&a), snapshot(&b));
+    let refused = |dirs: &[&Path], out: &Path, says: &str| {
+        let args: Vec<&str> = [
+            &["sweep-merge"][..],
+            &dirs.iter().map(|d| s(d)).collect::<Vec<_>>(),
+            &["--out", s(out), "--quiet"],
+        ]
+        .concat();
+        let merge = hilbench(&args);
+        assert_eq!(merge.status.code(), Some(1), "{merge:?}");
+        let stderr = String::from_utf8_lossy(&merge.stderr);
+        assert!(stderr.contains(says), "{says:?} not in {stderr}");
+    };
+    // --out naming a shard, the folder that holds them, a folder inside one.
+    refused(&[&a, &b], &a, "is the shard");
+    refused(&[&a, &b], &base, "holds the shard");
+    refused(&[&a, &b], &b.join("merged"), "lies inside the shard");
+    assert_eq!((snapshot(&a), snapshot(&b)), before, "a refused merge touched a shard");
+    // A shard flown from an edited file (an obstacle moved 0.5 m): refused, naming the fingerprint.
+    let text = std::fs::read_to_string(&file).expect("the file");
+    let edited_file = base.join("edited.toml");
+    let moved = edited_file_with_an_obstacle_moved(&text);
+    std::fs::write(&edited_file, moved).expect("write");
+    let c = {
+        let dir = base.join("sh1-edited");
+        let out = hilbench(&[
+            "sweep",
+            s(&edited_file),
+            "--runs",
+            "4",
+            "--shard",
+            "1/2",
+            "--no-plots",
+            "--quiet",
+            "--out",
+            s(&dir),
+        ]);
+        assert!(out.status.success(), "{out:?}");
+        dir
+    };
+    let merged = base.join("merged");
+    refused(&[&a, &c], &merged, "flew another scenario than");
+    // Nothing claimed by a refused merge: the right one then goes into the same --out.
+    assert!(!merged.join(".hilbench-in-progress").exists());
+    // A runs.csv edited from collided to reached while sweep.json lists the failure.
+    let csv = std::fs::read_to_string(b.join("runs.csv")).expect("runs.csv");
+    std::fs::write(b.join("runs.csv"), csv.replacen(",collided,", ",reached,", 1)).expect("write");
+    refused(&[&a, &b], &merged, "runs.csv and sweep.json disagree");
+    std::fs::write(b.join("runs.csv"), csv).expect("write back");
+    let merge = hilbench(&["sweep-merge", s(&a), s(&b), "--out", s(&merged), "--no-plots", "--quiet"]);
+    assert!(merge.status.success(), "{merge:?}");
+}
+
+/// The scenario file `text` with its first obstacle moved 0.5 m (x 3.5 -> 4.0).
+fn edited_file_with_an_obstacle_moved(text: &str) -> String {
+    assert!(text.contains("x_m = 3.5\n"), "the test file's first obstacle moved");
+    text.replacen("x_m = 3.5\n", "x_m = 4.0\n", 1)
+}

@@ -13,7 +13,7 @@ use crate::output::out_dir::OutDir;
 use crate::output::terminal;
 use crate::scenario_file::ScenarioFile;
 use crate::sweep::journal::Journal;
-use crate::sweep::{Sweep, execute, output, shard, shrink_failures, until};
+use crate::sweep::{Sweep, execute, fnv1a64, output, shard, shrink_failures, until};
 
 pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
     let spec = ScenarioFile::load(&args.file)?;
@@ -178,10 +178,4 @@ fn identity(sweep: &Sweep, file_text: &[u8], until_bound: Option<f64>) -> Value 
         "shrink_runs": sweep.shrink_runs,
         "shrink_total_runs": sweep.shrink_total_runs,
     })
-}
-
-/// FNV-1a, 64 bits: a file's fingerprint (not a defence against a forger, only a check that
-/// the file did not change).
-fn fnv1a64(bytes: &[u8]) -> u64 {
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, b| (h ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3))
 }

@@ -67,7 +67,21 @@ pub struct Sweep {
     pub finished: Arc<journal::Finished>,
 }
 
+/// FNV-1a, 64 bits: a fingerprint of a file or of a scenario's contents (not a defence against
+/// a forger, only a check that they did not change).
+pub fn fnv1a64(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, b| (h ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3))
+}
+
 impl Sweep {
+    /// The fingerprint of the scenario and `[sweep]` table as this sweep flies them (every
+    /// trace inline), as 16 hex digits: what `sweep-merge` compares between shards, so that
+    /// shards of a file edited in between (an obstacle moved, a range changed) are not merged.
+    pub fn scenario_fingerprint(&self) -> String {
+        let json = serde_json::to_vec(&(&self.scenario, &self.table)).unwrap_or_default();
+        format!("{:016x}", fnv1a64(&json))
+    }
+
     /// The run indices of this shard: the i-th of k contiguous slices of `0..runs`.
     pub fn indices(&self) -> Range<u64> {
         if let Some(batch) = &self.batch {
@@ -222,8 +236,19 @@ fn one(sweep: &Sweep, index: u64, mode: ControllerMode) -> Option<Done> {
     let row = match &flight {
         RunFate::Interrupted => return None,
         RunFate::Flown(f) => RunRow::of_flight(index, controller, &plan, f, wall_s),
+        // The controller stopping the run is a failure of it, with its own outcome; the
+        // bench's own errors are not outcomes.
         RunFate::Failed(e) => {
-            RunRow::of_error(index, controller, &plan.family, &plan.params_text(), "error", e, wall_s)
+            let outcome = if e.is_controllers() { "aborted" } else { "error" };
+            RunRow::of_error(
+                index,
+                controller,
+                &plan.family,
+                &plan.params_text(),
+                outcome,
+                &e.message,
+                wall_s,
+            )
         }
         RunFate::TimedOut(limit) => {
             let e = format!("the run took longer than the per-run time limit of {} s", limit.as_secs_f64());

@@ -23,6 +23,9 @@ pub const FAILURES_DIR: &str = "failures";
 #[derive(Debug, Clone, PartialEq)]
 pub struct Meta {
     pub scenario: String,
+    /// The fingerprint of the scenario and `[sweep]` table as flown (traces inline), FNV-1a
+    /// over their JSON: shards of different contents are not merged.
+    pub scenario_fnv1a64: String,
     pub file: String,
     pub seed: u64,
     /// Runs of the whole sweep (every shard).
@@ -44,6 +47,7 @@ impl Meta {
     pub fn of(sweep: &Sweep) -> Self {
         Self {
             scenario: sweep.scenario.name.clone(),
+            scenario_fnv1a64: sweep.scenario_fingerprint(),
             file: sweep.file.display().to_string(),
             seed: sweep.seed,
             runs_planned: sweep.runs,
@@ -83,6 +87,7 @@ pub fn sweep_json(
     }
     v["failures"] = Value::Array(failures);
     v["scenario"] = json!(meta.scenario);
+    v["scenario_fnv1a64"] = json!(meta.scenario_fnv1a64);
     v["file"] = json!(meta.file);
     v["seed"] = json!(meta.seed);
     v["runs_planned"] = json!(meta.runs_planned);
@@ -250,12 +255,13 @@ fn report(meta: &Meta, v: &Value, rows: &[&RunRow], figures: &[PathBuf], dir: &P
         if let Some(c) = controller {
             let _ = writeln!(
                 out,
-                "## {} (`{c}`): {} runs, {} reached, {} collided, {} missed, {} errors\n",
+                "## {} (`{c}`): {} runs, {} reached, {} collided, {} missed, {}{} errors\n",
                 crate::output::plots::style::controller_label(c),
                 a["runs"],
                 a["reached"],
                 a["collided"],
                 a["missed"],
+                crate::output::terminal::aborted_text(a),
                 a["errors"]
             );
         }
@@ -282,6 +288,9 @@ fn report(meta: &Meta, v: &Value, rows: &[&RunRow], figures: &[PathBuf], dir: &P
                 failure_text("missed goals", &p["missed"]),
                 failure_text("any failure", &p["any"])
             );
+            if x["aborted"].as_u64().is_some_and(|n| n > 0) {
+                let _ = writeln!(out, "  - {}", failure_text("runs the controller stopped", &p["aborted"]));
+            }
         }
         let _ = writeln!(out);
         let _ = writeln!(
@@ -328,10 +337,26 @@ fn report(meta: &Meta, v: &Value, rows: &[&RunRow], figures: &[PathBuf], dir: &P
     out
 }
 
-/// `hilbench sweep-merge`: the shards' `runs.csv`, failures and traces into `out`, and the
-/// `sweep.json` of the whole. The shards must come from the same file, seed and number of
-/// runs, and no (run, controller) may be in two of them.
-pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value> {
+/// The shards of a sweep, read and checked by [`read_shards`]: nothing written yet.
+#[derive(Debug)]
+pub struct Shards {
+    meta: Meta,
+    rows: Vec<RunRow>,
+    /// Each failure of `sweep.json` with the trace it names, read from its shard.
+    failures: Vec<(Value, Option<String>)>,
+    interrupted: bool,
+    shrinkings: Vec<Value>,
+    run_wall_s: f64,
+    solver_s: f64,
+    count: usize,
+}
+
+/// `hilbench sweep-merge`'s first half: every shard's `sweep.json`, `runs.csv` and failure
+/// traces read and checked, writing nothing, so that a refused merge leaves no trace. The
+/// shards must come from the same scenario as flown (its contents' fingerprint), seed and
+/// number of runs, no (run, controller) may be in two of them, and each shard's failures must
+/// be the runs its `runs.csv` says did not reach the goal, with the same outcomes.
+pub fn read_shards(dirs: &[PathBuf]) -> anyhow::Result<Shards> {
     anyhow::ensure!(!dirs.is_empty(), "sweep-merge: no shard directory given");
     let mut rows = Vec::new();
     let mut failures = Vec::new();
@@ -359,6 +384,16 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
         };
         let this = Meta {
             scenario: v["scenario"].as_str().unwrap_or_default().to_string(),
+            scenario_fnv1a64: v["scenario_fnv1a64"]
+                .as_str()
+                .with_context(|| {
+                    format!(
+                        "{}: no `scenario_fnv1a64` (the fingerprint of the scenario it flew): a shard of an \
+                         older hilbench; fly it again with this one",
+                        path.display()
+                    )
+                })?
+                .to_string(),
             file: v["file"].as_str().unwrap_or_default().to_string(),
             seed: v["seed"].as_u64().with_context(|| format!("{}: no `seed`", path.display()))?,
             runs_planned: v["runs_planned"]
@@ -374,6 +409,15 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
         };
         match &meta {
             None => meta = Some(this),
+            Some(m) if m.scenario_fnv1a64 != this.scenario_fnv1a64 => anyhow::bail!(
+                "{}: flew another scenario than {} (scenario_fnv1a64 {} against {}: the file's contents, \
+                 its [sweep] table or a trace it reads changed between the shards); fly every shard from \
+                 the same file",
+                path.display(),
+                dirs[0].display(),
+                this.scenario_fnv1a64,
+                m.scenario_fnv1a64
+            ),
             Some(m) => anyhow::ensure!(
                 *m == this,
                 "{}: another sweep than {} (file, seed, runs, controllers, families, transport and --shrink must agree)",
@@ -391,31 +435,101 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
             MAX_RUNS_CSV_BYTES,
             "a sweep's runs.csv",
         )?;
-        rows.extend(stats::from_csv(&csv).map_err(|e| anyhow::anyhow!("{}: {e}", csv_path.display()))?);
-        for failure in v["failures"].as_array().into_iter().flatten() {
-            if let Some(trace) = failure["trace_file"].as_str() {
-                anyhow::ensure!(
-                    is_failure_trace(trace),
-                    "{}: trace_file {trace:?} is not {FAILURES_DIR}/<file> (a shard's failures are copied \
-                     from its {FAILURES_DIR}/ only)",
-                    path.display()
-                );
-                let to = out.join(trace);
-                if let Some(parent) = to.parent() {
-                    std::fs::create_dir_all(parent)
-                        .with_context(|| format!("cannot create {}", parent.display()))?;
+        let shard_rows = stats::from_csv(&csv).map_err(|e| anyhow::anyhow!("{}: {e}", csv_path.display()))?;
+        let listed = v["failures"].as_array().cloned().unwrap_or_default();
+        check_failures_agree(&listed, &shard_rows).map_err(|e| {
+            anyhow::anyhow!(
+                "{}: {e} (runs.csv and sweep.json disagree: was one of them edited?)",
+                dir.display()
+            )
+        })?;
+        rows.extend(shard_rows);
+        for failure in listed {
+            let trace = match failure["trace_file"].as_str() {
+                Some(trace) => {
+                    anyhow::ensure!(
+                        is_failure_trace(trace),
+                        "{}: trace_file {trace:?} is not {FAILURES_DIR}/<file> (a shard's failures are copied \
+                         from its {FAILURES_DIR}/ only)",
+                        path.display()
+                    );
+                    // Read as every user file is: a FIFO or a device is refused, not waited on.
+                    Some(hilbench_scenario_file::user_file::read_text(
+                        &dir.join(trace),
+                        hilbench_scenario_file::user_file::MAX_TRACE_FILE_BYTES,
+                        "a shard's failure trace",
+                    )?)
                 }
-                std::fs::copy(dir.join(trace), &to).with_context(|| {
-                    format!("cannot copy {} to {}", dir.join(trace).display(), to.display())
-                })?;
-            }
-            failures.push(failure.clone());
+                None => None,
+            };
+            failures.push((failure, trace));
         }
     }
     let meta = meta.context("sweep-merge: no shard")?;
     // An interrupted shard flew part of its runs: the merge is of what finished, interrupted.
     let rows = stats::merge_rows(rows, &meta.controllers, meta.runs_planned, interrupted)
         .map_err(|e| anyhow::anyhow!("sweep-merge: {e}"))?;
+    Ok(Shards { meta, rows, failures, interrupted, shrinkings, run_wall_s, solver_s, count: dirs.len() })
+}
+
+/// Whether a shard's `failures` (from `sweep.json`) are exactly its rows that did not reach the
+/// goal, with the same outcomes.
+fn check_failures_agree(listed: &[Value], rows: &[RunRow]) -> Result<(), String> {
+    let from_csv: std::collections::BTreeMap<(u64, &str), &str> = rows
+        .iter()
+        .filter(|r| r.failed())
+        .map(|r| ((r.run, r.controller.as_str()), r.outcome.as_str()))
+        .collect();
+    let mut from_json = std::collections::BTreeMap::new();
+    for f in listed {
+        let run = f["run"].as_u64().ok_or("a failure without `run`")?;
+        let controller = f["controller"].as_str().ok_or("a failure without `controller`")?;
+        let outcome = f["outcome"].as_str().ok_or("a failure without `outcome`")?;
+        from_json.insert((run, controller), outcome);
+    }
+    for (key, outcome) in &from_json {
+        match from_csv.get(key) {
+            None => {
+                return Err(format!(
+                    "run {} ({}) is a failure ({outcome}) in sweep.json but not in runs.csv",
+                    key.0, key.1
+                ));
+            }
+            Some(row) if row != outcome => {
+                return Err(format!(
+                    "run {} ({}) is {outcome} in sweep.json but {row} in runs.csv",
+                    key.0, key.1
+                ));
+            }
+            Some(_) => {}
+        }
+    }
+    if let Some((key, outcome)) = from_csv.iter().find(|(k, _)| !from_json.contains_key(*k)) {
+        return Err(format!(
+            "run {} ({}) is a failure ({outcome}) in runs.csv but not listed in sweep.json",
+            key.0, key.1
+        ));
+    }
+    Ok(())
+}
+
+/// `hilbench sweep-merge`'s second half: the shards' `runs.csv`, failures and traces into
+/// `out` (claimed by the caller), and the `sweep.json` of the whole.
+pub fn write_merged(shards: Shards, out: &Path, plots: bool) -> anyhow::Result<Value> {
+    let Shards { meta, rows, failures, interrupted, shrinkings, run_wall_s, solver_s, count } = shards;
+    let mut listed = Vec::with_capacity(failures.len());
+    for (failure, trace) in failures {
+        if let (Some(name), Some(text)) = (failure["trace_file"].as_str(), trace) {
+            let to = out.join(name);
+            if let Some(parent) = to.parent() {
+                std::fs::create_dir_all(parent)
+                    .with_context(|| format!("cannot create {}", parent.display()))?;
+            }
+            write_file(&to, &text)?;
+        }
+        listed.push(failure);
+    }
+    let mut failures = listed;
     let order = |c: &str| meta.controllers.iter().position(|x| x == c).unwrap_or(usize::MAX);
     failures.sort_by_key(|f| {
         (f["run"].as_u64().unwrap_or(u64::MAX), order(f["controller"].as_str().unwrap_or("")))
@@ -423,7 +537,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path, plots: bool) -> anyhow::Result<Value>
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let refs: Vec<&RunRow> = rows.iter().collect();
     write_file(&out.join("runs.csv"), &stats::to_csv(&refs))?;
-    let timing = json!({ "shards": dirs.len(), "run_wall_s": run_wall_s, "solver_s": solver_s });
+    let timing = json!({ "shards": count, "run_wall_s": run_wall_s, "solver_s": solver_s });
     let mut summary = sweep_json(&meta, &refs, failures, interrupted, timing);
     summary["shrinking"] = merged_shrinking(&shrinkings);
     let scenario = crate::scenario_file::ScenarioFile::load(Path::new(&meta.file)).map(|f| f.scenario).ok();
