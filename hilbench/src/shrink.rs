@@ -13,6 +13,7 @@
 //! cycles that run flew. The result is the trace of the last kept run, so its replay is that
 //! run.
 
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
@@ -123,12 +124,32 @@ impl FailureTrace {
 
 /// The command that flies `file` again with the trace `trace`: with the external controller
 /// `controller_cmd` when there is one, else the bench's controller `mode` (its name).
+///
+/// The scenario file is named by its absolute path (relative paths are of the directory the
+/// command ran in), so that the line pasted anywhere replays; the caller names the trace the
+/// same way (or `<this file>`). Both are quoted for a POSIX shell when they need it.
 pub fn replay_command(file: &str, controller_cmd: Option<&str>, mode: &str, trace: &str) -> String {
     let who = match controller_cmd {
         Some(cmd) => format!("--controller-cmd {}", shell_quote(cmd)),
         None => format!("--mode {mode}"),
     };
+    let file = shell_word(&absolute(Path::new(file)));
+    let trace = if trace == "<this file>" { trace.to_string() } else { shell_word(trace) };
     format!("hilbench run {file} {who} --delay-trace {trace}")
+}
+
+/// `path` made absolute against the current directory (as it is, when that cannot be read).
+pub fn absolute(path: &Path) -> String {
+    std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()).display().to_string()
+}
+
+/// `text` as it is when a shell reads it as one word, else quoted.
+fn shell_word(text: &str) -> String {
+    let plain = !text.is_empty()
+        && text
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '/' | '.' | '-' | '_' | ':' | '+' | ','));
+    if plain { text.to_string() } else { shell_quote(text) }
 }
 
 /// `text` as one word for a POSIX shell.

@@ -3,6 +3,7 @@
 //! same search whatever `--jobs`; the stable keys of falsify.json; bad input refused before
 //! anything flies.
 
+use std::path::Path;
 use std::process::Output;
 
 use serde_json::Value;
@@ -14,6 +15,15 @@ use common::{hilbench, json_of, out_dir, repo, s};
 /// and the `[sweep]` families for a collision.
 fn plan_check() -> String {
     repo("scenarios/sweeps/paper-2-delays-plan-check.toml")
+}
+
+/// `hilbench ARGS` run in `dir`.
+fn hilbench_in(dir: &Path, args: &[&str]) -> Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_hilbench"))
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .expect("hilbench runs")
 }
 
 fn stderr(o: &Output) -> String {
@@ -41,26 +51,33 @@ fn without_timing(mut v: Value) -> Value {
 fn falsify_finds_a_collision_of_the_plan_check_controller_and_its_shrunk_trace_replays_it() {
     let out = out_dir("falsify-plan-check");
     let file = plan_check();
-    let run = hilbench(&[
-        "falsify",
-        &file,
-        "--space",
-        "signal",
-        "--method",
-        "random",
-        "--budget",
-        "80",
-        "--seed",
-        "1",
-        "--jobs",
-        "2",
-        "--shrink-runs",
-        "12",
-        "--no-plots",
-        "--quiet",
-        "--out",
-        s(&out),
-    ]);
+    // Run from the scenario's folder with a relative path, as a user does: the printed replay
+    // must work from anywhere else.
+    let folder = Path::new(&file).parent().expect("a folder").to_path_buf();
+    let name = Path::new(&file).file_name().expect("a name").to_string_lossy().into_owned();
+    let run = hilbench_in(
+        &folder,
+        &[
+            "falsify",
+            &name,
+            "--space",
+            "signal",
+            "--method",
+            "random",
+            "--budget",
+            "80",
+            "--seed",
+            "1",
+            "--jobs",
+            "2",
+            "--shrink-runs",
+            "12",
+            "--no-plots",
+            "--quiet",
+            "--out",
+            s(&out),
+        ],
+    );
     assert_eq!(run.status.code(), Some(3), "a failure found exits 3: {}", stderr(&run));
     let v = json_of(&out.join("falsify.json"));
     assert_eq!(v["schema"], "hilbench-falsify/1");
@@ -104,6 +121,17 @@ fn falsify_finds_a_collision_of_the_plan_check_controller_and_its_shrunk_trace_r
     for key in ["min_clearance_m", "cycles", "end_reason", "path_length_m"] {
         assert_eq!(r[key], worst["replay"][key], "{key} of {}", trace.display());
     }
+    // The replay command as printed, pasted in another directory, flies the same run.
+    let printed = worst["replay_command"].as_str().expect("a replay command");
+    let words: Vec<&str> = printed.split_whitespace().collect();
+    assert_eq!(words[..2], ["hilbench", "run"], "{printed}");
+    let pasted = out_dir("falsify-plan-check-pasted");
+    let elsewhere = std::env::temp_dir();
+    let extra = ["--in-process", "--no-plots", "--no-mcap", "--quiet", "--out", s(&pasted)];
+    let again = hilbench_in(&elsewhere, &[&words[1..], &extra[..]].concat());
+    assert_eq!(again.status.code(), Some(3), "{printed}: {}", stderr(&again));
+    let r = &json_of(&pasted.join("summary.json"))["runs"][0];
+    assert_eq!(r["min_clearance_m"], worst["replay"]["min_clearance_m"], "{printed}");
     // Every run is a row of runs.csv.
     let csv = std::fs::read_to_string(out.join("runs.csv")).expect("runs.csv");
     assert_eq!(csv.lines().count() as u64 - 1, search["runs"].as_u64().expect("runs"));

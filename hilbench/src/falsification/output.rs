@@ -30,12 +30,16 @@ fn controller(f: &Falsification) -> String {
 }
 
 /// The command that flies a trace of this falsification again.
-pub fn replay_command(f: &Falsification, trace: &str) -> String {
+/// The command that replays `trace` (a path below `dir`, the output directory, or
+/// `<this file>`), with paths that work from wherever the falsification ran.
+pub fn replay_command(f: &Falsification, dir: &Path, trace: &str) -> String {
+    let trace =
+        if trace == "<this file>" { trace.to_string() } else { crate::shrink::absolute(&dir.join(trace)) };
     crate::shrink::replay_command(
         &f.file.display().to_string(),
         f.controller_cmd.as_deref(),
         f.mode.name(),
-        trace,
+        &trace,
     )
 }
 
@@ -52,7 +56,7 @@ fn point_json(record: &SearchRecord, point: &[f64]) -> Value {
     Value::Object(record.dims.iter().zip(point).map(|(d, v)| (d.name.clone(), json!(v))).collect())
 }
 
-fn search_json(f: &Falsification, record: &SearchRecord) -> Value {
+fn search_json(f: &Falsification, record: &SearchRecord, dir: &Path) -> Value {
     let r = &record.result;
     json!({
         "space": record.space,
@@ -86,7 +90,7 @@ fn search_json(f: &Falsification, record: &SearchRecord) -> Value {
             "shrink_reruns": w.trace.shrink.map(|s| s.0),
             "shrink_complete": w.trace.shrink.map(|s| s.1),
             "replay": w.trace.replay,
-            "replay_command": replay_command(f, &trace_file(record)),
+            "replay_command": replay_command(f, dir, &trace_file(record)),
         })),
         "interrupted": record.interrupted,
         "wall_time_s": record.wall_time_s,
@@ -94,7 +98,7 @@ fn search_json(f: &Falsification, record: &SearchRecord) -> Value {
 }
 
 /// `falsify.json`.
-pub fn falsify_json(f: &Falsification, result: &FalsifyResult) -> Value {
+pub fn falsify_json(f: &Falsification, result: &FalsifyResult, dir: &Path) -> Value {
     let runs: usize = result.searches.iter().map(|s| s.evaluations.len()).sum();
     json!({
         "schema": SCHEMA,
@@ -111,7 +115,7 @@ pub fn falsify_json(f: &Falsification, result: &FalsifyResult) -> Value {
         "warmup": f.warmup,
         "found": result.found(),
         "interrupted": result.interrupted,
-        "searches": result.searches.iter().map(|s| search_json(f, s)).collect::<Vec<_>>(),
+        "searches": result.searches.iter().map(|s| search_json(f, s, dir)).collect::<Vec<_>>(),
         "timing": {
             "wall_time_s": result.wall_time_s,
             "runs": runs,
@@ -175,10 +179,10 @@ pub fn write(dir: &Path, f: &Falsification, result: &FalsifyResult, plots: bool)
             ),
             format!("property {} {failed}: robustness {:.6} m", f.property.name(), worst.score),
         ];
-        header.extend(t.provenance(&replay_command(f, "<this file>")));
+        header.extend(t.provenance(&replay_command(f, dir, "<this file>")));
         write_file(&path, &t.to_text(&header))?;
     }
-    let summary = falsify_json(f, result);
+    let summary = falsify_json(f, result, dir);
     write_file(&dir.join("falsify.json"), &serde_json::to_string_pretty(&summary)?)?;
     let figures = if plots { convergence_plots(dir, f, result)? } else { Vec::new() };
     write_file(&dir.join("report.md"), &report(f, result, &figures, dir))?;
@@ -284,7 +288,7 @@ fn report(f: &Falsification, result: &FalsifyResult, figures: &[PathBuf], dir: &
                 s.method.name(),
                 point.join(", ")
             );
-            let _ = writeln!(out, "Replay: `{}`", replay_command(f, &trace_file(s)));
+            let _ = writeln!(out, "Replay: `{}`", replay_command(f, dir, &trace_file(s)));
         }
     }
     if !figures.is_empty() {
