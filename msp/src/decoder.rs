@@ -225,6 +225,9 @@ impl Decoder {
     }
 }
 
+/// Bytes moved from the input into the buffer at a time.
+const FEED_SLICE: usize = 256;
+
 /// The frames of one [`Decoder::feed`].
 pub struct Frames<'d, 'b> {
     decoder: &'d mut Decoder,
@@ -242,9 +245,11 @@ impl Iterator for Frames<'_, '_> {
             if self.input.is_empty() {
                 return None;
             }
-            // The buffer holds at most an incomplete candidate, shorter than the capacity.
+            // The buffer holds at most an incomplete candidate, shorter than the capacity. Input
+            // goes in by slices of at most `FEED_SLICE` bytes, so that taking a frame off the
+            // buffer's front moves little behind it.
             let room = Decoder::capacity(self.decoder.max_payload) - self.decoder.buf.len();
-            let (now, later) = self.input.split_at(room.min(self.input.len()));
+            let (now, later) = self.input.split_at(room.min(FEED_SLICE).min(self.input.len()));
             self.decoder.buf.extend_from_slice(now);
             self.input = later;
         }
