@@ -12,6 +12,7 @@ pub mod command {
     pub const FC_VARIANT: u16 = 2;
     pub const FC_VERSION: u16 = 3;
     pub const MODE_RANGES: u16 = 34;
+    pub const PID_ADVANCED: u16 = 94;
     pub const STATUS: u16 = 101;
     pub const RAW_IMU: u16 = 102;
     pub const MOTOR: u16 = 104;
@@ -432,6 +433,26 @@ impl ModeRange {
     }
 }
 
+/// `MSP_PID_ADVANCED`, the one field a companion computer needs of it: the current PID
+/// profile's `angle_limit`, the tilt of a full stick in ANGLE mode, whole degrees (byte 17 in
+/// Betaflight 4.6.0's layout).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PidAdvanced {
+    /// `angle_limit`, degrees.
+    pub angle_limit_deg: u8,
+}
+
+impl PidAdvanced {
+    /// Byte offset of `angle_limit` in the payload.
+    pub const ANGLE_LIMIT_AT: usize = 17;
+
+    pub fn decode(payload: &[u8]) -> Result<Self, DecodeError> {
+        let mut r = Reader::new("MSP_PID_ADVANCED", payload);
+        r.take("fields_before_angle_limit", Self::ANGLE_LIMIT_AT)?;
+        Ok(Self { angle_limit_deg: r.u8("angle_limit")? })
+    }
+}
+
 /// `MSP_ATTITUDE`: the attitude estimate. Betaflight's frame: roll right and pitch nose up
 /// positive (as the CLI and configurator show them), yaw as a heading.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -784,6 +805,17 @@ mod tests {
         assert!(matches!(FcVariant::decode(b"BTF"), Err(DecodeError::Short { field: "identifier", .. })));
         // Bytes after the known fields (a newer firmware's) are ignored.
         assert!(FcVersion::decode(&[4, 6, 0, 9]).is_ok());
+    }
+
+    #[test]
+    fn pid_advanced_gives_the_angle_limit_at_byte_17() {
+        let mut payload = vec![0u8; 45];
+        payload[PidAdvanced::ANGLE_LIMIT_AT] = 20;
+        assert_eq!(PidAdvanced::decode(&payload), Ok(PidAdvanced { angle_limit_deg: 20 }));
+        assert!(matches!(
+            PidAdvanced::decode(&payload[..17]),
+            Err(DecodeError::Short { field: "angle_limit", .. })
+        ));
     }
 
     #[test]
