@@ -345,6 +345,9 @@ pub struct MspCounters {
     pub watchdog_holds: u64,
     /// Times the disarm timeout lowered the arm switch.
     pub watchdog_disarms: u64,
+    /// Times the firmware disarmed while the switch was high (its failsafe, crash or runaway
+    /// detection); the switch then goes low until the next Arm.
+    pub firmware_disarms: u64,
     /// Poses used; refused for their frames, their values, their age, their place.
     pub poses: u64,
     pub poses_bad_frame: u64,
@@ -353,6 +356,8 @@ pub struct MspCounters {
     pub poses_implausible: u64,
     /// Poses from a second sender (the stream locks to its first).
     pub poses_foreign: u64,
+    /// Datagrams on the pose port that are no MAVLink frame of the common dialect.
+    pub poses_undecodable: u64,
 }
 
 /// What the bridge knows of the vehicle (`VehicleControl.GetStatus`).
@@ -577,7 +582,20 @@ impl MspBridge {
                 Ok(a) => self.on_angle_limit(a.angle_limit_deg),
                 Err(_) => false,
             },
-            command::STATUS_EX => Status::decode(p, true).map(|s| self.status = Some(s)).is_ok(),
+            command::STATUS_EX => match Status::decode(p, true) {
+                Ok(s) => {
+                    let was_armed = self.armed();
+                    self.status = Some(s);
+                    if was_armed && !self.armed() && self.arm_requested {
+                        // The firmware disarmed on its own (failsafe, crash or runaway
+                        // detection): the switch goes low, and only a new Arm raises it.
+                        self.arm_requested = false;
+                        self.counters.firmware_disarms += 1;
+                    }
+                    true
+                }
+                Err(_) => false,
+            },
             command::ATTITUDE => match Attitude::decode(p) {
                 Ok(a) => {
                     if !self.arm_requested {
@@ -680,6 +698,11 @@ impl MspBridge {
         let inside = (0..3).all(|i| at[i] >= lo[i] - margin && at[i] <= hi[i] + margin);
         let speed = p.velocity_mps.iter().map(|v| v * v).sum::<f64>().sqrt();
         inside && speed <= self.settings.max_speed_mps
+    }
+
+    /// A datagram on the pose port that held no MAVLink frame.
+    pub fn count_bad_pose_datagram(&mut self) {
+        self.counters.poses_undecodable += 1;
     }
 
     /// The controller's command at `now_ns`: saturated to the scenario's bounds, flown from
