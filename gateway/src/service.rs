@@ -275,7 +275,7 @@ pub(crate) fn authorize<T>(allowed: &[String], request: &Request<T>, call: &str)
         ))
     };
     match hilbench_svc::tls::client_common_name(request) {
-        Ok(name) if allowed.iter().any(|a| *a == name) => Ok(()),
+        Ok(name) if allowed.contains(&name) => Ok(()),
         Ok(name) => Err(refused(format!("the certificate {name:?}"))),
         Err(why) => Err(refused(why.to_string())),
     }

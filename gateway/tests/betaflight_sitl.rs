@@ -399,7 +399,7 @@ fn the_gateway_flies_the_real_betaflight_over_msp_arms_on_request_reports_attitu
         // Commands at 50 Hz for a second: still armed.
         let flying = Instant::now();
         while flying.elapsed() < Duration::from_secs(1) {
-            plant.apply_command(hover.clone()).await.expect("ApplyCommand");
+            plant.apply_command(hover).await.expect("ApplyCommand");
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
         let s = status(&mut control).await;

@@ -82,7 +82,7 @@ impl Calibration {
             ));
         }
         let a = self.angle_limit_deg;
-        if !(a.is_finite() && a >= 1.0 && a <= 90.0) {
+        if !(1.0..=90.0).contains(&a) {
             return Err(MspError::Setting("angle_limit_deg", format!("must be 1 to 90 degrees, got {a}")));
         }
         Ok(())
@@ -309,7 +309,7 @@ impl Pose {
         let q = m.q.map(f64::from);
         let values = [m.x, m.y, m.z, m.vx, m.vy, m.vz];
         let norm = q.iter().map(|c| c * c).sum::<f64>().sqrt();
-        if values.iter().any(|v| !v.is_finite()) || !((norm - 1.0).abs() <= 1e-2) {
+        if values.iter().any(|v| !v.is_finite()) || norm.is_nan() || (norm - 1.0).abs() > 1e-2 {
             return Err(PoseRefusal::Invalid);
         }
         let q = q.map(|c| c / norm);

@@ -453,8 +453,10 @@ impl PidAdvanced {
     }
 }
 
-/// `MSP_ATTITUDE`: the attitude estimate. Betaflight's frame: roll right and pitch nose up
-/// positive (as the CLI and configurator show them), yaw as a heading.
+/// `MSP_ATTITUDE`: the attitude estimate in Betaflight's axes: roll right positive, pitch
+/// positive **nose down** (the NED pitch negated: measured on the SITL, whose state packets
+/// carry a body FRD to NED quaternion; `gateway/tests/betaflight_sitl.rs` checks it), yaw as a
+/// heading.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Attitude {
     /// Roll, tenths of a degree.
