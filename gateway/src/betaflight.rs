@@ -653,6 +653,11 @@ pub async fn serve(
     for j in joins {
         let _ = j.join();
     }
+    {
+        let inner = service.shared.lock();
+        let (c, d) = (inner.bridge.counters(), inner.bridge.decoder_counters());
+        tracing::info!(counters = ?c, decoder = ?d, "MSP link counters");
+    }
     result?;
     tracing::info!("gateway stopped");
     Ok(())

@@ -8,8 +8,8 @@
 //!
 //! Needs the SITL binary cached by `scripts/betaflight-sitl.sh`; without it the test says so
 //! and passes, unless `HILBENCH_REQUIRE_SITL=1`. One SITL per machine (fixed ports): the test
-//! takes the lock directory `$TMPDIR/hilbench-sitl.lock` first, then waits for TCP 5761 to be
-//! free (a SITL of a test that does not take the lock).
+//! takes the lock directory `$TMPDIR/hilbench-sitl.lock` first, and waits for TCP 5761 to be
+//! free before each start (a SITL of a test that does not take the lock).
 
 use hilbench_proto::pb;
 use hilbench_proto::pb::plant_client::PlantClient;
@@ -90,10 +90,29 @@ impl Drop for SitlLock {
     }
 }
 
+/// Waits until TCP 5761 is free: a SITL of a test that does not take the lock ends first.
+fn wait_for_port() {
+    let started = Instant::now();
+    while std::net::TcpListener::bind("0.0.0.0:5761").is_err() {
+        assert!(started.elapsed() < Duration::from_secs(300), "TCP 5761 stays taken (another SITL?)");
+        std::thread::sleep(Duration::from_millis(500));
+    }
+}
+
+/// Removes the SITL's directory, whatever the test's outcome.
+struct TempDir(PathBuf);
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
 struct Sitl(Child);
 
 impl Sitl {
     fn start(binary: &Path, dir: &Path) -> Self {
+        wait_for_port();
         let log =
             std::fs::OpenOptions::new().create(true).append(true).open(dir.join("sitl.log")).expect("log");
         let child = Command::new(binary)
@@ -271,6 +290,7 @@ fn the_gateway_flies_the_real_betaflight_over_msp_arms_on_request_reports_attitu
     let dir = std::env::temp_dir().join(format!("gateway-sitl-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("a directory");
+    let _dir = TempDir(dir.clone());
     let mut first = Sitl::start(&binary, &dir);
     configure(&mut first);
     drop(first);
@@ -347,7 +367,17 @@ fn the_gateway_flies_the_real_betaflight_over_msp_arms_on_request_reports_attitu
         let started = Instant::now();
         let mut last_time = 0;
         let sample = loop {
-            let s = plant.get_state(pb::GetStateRequest {}).await.expect("GetState").into_inner();
+            let s = match plant.get_state(pb::GetStateRequest {}).await {
+                Ok(s) => s.into_inner(),
+                // The first MSP_ATTITUDE may still be on its way.
+                Err(e)
+                    if e.code() == tonic::Code::Unavailable && started.elapsed() < Duration::from_secs(2) =>
+                {
+                    tokio::time::sleep(Duration::from_millis(20)).await;
+                    continue;
+                }
+                Err(e) => panic!("GetState: {e:?}"),
+            };
             let x = s.state.as_ref().expect("a state").x.clone();
             assert!(s.time_ns >= last_time);
             last_time = s.time_ns;
@@ -429,5 +459,4 @@ fn the_gateway_flies_the_real_betaflight_over_msp_arms_on_request_reports_attitu
     stop.store(true, Ordering::Relaxed);
     let _ = state.join();
     let _ = pose.join();
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -105,14 +105,17 @@ pub struct MspSettings {
     pub attitude_period_ns: u64,
     /// `MSP_STATUS_EX` request period, ns (250 ms).
     pub status_period_ns: u64,
-    /// Requests sent and not answered at most (1 or 2; RC frames aside).
+    /// Requests sent and not answered at most (1 or 2, never two of one command; RC frames
+    /// aside): 2, so that a reply the firmware drops does not hold the attitude back.
     pub max_in_flight: usize,
-    /// A request unanswered this long is counted lost, ns.
+    /// A request unanswered this long is counted lost, ns (300 ms: the SITL's round trips are
+    /// 10 to 150 ms).
     pub reply_timeout_ns: u64,
     /// No command for this long: level hover, ns (`--command-timeout-ms`, 500 ms as the
     /// MAVLink side).
     pub command_timeout_ns: u64,
-    /// No command for this long while armed (or asked to arm): disarm, ns
+    /// No command for this long while armed (from the last command, or from the arming the
+    /// firmware reported): disarm, ns
     /// (`--disarm-timeout-ms`, 2 s).
     pub disarm_timeout_ns: u64,
     /// No frame from the flight controller for this long: the link is lost, ns (1 s; the
@@ -135,8 +138,8 @@ impl Default for MspSettings {
             rc_period_ns: 20_000_000,
             attitude_period_ns: 50_000_000,
             status_period_ns: 250_000_000,
-            max_in_flight: 1,
-            reply_timeout_ns: 500_000_000,
+            max_in_flight: 2,
+            reply_timeout_ns: 300_000_000,
             command_timeout_ns: 500_000_000,
             disarm_timeout_ns: 2_000_000_000,
             link_timeout_ns: 1_000_000_000,
@@ -415,7 +418,8 @@ pub struct MspBridge {
     setpoint: Input,
     yaw_hold_rad: f64,
     arm_requested: bool,
-    arm_requested_ns: u64,
+    /// Gateway time the firmware first reported ARM after the last request (`None`: not yet).
+    armed_seen_ns: Option<u64>,
     command_local_ns: u64,
     watchdog_hover: bool,
     counters: MspCounters,
@@ -455,7 +459,7 @@ impl MspBridge {
             next_status_ns: now_ns,
             yaw_hold_rad: 0.0,
             arm_requested: false,
-            arm_requested_ns: now_ns,
+            armed_seen_ns: None,
             command_local_ns: now_ns,
             watchdog_hover: false,
             counters: MspCounters::default(),
@@ -526,9 +530,9 @@ impl MspBridge {
 
     /// Raise the arm switch (only ever on request). The throttle stays low until the firmware
     /// says it armed.
-    pub fn request_arm(&mut self, now_ns: u64) {
+    pub fn request_arm(&mut self, _now_ns: u64) {
         if !self.arm_requested {
-            self.arm_requested_ns = now_ns;
+            self.armed_seen_ns = None;
             // The yaw to hold: the vehicle's heading now.
             if let Some(a) = &self.attitude {
                 self.yaw_hold_rad = ned_attitude(a).2;
@@ -540,6 +544,7 @@ impl MspBridge {
     /// Lower the arm switch.
     pub fn request_disarm(&mut self) {
         self.arm_requested = false;
+        self.armed_seen_ns = None;
     }
 
     /// Bytes from the flight controller at `now_ns`.
@@ -586,6 +591,9 @@ impl MspBridge {
                 Ok(s) => {
                     let was_armed = self.armed();
                     self.status = Some(s);
+                    if self.arm_requested && self.armed() && self.armed_seen_ns.is_none() {
+                        self.armed_seen_ns = Some(now_ns);
+                    }
                     if was_armed && !self.armed() && self.arm_requested {
                         // The firmware disarmed on its own (failsafe, crash or runaway
                         // detection): the switch goes low, and only a new Arm raises it.
@@ -758,9 +766,13 @@ impl MspBridge {
             self.counters.watchdog_holds += 1;
             self.setpoint = self.episode.scenario.model.hover_input();
         }
-        let since_ns = now_ns.saturating_sub(self.command_local_ns.max(self.arm_requested_ns));
-        if self.arm_requested && since_ns >= self.settings.disarm_timeout_ns {
+        // Counted from the last command or from the arming the firmware reported, whichever
+        // is later: while `Arm` still waits for the firmware, its own timeout decides.
+        if let Some(armed_ns) = self.armed_seen_ns.filter(|_| self.arm_requested)
+            && now_ns.saturating_sub(self.command_local_ns.max(armed_ns)) >= self.settings.disarm_timeout_ns
+        {
             self.arm_requested = false;
+            self.armed_seen_ns = None;
             self.counters.watchdog_disarms += 1;
         }
     }
@@ -831,8 +843,8 @@ impl MspBridge {
         if !self.watchdog_hover {
             due = due.min(self.command_local_ns + self.settings.command_timeout_ns);
         }
-        if self.arm_requested {
-            due = due.min(self.command_local_ns.max(self.arm_requested_ns) + self.settings.disarm_timeout_ns);
+        if let Some(armed_ns) = self.armed_seen_ns.filter(|_| self.arm_requested) {
+            due = due.min(self.command_local_ns.max(armed_ns) + self.settings.disarm_timeout_ns);
         }
         due
     }
@@ -999,7 +1011,7 @@ mod tests {
     }
 
     #[test]
-    fn rc_goes_at_a_steady_50_hz_and_requests_one_at_a_time() {
+    fn rc_goes_at_a_steady_50_hz_and_requests_two_at_most_at_a_time() {
         let mut b = bridge();
         let mut rc = 0;
         let mut most_in_flight = 0;
@@ -1019,7 +1031,7 @@ mod tests {
             }
         }
         assert_eq!(rc, 100, "50 Hz for 2 s");
-        assert_eq!(most_in_flight, 1);
+        assert_eq!(most_in_flight, 2);
         assert_eq!(b.firmware().as_deref(), Some("BTFL 4.6.0"));
         assert_eq!(b.status(2_000_000_000).firmware_angle_limit_deg, Some(20));
         let c = b.counters();
@@ -1070,12 +1082,29 @@ mod tests {
         let climb = map_default().throttle_us(11.0).0;
         let hover = map_default().throttle_us(G).0;
         assert_eq!(at(1_400_000_000, &throttles), Some(climb));
-        // Silent from 1.49 s: hover at +500 ms, disarm at +2 s.
+        // Silent from 1.49 s: hover at +500 ms, disarm at +2 s (the firmware armed before).
         assert_eq!(at(2_100_000_000, &throttles), Some(hover));
         assert_eq!(at(3_400_000_000, &aux1), Some(1800));
         assert_eq!(at(3_600_000_000, &aux1), Some(1000));
         let c = b.counters();
         assert_eq!((c.watchdog_holds, c.watchdog_disarms), (2, 1), "{c:?}");
+    }
+
+    #[test]
+    fn the_disarm_timeout_waits_for_the_firmware_to_arm_so_a_slow_arming_is_not_cut_short() {
+        let mut b = bridge();
+        b.request_arm(0);
+        let mut out = Vec::new();
+        for ms in (0..5_000u64).step_by(10) {
+            out.clear();
+            b.poll(ms * 1_000_000, &mut out);
+            // The firmware still refuses (boot grace, calibration): not armed for 5 s.
+            answer_all(&mut b, &out, false, ms * 1_000_000);
+        }
+        assert!(b.arm_requested(), "the Arm call decides, not the watchdog");
+        assert_eq!(b.counters().watchdog_disarms, 0);
+        b.request_disarm();
+        assert!(!b.arm_requested());
     }
 
     fn map_default() -> StickMap {
