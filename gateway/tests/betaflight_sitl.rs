@@ -90,10 +90,24 @@ impl Drop for SitlLock {
     }
 }
 
-/// Waits until TCP 5761 is free: a SITL of a test that does not take the lock ends first.
+/// Whether a SITL process runs on this machine (any `betaflight_*_SITL` command line).
+fn sitl_running() -> bool {
+    let Ok(procs) = std::fs::read_dir("/proc") else { return false };
+    procs.flatten().any(|p| {
+        std::fs::read(p.path().join("cmdline")).is_ok_and(|c| {
+            String::from_utf8_lossy(&c)
+                .split('\0')
+                .next()
+                .is_some_and(|a| a.contains("betaflight_") && a.ends_with("_SITL"))
+        })
+    })
+}
+
+/// Waits until no SITL runs and TCP 5761 is free: a SITL of a test that does not take the
+/// lock ends first.
 fn wait_for_port() {
     let started = Instant::now();
-    while std::net::TcpListener::bind("0.0.0.0:5761").is_err() {
+    while sitl_running() || std::net::TcpListener::bind("0.0.0.0:5761").is_err() {
         assert!(started.elapsed() < Duration::from_secs(300), "TCP 5761 stays taken (another SITL?)");
         std::thread::sleep(Duration::from_millis(500));
     }
@@ -345,7 +359,14 @@ fn the_gateway_flies_the_real_betaflight_over_msp_arms_on_request_reports_attitu
                 break d;
             }
             if started.elapsed() > Duration::from_secs(10) {
-                panic!("Describe: {}; {:?}", d.implementation, status(&mut control).await);
+                let log = std::fs::read_to_string(dir.join("sitl.log")).unwrap_or_default();
+                let tail: String =
+                    log.lines().filter(|l| !l.starts_with("[FLASH")).take(40).collect::<Vec<_>>().join("\n");
+                panic!(
+                    "Describe: {}; {:?}; the SITL's log:\n{tail}",
+                    d.implementation,
+                    status(&mut control).await
+                );
             }
             tokio::time::sleep(Duration::from_millis(100)).await;
         };
