@@ -478,8 +478,9 @@ impl pb::vehicle_control_server::VehicleControl for MspService {
         if self.wait_armed(true, ARM_WAIT).await {
             return Ok(Response::new(pb::VehicleCommandResponse { result: "ARMED".into() }));
         }
+        let now = self.shared.now_ns();
         let mut inner = self.shared.lock();
-        inner.bridge.request_disarm();
+        inner.bridge.request_disarm(now);
         let flags = inner.bridge.arming_disabled().unwrap_or_default();
         Err(Status::failed_precondition(format!(
             "the firmware did not arm within {} s (arming disabled by {flags:?}); the arm switch is low again",
@@ -493,7 +494,8 @@ impl pb::vehicle_control_server::VehicleControl for MspService {
     ) -> Result<Response<pb::VehicleCommandResponse>, Status> {
         authorize(&self.shared.allow_clients, &request, "Disarm")?;
         tracing::info!("disarming the vehicle (asked): AUX1 low");
-        self.shared.lock().bridge.request_disarm();
+        let now = self.shared.now_ns();
+        self.shared.lock().bridge.request_disarm(now);
         if self.wait_armed(false, DISARM_WAIT).await {
             Ok(Response::new(pb::VehicleCommandResponse { result: "DISARMED".into() }))
         } else {

@@ -43,6 +43,11 @@ pub const SWITCH_ON_US: u16 = 1800;
 /// A switch off.
 pub const SWITCH_OFF_US: u16 = 1000;
 
+/// The arm switch stays low at least this long before it goes high, ns: the firmware arms on
+/// the switch's edge and must see it low first (RC frames can be lost), else it latches
+/// `ARM_SWITCH`.
+pub const SWITCH_LOW_MIN_NS: u64 = 300_000_000;
+
 /// The firmware's RXLOSS trigger: RC frames further apart than this lose the receiver, ns
 /// (`RXLOSS_TRIGGER_INTERVAL`, 150 ms of firmware time).
 pub const RX_LOSS_NS: u64 = 150_000_000;
@@ -101,12 +106,13 @@ pub struct MspSettings {
     /// `MSP_SET_RAW_RC` period, ns (20 ms: 50 Hz; at most 100 ms, the firmware loses the
     /// receiver after 150 ms).
     pub rc_period_ns: u64,
-    /// `MSP_ATTITUDE` request period, ns (50 ms; fewer when replies are slower).
+    /// `MSP_ATTITUDE` request period, ns (100 ms; fewer when replies are slower): with the
+    /// RC frames and the status, 64 frames a second, within the firmware's 100.
     pub attitude_period_ns: u64,
     /// `MSP_STATUS_EX` request period, ns (250 ms).
     pub status_period_ns: u64,
     /// Requests sent and not answered at most (1 or 2, never two of one command; RC frames
-    /// aside): 2, so that a reply the firmware drops does not hold the attitude back.
+    /// aside): 1 (two lost a third of the RC frames on the SITL, one a tenth).
     pub max_in_flight: usize,
     /// A request unanswered this long is counted lost, ns (300 ms: the SITL's round trips are
     /// 10 to 150 ms).
@@ -136,9 +142,9 @@ impl Default for MspSettings {
         Self {
             calibration: Calibration::default(),
             rc_period_ns: 20_000_000,
-            attitude_period_ns: 50_000_000,
+            attitude_period_ns: 100_000_000,
             status_period_ns: 250_000_000,
-            max_in_flight: 2,
+            max_in_flight: 1,
             reply_timeout_ns: 300_000_000,
             command_timeout_ns: 500_000_000,
             disarm_timeout_ns: 2_000_000_000,
@@ -420,6 +426,8 @@ pub struct MspBridge {
     arm_requested: bool,
     /// Gateway time the firmware first reported ARM after the last request (`None`: not yet).
     armed_seen_ns: Option<u64>,
+    /// Gateway time the arm switch last went low (or the start).
+    switch_low_ns: u64,
     command_local_ns: u64,
     watchdog_hover: bool,
     counters: MspCounters,
@@ -460,6 +468,7 @@ impl MspBridge {
             yaw_hold_rad: 0.0,
             arm_requested: false,
             armed_seen_ns: None,
+            switch_low_ns: now_ns,
             command_local_ns: now_ns,
             watchdog_hover: false,
             counters: MspCounters::default(),
@@ -542,7 +551,14 @@ impl MspBridge {
     }
 
     /// Lower the arm switch.
-    pub fn request_disarm(&mut self) {
+    pub fn request_disarm(&mut self, now_ns: u64) {
+        self.lower_switch(now_ns);
+    }
+
+    fn lower_switch(&mut self, now_ns: u64) {
+        if self.arm_requested {
+            self.switch_low_ns = now_ns;
+        }
         self.arm_requested = false;
         self.armed_seen_ns = None;
     }
@@ -597,7 +613,7 @@ impl MspBridge {
                     if was_armed && !self.armed() && self.arm_requested {
                         // The firmware disarmed on its own (failsafe, crash or runaway
                         // detection): the switch goes low, and only a new Arm raises it.
-                        self.arm_requested = false;
+                        self.lower_switch(now_ns);
                         self.counters.firmware_disarms += 1;
                     }
                     true
@@ -739,8 +755,9 @@ impl MspBridge {
 
     /// The RC frame now: disarmed (or not yet armed) the sticks centred and the throttle low;
     /// armed the setpoint's sticks, each clamp counted.
-    fn rc(&mut self) -> RawRc {
-        let arm = if self.arm_requested { SWITCH_ON_US } else { SWITCH_OFF_US };
+    fn rc(&mut self, now_ns: u64) -> RawRc {
+        let high = self.arm_requested && now_ns.saturating_sub(self.switch_low_ns) >= SWITCH_LOW_MIN_NS;
+        let arm = if high { SWITCH_ON_US } else { SWITCH_OFF_US };
         let sticks = if self.arm_requested && self.armed() {
             let (sticks, clamps) = self.sticks.sticks(&self.setpoint, self.yaw_hold_rad);
             self.counters.throttle_clamped += u64::from(clamps.throttle);
@@ -771,8 +788,7 @@ impl MspBridge {
         if let Some(armed_ns) = self.armed_seen_ns.filter(|_| self.arm_requested)
             && now_ns.saturating_sub(self.command_local_ns.max(armed_ns)) >= self.settings.disarm_timeout_ns
         {
-            self.arm_requested = false;
-            self.armed_seen_ns = None;
+            self.lower_switch(now_ns);
             self.counters.watchdog_disarms += 1;
         }
     }
@@ -788,7 +804,7 @@ impl MspBridge {
             } else {
                 now_ns + self.settings.rc_period_ns
             };
-            let rc = self.rc();
+            let rc = self.rc(now_ns);
             if rc.to_frame(Version::V1).encode(out).is_ok() {
                 self.counters.rc_sent += 1;
             }
@@ -1011,7 +1027,7 @@ mod tests {
     }
 
     #[test]
-    fn rc_goes_at_a_steady_50_hz_and_requests_two_at_most_at_a_time() {
+    fn rc_goes_at_a_steady_50_hz_and_requests_one_at_a_time() {
         let mut b = bridge();
         let mut rc = 0;
         let mut most_in_flight = 0;
@@ -1031,7 +1047,7 @@ mod tests {
             }
         }
         assert_eq!(rc, 100, "50 Hz for 2 s");
-        assert_eq!(most_in_flight, 2);
+        assert_eq!(most_in_flight, 1);
         assert_eq!(b.firmware().as_deref(), Some("BTFL 4.6.0"));
         assert_eq!(b.status(2_000_000_000).firmware_angle_limit_deg, Some(20));
         let c = b.counters();
@@ -1103,8 +1119,25 @@ mod tests {
         }
         assert!(b.arm_requested(), "the Arm call decides, not the watchdog");
         assert_eq!(b.counters().watchdog_disarms, 0);
-        b.request_disarm();
+        b.request_disarm(5_000_000_000);
         assert!(!b.arm_requested());
+    }
+
+    #[test]
+    fn an_arm_right_after_a_disarm_raises_the_switch_only_after_the_firmware_saw_it_low() {
+        let mut b = bridge();
+        let mut out = Vec::new();
+        b.request_arm(1_000_000_000);
+        b.request_disarm(1_000_000_000);
+        b.request_arm(1_001_000_000);
+        let mut aux1 = Vec::new();
+        for ms in (1_010..1_500u64).step_by(10) {
+            out.clear();
+            b.poll(ms * 1_000_000, &mut out);
+            aux1.extend(rc_of(&out).iter().map(|ch| (ms, ch[4])));
+        }
+        assert!(aux1.iter().filter(|(ms, _)| *ms < 1_300).all(|(_, a)| *a == SWITCH_OFF_US), "{aux1:?}");
+        assert!(aux1.iter().filter(|(ms, _)| *ms >= 1_300).all(|(_, a)| *a == SWITCH_ON_US), "{aux1:?}");
     }
 
     fn map_default() -> StickMap {
