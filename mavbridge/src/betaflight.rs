@@ -354,6 +354,9 @@ pub struct MspCounters {
     pub watchdog_holds: u64,
     /// Times the disarm timeout lowered the arm switch.
     pub watchdog_disarms: u64,
+    /// Times an Arm in progress lowered and raised the switch again because the firmware had
+    /// latched `ARM_SWITCH`.
+    pub arm_edges_retried: u64,
     /// Times the firmware disarmed while the switch was high (its failsafe, crash or runaway
     /// detection); the switch then goes low until the next Arm.
     pub firmware_disarms: u64,
@@ -609,6 +612,17 @@ impl MspBridge {
                     self.status = Some(s);
                     if self.arm_requested && self.armed() && self.armed_seen_ns.is_none() {
                         self.armed_seen_ns = Some(now_ns);
+                    }
+                    // Asked to arm, the switch up, and the firmware latched ARM_SWITCH (the switch
+                    // rose while something else refused, a lost RC frame's RXLOSS often): the
+                    // switch goes low for SWITCH_LOW_MIN_NS and up again, within the same request.
+                    let latched = self.status.as_ref().is_some_and(|s| {
+                        s.arming_disabled.contains(msp::messages::ArmingDisabled::ARM_SWITCH)
+                    });
+                    let high = now_ns.saturating_sub(self.switch_low_ns) >= SWITCH_LOW_MIN_NS;
+                    if self.arm_requested && !self.armed() && latched && high {
+                        self.switch_low_ns = now_ns;
+                        self.counters.arm_edges_retried += 1;
                     }
                     if was_armed && !self.armed() && self.arm_requested {
                         // The firmware disarmed on its own (failsafe, crash or runaway
