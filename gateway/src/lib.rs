@@ -9,6 +9,7 @@
 //! follows the vehicle's heartbeat (and goes NOT_SERVING from a reboot of the vehicle until the
 //! next `Reset`).
 
+pub mod betaflight;
 pub mod link;
 pub mod mavsim;
 pub mod service;
@@ -95,6 +96,8 @@ pub enum GatewayError {
     Serve(#[from] ServeError),
     #[error("invalid gateway setting `{0}`: must be at least 1")]
     Count(&'static str),
+    #[error("{0}")]
+    Msp(String),
 }
 
 /// Why a signing key file cannot be used.

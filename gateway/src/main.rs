@@ -17,6 +17,27 @@ struct Args {
     /// udpin:0.0.0.0:14540), udpout:HOST:PORT, or serial:DEVICE:BAUD.
     #[arg(long, default_value = "udpin:0.0.0.0:14540")]
     mavlink: String,
+    /// Fly a Betaflight flight controller over MSP instead of a MAVLink autopilot:
+    /// tcp:HOST:PORT (SITL's UART1: tcp:127.0.0.1:5761) or serial:DEVICE:BAUD
+    /// (docs/gateway.md, "A Betaflight flight controller over MSP").
+    #[arg(long, value_name = "ADDRESS", conflicts_with_all = ["mavlink", "mavlink_signing_key", "record_link", "hover_thrust"])]
+    msp: Option<String>,
+    /// With --msp: where the motion-capture pose stream arrives, MAVLink 2 ODOMETRY over UDP
+    /// (frame_id MAV_FRAME_LOCAL_NED, child_frame_id MAV_FRAME_BODY_FRD), HOST:PORT.
+    #[arg(long, default_value = "127.0.0.1:14560", value_name = "HOST:PORT")]
+    pose_in: std::net::SocketAddr,
+    /// With --msp: the throttle that hovers the vehicle in ANGLE mode, us (1000..2000,
+    /// measured on the vehicle): T = g maps to it.
+    #[arg(long, default_value_t = 1500.0, value_name = "US")]
+    hover_throttle_us: f64,
+    /// With --msp: the firmware's angle_limit, degrees (full stick in ANGLE mode); the value
+    /// the firmware reports over MSP_PID_ADVANCED replaces it once heard.
+    #[arg(long, default_value_t = 20.0, value_name = "DEG")]
+    angle_limit_deg: f64,
+    /// With --msp: no command for this long while armed, ms: the arm switch goes low (after
+    /// --command-timeout-ms of level hover).
+    #[arg(long, default_value_t = 2_000, value_parser = clap::value_parser!(u64).range(1..=600_000))]
+    disarm_timeout_ms: u64,
     /// Scenario in force until a Reset brings one (obstacles, goal, limits): a built-in name or
     /// a scenario file.
     #[arg(long, default_value = "paper-1", value_name = "NAME|FILE.toml")]
@@ -118,11 +139,56 @@ fn config(args: &Args) -> anyhow::Result<GatewayConfig> {
     Ok(config)
 }
 
+fn msp_config(args: &Args, msp: &str) -> anyhow::Result<gateway::betaflight::MspConfig> {
+    let scenario = hilbench_scenario_file::scenario_arg(&args.scenario)
+        .map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
+    let address = gateway::betaflight::MspAddress::parse(msp).map_err(anyhow::Error::msg)?;
+    let mut config = gateway::betaflight::MspConfig::new(address, args.pose_in, scenario);
+    let s = &mut config.settings;
+    s.calibration.hover_throttle_us = args.hover_throttle_us;
+    s.calibration.angle_limit_deg = args.angle_limit_deg;
+    s.command_timeout_ns = args.command_timeout_ms * 1_000_000;
+    s.disarm_timeout_ns = args.disarm_timeout_ms * 1_000_000;
+    s.start_tolerance_m = args.start_tolerance_m;
+    s.envelope_margin_m = args.envelope_margin_m;
+    s.max_speed_mps = args.max_speed_mps;
+    config.settings.validate().map_err(|e| {
+        let flag = match &e {
+            mavbridge::betaflight::MspError::Setting(name, _) => match *name {
+                "hover_throttle_us" => "--hover-throttle-us",
+                "angle_limit_deg" => "--angle-limit-deg",
+                "disarm_timeout_ns" => "--disarm-timeout-ms",
+                "start_tolerance_m" => "--start-tolerance-m",
+                "envelope_margin_m" => "--envelope-margin-m",
+                "max_speed_mps" => "--max-speed-mps",
+                _ => "--msp",
+            },
+        };
+        anyhow::anyhow!("{flag}: {e}")
+    })?;
+    config.max_streams = args.max_streams;
+    config.tls = hilbench_svc::tls::TlsFiles::server(&args.server.tls).load()?;
+    config.connections = args.server.connections.limits()?;
+    if !args.allow_client.is_empty() && !config.tls.requires_client_certificates() {
+        anyhow::bail!(
+            "--allow-client needs client certificates: give --tls-cert, --tls-key and --tls-client-ca"
+        );
+    }
+    config.allow_clients = args.allow_client.clone();
+    Ok(config)
+}
+
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
     hilbench_svc::init_tracing();
     hilbench_svc::exit_on_panic();
     let args = Args::parse();
+    if let Some(msp) = &args.msp {
+        let config = msp_config(&args, msp)?;
+        let listener = args.server.bind().await?;
+        gateway::betaflight::serve(listener, config, hilbench_svc::shutdown_signal()).await?;
+        return Ok(());
+    }
     let config = config(&args)?;
     let listener = args.server.bind().await?;
     gateway::serve(listener, config, hilbench_svc::shutdown_signal()).await?;

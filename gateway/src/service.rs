@@ -55,13 +55,11 @@ struct Subscriber {
 
 struct Inner {
     bridge: Bridge,
-    subscribers: Vec<Subscriber>,
+    subscribers: Subscribers,
     /// Requests waiting for their answer.
     pending: Vec<(Awaited, oneshot::Sender<Answer>)>,
     closed: bool,
     next_flight_id: u64,
-    /// Samples evicted from full subscriber buffers.
-    overflow_dropped: u64,
     /// MAVLink messages that could not be sent to a vehicle there (`NotConnected` aside).
     send_errors: u64,
     /// Commands arrive while the vehicle does not fly them (armed, in its external mode), and
@@ -193,24 +191,94 @@ fn log_dropped(
     }
 }
 
-fn publish(inner: &mut Inner, sample: &PlantSample) {
-    let msg = pb::StateSample::from(sample);
-    let Inner { subscribers, overflow_dropped, .. } = inner;
-    subscribers.retain_mut(|s| {
-        let slot = msg.time_ns / s.period_ns;
-        if s.last_slot.is_some_and(|l| slot <= l) {
-            return true;
-        }
-        s.last_slot = Some(slot);
-        match s.tx.push(msg.clone()) {
-            Pushed::Queued => true,
-            Pushed::Evicted(_) => {
-                *overflow_dropped += 1;
-                true
+/// The state streams of one gateway (either vehicle side): each subscriber at its period.
+#[derive(Default)]
+pub(crate) struct Subscribers {
+    list: Vec<Subscriber>,
+    /// Samples evicted from full subscriber buffers.
+    pub(crate) overflow_dropped: u64,
+}
+
+impl Subscribers {
+    /// Sends `sample` to every subscriber whose period it starts; closed ones are dropped.
+    pub(crate) fn publish(&mut self, sample: &PlantSample) {
+        let msg = pb::StateSample::from(sample);
+        let Self { list, overflow_dropped } = self;
+        list.retain_mut(|s| {
+            let slot = msg.time_ns / s.period_ns;
+            if s.last_slot.is_some_and(|l| slot <= l) {
+                return true;
             }
-            Pushed::Closed(_) => false,
+            s.last_slot = Some(slot);
+            match s.tx.push(msg.clone()) {
+                Pushed::Queued => true,
+                Pushed::Evicted(_) => {
+                    *overflow_dropped += 1;
+                    true
+                }
+                Pushed::Closed(_) => false,
+            }
+        });
+    }
+
+    /// After a reset: every subscriber takes the next sample.
+    pub(crate) fn restart(&mut self) {
+        for s in &mut self.list {
+            s.last_slot = None;
         }
-    });
+    }
+
+    pub(crate) fn clear(&mut self) {
+        self.list.clear();
+    }
+
+    /// A new stream at `period_ns`, starting with `first` (the newest sample, if any).
+    pub(crate) fn open(&mut self, period_ns: u64, tx: Writer<pb::StateSample>, first: Option<&PlantSample>) {
+        let period_ns = period_ns.max(1);
+        let mut sub = Subscriber { period_ns, last_slot: None, tx };
+        if let Some(first) = first {
+            let first = pb::StateSample::from(first);
+            sub.last_slot = Some(first.time_ns / period_ns);
+            let _ = sub.tx.push(first);
+        }
+        self.list.push(sub);
+    }
+}
+
+fn publish(inner: &mut Inner, sample: &PlantSample) {
+    inner.subscribers.publish(sample);
+}
+
+/// The scenario a `Reset` names: its definition, else by name the one in force, the one given
+/// at start, or a built-in one (both vehicle sides).
+pub(crate) fn reset_scenario(req: &Reset, current: &Scenario, config: &Scenario) -> Result<Scenario, Status> {
+    Ok(match (&req.definition, req.scenario.as_deref()) {
+        (Some(definition), _) => definition.clone(),
+        (None, None) => current.clone(),
+        (None, Some(n)) if n == current.name => current.clone(),
+        (None, Some(n)) if n == config.name => config.clone(),
+        (None, Some(n)) => conv::scenario_by_name("scenario", n)?,
+    })
+}
+
+/// Whether the client may call `VehicleControl/{call}`: any client when `allowed` (the
+/// `--allow-client` names) is empty, else only those whose certificate's common name is listed.
+pub(crate) fn authorize<T>(allowed: &[String], request: &Request<T>, call: &str) -> Result<(), Status> {
+    if allowed.is_empty() {
+        return Ok(());
+    }
+    let refused = |who: String| {
+        tracing::warn!("VehicleControl/{call} refused to {who}");
+        Status::permission_denied(format!(
+            "VehicleControl/{call} is only for the client certificates {allowed:?} (--allow-client); \
+             this client presented {who}"
+        ))
+    };
+    match hilbench_svc::tls::client_common_name(request) {
+        Ok(name) if allowed.contains(&name) => Ok(()),
+        Ok(name) => Err(refused(format!("the certificate {name:?}"))),
+        Err(why) => Err(refused(why.to_string())),
+    }
 }
 
 /// Why the Plant API does not serve (health NOT_SERVING, calls `UNAVAILABLE`).
@@ -247,11 +315,10 @@ impl GatewayService {
             shared: Arc::new(Shared {
                 inner: Mutex::new(Inner {
                     bridge,
-                    subscribers: Vec::new(),
+                    subscribers: Subscribers::default(),
                     pending: Vec::new(),
                     closed: false,
                     next_flight_id: first_flight_id,
-                    overflow_dropped: 0,
                     send_errors: 0,
                     warned_not_flown: false,
                     accepted_command_ns: None,
@@ -543,25 +610,8 @@ impl GatewayService {
         }
     }
 
-    /// Whether the client may call `VehicleControl/{call}`: any client when no `--allow-client`
-    /// was given, else only those whose certificate's common name is listed.
     fn authorize<T>(&self, request: &Request<T>, call: &str) -> Result<(), Status> {
-        let allowed = &self.shared.allow_clients;
-        if allowed.is_empty() {
-            return Ok(());
-        }
-        let refused = |who: String| {
-            tracing::warn!("VehicleControl/{call} refused to {who}");
-            Status::permission_denied(format!(
-                "VehicleControl/{call} is only for the client certificates {allowed:?} (--allow-client); \
-                 this client presented {who}"
-            ))
-        };
-        match hilbench_svc::tls::client_common_name(request) {
-            Ok(name) if allowed.contains(&name) => Ok(()),
-            Ok(name) => Err(refused(format!("the certificate {name:?}"))),
-            Err(why) => Err(refused(why.to_string())),
-        }
+        authorize(&self.shared.allow_clients, request, call)
     }
 
     /// The vehicle's parameter `name` (`PARAM_REQUEST_READ` until its `PARAM_VALUE` arrives).
@@ -577,10 +627,10 @@ impl GatewayService {
     }
 }
 
-type SampleStream =
+pub(crate) type SampleStream =
     Pin<Box<dyn tokio_stream::Stream<Item = Result<pb::StateSample, Status>> + Send + 'static>>;
 
-fn refuse_real_time(what: &str) -> Status {
+pub(crate) fn refuse_real_time(what: &str) -> Status {
     Status::failed_precondition(format!(
         "the gateway flies a vehicle in real time: {what} with a duration > 0 is only served by a lockstep plant"
     ))
@@ -593,14 +643,7 @@ impl pb::plant_server::Plant for GatewayService {
         let now = self.shared.now_ns();
         let mut inner = self.shared.lock();
         self.alive(&inner, now)?;
-        let current = inner.bridge.scenario().clone();
-        let scenario = match (req.definition, req.scenario.as_deref()) {
-            (Some(definition), _) => definition,
-            (None, None) => current,
-            (None, Some(n)) if n == current.name => current,
-            (None, Some(n)) if n == self.shared.config_scenario.name => self.shared.config_scenario.clone(),
-            (None, Some(n)) => conv::scenario_by_name("scenario", n)?,
-        };
+        let scenario = reset_scenario(&req, inner.bridge.scenario(), &self.shared.config_scenario)?;
         let flight_id = inner.next_flight_id;
         let sample = inner
             .bridge
@@ -608,9 +651,7 @@ impl pb::plant_server::Plant for GatewayService {
             .map_err(|e| Status::failed_precondition(e.to_string()))?;
         inner.next_flight_id = flight_id.wrapping_add(1).max(1);
         tracing::info!(scenario = %inner.bridge.scenario().name, flight_id, "reset (the vehicle stays where it is)");
-        for s in &mut inner.subscribers {
-            s.last_slot = None;
-        }
+        inner.subscribers.restart();
         publish(&mut inner, &sample);
         let description = self.describe(&inner);
         Ok(Response::new(pb::ResetResponse {
@@ -634,14 +675,8 @@ impl pb::plant_server::Plant for GatewayService {
             return Err(Status::unavailable("the gateway is shutting down"));
         }
         self.serving(&inner, now)?;
-        let period_ns = req.period_ns.max(1);
-        let mut sub = Subscriber { period_ns, last_slot: None, tx };
-        if let Some(first) = inner.bridge.sample() {
-            let first = pb::StateSample::from(first);
-            sub.last_slot = Some(first.time_ns / period_ns);
-            let _ = sub.tx.push(first);
-        }
-        inner.subscribers.push(sub);
+        let first = inner.bridge.sample().cloned();
+        inner.subscribers.open(req.period_ns, tx, first.as_ref());
         Ok(Response::new(Box::pin(Guarded::new(rx.map(Ok), slot))))
     }
 

@@ -8,12 +8,17 @@
 //! - [`modes`]: PX4 and ArduPilot modes.
 //! - [`bridge`]: the gateway's core (samples, setpoints, the command timeout, resets, the
 //!   vehicle's reboots).
+//! - [`betaflight`]: the gateway's core for a Betaflight flight controller over MSP (sticks
+//!   at 50 Hz, requests paced, the same command timeout, poses from motion capture).
+//! - [`episode`]: plant time, samples, contacts and path length of one episode on a vehicle.
 //! - [`trust`]: whom the gateway believes (the vehicle lock) and what it dropped.
 //! - [`signing`]: MAVLink 2 message signing, both ways.
 //! - [`autopilot`]: the simulator's autopilot around `mav::PlantSim`.
 
 pub mod autopilot;
+pub mod betaflight;
 pub mod bridge;
+pub mod episode;
 pub mod frame;
 pub mod messages;
 pub mod modes;
