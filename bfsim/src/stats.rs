@@ -49,7 +49,9 @@ impl Latency {
         for (i, n) in self.bins.iter().enumerate() {
             seen += u64::from(*n);
             if seen >= rank {
-                return Some(((i as u64 + 1) * BIN_NS).min(self.max_ns));
+                // The last bin is open-ended: its upper edge is the maximum.
+                let edge = if i == BINS - 1 { self.max_ns } else { (i as u64 + 1) * BIN_NS };
+                return Some(edge.min(self.max_ns));
             }
         }
         Some(self.max_ns)
