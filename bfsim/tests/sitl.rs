@@ -7,9 +7,10 @@
 //! and passes, unless `HILBENCH_REQUIRE_SITL=1` (then a missing binary fails it). The SITL's
 //! ports are fixed, so one runs per machine: the tests take [`SITL`] in turn.
 
-use msp::messages::FcVariant;
-use msp::{Decoder, DecoderSettings, Frame, command};
-use std::io::{BufRead, BufReader};
+use mavlink::dialects::common::MavMessage;
+use msp::messages::{ArmingDisabled, BoxIds, FcVariant, RawRc, Status, Sticks, boxes};
+use msp::{Decoder, DecoderSettings, Frame, Version, command};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, TcpStream, UdpSocket};
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
@@ -326,4 +327,228 @@ fn the_pose_stream_is_odometry_that_pymavlink_reads() {
     assert!(t.windows(2).all(|w| w[1] > w[0]), "time_usec increases: {t:?}");
     let dt = (t[t.len() - 1] - t[0]) as f64 / (t.len() - 1) as f64;
     assert!((dt - 10_000.0).abs() < 500.0, "10 ms of plant time apart: {dt}");
+}
+
+/// The latest pose from the stream: (time s, NED position, roll, pitch rad, down velocity in
+/// the body).
+#[derive(Debug, Clone, Copy, Default)]
+struct Pose {
+    t_s: f64,
+    ned: [f32; 3],
+    roll: f64,
+    pitch: f64,
+    vz_body: f32,
+}
+
+fn read_poses(sock: &UdpSocket, latest: &mut Option<Pose>) {
+    let mut buf = [0u8; 512];
+    while let Ok(n) = sock.recv(&mut buf) {
+        let mut r = mavlink::MavlinkReader::new(&buf[..n]);
+        if let Ok((_, MavMessage::ODOMETRY(o))) = r.read_message::<MavMessage>(mavlink::MavlinkVersion::V2) {
+            let [w, x, y, z] = o.q.map(f64::from);
+            let roll = (2.0 * (w * x + y * z)).atan2(1.0 - 2.0 * (x * x + y * y));
+            let pitch = (2.0 * (w * y - z * x)).clamp(-1.0, 1.0).asin();
+            *latest = Some(Pose {
+                t_s: o.time_usec as f64 * 1e-6,
+                ned: [o.x, o.y, o.z],
+                roll,
+                pitch,
+                vz_body: o.vz,
+            });
+        }
+    }
+}
+
+/// MSP_SET_RAW_RC sent without waiting (the firmware answers each with an empty frame,
+/// drained here), MSP_STATUS_EX asked now and then: what a gateway does at 50 Hz.
+struct Rc {
+    s: TcpStream,
+    d: Decoder,
+    status: Option<Status>,
+}
+
+impl Rc {
+    fn send(&mut self, sticks: Sticks, aux: &[u16]) {
+        let raw = RawRc::aetr(sticks, aux).expect("channels");
+        let bytes = raw.to_frame(Version::V1).to_bytes().expect("encodes");
+        self.s.write_all(&bytes).expect("write");
+    }
+
+    fn ask_status(&mut self) {
+        let bytes = Frame::request(Version::V1, command::STATUS_EX, vec![]).to_bytes().expect("encodes");
+        self.s.write_all(&bytes).expect("write");
+    }
+
+    fn drain(&mut self) {
+        let mut buf = [0u8; 2048];
+        self.s.set_nonblocking(true).expect("nonblocking");
+        while let Ok(n) = self.s.read(&mut buf) {
+            if n == 0 {
+                break;
+            }
+            for f in self.d.feed(&buf[..n]) {
+                if f.command == command::STATUS_EX
+                    && let Ok(st) = Status::decode(&f.payload, true)
+                {
+                    self.status = Some(st);
+                }
+            }
+        }
+        self.s.set_nonblocking(false).expect("blocking");
+    }
+}
+
+#[test]
+fn armed_over_msp_in_angle_mode_the_firmware_flies_the_rigid_body_at_a_steady_height() {
+    let _one = SITL.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    if !sitl_available() {
+        return;
+    }
+    let pose_sock = UdpSocket::bind("127.0.0.1:0").expect("bind");
+    pose_sock.set_nonblocking(true).expect("nonblocking");
+    let addr = pose_sock.local_addr().expect("addr").to_string();
+    let b = Bfsim::start(&["--pose-out", &addr, "--pose-rate-hz", "100"]);
+    let mut s = msp_connect();
+    let mut d = Decoder::new(DecoderSettings::default()).expect("valid");
+    let f = exchange(&mut s, &mut d, command::BOXIDS);
+    let ids = BoxIds::decode(&f.payload);
+    let mut rc = Rc { s, d, status: None };
+
+    // The hover command: quad's hover motor output (0.58 of full speed by default) through
+    // the firmware's throttle-to-motor map (idle 1055 us at zero throttle, 2000 us at full),
+    // rounded; the height loop below trims it, as the gateway's calibration will.
+    let params = quad::QuadParams::default();
+    let hover_us = 1000.0 + 1000.0 * (params.hover_command() * 1000.0 - 55.0) / 945.0;
+    let target_up_m = 1.0;
+    let (low, high, angle_on) = (1000u16, 1800u16, 1800u16);
+    let started = Instant::now();
+    let mut latest = None::<Pose>;
+    let mut armed_at = None::<Instant>;
+    let mut integral = 0.0f64;
+    let mut heights = Vec::new();
+    let mut max_tilt = 0.0f64;
+    let mut tick = 0u64;
+    let mut switch_high = false;
+    let (mut roll_at_stick, mut pitch_at_stick) = (Vec::new(), Vec::new());
+    let period = Duration::from_millis(20);
+    let mut next = Instant::now();
+    loop {
+        let t = started.elapsed().as_secs_f64();
+        read_poses(&pose_sock, &mut latest);
+        rc.drain();
+        let armed = rc.status.as_ref().and_then(|st| st.is_on(&ids, boxes::ARM)) == Some(true);
+        if armed && armed_at.is_none() {
+            armed_at = Some(Instant::now());
+            eprintln!("armed at {t:.2} s");
+        }
+        // 3 s with the switch low (boot grace, gyro calibration), throttle low; then the
+        // switch high; once armed, the height loop.
+        // (The calibration's length depends on the machine's load: the switch goes high once
+        // nothing refuses arming, and back low if the firmware latched ARM_SWITCH.)
+        let ready = rc.status.as_ref().is_some_and(|st| st.arming_disabled.none());
+        let latched =
+            rc.status.as_ref().is_some_and(|st| st.arming_disabled.contains(ArmingDisabled::ARM_SWITCH));
+        if t > 1.0 && ready {
+            switch_high = true;
+        }
+        if latched && armed_at.is_none() {
+            switch_high = false;
+        }
+        let arm_switch = if switch_high { high } else { low };
+        // After arming: level, then 1.5 s of roll stick right, 1.5 s of pitch stick forward,
+        // then level again. The tilt each gives proves the motor order: with motors swapped
+        // the firmware's corrections would tip the body over.
+        let since_armed = armed_at.map_or(0.0, |a| a.elapsed().as_secs_f64());
+        let (roll_us, pitch_us) = if (5.0..6.5).contains(&since_armed) {
+            (1600, 1500)
+        } else if (6.5..8.0).contains(&since_armed) {
+            (1500, 1600)
+        } else {
+            (1500, 1500)
+        };
+        let throttle_us = match (armed_at, latest) {
+            (Some(_), Some(p)) => {
+                let up = -f64::from(p.ned[2]);
+                let climb = -f64::from(p.vz_body);
+                // The target climbs to its height over 2 s (no step, no overshoot); the
+                // integral starts off the ground (no wind-up while the motors spin up).
+                let since = armed_at.map_or(0.0, |a| a.elapsed().as_secs_f64());
+                let err = target_up_m * (since / 2.0).min(1.0) - up;
+                if up > 0.1 {
+                    integral = (integral + err * 0.02).clamp(-3.0, 3.0);
+                }
+                (hover_us + 50.0 * err - 60.0 * climb + 10.0 * integral).clamp(1300.0, 1800.0)
+            }
+            _ => 1000.0,
+        };
+        rc.send(
+            Sticks { roll_us, pitch_us, throttle_us: throttle_us as u16, yaw_us: 1500 },
+            &[arm_switch, angle_on, low, low],
+        );
+        // MSP_STATUS_EX 4 times a second until armed, then once a second: the firmware's
+        // serial task takes one frame per run, and RC frames must not queue behind requests.
+        if tick.is_multiple_of(if armed_at.is_some() { 50 } else { 12 }) {
+            rc.ask_status();
+        }
+        if armed_at.is_none() && tick.is_multiple_of(25) {
+            eprintln!(
+                "t={t:.2} {:?}",
+                rc.status.as_ref().map(|s| (s.is_on(&ids, boxes::ARM), s.arming_disabled.names()))
+            );
+        }
+        if let (Some(at), Some(p)) = (armed_at, latest) {
+            let since = at.elapsed().as_secs_f64();
+            if tick.is_multiple_of(25) {
+                eprintln!(
+                    "t={t:.2} plant={:.2} up={:.3} roll={:.1} pitch={:.1} deg throttle={throttle_us:.0} {:?}",
+                    p.t_s,
+                    -p.ned[2],
+                    p.roll.to_degrees(),
+                    p.pitch.to_degrees(),
+                    rc.status.as_ref().map(|s| (s.is_on(&ids, boxes::ARM), s.arming_disabled.names()))
+                );
+            }
+            if since > 4.0 {
+                heights.push(-f64::from(p.ned[2]));
+            }
+            if (4.0..5.0).contains(&since) {
+                max_tilt = max_tilt.max(p.roll.abs().max(p.pitch.abs()));
+            }
+            if (6.0..6.5).contains(&since) {
+                roll_at_stick.push(p.roll.to_degrees());
+            }
+            if (7.5..8.0).contains(&since) {
+                pitch_at_stick.push(p.pitch.to_degrees());
+            }
+            if since > 9.0 {
+                break;
+            }
+        }
+        assert!(t < 30.0, "never armed: {:?}", rc.status.as_ref().map(|s| s.arming_disabled.names()));
+        tick += 1;
+        next += period;
+        std::thread::sleep(next.saturating_duration_since(Instant::now()));
+    }
+    drop(b);
+    let (lo, hi) = heights.iter().fold((f64::MAX, f64::MIN), |(a, b), h| (a.min(*h), b.max(*h)));
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let (roll, pitch) = (mean(&roll_at_stick), mean(&pitch_at_stick));
+    eprintln!(
+        "from 4 s to 9 s after arming: height {lo:.3} to {hi:.3} m; level: tilt up to {:.2} deg; \
+         roll stick +100 us: roll {roll:.2} deg; pitch stick +100 us: pitch {pitch:.2} deg",
+        max_tilt.to_degrees()
+    );
+    // Right side down (NED roll > 0) and nose down (NED pitch < 0), the same angle for both.
+    // Betaflight 4.6's ANGLE mode maps the stick through the rates curve to angle_limit at full
+    // stick (20 deg at 500 us), so 100 us off centre is about 1 deg, not the linear 4 deg.
+    assert!((0.5..3.0).contains(&roll), "roll stick right: {roll:.2} deg");
+    assert!((0.5..3.0).contains(&-pitch), "pitch stick forward: {pitch:.2} deg");
+    assert!((roll + pitch).abs() < 0.3, "roll and pitch alike: {roll:.2} and {pitch:.2} deg");
+    assert!(heights.len() > 200, "poses (at the loop's 50 Hz) through the hover: {}", heights.len());
+    assert!(lo > 0.5 && hi < 1.5, "a steady height about 1 m: {lo:.3} to {hi:.3} m");
+    assert!(
+        max_tilt.to_degrees() < 1.0,
+        "level in ANGLE mode with the sticks centred: {:.1} deg",
+        max_tilt.to_degrees()
+    );
 }
