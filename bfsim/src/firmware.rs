@@ -303,7 +303,21 @@ pub fn query_info(s: &mut TcpStream) -> Result<FirmwareInfo, FirmwareError> {
     let mut d = Decoder::new(DecoderSettings::default()).map_err(|e| FirmwareError::Msp(e.to_string()))?;
     let within = Duration::from_secs(3);
     let msp_err = |e: msp::DecodeError| FirmwareError::Msp(e.to_string());
-    let f = exchange(s, &mut d, command::FC_VARIANT, &[], within)?;
+    // The first request may come before the firmware's serial task runs (a loaded machine
+    // boots it slowly): asked again until it answers.
+    let mut first = None;
+    for _ in 0..5 {
+        match exchange(s, &mut d, command::FC_VARIANT, &[], within) {
+            Ok(f) => {
+                first = Some(f);
+                break;
+            }
+            Err(FirmwareError::Msp(_)) => continue,
+            Err(e) => return Err(e),
+        }
+    }
+    let f = first
+        .ok_or_else(|| FirmwareError::Msp(format!("no answer to MSP_FC_VARIANT in 5 tries of {within:?}")))?;
     let variant =
         FcVariant::decode(reply_payload(&f, command::FC_VARIANT).map_err(msp_err)?).map_err(msp_err)?;
     let f = exchange(s, &mut d, command::FC_VERSION, &[], within)?;
