@@ -49,6 +49,10 @@ struct Args {
     /// --lockstep). See docs/betaflight.md for what it does and does not make repeatable.
     #[arg(long)]
     lockstep: bool,
+    /// In lockstep, how long a state packet waits for its motor packet before plant time moves
+    /// on with the motors held, ms.
+    #[arg(long, value_name = "MS", default_value_t = 20, requires = "lockstep")]
+    lockstep_timeout_ms: u64,
     /// Write every motor packet applied to FILE (plant time ns and the four floats' bits).
     #[arg(long, value_name = "FILE")]
     motor_log: Option<PathBuf>,
@@ -102,7 +106,7 @@ fn run() -> anyhow::Result<()> {
         start_m: args.start_m,
         fdm_period_ns: args.fdm_period_ms * 1_000_000,
         time_mode: if args.lockstep {
-            TimeMode::Lockstep { reply_timeout: Duration::from_millis(20) }
+            TimeMode::Lockstep { reply_timeout: Duration::from_millis(args.lockstep_timeout_ms) }
         } else {
             TimeMode::RealTime
         },
