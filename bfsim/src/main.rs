@@ -32,9 +32,14 @@ struct Args {
     /// The CLI file applied to the firmware [default: firmware/betaflight/hilbench.cli, built in].
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
-    /// Start position in the bench's world (x north, y west, z up; ground at 0), m.
-    #[arg(long, value_name = "X,Y,Z", default_value = "0,0,0", value_parser = parse_xyz, allow_hyphen_values = true)]
-    start_m: [f64; 3],
+    /// Start position in the bench's world (x north, y west, z up; ground at 0), m
+    /// [default: 0,0,0].
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_xyz, allow_hyphen_values = true, conflicts_with = "scenario")]
+    start_m: Option<[f64; 3]>,
+    /// Start where a scenario starts (its start state's position; the body starts at rest,
+    /// level, nose north): a built-in name or a scenario file.
+    #[arg(long, value_name = "NAME|FILE.toml")]
+    scenario: Option<String>,
     /// Where the pose stream (MAVLink 2 ODOMETRY over UDP) goes.
     #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:14560")]
     pose_out: SocketAddr,
@@ -102,8 +107,17 @@ fn run() -> anyhow::Result<()> {
         Some(p) => std::fs::read_to_string(p).with_context(|| format!("read {}", p.display()))?,
         None => firmware::HILBENCH_CLI.to_string(),
     };
+    let start_m = match (&args.scenario, args.start_m) {
+        (Some(name), _) => {
+            let scenario =
+                hilbench_scenario_file::scenario_arg(name).map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
+            [scenario.start[0], scenario.start[1], scenario.start[2]]
+        }
+        (None, Some(p)) => p,
+        (None, None) => [0.0; 3],
+    };
     let settings = VehicleSettings {
-        start_m: args.start_m,
+        start_m,
         fdm_period_ns: args.fdm_period_ms * 1_000_000,
         time_mode: if args.lockstep {
             TimeMode::Lockstep { reply_timeout: Duration::from_millis(args.lockstep_timeout_ms) }
