@@ -144,10 +144,23 @@ fn run() -> anyhow::Result<()> {
     // State packets only once the firmware answers MSP: its UDP thread starts before the
     // sensors exist, and a state packet then crashes it (sitl.c's updateState writes to the
     // virtual gyro before `gyroInit`).
-    let info = {
+    // A connection reset (the port takes one client; another may have tried it) is retried.
+    let mut info = None;
+    for attempt in 1..=5 {
         let mut s = sitl.connect(Duration::from_secs(10))?;
-        firmware::query_info(&mut s)?
-    };
+        match firmware::query_info(&mut s) {
+            Ok(i) => {
+                info = Some(i);
+                break;
+            }
+            Err(e) if attempt < 5 => {
+                eprintln!("bfsim: MSP query {attempt}: {e}; again");
+                std::thread::sleep(Duration::from_millis(300));
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+    let info = info.context("the firmware's MSP answers")?;
     let vehicle = Vehicle::start(&settings, MonotonicClock::new())?;
     // The firmware is up once its motor packets answer the state packets.
     let waited = Instant::now();
