@@ -63,6 +63,43 @@ pub fn default_binary(lockstep: bool) -> PathBuf {
     dir.join("betaflight_4.6.0_SITL")
 }
 
+/// The machine-wide lock of the SITL's fixed ports:
+/// `${HILBENCH_CACHE:-$HOME/.cache/hilbench}/betaflight-4.6.0/sitl.lock`, held (`flock`,
+/// exclusive) by whoever runs a SITL, released when the holder ends however it ends.
+pub fn lock_path() -> PathBuf {
+    default_binary(false).with_file_name("sitl.lock")
+}
+
+/// The lock of [`lock_path`], held while this lives.
+#[derive(Debug)]
+pub struct SitlLock {
+    _file: std::fs::File,
+}
+
+impl SitlLock {
+    /// Takes the lock, waiting up to `within` for another holder to end.
+    pub fn acquire(within: Duration) -> Result<Self, FirmwareError> {
+        let path = lock_path();
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir)?;
+        }
+        let file = std::fs::OpenOptions::new().create(true).truncate(false).write(true).open(&path)?;
+        let started = Instant::now();
+        loop {
+            match rustix::fs::flock(&file, rustix::fs::FlockOperation::NonBlockingLockExclusive) {
+                Ok(()) => return Ok(Self { _file: file }),
+                Err(_) if started.elapsed() < within => std::thread::sleep(Duration::from_millis(100)),
+                Err(_) => {
+                    return Err(FirmwareError::PortTaken {
+                        what: "the SITL lock (another bfsim?)",
+                        port: MSP_PORT,
+                    });
+                }
+            }
+        }
+    }
+}
+
 /// Checks that the binary is there, else names the script.
 pub fn check_binary(binary: &Path) -> Result<(), FirmwareError> {
     if binary.is_file() { Ok(()) } else { Err(FirmwareError::Missing(binary.to_path_buf())) }

@@ -61,6 +61,10 @@ struct Args {
     /// Write every motor packet applied to FILE (plant time ns and the four floats' bits).
     #[arg(long, value_name = "FILE")]
     motor_log: Option<PathBuf>,
+    /// Wait this long for the machine's SITL lock (docs/betaflight.md) when another process
+    /// holds it, s.
+    #[arg(long, value_name = "S", default_value_t = 300)]
+    wait_lock_s: u64,
     /// Stop after this long, s (wall clock) [default: until SIGINT or SIGTERM].
     #[arg(long, value_name = "S")]
     duration_s: Option<f64>,
@@ -130,6 +134,8 @@ fn run() -> anyhow::Result<()> {
         ..VehicleSettings::default()
     };
     settings.validate()?;
+    // One SITL per machine: the lock first (waiting for another holder), then the ports.
+    let _lock = firmware::SitlLock::acquire(Duration::from_secs(args.wait_lock_s))?;
     firmware::check_ports()?;
     let workdir = Workdir::new(args.workdir.as_deref())?;
     let started = Instant::now();
@@ -162,9 +168,10 @@ fn run() -> anyhow::Result<()> {
     }
     let info = info.context("the firmware's MSP answers")?;
     let vehicle = Vehicle::start(&settings, MonotonicClock::new())?;
-    // The firmware is up once its motor packets answer the state packets.
+    // The firmware is up once its motor packets answer the state packets (ten of them: the
+    // first may be the answer to a stale state, section 3 of docs/betaflight.md).
     let waited = Instant::now();
-    while vehicle.stats().servo_received == 0 {
+    while vehicle.stats().servo_received < 10 {
         if let Some(status) = sitl.exited() {
             bail!(
                 "the SITL exited ({status}) before it sent a motor packet; its log: {}",

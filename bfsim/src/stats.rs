@@ -87,6 +87,8 @@ pub struct LinkStats {
     pub pose_sent: u64,
     /// Ticks that started late by more than one state period (the loop fell behind).
     pub late_ticks: u64,
+    /// Pauses of the state packets after the motor packets stopped (`vehicle`'s resync).
+    pub resyncs: u64,
     /// In lockstep: state packets that got no answer in time (and were sent again).
     pub lockstep_timeouts: u64,
     /// From the last state packet sent to each motor packet received.
@@ -103,7 +105,7 @@ impl fmt::Display for LinkStats {
         let l = &self.latency;
         write!(
             f,
-            "fdm_sent={} servo_received={} bad_packets={} sanitised={} pose_sent={} late_ticks={} \
+            "fdm_sent={} servo_received={} bad_packets={} sanitised={} pose_sent={} late_ticks={} resyncs={} \
              lockstep_timeouts={} fdm_send_errors={} latency_ms_min={} latency_ms_median={} latency_ms_p99={} \
              latency_ms_max={} latency_ms_mean={}",
             self.fdm_sent,
@@ -112,6 +114,7 @@ impl fmt::Display for LinkStats {
             self.sanitised,
             self.pose_sent,
             self.late_ticks,
+            self.resyncs,
             self.lockstep_timeouts,
             self.fdm_send_errors,
             ms(l.min_ns()),

@@ -248,6 +248,11 @@ struct Loop {
     stats: LinkStats,
 }
 
+/// Motor packets silent this long while state packets flow: the firmware is stuck.
+const SILENCE_NS: u64 = 300_000_000;
+/// How long the state packets then pause: more than the firmware's 500 ms stale-state limit.
+const RESYNC_PAUSE_NS: u64 = 600_000_000;
+
 /// How often the loop publishes its counters and sample, ns of plant time.
 const PUBLISH_NS: u64 = 10_000_000;
 
@@ -336,11 +341,25 @@ impl Loop {
         let mut next_fdm_ns = 0u64;
         let mut last_fdm_ns = None::<u64>;
         let mut next_publish = 0u64;
+        // When motor packets stop while state packets flow, the state packets pause for
+        // RESYNC_PAUSE_NS: the firmware then takes its stale-state branch (500 ms), which resets
+        // its clock estimate, and answers again.
+        let mut last_servo_ns = 0u64;
+        let mut paused_until = 0u64;
         let mut buf = [0u8; 512];
         self.servo.set_nonblocking(true).map_err(io("make the motor socket non-blocking"))?;
         while !self.stop.load(Ordering::Relaxed) {
             let t = now();
-            if t >= next_fdm_ns {
+            if t >= next_fdm_ns && t.saturating_sub(last_servo_ns) > SILENCE_NS && t >= paused_until {
+                self.stats.resyncs += 1;
+                paused_until = t + RESYNC_PAUSE_NS;
+                last_servo_ns = paused_until;
+            }
+            if t >= next_fdm_ns && t < paused_until {
+                self.sim.advance_to(t)?;
+                self.send_pose_if_due();
+                next_fdm_ns = t + period;
+            } else if t >= next_fdm_ns {
                 self.sim.advance_to(t)?;
                 self.send_state();
                 last_fdm_ns = Some(t);
@@ -363,10 +382,11 @@ impl Loop {
                 Ok(n) => {
                     let t = now();
                     self.sim.advance_to(t)?;
-                    if self.apply(&buf[..n])
-                        && let Some(sent) = last_fdm_ns.take()
-                    {
-                        self.stats.latency.record(t - sent);
+                    if self.apply(&buf[..n]) {
+                        last_servo_ns = t;
+                        if let Some(sent) = last_fdm_ns.take() {
+                            self.stats.latency.record(t - sent);
+                        }
                     }
                 }
                 Err(e)
