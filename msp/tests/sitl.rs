@@ -161,6 +161,13 @@ fn hex(bytes: &[u8]) -> String {
 
 #[test]
 fn the_real_firmware_is_configured_by_the_project_s_cli_file_and_answers_our_msp() {
+    if std::env::var_os("HILBENCH_SITL").is_none() && std::env::var_os("HILBENCH_REQUIRE_SITL").is_none() {
+        eprintln!(
+            "skipped: the firmware-in-the-loop tests run with HILBENCH_SITL=1 (scripts/betaflight-check.sh): \
+             on a loaded 2-core machine the firmware misses its RC and MSP deadlines (docs/betaflight.md)"
+        );
+        return;
+    }
     let Some(binary) = sitl_binary() else {
         assert!(
             std::env::var_os("HILBENCH_REQUIRE_SITL").is_none(),
