@@ -59,8 +59,9 @@ pub fn summary_json(batch: &Batch, times: OutputTimes) -> serde_json::Value {
                 if let Some(facts) = &r.external {
                     v["external_controller"] = serde_json::json!(facts);
                 }
+                // The run's own error: the batch's, or "interrupted (Ctrl-C)" for a run cut short.
                 if r.error.is_some() {
-                    v["error"] = serde_json::json!(batch.error);
+                    v["error"] = serde_json::json!(r.error);
                 }
                 v
             })

@@ -234,7 +234,7 @@ async fn a_run_that_outlasts_its_delay_trace_stops_with_an_error_naming_the_file
     scenario.delays = Some(delay::DelaysTable::trace("short.csv", vec![0.1, 0.2, 0.05], false));
     let mode = ControllerMode::Nmpc;
     let in_process = run_closed_loop(&scenario, &ClosedLoopSettings::paper(mode)).map(|_| ());
-    let message = format!("{:?}", in_process.expect_err("the in-process run must stop"));
+    let message = in_process.expect_err("the in-process run must stop").to_string();
     assert!(message.contains("short.csv") && message.contains("cycle 3"), "{message}");
     let over_grpc = run_over_grpc(&scenario, mode, &patient(120)).await;
     let message = format!("{:#}", over_grpc.map(|_| ()).expect_err("the gRPC run must stop"));
