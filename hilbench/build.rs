@@ -15,12 +15,24 @@ fn main() {
     let commit = std::env::var("HILBENCH_COMMIT").ok().filter(|c| !c.is_empty()).or_else(|| {
         let head = git(&["rev-parse", "HEAD"])?;
         // Rebuilt when HEAD moves or the index changes (a commit, a checkout, a staged edit).
-        if let Some(dir) = git(&["rev-parse", "--absolute-git-dir"]) {
-            println!("cargo:rerun-if-changed={dir}/HEAD");
-            println!("cargo:rerun-if-changed={dir}/index");
+        // Only files that exist are watched: cargo reruns a build script on every command for
+        // a watched path that is missing (a branch ref kept in packed-refs, a worktree's refs
+        // in the common directory), which recompiled hilbench and every test linking it.
+        let git_dir = git(&["rev-parse", "--absolute-git-dir"]);
+        let common_dir = git(&["rev-parse", "--path-format=absolute", "--git-common-dir"]);
+        let mut watched = Vec::new();
+        if let Some(dir) = &git_dir {
+            watched.push(format!("{dir}/HEAD"));
+            watched.push(format!("{dir}/index"));
+        }
+        if let Some(dir) = common_dir.as_ref().or(git_dir.as_ref()) {
+            watched.push(format!("{dir}/packed-refs"));
             if let Some(reference) = git(&["symbolic-ref", "-q", "HEAD"]) {
-                println!("cargo:rerun-if-changed={dir}/{reference}");
+                watched.push(format!("{dir}/{reference}"));
             }
+        }
+        for path in watched.iter().filter(|p| std::path::Path::new(p).exists()) {
+            println!("cargo:rerun-if-changed={path}");
         }
         let dirty = git(&["status", "--porcelain", "--untracked-files=no"]).is_some_and(|s| !s.is_empty());
         Some(if dirty { format!("{head}-dirty") } else { head })

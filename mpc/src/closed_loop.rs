@@ -90,7 +90,6 @@ pub struct ClosedLoopSettings {
     /// The safety layer (cross-check and selection); `None` sends PANOC's input as it is.
     pub safety: Option<SafetySettings>,
     /// A fault forced on PANOC (tests of the fallbacks).
-    #[cfg(feature = "fault-injection")]
     pub fault: Option<crate::cycle::FaultInjection>,
 }
 
@@ -102,7 +101,6 @@ impl ClosedLoopSettings {
             delays: None,
             record_predictions: false,
             safety: Some(SafetySettings::default()),
-            #[cfg(feature = "fault-injection")]
             fault: None,
         }
     }
@@ -121,7 +119,6 @@ pub struct CycleTrace {
     /// The safety layer's decision (`None` when the layer is off).
     pub selection: Option<Selection>,
     /// The fault forced on PANOC in this cycle, if any.
-    #[cfg(feature = "fault-injection")]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fault: Option<crate::cycle::PanocFault>,
     /// The selected input plan of this cycle (`N x 3`, flattened).
@@ -144,7 +141,6 @@ pub fn run_closed_loop(
     // caller's own.
     episode_settings.delays_expected =
         if settings.delays.is_some() { delays.has_delays() } else { scenario.delays_expected() };
-    #[cfg(feature = "fault-injection")]
     {
         episode_settings.fault = settings.fault;
     }
@@ -187,7 +183,6 @@ pub fn run_closed_loop(
             delay_s: mav::ns_to_s(delay_ns),
             report: out.outcome.report,
             selection: out.outcome.selection,
-            #[cfg(feature = "fault-injection")]
             fault: out.outcome.fault,
             plan: episode.controller().plan().to_vec(),
         });

@@ -10,9 +10,10 @@ use crate::qp::QpBudget;
 use crate::safety::{SafetyLayer, SafetySettings, Selection};
 use crate::solver::{Mpc, MpcSettings, SolveBudget, SolveReport};
 
-/// A fault forced on PANOC, to test that the fallbacks take over (cargo feature
-/// `fault-injection`, for tests only: the product never carries it).
-#[cfg(feature = "fault-injection")]
+/// A fault forced on PANOC, to test that the fallbacks take over. Only tests set one
+/// ([`CycleController::with_fault`]); no setting of the services or the CLI reaches it. It is
+/// compiled always, not behind a cargo feature, so that a package build and a workspace build
+/// resolve `mpc` alike (README's two commands share one build).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PanocFault {
@@ -23,7 +24,6 @@ pub enum PanocFault {
 }
 
 /// A fault on the cycles `first_cycle..first_cycle + cycles`.
-#[cfg(feature = "fault-injection")]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct FaultInjection {
     pub fault: PanocFault,
@@ -31,7 +31,6 @@ pub struct FaultInjection {
     pub cycles: u64,
 }
 
-#[cfg(feature = "fault-injection")]
 impl FaultInjection {
     pub fn active(&self, cycle: u64) -> bool {
         cycle >= self.first_cycle && cycle - self.first_cycle < self.cycles
@@ -48,7 +47,7 @@ pub struct CycleOutcome {
     /// The safety layer's decision and checks (`None` when the layer is off).
     pub selection: Option<Selection>,
     /// The fault forced on this cycle, if any.
-    #[cfg(feature = "fault-injection")]
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub fault: Option<PanocFault>,
 }
 
@@ -60,7 +59,6 @@ pub struct CycleOutcome {
 pub struct CycleController {
     mpc: Mpc,
     safety: Option<SafetyLayer>,
-    #[cfg(feature = "fault-injection")]
     fault: Option<FaultInjection>,
     /// The selected plan of the last cycle (`N x 3`).
     plan: Vec<f64>,
@@ -79,15 +77,8 @@ impl CycleController {
         let safety = safety.map(|s| SafetyLayer::new(&def, s)).transpose()?;
         let mpc = Mpc::new(def, mpc)?;
         let plan = mpc.solution().to_vec();
-        let mut controller = Self {
-            scratch: plan.clone(),
-            plan,
-            mpc,
-            safety,
-            #[cfg(feature = "fault-injection")]
-            fault: None,
-            last_sample_ns: None,
-        };
+        let mut controller =
+            Self { scratch: plan.clone(), plan, mpc, safety, fault: None, last_sample_ns: None };
         controller.follow_the_checks_coast();
         Ok(controller)
     }
@@ -104,7 +95,6 @@ impl CycleController {
     }
 
     /// Forces `fault` on PANOC on the given cycles (tests of the fallbacks).
-    #[cfg(feature = "fault-injection")]
     pub fn with_fault(mut self, fault: Option<FaultInjection>) -> Self {
         self.fault = fault;
         self
@@ -182,44 +172,29 @@ impl CycleController {
                 }
             }
         }
-        #[cfg(feature = "fault-injection")]
         let fault = self.fault.filter(|f| f.active(cycle)).map(|f| f.fault);
-        #[cfg(feature = "fault-injection")]
         let zero = SolveBudget { max_inner_iterations: Some(0), ..*budget };
-        #[cfg(feature = "fault-injection")]
         let budget = if fault == Some(PanocFault::ZeroBudget) { &zero } else { budget };
-        #[cfg(not(feature = "fault-injection"))]
-        let _ = cycle;
         let report = self.mpc.solve(x0, u_prev, weights, budget)?;
         let def = self.mpc.definition();
         let Some(layer) = self.safety.as_mut() else {
             self.plan.copy_from_slice(self.mpc.solution());
-            #[cfg(feature = "fault-injection")]
             if fault == Some(PanocFault::NanPlan) {
                 self.plan.iter_mut().for_each(|u| *u = f64::NAN);
             }
             let first = [self.plan[0], self.plan[1], self.plan[2]];
             let command = sanitize_command(&def.model, &def.bounds, first);
-            return Ok(CycleOutcome {
-                command,
-                report,
-                selection: None,
-                #[cfg(feature = "fault-injection")]
-                fault,
-            });
+            return Ok(CycleOutcome { command, report, selection: None, fault });
         };
         // The deadline is the cycle's: the QP gets what PANOC left of it.
         let qp_deadline = budget.deadline.map(|d| d.saturating_sub(report.solve_time));
         layer.set_qp_budget(QpBudget { max_iterations: None, deadline: qp_deadline });
-        #[cfg(feature = "fault-injection")]
         let selection = if fault == Some(PanocFault::NanPlan) {
             self.scratch.iter_mut().for_each(|u| *u = f64::NAN);
             layer.select_plan(x0, u_prev, weights, Ok((&self.scratch, report.status)))
         } else {
             layer.select(x0, u_prev, weights, &self.mpc, &report)
         };
-        #[cfg(not(feature = "fault-injection"))]
-        let selection = layer.select(x0, u_prev, weights, &self.mpc, &report);
         if let Some(plan) = layer.plan() {
             self.plan.copy_from_slice(plan);
         }
@@ -229,13 +204,7 @@ impl CycleController {
             crate::solver::shift_plan_into(&self.plan, &mut self.scratch);
             self.mpc.set_warm_start(&self.scratch)?;
         }
-        Ok(CycleOutcome {
-            command: selection.command,
-            report,
-            selection: Some(selection),
-            #[cfg(feature = "fault-injection")]
-            fault,
-        })
+        Ok(CycleOutcome { command: selection.command, report, selection: Some(selection), fault })
     }
 }
 

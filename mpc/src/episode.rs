@@ -50,7 +50,6 @@ pub struct EpisodeSettings {
     /// the measured delays, otherwise the scenario's nominal weights.
     pub delays_expected: bool,
     /// A fault forced on PANOC (tests of the fallbacks).
-    #[cfg(feature = "fault-injection")]
     pub fault: Option<crate::cycle::FaultInjection>,
 }
 
@@ -65,7 +64,6 @@ impl EpisodeSettings {
             fail_safe: false,
             plant_watchdog_s: Some(mav::ns_to_s(mav::DEFAULT_WATCHDOG_TIMEOUT_NS)),
             delays_expected: false,
-            #[cfg(feature = "fault-injection")]
             fault: None,
         }
     }
@@ -419,7 +417,6 @@ fn build_controller(scenario: &Scenario, settings: &EpisodeSettings) -> Result<C
     // The scenario may pin whose PANOC solves it; otherwise the controller's own setting.
     let mpc = MpcSettings { solver: scenario.solver.unwrap_or(settings.mpc.solver), ..settings.mpc };
     let controller = CycleController::new(def, mpc, safety)?;
-    #[cfg(feature = "fault-injection")]
     let controller = controller.with_fault(settings.fault);
     Ok(controller)
 }

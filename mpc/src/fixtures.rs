@@ -1,6 +1,7 @@
 //! Fixed problem instances shared by the crate's criterion benches and the `lab` crate's
-//! profiling targets, so that a profile and a bench measure the same thing (cargo feature
-//! `bench-fixtures`; the product never carries it).
+//! profiling targets, so that a profile and a bench measure the same thing. Compiled always
+//! (hidden from the docs), not behind a cargo feature: a package build and a workspace build
+//! then resolve `mpc` alike.
 use crate::{ControllerMode, Evaluator, Mpc, MpcSettings, ObstacleFormulation, OcpDefinition, SolveBudget};
 
 /// The `cost_and_gradient` instance: a state between paper-2's cylinders at 1.5 m/s, equal

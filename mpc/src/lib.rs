@@ -25,7 +25,7 @@ pub mod delays;
 pub mod episode;
 pub mod error;
 pub mod fail_safe;
-#[cfg(feature = "bench-fixtures")]
+#[doc(hidden)]
 pub mod fixtures;
 pub mod problem;
 pub mod qp;
@@ -36,7 +36,6 @@ pub mod solver;
 pub use closed_loop::{ClosedLoopSettings, CycleTrace, DelaySource, run_closed_loop};
 pub use command::{braking_command, sanitize_command};
 pub use cycle::{CycleController, CycleOutcome};
-#[cfg(feature = "fault-injection")]
 pub use cycle::{FaultInjection, PanocFault};
 pub use delays::{DelayWindow, GammaParams, ScenarioWeights, WeightSettings, WeightSource};
 pub use episode::{CycleOutput, CycleTiming, Episode, EpisodeSettings, RunEnd};

@@ -55,7 +55,6 @@ fn with_the_fail_safe_check_the_plans_coast_follows_the_delays_it_covers() {
 }
 
 #[test]
-#[cfg(feature = "fault-injection")]
 fn forced_faults_hand_over_to_a_fallback_with_a_bounded_command() {
     for fault in [PanocFault::ZeroBudget, PanocFault::NanPlan] {
         let mut c = controller(Some(SafetySettings::default())).with_fault(Some(FaultInjection {
@@ -89,7 +88,6 @@ fn forced_faults_hand_over_to_a_fallback_with_a_bounded_command() {
 }
 
 #[test]
-#[cfg(feature = "fault-injection")]
 fn the_warm_start_follows_the_elapsed_time_for_nmpc_when_asked_and_one_step_otherwise() {
     // A zero budget on the second cycle returns the warm start as the plan.
     let s = Scenario::paper_2();
@@ -123,7 +121,6 @@ fn the_warm_start_follows_the_elapsed_time_for_nmpc_when_asked_and_one_step_othe
 }
 
 #[test]
-#[cfg(feature = "fault-injection")]
 fn without_the_layer_a_nan_plan_becomes_hover() {
     let mut c = controller(None).with_fault(Some(FaultInjection {
         fault: PanocFault::NanPlan,
