@@ -46,7 +46,7 @@ struct Cli {
     no_autostart: bool,
     /// Safety margin added to every cylinder radius, m (a scenario's own `obstacle_margin_m`
     /// takes precedence; `--margin-m` is an alias).
-    #[arg(long, visible_alias = "margin-m", default_value_t = MpcSettings::default().obstacle_margin_m)]
+    #[arg(long, global = true, visible_alias = "margin-m", default_value_t = MpcSettings::default().obstacle_margin_m)]
     obstacle_margin_m: f64,
     /// Turn the safety layer off: send PANOC's input as it is (clipped to the bounds), with no
     /// QP cross-check and no fallback.
@@ -79,12 +79,12 @@ struct Cli {
     /// active (`MpcSettings::inactive_set` at its measured values). About half the median solve
     /// time at a little lower accuracy, and it changes the closed loops; off by default (see
     /// docs/reproduction.md, "Options that change the result").
-    #[arg(long)]
+    #[arg(long, global = true)]
     inactive_set: bool,
     /// Whose PANOC solves the NMPC problems: `open` (OpEn 0.12's, the paper's toolchain) or
     /// `own` (mpc's, with the Lipschitz estimate carried across cycles and a scale-free
     /// stopping test; `MpcSettings::solver`, BENCHMARKS.md "The solver" compares them).
-    #[arg(long, default_value = MpcSettings::default().solver.name(), value_parser = panoc_solver)]
+    #[arg(long, global = true, default_value = MpcSettings::default().solver.name(), value_parser = panoc_solver)]
     solver: PanocSolver,
     /// Longest wait for one plant RPC in real time, s (lockstep calls get at least 60 s): a
     /// link that stops answering without closing is then reported and retried like a closed
@@ -127,7 +127,9 @@ enum Schedule {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Solve problems given as JSON lines (from FILE, or stdin) and print one JSON line each:
+    /// Solve problems given as JSON lines (from FILE, or stdin) and print one JSON line each
+    /// (`--solver`, `--obstacle-margin-m` and `--inactive-set` may come before or after
+    /// `solve`; a scenario's own solver wins over `--solver`, and the answer names the one used):
     /// the scenario (name, inline object or scenario_file), x0, u_prev, weights, and optionally
     /// mode, warm_start, multipliers, obstacle_margin_m, floor_m, delay_compensation,
     /// max_iterations (docs/api.md).
@@ -223,6 +225,21 @@ mod tests {
         assert_eq!(cli.mpc_settings().solver, MpcSettings::default().solver);
         let e = Cli::try_parse_from(["controller", "--solver", "fast"]).expect_err("refused");
         assert!(e.to_string().contains("--solver") && e.to_string().contains("open or own"), "{e}");
+    }
+
+    #[test]
+    fn the_solve_flags_are_taken_after_solve_as_before_it() {
+        for args in [
+            ["controller", "solve", "--solver", "own", "--inactive-set", "--obstacle-margin-m", "0.1"],
+            ["controller", "--solver", "own", "--inactive-set", "--obstacle-margin-m", "0.1", "solve"],
+        ] {
+            let cli = Cli::try_parse_from(args).expect("valid flags");
+            assert!(matches!(cli.command, Some(Command::Solve { file: None })), "{args:?}");
+            let settings = cli.mpc_settings();
+            assert_eq!(settings.solver, PanocSolver::Own, "{args:?}");
+            assert_eq!(settings.inactive_set, Some(InactiveSetTolerances::MEASURED), "{args:?}");
+            assert_eq!(settings.obstacle_margin_m, 0.1, "{args:?}");
+        }
     }
 
     #[test]

@@ -14,7 +14,8 @@
 //! `u_prev` within the scenario's input bounds. Every line is solved on its own: from its
 //! `warm_start` (or hover) and `multipliers` (or zeros) with a fresh penalty, so that an answer
 //! does not depend on the lines before it.
-//! Output keys: `line`, `scenario`, `mode`, `status` (`infeasible_at_limit` when the budget ran
+//! Output keys: `line`, `scenario`, `mode`, `solver` (whose PANOC solved it: the scenario's
+//! own, as a scenario file's `[run] solver` or its default gives it, else `--solver`), `status` (`infeasible_at_limit` when the budget ran
 //! out with the plan predicted inside a cylinder), `iterations`, `solve_ms`, `cost` (the
 //! spec's objective, unscaled), `u` (N x 3), `multipliers`, `min_clearance_m`, `depth_m` (how
 //! deep the plan's deepest point is inside a cylinder, 0 when clear), `constraint_violation`,
@@ -190,15 +191,15 @@ impl LineSolver {
         }
     }
 
-    /// The workspace of `def`, built when none of the kept ones solves it.
-    fn workspace(&mut self, def: OcpDefinition) -> Result<&mut Mpc, LineError> {
-        match self.workspaces.iter().position(|m| *m.definition() == def) {
+    /// The workspace of `def` solved with `settings`, built when none of the kept ones does.
+    fn workspace(&mut self, def: OcpDefinition, settings: MpcSettings) -> Result<&mut Mpc, LineError> {
+        match self.workspaces.iter().position(|m| *m.definition() == def && *m.settings() == settings) {
             Some(i) => {
                 let mpc = self.workspaces.remove(i);
                 self.workspaces.push(mpc);
             }
             None => {
-                let mpc = Mpc::new(def, self.settings).map_err(|e| err("<settings>", e.to_string()))?;
+                let mpc = Mpc::new(def, settings).map_err(|e| err("<settings>", e.to_string()))?;
                 if self.workspaces.len() == MAX_WORKSPACES {
                     self.workspaces.remove(0);
                 }
@@ -285,7 +286,12 @@ impl LineSolver {
         {
             def.coast_time_s = coast_s;
         }
-        let mpc = self.workspace(def)?;
+        // Whose PANOC solves it, decided as the controller's episode decides it
+        // (`mpc::episode`): the scenario's own (a scenario file's `[run] solver`, ours by
+        // default), else the command's `--solver`.
+        let settings =
+            MpcSettings { solver: scenario.solver.unwrap_or(self.settings.solver), ..self.settings };
+        let mpc = self.workspace(def, settings)?;
         let bounds = mpc.definition().bounds;
         if let Some(i) = (0..3).find(|&i| !(bounds.min[i]..=bounds.max[i]).contains(&u_prev[i])) {
             return Err(err(
@@ -327,6 +333,7 @@ impl LineSolver {
         Ok(json!({
             "scenario": scenario.name,
             "mode": mode.name(),
+            "solver": settings.solver.name(),
             "status": report.status.name(),
             "iterations": report.iterations,
             "solve_ms": report.solve_time.as_secs_f64() * 1e3,
@@ -465,6 +472,27 @@ mod tests {
         assert_eq!(out[3]["field"], "<line>");
         assert_eq!(out[4]["line"], 5);
         assert!(out[4]["status"].is_string(), "{}", out[4]);
+    }
+
+    #[test]
+    fn a_scenario_file_without_solver_is_solved_by_ours_as_hilbench_run_flies_it_and_the_answer_names_it() {
+        let file = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenarios/slalom-4.toml");
+        let from_file = format!(
+            r#"{{"scenario_file":"{file}","x0":[0,0,0.5,0,0,0,0,0],"u_prev":[9.81,0,0],"weights":[0.2,0.2,0.2,0.2,0.2]}}"#
+        );
+        let by_name = r#"{"scenario":"paper-2","x0":[3.2,0,0,0,0,0,0,0],"u_prev":[9.81,0,0],"weights":[0.05,0.15,0.45,0.3,0.05]}"#;
+        let out = solve(&[from_file.as_str(), by_name].join("\n"));
+        assert_eq!(out.len(), 2, "{out:?}");
+        // The file names no solver: the file's default (ours), whatever `--solver` says.
+        assert_eq!(out[0]["solver"], hilbench_scenario_file::FILE_SOLVER.name(), "{}", out[0]);
+        assert!(out[0]["status"].is_string(), "{}", out[0]);
+        // A built-in scenario keeps the command's `--solver` (OpEn's by default).
+        assert_eq!(out[1]["solver"], MpcSettings::default().solver.name(), "{}", out[1]);
+        let mut own = Vec::new();
+        let settings = MpcSettings { solver: mpc::PanocSolver::Own, ..MpcSettings::default() };
+        LineSolver::new(settings).run(by_name.as_bytes(), &mut own).expect("in-memory io");
+        let own: Value = serde_json::from_slice(&own).expect("json");
+        assert_eq!(own["solver"], "own", "{own}");
     }
 
     fn without_timing(mut v: Value) -> Value {
