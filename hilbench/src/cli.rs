@@ -241,13 +241,14 @@ pub struct RunArgs {
     pub sweep_run: Option<u64>,
     /// Fly your own controller instead of the bench's: a command line (run with `sh -c`)
     /// that speaks the Plant API as a client at $HILBENCH_PLANT_ADDR (netem, in front of a
-    /// plant started here), with $HILBENCH_SCENARIO and $HILBENCH_TIME_MODE; judged from the
-    /// plant's truth (docs/external-controller.md).
+    /// plant started here, or of --plant: a running plant or a vehicle's gateway), with
+    /// $HILBENCH_SCENARIO and $HILBENCH_TIME_MODE; judged from the plant's truth (what the
+    /// gateway reports, for a vehicle) (docs/external-controller.md).
     #[arg(
         long,
         value_name = "CMD",
         value_parser = command_line,
-        conflicts_with_all = ["in_process", "mode", "plant", "netem", "controller"]
+        conflicts_with_all = ["in_process", "mode", "netem", "controller"]
     )]
     pub controller_cmd: Option<String>,
     /// With --controller-cmd: fail the run when plant time has not moved for this long
@@ -584,6 +585,12 @@ pub struct EndpointArgs {
     /// `delay_profile` says what was in force.
     #[arg(long, requires = "netem")]
     pub keep_netem_profile: bool,
+    /// Start each run where the vehicle (or plant) at --plant is now: its state becomes the
+    /// scenario's start, so that a gateway, which never moves its vehicle to a start, takes
+    /// the run's reset (a second run after the first ended away from the start, a vehicle
+    /// placed by hand). The goal and the obstacles stay the file's.
+    #[arg(long, requires = "plant")]
+    pub start_from_vehicle: bool,
 }
 
 impl EndpointArgs {
@@ -601,6 +608,7 @@ impl EndpointArgs {
             keep_netem_profile: self.keep_netem_profile,
             live: None,
             tls: Default::default(),
+            start_from_vehicle: self.start_from_vehicle,
         }
     }
 }
@@ -625,6 +633,24 @@ mod tests {
         }
         for command in ["sweep", "falsify", "sweep-merge", "trace", "certs"] {
             assert!(!help(command).contains("--no-mcap"), "{command} offers --no-mcap:\n{}", help(command));
+        }
+    }
+
+    #[test]
+    fn the_users_controller_takes_a_vehicle_and_start_from_vehicle_needs_one() {
+        use clap::Parser;
+        let run = |args: &[&str]| Cli::try_parse_from([&["hilbench", "run", "f.toml"], args].concat());
+        let cli =
+            run(&["--controller-cmd", "python c.py", "--plant", "127.0.0.1:50054", "--start-from-vehicle"])
+                .expect("a user's controller on a vehicle");
+        let super::Command::Run(a) = cli.command else { panic!("run") };
+        assert_eq!(a.services.plant.as_deref(), Some("127.0.0.1:50054"));
+        assert!(a.services.start_from_vehicle);
+        let e = run(&["--start-from-vehicle"]).expect_err("without --plant");
+        assert!(e.to_string().contains("--plant"), "{e}");
+        for other in ["--netem", "--controller"] {
+            let e = run(&["--controller-cmd", "python c.py", other, "127.0.0.1:1"]).expect_err(other);
+            assert!(e.to_string().contains(other), "{e}");
         }
     }
 

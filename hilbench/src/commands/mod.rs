@@ -122,6 +122,8 @@ fn lockstep_driver(
             command,
             time_mode: TimeMode::Lockstep,
             settings: ExternalSettings::default(),
+            plant: None,
+            start_from_vehicle: false,
         }),
         None if tls.given() && !grpc => {
             anyhow::bail!("the TLS flags need --grpc (a {what} flies in process otherwise)")

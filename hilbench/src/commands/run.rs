@@ -110,7 +110,13 @@ fn driver(
         if let Some(s) = args.stall_timeout_s {
             settings.stall_timeout = std::time::Duration::from_secs_f64(s);
         }
-        return Ok(Driver::External(ExternalController { command, time_mode, settings }));
+        return Ok(Driver::External(ExternalController {
+            command,
+            time_mode,
+            settings,
+            plant: args.services.plant.clone(),
+            start_from_vehicle: args.services.start_from_vehicle,
+        }));
     }
     if args.in_process {
         if spec.run.time_mode == TimeMode::RealTime {

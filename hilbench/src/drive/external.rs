@@ -71,6 +71,11 @@ pub struct ExternalController {
     pub command: String,
     pub time_mode: TimeMode,
     pub settings: ExternalSettings,
+    /// A running plant or a vehicle's gateway (`--plant`) to fly instead of a plant started
+    /// here; netem is started in front of it all the same.
+    pub plant: Option<String>,
+    /// Each run starts where the plant's vehicle is (`--start-from-vehicle`).
+    pub start_from_vehicle: bool,
 }
 
 /// Wall-clock bounds of an external run.
@@ -109,6 +114,8 @@ pub struct ExternalRun {
     /// The plant's watchdog (the bench does not see the controller's link).
     pub faults: RunFaults,
     pub delay_profile: DelayProfileInForce,
+    /// The plant's `PlantDescription.implementation` (from its `Reset`).
+    pub plant: String,
     pub facts: ExternalFacts,
 }
 
@@ -123,6 +130,7 @@ impl ExternalRun {
             timing: Some(self.timing),
             faults: self.faults,
             delay_profile: self.delay_profile,
+            plant: self.plant,
             external: Some(self.facts),
             error,
         }
@@ -143,9 +151,21 @@ pub async fn run_external(
     let network = scenario.network().map_err(|e| anyhow!("{e}"))?;
     let network = network.unwrap_or_else(|| delay::NetworkProfile::none(scenario.seed));
     let delay_profile = DelayProfileInForce::of(DelaySource::Scenario, &network);
-    let mut config = plant_config(scenario, controller.time_mode);
-    config.stream_buffer = stream_buffer(scenario, config.rate_hz);
-    let (plant, plant_addr) = start_plant(config).await?;
+    let (plant, plant_addr) = match &controller.plant {
+        Some(addr) => {
+            // A vehicle behind a gateway must be up and flying setpoints before its run, as
+            // for the bench's own controller.
+            let deadline = Instant::now() + PLANT_READY_WAIT;
+            super::grpc::vehicle_ready(addr, &Default::default(), deadline).await?;
+            (None, addr.clone())
+        }
+        None => {
+            let mut config = plant_config(scenario, controller.time_mode);
+            config.stream_buffer = stream_buffer(scenario, config.rate_hz);
+            let (plant, addr) = start_plant(config).await?;
+            (Some(plant), addr)
+        }
+    };
     let netem = match netem_config(&plant_addr, scenario, controller.time_mode) {
         Ok(config) => start_netem(config).await,
         Err(e) => Err(e),
@@ -153,7 +173,9 @@ pub async fn run_external(
     let (netem, netem_addr) = match netem {
         Ok(n) => n,
         Err(e) => {
-            let _ = stop(plant).await;
+            if let Some(plant) = plant {
+                let _ = stop(plant).await;
+            }
             return Err(e.into());
         }
     };
@@ -166,7 +188,7 @@ pub async fn run_external(
             commands_delayed(&netem_addr, Instant::now() + ASK_NETEM_AFTER_ERROR, None).await;
     }
     let stopping = Instant::now();
-    let stopped = stop_all([netem, plant]).await;
+    let stopped = stop_all([Some(netem), plant]).await;
     match result {
         Ok(mut run) => {
             stopped.map_err(ExternalFailure::from)?;
@@ -184,9 +206,9 @@ fn stream_buffer(scenario: &Scenario, rate_hz: f64) -> usize {
     (steps.ceil() as usize).clamp(plant::config::DEFAULT_STREAM_BUFFER, 120_000)
 }
 
-async fn stop_all(running: [Running; 2]) -> anyhow::Result<()> {
+async fn stop_all(running: [Option<Running>; 2]) -> anyhow::Result<()> {
     let mut result = Ok(());
-    for r in running {
+    for r in running.into_iter().flatten() {
         let stopped = stop(r).await;
         if result.is_ok() {
             result = stopped;
@@ -209,6 +231,8 @@ struct ExternalFlight<'a> {
     /// Stopping the controller's process, s (part of the run's teardown).
     stop_s: f64,
     episode_started: Option<Instant>,
+    /// The plant's `implementation`, from its `Reset`.
+    plant: String,
 }
 
 impl<'a> ExternalFlight<'a> {
@@ -227,6 +251,7 @@ impl<'a> ExternalFlight<'a> {
             setup_s: 0.0,
             stop_s: 0.0,
             episode_started: None,
+            plant: String::new(),
         }
     }
 
@@ -239,16 +264,28 @@ impl<'a> ExternalFlight<'a> {
         let settings = &self.controller.settings;
         let deadline = started + settings.timeout;
         let mut plant = PlantClient::new(connect(plant_addr, deadline).await?);
-        // The bench resets the plant to the scenario, whole, for every run.
+        // The bench resets the plant to the scenario, whole, for every run (from where the
+        // vehicle is, with --start-from-vehicle: a gateway never moves its vehicle to a start).
+        let start = if self.controller.start_from_vehicle {
+            Some(
+                super::grpc::with_vehicle_start(plant_addr, &Default::default(), self.scenario, deadline)
+                    .await?,
+            )
+        } else {
+            None
+        };
         let reset = plant
             .reset(pb::ResetRequest {
                 scenario: String::new(),
                 initial_state: None,
-                definition: Some(self.scenario.into()),
+                definition: Some(start.as_ref().unwrap_or(self.scenario).into()),
             })
             .await
             .context("plant Reset")?
             .into_inner();
+        if let Some(d) = &reset.description {
+            self.plant = d.implementation.clone();
+        }
         self.judge.step_ns = reset.description.map(|d| d.step_ns).filter(|&s| s > 0);
         // On the plant itself: the truth, undelayed. It starts with the reset's sample.
         let mut stream = plant
@@ -256,7 +293,7 @@ impl<'a> ExternalFlight<'a> {
             .await
             .context("plant StreamState")?
             .into_inner();
-        let scenario_file = ScenarioTempFile::write(self.scenario)?;
+        let scenario_file = ScenarioTempFile::write(start.as_ref().unwrap_or(self.scenario))?;
         let mut process = Process::spawn(
             &self.controller.command,
             &[
@@ -377,6 +414,7 @@ impl<'a> ExternalFlight<'a> {
             final_sample: last,
             timing: RunTiming { setup_s: self.setup_s, episode_s, solver_s: 0.0, teardown_s: self.stop_s },
             delay_profile: self.delay_profile.clone(),
+            plant: self.plant.clone(),
             facts: self.facts(),
         }
     }
@@ -402,6 +440,10 @@ impl<'a> ExternalFlight<'a> {
         Some(self.run(summary, last, episode_s))
     }
 }
+
+/// How long a plant given with `--plant` may take to say it is ready (a gateway's vehicle
+/// armed and flying setpoints).
+const PLANT_READY_WAIT: Duration = Duration::from_secs(10);
 
 /// How long a run that ended in an error waits for netem's counts.
 const ASK_NETEM_AFTER_ERROR: Duration = Duration::from_secs(5);

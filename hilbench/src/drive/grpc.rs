@@ -71,6 +71,8 @@ pub struct GrpcRun {
     pub faults: RunFaults,
     /// The delay process netem had in force for the run.
     pub delay_profile: DelayProfileInForce,
+    /// The plant's `Describe`: `PlantDescription.implementation`.
+    pub plant: String,
 }
 
 impl GrpcRun {
@@ -84,6 +86,7 @@ impl GrpcRun {
             timing: Some(self.timing),
             faults: self.faults,
             delay_profile: self.delay_profile,
+            plant: self.plant,
             external: None,
             error,
         }
@@ -200,6 +203,8 @@ struct Progress {
     /// The controller's status at the last poll.
     status: Option<pb::ControllerStatus>,
     delay_profile: Option<DelayProfileInForce>,
+    /// The plant's `Describe` (`implementation`), once asked.
+    plant: Option<String>,
     setup_s: f64,
     episode_started: Option<Instant>,
 }
@@ -236,6 +241,7 @@ async fn partial_run(
         timing: RunTiming { setup_s: progress.setup_s, episode_s, solver_s, teardown_s: 0.0 },
         faults,
         delay_profile: progress.delay_profile.unwrap_or_else(DelayProfileInForce::none),
+        plant: progress.plant.unwrap_or_default(),
     })
 }
 
@@ -243,11 +249,36 @@ async fn partial_run(
 /// not show an arm and mode switch made just before the run.
 const VEHICLE_READY_WAIT: Duration = Duration::from_secs(3);
 
+/// `scenario` starting where the vehicle (or plant) at `addr` is now (`--start-from-vehicle`):
+/// its `GetState` as the start, so that the reset that begins the run is one a gateway accepts
+/// (a gateway never moves its vehicle to a start: mavbridge's start check). The goal, the
+/// obstacles and everything else stay the scenario's; a state the scenario refuses (below its
+/// ground, inside a cylinder) is an error naming it.
+pub(crate) async fn with_vehicle_start(
+    addr: &str,
+    tls: &Tls,
+    scenario: &Scenario,
+    deadline: Instant,
+) -> anyhow::Result<Scenario> {
+    let mut plant = PlantClient::new(connect_with(addr, tls, deadline).await?);
+    let sample = within(CALL_DEADLINE, "plant", addr, "GetState", plant.get_state(pb::GetStateRequest {}))
+        .await?
+        .with_context(|| format!("--start-from-vehicle: GetState at {addr}"))?;
+    let sample = PlantSample::try_from(&sample)
+        .map_err(|e| anyhow!("--start-from-vehicle: the state at {addr}: {e}"))?;
+    let mut moved = scenario.clone();
+    moved.start = sample.state.into();
+    moved.validate().map_err(|e| {
+        anyhow!("--start-from-vehicle: the vehicle's state at {addr} cannot start {}: {e}", scenario.name)
+    })?;
+    Ok(moved)
+}
+
 /// A plant that is a vehicle behind a gateway (it serves `VehicleControl`) must have its link
 /// up and fly setpoints (armed, in its external mode) before a run starts: otherwise the run
 /// would fly for its whole time limit with a vehicle that ignores it. A simulated plant (no
 /// such service), or a gateway that does not let this client read the status, is not checked.
-async fn vehicle_ready(addr: &str, tls: &Tls, deadline: Instant) -> anyhow::Result<()> {
+pub(crate) async fn vehicle_ready(addr: &str, tls: &Tls, deadline: Instant) -> anyhow::Result<()> {
     let mut control = VehicleControlClient::new(connect_with(addr, tls, deadline).await?);
     let waited_until = Instant::now() + VEHICLE_READY_WAIT;
     loop {
@@ -381,7 +412,15 @@ async fn drive(
             wanted
         );
     }
+    progress.plant = Some(described.implementation.clone());
     vehicle_ready(state_addr, tls, deadline).await?;
+    let moved;
+    let scenario = if services.start_from_vehicle {
+        moved = with_vehicle_start(state_addr, tls, scenario, deadline).await?;
+        &moved
+    } else {
+        scenario
+    };
     // Subscribe before the episode starts: the response headers mean the server subscribed.
     let controller_addr = services.controller_addr();
     let mut stream = within(
@@ -579,6 +618,7 @@ async fn drive(
         timing: RunTiming { setup_s, episode_s, solver_s, teardown_s: 0.0 },
         faults,
         delay_profile,
+        plant: described.implementation,
     })
 }
 

@@ -3,7 +3,7 @@
 
 use mpc::{ClosedLoopSettings, MpcError, run_closed_loop};
 
-use crate::run::{DelayProfileInForce, DelaySource, FinishedRun, Job, RunError, RunFaults};
+use crate::run::{DelayProfileInForce, DelaySource, FinishedRun, IN_PROCESS_PLANT, Job, RunError, RunFaults};
 
 /// Flies `job` with the predicted trajectories recorded (as the gRPC telemetry carries them).
 /// Blocking: call it off the async runtime. An error of the control loop itself (a problem it
@@ -26,6 +26,7 @@ pub fn fly(job: Job) -> Result<FinishedRun, RunError> {
         timing: None,
         faults: RunFaults::default(),
         delay_profile: DelayProfileInForce::of(DelaySource::Scenario, &network),
+        plant: IN_PROCESS_PLANT.to_string(),
         external: None,
         error: None,
     })

@@ -107,6 +107,8 @@ pub struct Endpoints {
     pub live: Option<Arc<dyn CycleSink>>,
     /// TLS of the run's links (default: plaintext); shared, as the endpoints are cloned per run.
     pub tls: std::sync::Arc<BenchTls>,
+    /// Each run starts where the vehicle at `plant` is (`--start-from-vehicle`).
+    pub start_from_vehicle: bool,
 }
 
 /// TLS of a run's links: how this process connects to every service (its trust and client
@@ -179,6 +181,8 @@ pub struct Services {
     pub(super) time_mode: TimeMode,
     /// How this process connects to them.
     pub(super) client_tls: Tls,
+    /// Each run starts where the plant's vehicle is (see [`Endpoints::start_from_vehicle`]).
+    pub(super) start_from_vehicle: bool,
 }
 
 impl Services {
@@ -222,6 +226,7 @@ impl Services {
                 keep_netem_profile: endpoints.keep_netem_profile,
                 time_mode: endpoints.time_mode,
                 client_tls: endpoints.tls.client.clone(),
+                start_from_vehicle: endpoints.start_from_vehicle,
             });
         }
         let tls = &endpoints.tls;
@@ -265,6 +270,7 @@ impl Services {
             controller_addr,
             time_mode: endpoints.time_mode,
             client_tls: tls.client.clone(),
+            start_from_vehicle: endpoints.start_from_vehicle,
         })
     }
 

@@ -94,6 +94,13 @@ pub fn render(
         );
     }
     let _ = writeln!(out);
+    // What flew the runs (the simulated plant, or a vehicle and its firmware behind a gateway).
+    let mut plants: Vec<&str> =
+        summary["runs"].as_array().into_iter().flatten().filter_map(|r| r["plant"].as_str()).collect();
+    plants.dedup();
+    if !plants.is_empty() {
+        let _ = writeln!(out, "Flown on: {}.\n", plants.join("; "));
+    }
     // Every run that did not simply reach its goal with verified commands, explained.
     for r in runs.iter().filter(|r| r.collided || !r.reached || !r.explanation.is_empty()) {
         let what = if r.collided {

@@ -56,6 +56,7 @@ pub fn summary_json(batch: &Batch, times: OutputTimes) -> serde_json::Value {
                 add_cycle_metrics(&mut v, &r.rows, &r.job.scenario.goal_m);
                 r.faults.add_to(&mut v);
                 v["delay_profile"] = serde_json::json!(r.delay_profile);
+                v["plant"] = serde_json::json!(r.plant);
                 if let Some(facts) = &r.external {
                     v["external_controller"] = serde_json::json!(facts);
                 }

@@ -79,6 +79,10 @@ pub struct FinishedRun {
     pub timing: Option<RunTiming>,
     pub faults: RunFaults,
     pub delay_profile: DelayProfileInForce,
+    /// What flew the run: the plant's `Describe` (`PlantDescription.implementation`: the
+    /// simulated plant, or a gateway naming its vehicle and firmware, e.g. `BTFL 4.6.0`), or
+    /// [`IN_PROCESS_PLANT`] (`summary.json`'s `plant`).
+    pub plant: String,
     /// What the external controller's process did (`None` for the bench's controller).
     pub external: Option<ExternalFacts>,
     /// The error that stopped the run part-way (its `end_reason` is then "error").
@@ -91,6 +95,9 @@ impl FinishedRun {
         &self.summary.controller
     }
 }
+
+/// The plant of an in-process run (`summary.json`'s `plant`).
+pub const IN_PROCESS_PLANT: &str = "in-process model (mav's 8-state MAV, lockstep)";
 
 /// What delayed the run's messages: `summary.json`'s `delay_profile` (a stable key).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]

@@ -77,7 +77,13 @@ fn fly_in(
     command: &str,
     settings: ExternalSettings,
 ) -> Result<ExternalRun, ExternalFailure> {
-    let controller = ExternalController { command: command.to_string(), time_mode, settings };
+    let controller = ExternalController {
+        command: command.to_string(),
+        time_mode,
+        settings,
+        plant: None,
+        start_from_vehicle: false,
+    };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

@@ -126,6 +126,7 @@ async fn netem_going_away_mid_run_is_held_by_the_watchdog_survived_and_recorded(
         keep_netem_profile: false,
         live: None,
         tls: Default::default(),
+        start_from_vehicle: false,
     };
     let run = start_run(&scenario, endpoints);
 
@@ -207,6 +208,7 @@ async fn netem_frozen_for_3_s_is_an_outage_of_at_least_3_s_during_which_the_plan
         keep_netem_profile: false,
         live: None,
         tls: Default::default(),
+        start_from_vehicle: false,
     };
     let run = start_run(&scenario, endpoints);
     wait_until_flying(&plant_addr, 10).await;
@@ -243,6 +245,7 @@ async fn a_plant_killed_and_restarted_mid_run_fails_the_run_with_a_plant_reset_k
         keep_netem_profile: false,
         live: None,
         tls: Default::default(),
+        start_from_vehicle: false,
     };
     let run = start_run(&scenario, endpoints);
     let flying = wait_until_flying(&plant_addr, 10).await;

@@ -163,6 +163,8 @@ async fn paper_2_in_real_time_through_netem_and_the_gateway_reaches_the_goal_of_
     let run = fly_in_real_time(&scenario, bench.gateway.addr, netem_addr, false).await;
     let s = &run.summary;
     assert!(s.reached && !s.collided, "{s:?}");
+    // The run names what flew it: the gateway and its link (summary.json's `plant`).
+    assert!(run.plant.starts_with(gateway::service::IMPLEMENTATION), "{}", run.plant);
     assert!(s.min_clearance_m >= 0.0, "{s:?}");
     // Delays were measured from the gateway's stamps (the last command applied and when, in
     // the vehicle's clock): after the first cycles every cycle knows one, positive and finite.
@@ -220,6 +222,7 @@ async fn fly_to_the_gateway(
         keep_netem_profile,
         live: None,
         tls: Default::default(),
+        start_from_vehicle: false,
     };
     let settings = GrpcSettings { timeout: Duration::from_secs(240), ..GrpcSettings::default() };
     run_against(scenario, ControllerMode::Nmpc, &settings, &endpoints).await.map_err(|e| format!("{e:#}"))
@@ -1062,4 +1065,63 @@ async fn mavsim_signing_with_the_gateways_key_is_served_and_with_another_key_is_
         vehicle.stop();
         gateway.stop().await.expect("gateway stops cleanly");
     }
+}
+
+/// Your own controller on a vehicle (`hilbench run --plant GATEWAY --controller-cmd CMD`): the
+/// Python PD controller of examples/python-controller flies the simulated vehicle through
+/// netem and the gateway to the goal of open-field, judged from the gateway's samples, and the
+/// run names the gateway as its plant. The vehicle is then at the goal: a second run from the
+/// file's start is refused (a gateway never moves its vehicle to a start), and one with
+/// `--start-from-vehicle` starts where the vehicle is and flies.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_users_controller_flies_the_vehicle_behind_the_gateway_and_the_next_run_starts_from_where_it_left_it()
+ {
+    use hilbench::drive::external::{ExternalController, ExternalSettings, run_external};
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let scenario =
+        hilbench::scenario_file::ScenarioFile::load(&repo.join("examples/python-controller/open-field.toml"))
+            .expect("open-field.toml")
+            .scenario;
+    let command = format!(
+        "'{}' '{}'",
+        hilbench_tests::python::python().display(),
+        repo.join("examples/python-controller/controller.py").display()
+    );
+    let bench = start(&scenario).await;
+    let addr = bench.gateway.addr;
+    arm_and_offboard(addr).await;
+    let controller = |start_from_vehicle| ExternalController {
+        command: command.clone(),
+        time_mode: TimeMode::RealTime,
+        settings: ExternalSettings::default(),
+        plant: Some(addr.to_string()),
+        start_from_vehicle,
+    };
+    let first = run_external(&scenario, &controller(false)).await.map_err(|f| format!("{:#}", f.error));
+    let first = first.expect("the user's controller flies the vehicle");
+    assert!(first.summary.reached && !first.summary.collided, "{:?}", first.summary);
+    assert!(first.plant.starts_with(gateway::service::IMPLEMENTATION), "{}", first.plant);
+    {
+        let autopilot = bench.vehicle.autopilot();
+        let x = autopilot.sim().state();
+        let d = ((x[0] - scenario.goal_m[0]).powi(2) + (x[1] - scenario.goal_m[1]).powi(2)).sqrt();
+        assert!(d < 0.5, "the simulator's vehicle is {d} m from the goal: {x:?}");
+    }
+
+    let refused = run_external(&scenario, &controller(false)).await.map(|_| ()).expect_err("refused");
+    let text = format!("{:#}", refused.error);
+    assert!(text.contains("teleport"), "{text}");
+
+    let second = run_external(&scenario, &controller(true)).await.map_err(|f| format!("{:#}", f.error));
+    let second = second.expect("a run from where the vehicle is");
+    assert!(second.summary.reached && !second.summary.collided, "{:?}", second.summary);
+    let moved =
+        (0..3).map(|i| (second.final_sample.state[i] - first.final_sample.state[i]).powi(2)).sum::<f64>();
+    assert!(
+        moved.sqrt() < 0.5,
+        "the second run started away from the vehicle: {:?}",
+        second.final_sample.state
+    );
+    bench.gateway.stop().await.expect("gateway stops cleanly");
+    bench.vehicle.stop();
 }
