@@ -9,6 +9,7 @@ mod fault;
 mod foxglove;
 mod gateway;
 mod k8s;
+mod mavsdk;
 mod netem;
 mod plant;
 mod python;
