@@ -261,9 +261,19 @@ pub(crate) async fn with_vehicle_start(
     deadline: Instant,
 ) -> anyhow::Result<Scenario> {
     let mut plant = PlantClient::new(connect_with(addr, tls, deadline).await?);
-    let sample = within(CALL_DEADLINE, "plant", addr, "GetState", plant.get_state(pb::GetStateRequest {}))
-        .await?
-        .with_context(|| format!("--start-from-vehicle: GetState at {addr}"))?;
+    // A vehicle just armed may not have reported its first state yet (UNAVAILABLE): waited
+    // for, as long as for its readiness.
+    let waited_until = Instant::now() + VEHICLE_READY_WAIT;
+    let sample = loop {
+        let asked =
+            within(CALL_DEADLINE, "plant", addr, "GetState", plant.get_state(pb::GetStateRequest {})).await?;
+        match asked {
+            Err(e) if e.code() == tonic::Code::Unavailable && Instant::now() < waited_until => {
+                tokio::time::sleep(Duration::from_millis(100)).await;
+            }
+            asked => break asked.with_context(|| format!("--start-from-vehicle: GetState at {addr}"))?,
+        }
+    };
     let sample = PlantSample::try_from(&sample)
         .map_err(|e| anyhow!("--start-from-vehicle: the state at {addr}: {e}"))?;
     let mut moved = scenario.clone();
@@ -623,7 +633,7 @@ async fn drive(
 }
 
 /// The plant and netem of a run as this driver reaches them: when no cycle comes, each is
-/// asked `Describe` (the Plant API both serve); one that has not answered for the service
+/// asked (the plant `GetState`, netem `Describe`); one that has not answered for the service
 /// timeout ends the run, named.
 struct Probes {
     services: Vec<(&'static str, String, PlantClient<tonic::transport::Channel>, Option<Instant>)>,
@@ -651,20 +661,29 @@ impl Probes {
     /// Asks each service once; an error naming the first that has not answered for `timeout`.
     async fn check(&mut self, timeout: Duration) -> anyhow::Result<()> {
         for (name, addr, client, down_since) in &mut self.services {
-            let answer = tokio::time::timeout(PROBE_DEADLINE, client.describe(pb::DescribeRequest {})).await;
+            // The plant is asked for its state: a gateway whose vehicle (or firmware) is gone
+            // still answers Describe, but refuses GetState (UNAVAILABLE, naming the link). netem
+            // is asked Describe: its GetState is the plant's, through it.
+            let (call, answer) = if *name == "plant" {
+                let asked = tokio::time::timeout(PROBE_DEADLINE, client.get_state(pb::GetStateRequest {}));
+                ("GetState", asked.await.map(|r| r.map(|_| ())))
+            } else {
+                let asked = tokio::time::timeout(PROBE_DEADLINE, client.describe(pb::DescribeRequest {}));
+                ("Describe", asked.await.map(|r| r.map(|_| ())))
+            };
             let why = match answer {
-                Ok(Ok(_)) => {
+                Ok(Ok(())) => {
                     *down_since = None;
                     continue;
                 }
-                Ok(Err(e)) => format!("Describe: {}", e.message()),
-                Err(_) => format!("Describe unanswered for {:.0} s", PROBE_DEADLINE.as_secs_f64()),
+                Ok(Err(e)) => format!("{call}: {}", e.message()),
+                Err(_) => format!("{call} unanswered for {:.0} s", PROBE_DEADLINE.as_secs_f64()),
             };
             let since = *down_since.get_or_insert_with(Instant::now);
             if since.elapsed() >= timeout {
                 bail!(
                     "the {name} at {addr} has not answered for {:.0} s ({why}): it was killed or stopped, or \
-                     the link to it is cut; the run cannot go on",
+                     the link to it (or, behind a gateway, to its vehicle) is cut; the run cannot go on",
                     since.elapsed().as_secs_f64()
                 );
             }

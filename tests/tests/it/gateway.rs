@@ -1125,3 +1125,36 @@ async fn a_users_controller_flies_the_vehicle_behind_the_gateway_and_the_next_ru
     bench.gateway.stop().await.expect("gateway stops cleanly");
     bench.vehicle.stop();
 }
+
+/// The vehicle lost mid-run (mavsim stopped: its firmware gone): the gateway still answers
+/// Describe, so the run's probe of the plant asks GetState, which the gateway refuses naming
+/// the lost link; the run ends with that error after the service timeout (10 s), not after the
+/// 30 s stall timeout with "no control cycle" (what it did before).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_vehicle_lost_mid_run_ends_the_run_naming_the_lost_vehicle_link_not_the_stall_timeout() {
+    let scenario = Scenario::paper_2();
+    let bench = start(&scenario).await;
+    let addr = bench.gateway.addr;
+    arm_and_offboard(addr).await;
+    let scenario_in_run = scenario.clone();
+    let run = tokio::spawn(async move { fly_to_the_gateway(&scenario_in_run, addr, None, false).await });
+    // Fly a little, then the vehicle goes.
+    let mut p = plant(addr).await;
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    loop {
+        let s = p.get_state(pb::GetStateRequest {}).await.expect("state").into_inner();
+        let x = &s.state.as_ref().expect("a state").x;
+        let moved = (0..3).map(|i| (x[i] - scenario.start[i]).powi(2)).sum::<f64>().sqrt();
+        if moved > 0.1 {
+            break;
+        }
+        assert!(tokio::time::Instant::now() < deadline, "the vehicle never moved: {s:?}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    bench.vehicle.stop();
+    let ended = tokio::time::timeout(PATIENCE, run).await.expect("the run ends").expect("the run's task");
+    let text = ended.map(|r| format!("{:?}", r.summary)).expect_err("a run without its vehicle fails");
+    assert!(text.contains("has not answered") && text.contains("GetState"), "{text}");
+    assert!(!text.contains("no control cycle for"), "{text}");
+    bench.gateway.stop().await.expect("gateway stops cleanly");
+}
