@@ -247,6 +247,10 @@ pub fn execute(
     FalsifyResult { searches, interrupted, wall_time_s: started.elapsed().as_secs_f64() }
 }
 
+/// The worst run of a search so far: its score, run number, delays (s) and flight (none for a
+/// run the controller stopped or that timed out).
+type WorstSoFar = (f64, u64, Vec<f64>, Option<Box<Flight>>);
+
 /// One search of `space` with `method`, to its budget, its first failure or Ctrl-C; then the
 /// worst run's trace.
 fn search_one(
@@ -261,7 +265,7 @@ fn search_one(
     let mut evaluations: Vec<Evaluation> = Vec::new();
     // The worst run so far: its evaluation's score, run, delays and flight (none for a run the
     // controller stopped or that timed out).
-    let mut worst: Option<(f64, u64, Vec<f64>, Option<Box<Flight>>)> = None;
+    let mut worst: Option<WorstSoFar> = None;
     let mut interrupted = false;
     while !search.done() {
         if stop.load(Ordering::Relaxed) {
