@@ -304,8 +304,20 @@ pub(crate) async fn vehicle_ready(addr: &str, tls: &Tls, deadline: Instant) -> a
         }
         if Instant::now() >= waited_until {
             if !s.link_alive {
+                // Frames that came but were refused for their signature are not a lost link:
+                // the keys differ (or one side signs and the other does not).
+                let signing = if s.dropped_unsigned > 0 || s.dropped_bad_signature > 0 {
+                    format!(
+                        "; the gateway refused {} unsigned and {} badly signed frames: the vehicle's \
+                         MAVLink signing does not match the gateway's --mavlink-signing-key (the same \
+                         key on both sides, or none)",
+                        s.dropped_unsigned, s.dropped_bad_signature
+                    )
+                } else {
+                    String::new()
+                };
                 bail!(
-                    "the vehicle behind the gateway at {addr} is not talking: {} (check the \
+                    "the vehicle behind the gateway at {addr} is not talking: {}{signing} (check the \
                      autopilot's link, `vehiclectl --gateway {addr} status`)",
                     if s.heartbeat_seen {
                         format!("no heartbeat for {:.1} s", s.heartbeat_age_ns as f64 * 1e-9)

@@ -1036,7 +1036,8 @@ async fn allow_client_limits_vehicle_control_to_the_named_certificates_and_the_r
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn mavsim_signing_with_the_gateways_key_is_served_and_with_another_key_is_never_locked_to() {
+async fn mavsim_signing_with_the_gateways_key_is_served_and_with_another_key_is_never_locked_to_and_a_run_names_the_signing()
+ {
     let _turn = hilbench_tests::CPU_HEAVY.lock().await;
     let scenario = Scenario::paper_2();
     let key = mavbridge::SigningKey::new([0x21; 32]);
@@ -1061,6 +1062,12 @@ async fn mavsim_signing_with_the_gateways_key_is_served_and_with_another_key_is_
             wait_status(&mut vc, "mavsim's frames refused", |s| s.dropped_bad_signature > 100).await;
             let s = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
             assert!(!s.vehicle_locked && !s.link_alive, "{s:?}");
+            // A run says why: the signing, not a lost link.
+            let text = fly_to_the_gateway(&scenario, gateway.addr, None, false)
+                .await
+                .map(|_| ())
+                .expect_err("no run without the vehicle");
+            assert!(text.contains("badly signed") && text.contains("--mavlink-signing-key"), "{text}");
         }
         vehicle.stop();
         gateway.stop().await.expect("gateway stops cleanly");
