@@ -25,7 +25,8 @@ pub fn reproduce(args: ReproduceArgs, opts: &Options) -> anyhow::Result<Exit> {
         job.scenario.continue_after_collision = args.continue_after_collision;
     }
     let header = format!(
-        "Paper reproduction: docs/spec.md paper mode (RK4 plant at 1 ms, Gamma(12, 0.015) round-trip delays, seed {}), lockstep, {}",
+        "Paper reproduction: docs/spec.md paper mode (RK4 plant at 1 ms, {}, seed {}), lockstep, {}",
+        delays_text(&jobs),
         args.seed.unwrap_or(Scenario::paper_1().seed),
         driver.describe()
     );
@@ -87,8 +88,38 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_header_says_paper_3_flies_no_delays() {
+        let jobs = paper_jobs(&[]).expect("the paper's jobs");
+        assert_eq!(
+            delays_text(&jobs),
+            "Gamma(12, 0.015) round-trip delays for paper-1, paper-2, no delays for paper-3"
+        );
+        let paper_3: Vec<Job> = jobs.iter().filter(|j| j.scenario.name == "paper-3").cloned().collect();
+        assert_eq!(delays_text(&paper_3), "no delays");
+    }
+
+    #[test]
     fn unknown_paper_scenarios_are_refused() {
         assert!(paper_jobs(&["paper-9".to_string()]).is_err());
         assert_eq!(paper_jobs(&[]).expect("all").len(), 6);
+    }
+}
+
+/// The delays the jobs fly, as the header says them: the paper's Gamma for the scenarios that
+/// have delays, "no delays" for those that have none (paper-3).
+fn delays_text(jobs: &[Job]) -> String {
+    let mut with = Vec::new();
+    let mut without = Vec::new();
+    for job in jobs {
+        let names = if job.scenario.delays_expected() { &mut with } else { &mut without };
+        if !names.contains(&job.scenario.name.as_str()) {
+            names.push(job.scenario.name.as_str());
+        }
+    }
+    let gamma = "Gamma(12, 0.015) round-trip delays";
+    match (with.is_empty(), without.is_empty()) {
+        (_, true) => gamma.to_string(),
+        (true, false) => "no delays".to_string(),
+        (false, false) => format!("{gamma} for {}, no delays for {}", with.join(", "), without.join(", ")),
     }
 }
