@@ -83,6 +83,25 @@ pub fn paper_jobs(only: &[String]) -> anyhow::Result<Vec<Job>> {
     Ok(jobs)
 }
 
+/// The delays the jobs fly, as the header says them: the paper's Gamma for the scenarios that
+/// have delays, "no delays" for those that have none (paper-3).
+fn delays_text(jobs: &[Job]) -> String {
+    let mut with = Vec::new();
+    let mut without = Vec::new();
+    for job in jobs {
+        let names = if job.scenario.delays_expected() { &mut with } else { &mut without };
+        if !names.contains(&job.scenario.name.as_str()) {
+            names.push(job.scenario.name.as_str());
+        }
+    }
+    let gamma = "Gamma(12, 0.015) round-trip delays";
+    match (with.is_empty(), without.is_empty()) {
+        (_, true) => gamma.to_string(),
+        (true, false) => "no delays".to_string(),
+        (false, false) => format!("{gamma} for {}, no delays for {}", with.join(", "), without.join(", ")),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -102,24 +121,5 @@ mod tests {
     fn unknown_paper_scenarios_are_refused() {
         assert!(paper_jobs(&["paper-9".to_string()]).is_err());
         assert_eq!(paper_jobs(&[]).expect("all").len(), 6);
-    }
-}
-
-/// The delays the jobs fly, as the header says them: the paper's Gamma for the scenarios that
-/// have delays, "no delays" for those that have none (paper-3).
-fn delays_text(jobs: &[Job]) -> String {
-    let mut with = Vec::new();
-    let mut without = Vec::new();
-    for job in jobs {
-        let names = if job.scenario.delays_expected() { &mut with } else { &mut without };
-        if !names.contains(&job.scenario.name.as_str()) {
-            names.push(job.scenario.name.as_str());
-        }
-    }
-    let gamma = "Gamma(12, 0.015) round-trip delays";
-    match (with.is_empty(), without.is_empty()) {
-        (_, true) => gamma.to_string(),
-        (true, false) => "no delays".to_string(),
-        (false, false) => format!("{gamma} for {}, no delays for {}", with.join(", "), without.join(", ")),
     }
 }
