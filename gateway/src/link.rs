@@ -291,7 +291,7 @@ impl Link {
                 status: Mutex::new(LinkStatus::default()),
                 sequence: AtomicU8::new(0),
                 signer: key.clone().map(|k| Mutex::new(Signer::new(k, 0))),
-                verifier: key.map(|k| Mutex::new(Verifier::new(k))),
+                verifier: key.map(|k| Mutex::new(Verifier::new(k, signing_stamp()))),
             }),
             header: MavHeader { system_id: u32::from(system_id), component_id, sequence: 0 },
             address: local_addr.map_or_else(|| address.into(), |at| format!("udpin:{at}")),
@@ -720,7 +720,7 @@ mod tests {
         gateway.answer(tap.local_addr().ok());
         gateway.send(&attitude(5)).expect("sent");
         let n = tap.recv(&mut buf).expect("received");
-        let mut check = mavbridge::Verifier::new(SigningKey::new([9; 32]));
+        let mut check = mavbridge::Verifier::new(SigningKey::new([9; 32]), signing_stamp());
         assert_eq!(check.check(&buf[..n], 255, 191, signing_stamp()), Ok(()));
     }
 

@@ -75,7 +75,7 @@ fn bench(c: &mut Criterion) {
             black_box(parsed.is_ok())
         })
     });
-    let mut verifier = Verifier::new(key);
+    let mut verifier = Verifier::new(key, NOW);
     c.bench_function("state parsed and verified", |b| {
         b.iter_batched(
             &mut signed_state,

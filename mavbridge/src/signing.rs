@@ -116,6 +116,12 @@ impl Signer {
 }
 
 /// Checks incoming frames: signed with the key, each stream's timestamps increasing.
+///
+/// A stream not heard before is new, and its first frame must be stamped no earlier than the
+/// verifier was opened: the table of streams starts empty (at every start of the gateway), so a
+/// frame signed before then, however recent, is a capture being replayed, never the vehicle's
+/// next frame. The cost: a vehicle whose clock lags the gateway's is refused until its clock
+/// passes the gateway's start (the protocol already asks the two to agree within a minute).
 #[derive(Debug, Clone)]
 pub struct Verifier {
     key: SigningKey,
@@ -123,11 +129,15 @@ pub struct Verifier {
     streams: HashMap<(u8, u32, u8), u64>,
     /// The newest timestamp seen, or the clock's.
     newest: u64,
+    /// The wall time the verifier was opened, as a signature timestamp.
+    opened: u64,
 }
 
 impl Verifier {
-    pub fn new(key: SigningKey) -> Self {
-        Self { key, streams: HashMap::new(), newest: 0 }
+    /// A verifier with `key`, opened at wall time `opened_stamp` (a signature timestamp,
+    /// [`stamp_of_unix_us`]).
+    pub fn new(key: SigningKey, opened_stamp: u64) -> Self {
+        Self { key, streams: HashMap::new(), newest: opened_stamp, opened: opened_stamp }
     }
 
     /// Whether `frame` (a whole MAVLink frame, checksum already checked) from `system`,
@@ -151,7 +161,7 @@ impl Verifier {
         let stream = (link_id, system, component);
         let fresh = match self.streams.get(&stream) {
             Some(&last) => stamp > last,
-            None => stamp + NEW_STREAM_SLACK >= self.newest,
+            None => stamp >= self.opened && stamp + NEW_STREAM_SLACK >= self.newest,
         };
         if !fresh {
             return Err(Refusal::Replayed);
@@ -215,7 +225,7 @@ mod tests {
             .read_any_message::<MavMessage>()
             .expect("the checksum holds with the flag set");
         assert!(matches!(msg, MavMessage::HEARTBEAT(_)));
-        let mut verifier = Verifier::new(key);
+        let mut verifier = Verifier::new(key, NOW);
         assert_eq!(verifier.check(&first, 1, 1, NOW), Ok(()));
         assert_eq!(verifier.check(&first, 1, 1, NOW), Err(Refusal::Replayed), "the same timestamp again");
         // The clock did not move: the next frame's timestamp is one more.
@@ -234,12 +244,33 @@ mod tests {
     #[test]
     fn a_new_stream_more_than_a_minute_behind_the_newest_timestamp_is_a_replay() {
         let key = SigningKey::new([3; 32]);
-        let mut verifier = Verifier::new(key.clone());
+        // Opened a minute and a half ago, the newest timestamp is now's.
+        let opened = NOW - 3 * NEW_STREAM_SLACK / 2;
+        let mut verifier = Verifier::new(key.clone(), opened);
         let mut old = Signer::new(key.clone(), 1);
         let stale = signed(&mut old, frame(0), NOW - NEW_STREAM_SLACK - 1);
         assert_eq!(verifier.check(&stale, 1, 1, NOW), Err(Refusal::Replayed));
         let mut recent = Signer::new(key, 2);
         let ok = signed(&mut recent, frame(0), NOW - NEW_STREAM_SLACK);
         assert_eq!(verifier.check(&ok, 1, 1, NOW), Ok(()));
+    }
+
+    #[test]
+    fn a_new_stream_stamped_before_the_verifier_opened_is_a_replay_however_recent() {
+        let key = SigningKey::new([3; 32]);
+        // Frames of a vehicle captured in the second before a gateway restarted...
+        let mut vehicle = Signer::new(key.clone(), 0);
+        let captured: Vec<Vec<u8>> = (0..3).map(|i| signed(&mut vehicle, frame(i), NOW - 100_000)).collect();
+        // ...replayed to the restarted gateway, whose table of streams is empty.
+        let mut restarted = Verifier::new(key.clone(), NOW);
+        for frame in &captured {
+            assert_eq!(restarted.check(frame, 1, 1, NOW + 10), Err(Refusal::Replayed));
+        }
+        // The vehicle's next frame is stamped after the restart: its stream starts.
+        let next = signed(&mut vehicle, frame(3), NOW + 20);
+        assert_eq!(restarted.check(&next, 1, 1, NOW + 20), Ok(()));
+        // The gateway that was running when they were captured took them.
+        let mut running = Verifier::new(key, NOW - 200_000);
+        assert_eq!(running.check(&captured[0], 1, 1, NOW - 100_000), Ok(()));
     }
 }

@@ -985,6 +985,59 @@ async fn a_signed_link_locks_to_the_vehicle_with_the_key_though_another_key_and_
     gateway.stop().await.expect("gateway stops cleanly");
 }
 
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_capture_of_signed_frames_from_before_a_gateway_restart_is_refused_as_replayed_and_never_locks_the_link()
+ {
+    use mavbridge::mavlink::dialects::common::{HEARTBEAT_DATA, MavAutopilot, MavMessage};
+    let key = mavbridge::SigningKey::new([0x3cu8; 32]);
+    // The vehicle's signed heartbeats, as an eavesdropper captured them in the seconds before
+    // the gateway restarted (the vehicle was talking to the gateway that is now gone).
+    let tap = std::net::UdpSocket::bind("127.0.0.1:0").expect("the eavesdropper");
+    tap.set_read_timeout(Some(Duration::from_secs(5))).expect("timeout");
+    let heard_by_tap =
+        Link::open_signed(&format!("udpout:{}", tap.local_addr().expect("bound")), 1, 1, Some(key.clone()))
+            .expect("opens");
+    let heartbeat = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+        ..Default::default()
+    });
+    let mut captured = Vec::new();
+    for _ in 0..5 {
+        heard_by_tap.send(&heartbeat).expect("sent");
+        let mut buf = [0u8; 512];
+        let n = tap.recv(&mut buf).expect("captured");
+        captured.push(buf[..n].to_vec());
+    }
+    // The gateway restarts with the same key; the replayer speaks before the vehicle does.
+    tokio::time::sleep(Duration::from_millis(5)).await;
+    let (gateway, port) = start_gateway_with(&Scenario::paper_2(), Some(key.clone()), |_| {}).await;
+    let replayer = std::net::UdpSocket::bind("127.0.0.1:0").expect("the replayer");
+    for frame in captured.iter().cycle().take(50) {
+        replayer.send_to(frame, ("127.0.0.1", port)).expect("replayed");
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+    let mut vc = vehicle_control(gateway.addr).await;
+    wait_status(&mut vc, "the replays counted", |s| s.dropped_replayed >= 50).await;
+    let status = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+    assert!(!status.vehicle_locked && status.vehicle_address.is_empty(), "locked to a replay: {status:?}");
+    assert_eq!((status.dropped_bad_signature, status.dropped_unsigned), (0, 0), "{status:?}");
+    // The vehicle's next heartbeats are signed after the restart: the link locks to it.
+    let vehicle = Link::open_signed(&format!("udpout:127.0.0.1:{port}"), 1, 1, Some(key)).expect("opens");
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    let status = loop {
+        vehicle.send(&heartbeat).expect("sent");
+        let s = vc.get_status(pb::GetVehicleStatusRequest {}).await.expect("status").into_inner();
+        if s.vehicle_locked {
+            break s;
+        }
+        assert!(tokio::time::Instant::now() < deadline, "never locked to the vehicle: {s:?}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    let replayer_address = replayer.local_addr().expect("bound").to_string();
+    assert!(!status.vehicle_address.is_empty() && status.vehicle_address != replayer_address, "{status:?}");
+    gateway.stop().await.expect("gateway stops cleanly");
+}
+
 #[tokio::test]
 async fn allow_client_limits_vehicle_control_to_the_named_certificates_and_the_refusal_names_the_certificate()
 {
