@@ -29,7 +29,8 @@ struct Args {
 
 #[derive(Debug, Subcommand)]
 enum Action {
-    /// Print the vehicle's status (JSON-like debug form).
+    /// Print the vehicle's status as JSON: every field of hilbench.v1.VehicleStatus by its
+    /// name in vehicle.proto (units in the names), an optional one absent while unknown.
     Status,
     /// Arm the vehicle.
     Arm,
@@ -72,7 +73,7 @@ async fn main() -> anyhow::Result<()> {
     match args.action {
         Action::Status => {
             let status = answer("status", client.get_status(pb::GetVehicleStatusRequest {}).await)?;
-            say(&format!("{status:#?}"))?
+            say(&status_json(&status)?)?
         }
         Action::Arm => say(&format!("arm: {}", answer("arm", client.arm(pb::ArmRequest {}).await)?.result))?,
         Action::Disarm => {
@@ -91,6 +92,26 @@ async fn main() -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// `status` in the protobuf JSON mapping, read through the descriptors the gateway's reflection
+/// serves (so that the names are vehicle.proto's, every field is there, defaults too, and a
+/// field added there is printed without a change here); 64-bit counts as JSON numbers (they
+/// stay below 2^53) rather than the mapping's strings, for `jq`.
+fn status_json(status: &pb::VehicleStatus) -> anyhow::Result<String> {
+    use prost::Message;
+    let pool = prost_reflect::DescriptorPool::decode(hilbench_proto::FILE_DESCRIPTOR_SET)?;
+    let descriptor = pool
+        .get_message_by_name("hilbench.v1.VehicleStatus")
+        .ok_or_else(|| anyhow::anyhow!("hilbench.v1.VehicleStatus is not in the descriptors"))?;
+    let message = prost_reflect::DynamicMessage::decode(descriptor, status.encode_to_vec().as_slice())?;
+    let options = prost_reflect::SerializeOptions::new()
+        .use_proto_field_name(true)
+        .skip_default_fields(false)
+        .stringify_64_bit_integers(false);
+    let mut out = serde_json::Serializer::pretty(Vec::new());
+    message.serialize_with_options(&mut out, &options)?;
+    Ok(String::from_utf8(out.into_inner())?)
 }
 
 /// Prints `line` on stdout. A reader that stopped reading (`vehiclectl status | head`) is not

@@ -831,7 +831,7 @@ async fn vehiclectl(addr: SocketAddr, args: &[&str]) -> (bool, String, String) {
 /// switches it to OFFBOARD, reads the status back, and a mode the vehicle refuses fails the
 /// command (non-zero exit) naming the `COMMAND_ACK` result.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn vehiclectl_arms_and_switches_to_offboard_reads_the_status_and_fails_naming_a_refusal() {
+async fn vehiclectl_arms_and_switches_to_offboard_reads_the_status_as_json_and_fails_naming_a_refusal() {
     let scenario = Scenario::paper_2();
     let bench = start(&scenario).await;
     let addr = bench.gateway.addr;
@@ -846,7 +846,13 @@ async fn vehiclectl_arms_and_switches_to_offboard_reads_the_status_and_fails_nam
     loop {
         let (ok, out, err) = vehiclectl(addr, &["status"]).await;
         assert!(ok, "{out}{err}");
-        if out.contains("armed: true") && out.contains("\"OFFBOARD\"") {
+        let status: serde_json::Value = serde_json::from_str(&out).unwrap_or_else(|e| panic!("{e}: {out}"));
+        // Every field by its name in vehicle.proto, numbers as numbers, defaults included.
+        assert_eq!(status["autopilot"], "MAV_AUTOPILOT_PX4", "{out}");
+        assert!(status["setpoints_sent"].is_u64() && status["dropped_replayed"] == 0, "{out}");
+        assert!(status["hover_thrust"].as_f64().is_some_and(|t| t > 0.0 && t < 1.0), "{out}");
+        assert!(status["dropped_by_message"].is_object(), "{out}");
+        if status["armed"] == true && status["mode"] == "OFFBOARD" {
             break;
         }
         assert!(tokio::time::Instant::now() < deadline, "never armed in OFFBOARD: {out}");
