@@ -95,8 +95,12 @@ impl FailureTrace {
         }];
         if let Some(r) = &self.replay {
             lines.push(format!(
-                "its replay: {} ({}) after {} cycles at {:.3} s, min clearance {:.4} m",
-                r.outcome, r.end_reason, r.cycles, r.end_time_s, r.min_clearance_m
+                "its replay: {} ({}) after {} cycles at {:.3} s, min clearance {:+}",
+                r.outcome,
+                r.end_reason,
+                r.cycles,
+                r.end_time_s,
+                mpc::record::Millimetres(r.min_clearance_m)
             ));
         }
         lines.push(format!("replay: {replay}"));

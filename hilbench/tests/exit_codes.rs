@@ -44,7 +44,7 @@ fn a_usage_error_exits_2_and_a_collision_exits_3() {
     // report.md names the collision: what was hit, how deep, when and where.
     let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
     assert!(report.contains("launched with nmpc collided:\n\n- cylinder "), "{report}");
-    assert!(report.contains(" m deep, at ") && report.contains(" s, at ["), "{report}");
+    assert!(report.contains(" mm deep, at ") && report.contains(" s, at ["), "{report}");
 
     let missing = hilbench(&["run", dir.join("nothing.toml").to_str().expect("utf-8"), "--in-process"]);
     assert_eq!(missing.status.code(), Some(1), "{missing:?}");

@@ -277,7 +277,7 @@ pub struct CollisionSummary {
 }
 
 impl CollisionSummary {
-    /// One phrase: what was hit, how deep, when and where, e.g. "cylinder 1, 0.052 m deep, at
+    /// One phrase: what was hit, how deep, when and where, e.g. "cylinder 1, 52.0 mm deep, at
     /// 3.61 s, at [1.02, 3.40, 0.98] m".
     pub fn describe(&self) -> String {
         let what = match self.obstacle_index {
@@ -286,9 +286,43 @@ impl CollisionSummary {
         };
         let p = self.position_m;
         format!(
-            "{what}, {:.3} m deep, at {:.2} s, at [{:.2}, {:.2}, {:.2}] m",
-            self.depth_m, self.time_s, p[0], p[1], p[2]
+            "{what}, {} deep, at {:.2} s, at [{:.2}, {:.2}, {:.2}] m",
+            Millimetres(self.depth_m),
+            self.time_s,
+            p[0],
+            p[1],
+            p[2]
         )
+    }
+}
+
+/// A length given in m, printed in mm: to 0.1 mm from 0.1 mm up, below that in two significant
+/// digits (`2.3e-4 mm`: a graze is never printed as `0.000`), `0` for zero; `{:+}` signs it.
+/// Depths and clearances are millimetres to centimetres, where metres to three decimals print
+/// a touch as `0.000 m deep` and a graze as `-0.000`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Millimetres(pub f64);
+
+impl std::fmt::Display for Millimetres {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mm = self.0 * 1000.0;
+        let sign = if mm.is_sign_negative() && mm != 0.0 {
+            "-"
+        } else if f.sign_plus() && mm != 0.0 {
+            "+"
+        } else {
+            ""
+        };
+        let text = if !mm.is_finite() {
+            format!("{}", mm.abs())
+        } else if mm == 0.0 {
+            "0".to_string()
+        } else if mm.abs() >= 0.1 {
+            format!("{:.1}", mm.abs())
+        } else {
+            format!("{:.1e}", mm.abs())
+        };
+        f.pad(&format!("{sign}{text} mm"))
     }
 }
 
@@ -499,6 +533,30 @@ pub fn summarize(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn millimetres_print_a_graze_in_two_digits_never_as_zero_and_sign_on_request() {
+        let mm = |m: f64| format!("{}", Millimetres(m));
+        let signed = |m: f64| format!("{:+}", Millimetres(m));
+        assert_eq!(mm(0.052), "52.0 mm");
+        assert_eq!(mm(0.0001), "0.1 mm");
+        assert_eq!(mm(2.3e-7), "2.3e-4 mm");
+        assert_eq!(mm(0.0), "0 mm");
+        assert_eq!(mm(-0.0), "0 mm");
+        assert_eq!(signed(-4e-8), "-4.0e-5 mm", "a graze inside keeps its sign");
+        assert_eq!(signed(0.123), "+123.0 mm");
+        assert_eq!(signed(0.0), "0 mm");
+        assert_eq!(mm(f64::INFINITY), "inf mm");
+        assert_eq!(format!("{:>10}", Millimetres(0.001)), "    1.0 mm", "pads as a column");
+        let touch = CollisionSummary {
+            kind: "ground".into(),
+            obstacle_index: None,
+            time_s: 4.25,
+            position_m: [1.0, 2.0, -1e-9],
+            depth_m: 1e-9,
+        };
+        assert_eq!(touch.describe(), "ground, 1.0e-6 mm deep, at 4.25 s, at [1.00, 2.00, -0.00] m");
+    }
 
     /// A cycle at `t_s` that sent `command` from a state sinking at `vz_mps`.
     fn cycle(k: u64, vz_mps: f64, command: [f64; 3]) -> CycleRecord {

@@ -100,12 +100,12 @@ pub fn tables(runs: &[RunSummary]) -> String {
     for r in runs {
         let _ = writeln!(
             out,
-            "  {:<8} {:<11} {}; path {:.2} m; min clearance {:+.3} m; {} cycles; iterations median {}",
+            "  {:<8} {:<11} {}; path {:.2} m; min clearance {:+}; {} cycles; iterations median {}",
             r.scenario,
             r.controller,
             outcome(r),
             r.path_length_m,
-            r.min_clearance_m,
+            mpc::record::Millimetres(r.min_clearance_m),
             r.cycles,
             r.iterations_median
         );

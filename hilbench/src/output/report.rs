@@ -248,7 +248,7 @@ mod tests {
         assert!(md.contains("| paper-2 | nmpc | no | - | 6.18 | -0.020 | 70 | 0.90 | **YES** |"), "{md}");
         assert!(
             md.contains(
-                "paper-2 with nmpc collided:\n\n- ground, 0.020 m deep, at 4.25 s, at [1.00, 2.00, -0.02] m"
+                "paper-2 with nmpc collided:\n\n- ground, 20.0 mm deep, at 4.25 s, at [1.00, 2.00, -0.02] m"
             ),
             "the report names the collision's kind, depth, time and place: {md}"
         );

@@ -9,13 +9,13 @@ pub fn run_table(runs: &[RunSummary]) -> String {
     let mut out = String::new();
     let _ = writeln!(
         out,
-        "{:<16} {:<11} {:>8} {:>9} {:>9} {:>10} {:>7} {:>9} {:>9}",
+        "{:<16} {:<11} {:>8} {:>9} {:>9} {:>12} {:>7} {:>9} {:>9}",
         "scenario",
         "controller",
         "reached",
         "time [s]",
         "path [m]",
-        "clear. [m]",
+        "clearance",
         "cycles",
         "solve ms",
         "collided"
@@ -27,13 +27,13 @@ pub fn run_table(runs: &[RunSummary]) -> String {
         let time = r.time_to_goal_s.map_or_else(|| "-".to_string(), |t| format!("{t:.2}"));
         let _ = writeln!(
             out,
-            "{:<16} {:<11} {:>8} {:>9} {:>9.2} {:>10} {:>7} {:>9} {:>9}",
+            "{:<16} {:<11} {:>8} {:>9} {:>9.2} {:>12} {:>7} {:>9} {:>9}",
             r.scenario,
             r.controller,
             if r.reached { "yes" } else { "no" },
             time,
             r.path_length_m,
-            finite(r.min_clearance_m, format!("{:+.3}", r.min_clearance_m)),
+            finite(r.min_clearance_m, format!("{:+}", mpc::record::Millimetres(r.min_clearance_m))),
             r.cycles,
             finite(r.solve_ms_median, format!("{:.2}", r.solve_ms_median)),
             if r.collided { "YES" } else { "no" },
