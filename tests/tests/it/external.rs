@@ -331,7 +331,8 @@ fn sweep_json(args: &[&str], out: &Path) -> serde_json::Value {
 /// Twenty delay seeds: the sweep of issue 21's example (a loop here; `hilbench sweep
 /// --controller-cmd` once the sweep exists).
 #[test]
-fn a_sweep_of_the_python_controller_under_twenty_delay_processes_reaches_every_goal() {
+fn a_sweep_of_the_python_controller_under_twenty_delay_processes_reaches_every_goal_and_claims_no_solve_time()
+{
     let out = TempDir::new("external-test-sweep");
     let file = repo("examples/python-controller/open-field.toml");
     let controller = python_controller();
@@ -347,6 +348,13 @@ fn a_sweep_of_the_python_controller_under_twenty_delay_processes_reaches_every_g
     // The runs drew different delays, so the flights differ.
     let path_m = &sweep["path_length_m"];
     assert_ne!(path_m["p50"], path_m["p95"], "{path_m}");
+    // The bench never sees the controller's solver: the report says so, not "0.0 s" and dashes.
+    let report = std::fs::read_to_string(out.path().join("report.md")).expect("report.md");
+    assert!(
+        report.contains("Solve time: the external controller's own, not seen")
+            && !report.contains("Solve time (ms"),
+        "{report}"
+    );
 }
 
 /// A sweep of the Python controller that collides (paper-1, straight into a cylinder): runs.csv
