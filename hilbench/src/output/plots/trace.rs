@@ -1,6 +1,7 @@
 //! The figure of `hilbench trace stats|fit`: a recorded link's delays against the probe
-//! number (losses marked), their histogram with the fitted densities, and their ECDF on a log
-//! axis beside the fitted CDFs.
+//! number (losses marked), their histogram on a log density axis with the fitted densities, and
+//! their ECDF on a log delay axis beside the fitted CDFs (`trace stats` fits nothing, and its
+//! captions say so).
 //!
 //! It takes plain values (the trace's entries, each fit as a label and two functions), so it
 //! needs nothing of `linkfit` but what the caller hands it: `linkfit::Model::pdf` and `cdf`.
@@ -101,7 +102,9 @@ fn draw<DB: DrawingBackend>(
         draw_legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
     }
 
-    // Histogram as a density (1/ms) with each fit's density.
+    // Histogram as a density (1/ms) with each fit's density, on a log density axis: a spike
+    // mode holding 1 % of the delays is a hundredth of the main mode's height, invisible on a
+    // linear axis. The axis starts a decade below the lowest bar (one delay in its bin).
     let bins = 40usize;
     let width = ((hi - lo) / bins as f64).max(1e-6);
     let mut counts = vec![0usize; bins];
@@ -110,31 +113,51 @@ fn draw<DB: DrawingBackend>(
     }
     let total = ms.len() as f64;
     let density: Vec<f64> = counts.iter().map(|c| *c as f64 / (total * width)).collect();
+    let y_max = extent(density.iter().copied(), (0.0, 1.0)).1.max(1e-9) * 2.0;
+    let y_floor = (density.iter().copied().filter(|h| *h > 0.0).fold(f64::INFINITY, f64::min) / 10.0)
+        .min(y_max / 100.0);
     let curve = |f: &dyn Fn(f64) -> f64| -> Vec<(f64, f64)> {
         (0..=300)
             .map(|i| lo + (hi - lo) * i as f64 / 300.0)
             .map(|x| (x, f(x * 1e-3) * 1e-3))
             .filter(|q| q.1.is_finite())
+            .map(|(x, y)| (x, y.clamp(y_floor, y_max)))
             .collect()
     };
     let curves: Vec<Vec<(f64, f64)>> = fits.iter().map(|f| curve(f.pdf)).collect();
-    let y_max = extent(density.iter().copied(), (0.0, 1.0)).1;
+    let caption = if fits.is_empty() {
+        "histogram (log density)"
+    } else {
+        "histogram (log density) and fitted densities"
+    };
     let mut chart = ChartBuilder::on(&areas[1])
-        .caption("histogram and fitted densities", panel_font())
+        .caption(caption, panel_font())
         .margin(10)
         .margin_right(20)
         .x_label_area_size(45)
         .y_label_area_size(80)
-        .build_cartesian_2d(lo..hi.max(lo + 1e-6), 0.0..(y_max * 1.3).max(1e-9))?;
-    draw_mesh(&mut chart, "delay [ms]", "density [1/ms]")?;
+        .build_cartesian_2d(lo..hi.max(lo + 1e-6), (y_floor..y_max).log_scale())?;
+    // Six labels on the delay axis, rounded: forty bins' worth of long labels overlapped.
+    chart
+        .configure_mesh()
+        .x_desc("delay [ms]")
+        .x_labels(6)
+        .x_label_formatter(&|x| format!("{}", round_to(*x, 3)))
+        .y_desc("density [1/ms]")
+        .y_label_formatter(&|y| format!("{}", round_to(*y, 1)))
+        .axis_desc_style((super::style::FONT, super::style::LABEL_PX))
+        .label_style((super::style::FONT, super::style::TICK_PX))
+        .light_line_style(BLACK.mix(0.05))
+        .bold_line_style(BLACK.mix(0.15))
+        .draw()?;
     chart.draw_series(density.iter().enumerate().filter(|(_, h)| **h > 0.0).map(|(i, h)| {
         let a = lo + width * i as f64;
-        Rectangle::new([(a, 0.0), (a + width, *h)], color.mix(0.4).filled())
+        Rectangle::new([(a, y_floor), (a + width, *h)], color.mix(0.4).filled())
     }))?;
     for (i, (fit, c)) in fits.iter().zip(curves).enumerate() {
         let style = PALETTE[(i + 1) % PALETTE.len()].stroke_width(2);
         chart
-            .draw_series(LineSeries::new(c.into_iter().map(|(x, y)| (x, y.min(y_max * 1.3))), style))?
+            .draw_series(LineSeries::new(c, style))?
             .label(fit.label.clone())
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
     }
@@ -148,7 +171,10 @@ fn draw<DB: DrawingBackend>(
     let x_lo = sorted[0].max(1e-6) * 0.9;
     let x_hi = (sorted[sorted.len() - 1] * 1.1).max(x_lo * 1.01);
     let mut chart = ChartBuilder::on(&areas[2])
-        .caption("ECDF (log axis) and fitted CDFs", panel_font())
+        .caption(
+            if fits.is_empty() { "ECDF (log axis)" } else { "ECDF (log axis) and fitted CDFs" },
+            panel_font(),
+        )
         .margin(10)
         .margin_right(20)
         .x_label_area_size(45)
@@ -217,7 +243,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_trace_with_losses_and_two_fits_draws_a_png_and_an_svg() {
+    fn a_trace_with_losses_and_two_fits_draws_a_png_and_an_svg_and_without_fits_claims_none() {
         let dir = std::env::temp_dir().join(format!("hilbench-trace-plot-{}", std::process::id()));
         let entries: Vec<f64> = (0..500)
             .map(|k| if k % 50 == 7 { delay::LOST_S } else { 0.02 + 0.01 * ((k * 37 % 100) as f64 / 100.0) })
@@ -236,6 +262,14 @@ mod tests {
         assert!(svg.contains("10 lost") && svg.contains("uniform"), "the svg names the losses and the fits");
         assert!(std::fs::metadata(&written[0]).expect("the png").len() > 10_000);
         assert!(write(&dir, "none", "none", &[delay::LOST_S], &fits).is_err(), "nothing to plot");
+        // `trace stats` fits nothing: no caption claims a fit.
+        let written = write(&dir, "stats", "a link", &entries, &[]).expect("drawn");
+        let svg = std::fs::read_to_string(&written[1]).expect("the svg");
+        assert!(
+            svg.contains("histogram (log density)") && !svg.contains("fitted"),
+            "{}",
+            written[1].display()
+        );
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
