@@ -12,7 +12,7 @@ use anyhow::{Context, anyhow};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::style::{BOUND, PALETTE, draw_legend, draw_mesh, extent, panel_font, title_font};
+use super::style::{BOUND, PALETTE, draw_legend, extent, panel_font, title_font};
 use super::{DrawResult, register_font};
 
 /// A fitted law, as the figure draws it: delays in s in, density in 1/s and CDF out.
@@ -83,7 +83,17 @@ fn draw<DB: DrawingBackend>(
         .x_label_area_size(45)
         .y_label_area_size(70)
         .build_cartesian_2d(0.0..n, 0.0..y_hi)?;
-    draw_mesh(&mut chart, "probe", "delay [ms]")?;
+    chart
+        .configure_mesh()
+        .x_desc("probe")
+        .x_labels(6)
+        .x_label_formatter(&|k| format!("{k:.0}"))
+        .y_desc("delay [ms]")
+        .axis_desc_style((super::style::FONT, super::style::LABEL_PX))
+        .label_style((super::style::FONT, super::style::TICK_PX))
+        .light_line_style(BLACK.mix(0.05))
+        .bold_line_style(BLACK.mix(0.15))
+        .draw()?;
     chart.draw_series(LineSeries::new(
         entries_s.iter().enumerate().filter(|(_, d)| !delay::is_lost(**d)).map(|(k, d)| (k as f64, d * 1e3)),
         color.mix(0.7),
