@@ -167,7 +167,7 @@ fn main() -> anyhow::Result<()> {
     }
     hilbench_svc::init_tracing();
     hilbench_svc::exit_on_panic();
-    let scenario = hilbench_scenario_file::scenario_arg(&cli.scenario)
+    let scenario = hilbench_scenario_file::nmpc_scenario_arg(&cli.scenario)
         .map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
     let mut config = ControllerConfig::new(cli.plant.clone(), scenario, cli.mode);
     // The floor goes with every scenario flown, those set later by SetScenario included.

@@ -140,8 +140,9 @@ fn scenario_of(obj: &serde_json::Map<String, Value>) -> Result<Scenario, LineErr
         (Some(_), None) => Err(err("scenario", "must be a scenario name or a scenario object")),
         (None, Some(path)) => {
             let path = path.as_str().ok_or_else(|| err("scenario_file", "must be a path"))?;
-            ScenarioFile::load(std::path::Path::new(path))
-                .map(|f| f.scenario)
+            let path = std::path::Path::new(path);
+            ScenarioFile::load(path)
+                .and_then(|f| f.nmpc_tuning(path).map(|()| f.scenario))
                 .map_err(|e| err("scenario_file", e.to_string()))
         }
     }

@@ -136,3 +136,26 @@ fn a_plant_address_where_nothing_listens_is_said_to_be_waited_for_then_refused_n
     assert!(stderr.contains("cannot connect to 127.0.0.1:1 (tried for 30 s)"), "{stderr}");
     assert!(stderr.contains("Connection refused"), "{stderr}");
 }
+
+#[test]
+fn a_file_without_the_nmpc_tuning_is_refused_to_the_benchs_controllers_naming_the_keys_before_any_flight() {
+    let dir = std::env::temp_dir().join(format!("hilbench-no-tuning-{}", std::process::id()));
+    let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/python-controller/open-field.toml");
+    let file = file.to_str().expect("utf-8");
+    let out = dir.join("out");
+    let out = out.to_str().expect("utf-8");
+    for args in [
+        &["run", file, "--in-process", "--no-plots", "--out", out][..],
+        &["sweep", file, "--runs", "2", "--out", out],
+    ] {
+        let refused = hilbench(args);
+        let stderr = String::from_utf8_lossy(&refused.stderr);
+        assert_eq!(refused.status.code(), Some(1), "{args:?}: {stderr}");
+        assert!(
+            stderr.contains("leaves out `q_x`, `q_u`, `q_du`, `horizon`")
+                && stderr.contains("--controller-cmd"),
+            "{args:?}: {stderr}"
+        );
+        assert!(!dir.exists(), "{args:?}: nothing written");
+    }
+}

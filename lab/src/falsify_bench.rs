@@ -66,6 +66,7 @@ fn method(name: &str) -> anyhow::Result<Method> {
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let file = ScenarioFile::load(&args.file)?;
+    file.nmpc_tuning(&args.file)?;
     let table =
         file.falsify.clone().ok_or_else(|| anyhow::anyhow!("{}: no [falsify] table", args.file.display()))?;
     // The dump's file is made before the searches, so a bad --dump is refused at once, not

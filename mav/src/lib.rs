@@ -19,7 +19,7 @@ pub use mode::{ControllerMode, TimeMode, TimeModeChoice};
 pub use model::{Dynamics, Input, InputBounds, MavModel, ModelParams, State, euler_step, rk4_step};
 pub use scenario::{
     MAX_ABS_ANGLE_RAD, MAX_ABS_POSITION_M, MAX_ABS_VELOCITY_MPS, MAX_COEFFICIENT, MAX_CYCLE_S,
-    MAX_NAME_CHARS, MAX_OBSTACLE_SIZE_M, MIN_CYCLE_S, PAPER_DELAY_GAMMA, PanocSolver, Scenario,
+    MAX_NAME_CHARS, MAX_OBSTACLE_SIZE_M, MIN_CYCLE_S, NMPC_KEYS, PAPER_DELAY_GAMMA, PanocSolver, Scenario,
     ScenarioError, check_name,
 };
 pub use sim::{

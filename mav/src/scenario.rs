@@ -69,6 +69,51 @@ fn invalid(field: impl Into<String>, reason: impl Into<String>) -> ScenarioError
     ScenarioError::Invalid { field: field.into(), reason: reason.into() }
 }
 
+/// The keys of a scenario that only the bench's NMPC reads (its tuning), in file order.
+pub const NMPC_KEYS: [&str; 9] = [
+    "q_x",
+    "q_u",
+    "q_du",
+    "horizon",
+    "nmpc_sampling_time_s",
+    "sampling_times_s",
+    "nominal_weights",
+    "prior_gamma",
+    "delay_window",
+];
+
+/// paper-2's tuning, for a scenario that leaves it out ([`NMPC_KEYS`]).
+mod paper_tuning {
+    use super::Scenario;
+    pub fn q_x() -> [f64; 8] {
+        Scenario::paper_2().q_x
+    }
+    pub fn q_u() -> [f64; 3] {
+        Scenario::paper_2().q_u
+    }
+    pub fn q_du() -> [f64; 3] {
+        Scenario::paper_2().q_du
+    }
+    pub fn horizon() -> usize {
+        Scenario::paper_2().horizon
+    }
+    pub fn nmpc_sampling_time_s() -> f64 {
+        Scenario::paper_2().nmpc_sampling_time_s
+    }
+    pub fn sampling_times_s() -> Vec<f64> {
+        Scenario::paper_2().sampling_times_s
+    }
+    pub fn nominal_weights() -> Vec<f64> {
+        Scenario::paper_2().nominal_weights
+    }
+    pub fn prior_gamma() -> (f64, f64) {
+        Scenario::paper_2().prior_gamma
+    }
+    pub fn delay_window() -> usize {
+        Scenario::paper_2().delay_window
+    }
+}
+
 /// One scenario of `docs/spec.md`: world, vehicle, controller tuning and delay process.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -89,27 +134,35 @@ pub struct Scenario {
     /// Goal position, m.
     #[serde(deserialize_with = "crate::exact::array")]
     pub goal_m: [f64; 3],
+    // The bench's NMPC tuning ([`NMPC_KEYS`]): a file may leave it out (paper-2's then, a
+    // file for an external controller has no use for it); the file loader says which were
+    // left out, and the bench's controllers refuse such a file.
     /// State weights, diagonal of `Qx`.
-    #[serde(deserialize_with = "crate::exact::array")]
+    #[serde(default = "paper_tuning::q_x", deserialize_with = "crate::exact::array")]
     pub q_x: [f64; 8],
     /// Input weights, diagonal of `Qu`.
-    #[serde(deserialize_with = "crate::exact::array")]
+    #[serde(default = "paper_tuning::q_u", deserialize_with = "crate::exact::array")]
     pub q_u: [f64; 3],
     /// Input-rate weights, diagonal of `Qdu`.
-    #[serde(deserialize_with = "crate::exact::array")]
+    #[serde(default = "paper_tuning::q_du", deserialize_with = "crate::exact::array")]
     pub q_du: [f64; 3],
     /// Prediction horizon `N`.
+    #[serde(default = "paper_tuning::horizon")]
     pub horizon: usize,
     /// Sampling time of the standard NMPC, s.
+    #[serde(default = "paper_tuning::nmpc_sampling_time_s")]
     pub nmpc_sampling_time_s: f64,
     /// Sampling times `ts_i` of the multi-stage scenarios, s, increasing.
+    #[serde(default = "paper_tuning::sampling_times_s")]
     pub sampling_times_s: Vec<f64>,
     /// Scenario weights used when the run has no delays.
+    #[serde(default = "paper_tuning::nominal_weights")]
     pub nominal_weights: Vec<f64>,
     /// Gamma prior `(shape, scale_s)` used until the delay window is usable.
-    #[serde(deserialize_with = "crate::exact::pair")]
+    #[serde(default = "paper_tuning::prior_gamma", deserialize_with = "crate::exact::pair")]
     pub prior_gamma: (f64, f64),
     /// Size of the delay window `n_max`.
+    #[serde(default = "paper_tuning::delay_window")]
     pub delay_window: usize,
     /// The network's delay process as written in a scenario file's `[scenario.delays]` (see
     /// `delay::spec`): a round trip on commands, or each direction, any kind, traces and

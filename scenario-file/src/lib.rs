@@ -145,6 +145,11 @@ pub struct ScenarioFile {
     /// What `hilbench falsify` searches (optional; see `falsify_table`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub falsify: Option<falsify::FalsifyTable>,
+    /// The keys of the bench's NMPC tuning ([`mav::NMPC_KEYS`]) the file leaves out: a file for
+    /// an external controller needs none of them; [`ScenarioFile::nmpc_tuning`] refuses the
+    /// file to the bench's own controllers.
+    #[serde(skip)]
+    pub nmpc_keys_absent: Vec<&'static str>,
 }
 
 /// A file that cannot be used, with where and why.
@@ -207,7 +212,7 @@ impl ScenarioFile {
         scenario.fail_safe = false;
         scenario.continue_after_collision = false;
         scenario.solver = None;
-        let file = ScenarioFile { run, scenario, sweep: None, falsify: None };
+        let file = ScenarioFile { run, scenario, sweep: None, falsify: None, nmpc_keys_absent: Vec::new() };
         let text = toml::to_string(&file).map_err(|e| format!("cannot write the scenario as TOML: {e}"))?;
         Ok(format!("# The scenario as flown (overrides applied, traces inline).\n{text}"))
     }
@@ -233,6 +238,11 @@ impl ScenarioFile {
                 };
                 error(span, field, message)
             })?;
+        let written = |key: &str| match root.get_ref().get("scenario").map(|v| v.get_ref()) {
+            Some(DeValue::Table(t)) => t.get(key).is_some(),
+            _ => false,
+        };
+        file.nmpc_keys_absent = mav::NMPC_KEYS.into_iter().filter(|k| !written(k)).collect();
         // Trace files, relative to the scenario file, are read into the scenario (inline), so
         // that it travels whole to the services and replays without the file.
         if let Some(table) = file.scenario.delays.as_mut() {
@@ -265,6 +275,26 @@ impl ScenarioFile {
             file.scenario.min_altitude_m = Some(file.scenario.ground_z_m);
         }
         Ok(file)
+    }
+
+    /// Whether the bench's NMPC (`nmpc`, `multistage`) may fly the file: refused, naming the
+    /// keys, when the file leaves out part of its tuning ([`mav::NMPC_KEYS`]; an external
+    /// controller's file may).
+    pub fn nmpc_tuning(&self, path: &Path) -> Result<(), FileError> {
+        if self.nmpc_keys_absent.is_empty() {
+            return Ok(());
+        }
+        let keys: Vec<String> = self.nmpc_keys_absent.iter().map(|k| format!("`{k}`")).collect();
+        Err(FileError {
+            path: path.to_path_buf(),
+            line: None,
+            field: Some("scenario".into()),
+            message: format!(
+                "the bench's NMPC needs its tuning, and the file leaves out {} (only an external \
+                 controller, --controller-cmd, flies a file without them; docs/scenario-file.md)",
+                keys.join(", ")
+            ),
+        })
     }
 
     /// The checks serde cannot make: `(field path, reason)` of the first bad field.
@@ -335,8 +365,23 @@ impl ScenarioFile {
 /// of a scenario file (loaded and validated as `hilbench run` loads it, `[run]`'s controller
 /// options included).
 pub fn scenario_arg(arg: &str) -> Result<Scenario, String> {
+    scenario_or_file(arg).map(|(scenario, _)| scenario)
+}
+
+/// As [`scenario_arg`], for the bench's NMPC: a file must hold its whole tuning
+/// ([`ScenarioFile::nmpc_tuning`]).
+pub fn nmpc_scenario_arg(arg: &str) -> Result<Scenario, String> {
+    let (scenario, file) = scenario_or_file(arg)?;
+    if let Some(file) = file {
+        file.nmpc_tuning(Path::new(arg)).map_err(|e| e.to_string())?;
+    }
+    Ok(scenario)
+}
+
+/// A built-in scenario, or a file's with the file.
+fn scenario_or_file(arg: &str) -> Result<(Scenario, Option<ScenarioFile>), String> {
     if let Ok(built_in) = Scenario::by_name(arg) {
-        return Ok(built_in);
+        return Ok((built_in, None));
     }
     let path = Path::new(arg);
     if !path.exists() {
@@ -345,7 +390,8 @@ pub fn scenario_arg(arg: &str) -> Result<Scenario, String> {
             Scenario::BUILT_IN.join(", ")
         ));
     }
-    ScenarioFile::load(path).map(|f| f.scenario).map_err(|e| e.to_string())
+    let file = ScenarioFile::load(path).map_err(|e| e.to_string())?;
+    Ok((file.scenario.clone(), Some(file)))
 }
 
 /// The delays of a trace file (`delay::parse_trace`'s format), or why not, naming the file.
@@ -572,6 +618,34 @@ mod tests {
         assert!(n >= 8, "{n} scenario files");
         assert!(sweeps >= 4, "{sweeps} sweep files");
         assert!(falsify >= 4, "{falsify} files with a [falsify] table");
+    }
+
+    #[test]
+    fn a_file_without_the_nmpc_tuning_loads_for_an_external_controller_and_ours_are_refused_naming_the_keys()
+    {
+        let path = repo_root().join("examples/python-controller/open-field.toml");
+        let file = ScenarioFile::load(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(file.nmpc_keys_absent, mav::NMPC_KEYS.to_vec(), "open-field has none of them");
+        assert_eq!(file.scenario.horizon, Scenario::paper_2().horizon, "paper-2's tuning fills in");
+        let e = file.nmpc_tuning(&path).expect_err("refused to the bench's NMPC");
+        assert!(e.to_string().contains("`q_x`, `q_u`") && e.to_string().contains("--controller-cmd"), "{e}");
+        let arg = path.to_str().expect("UTF-8");
+        assert!(scenario_arg(arg).is_ok(), "the plant takes it");
+        assert!(
+            nmpc_scenario_arg(arg).is_err_and(|e| e.contains("`delay_window`")),
+            "the controller does not"
+        );
+        // One key left out of a whole file is named alone.
+        let (text, _) = edited("horizon = 40\n", "");
+        let file = ScenarioFile::parse(Path::new("x.toml"), &text).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(file.nmpc_keys_absent, vec!["horizon"]);
+        let e = file.nmpc_tuning(Path::new("x.toml")).expect_err("refused");
+        assert!(e.to_string().contains("leaves out `horizon` ("), "{e}");
+        // A whole file is flown by all.
+        let paper_3 = repo_root().join("scenarios/paper-3.toml");
+        let file = ScenarioFile::load(&paper_3).unwrap_or_else(|e| panic!("{e}"));
+        assert!(file.nmpc_keys_absent.is_empty() && file.nmpc_tuning(&paper_3).is_ok());
+        assert!(nmpc_scenario_arg("paper-1").is_ok());
     }
 
     /// paper-3 with one line replaced (1-based `line` of the file holding `old`).

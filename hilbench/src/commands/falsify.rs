@@ -12,6 +12,9 @@ use crate::scenario_file::ScenarioFile;
 
 pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
     let spec = ScenarioFile::load(&args.file)?;
+    if args.controller_cmd.is_none() {
+        spec.nmpc_tuning(&args.file)?;
+    }
     let table = spec.falsify.clone().with_context(|| {
         format!(
             "{}: no [falsify] table (the spaces to search and the property; see docs/falsify.md)",

@@ -21,6 +21,9 @@ pub fn run(args: RunArgs, opts: &Options) -> anyhow::Result<Exit> {
     );
     let file = args.file.as_path();
     let spec = scenario_as_flown(file, &args)?;
+    if args.controller_cmd.is_none() {
+        spec.nmpc_tuning(file)?;
+    }
     let driver = driver(file, &spec, args.controller_cmd.clone(), &args, opts)?;
     let modes = args.mode.map(|m| m.modes());
     let jobs = match driver {

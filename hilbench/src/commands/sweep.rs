@@ -17,6 +17,9 @@ use crate::sweep::{Sweep, execute, fnv1a64, output, shard, shrink_failures, unti
 
 pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
     let spec = ScenarioFile::load(&args.file)?;
+    if args.controller_cmd.is_none() {
+        spec.nmpc_tuning(&args.file)?;
+    }
     let table = spec.sweep.clone().with_context(|| {
         format!(
             "{}: no [sweep] table (the delay families to draw from; see docs/sweep.md)",
