@@ -27,6 +27,9 @@
 
 /// Runs per search when neither the file nor the command line says.
 pub const DEFAULT_BUDGET: u64 = 300;
+/// The most runs per search, in the file as on the command line (`--budget`): a million runs
+/// of a second each is eleven days of one core.
+pub const MAX_BUDGET: u64 = 1_000_000;
 /// CMA-ES's first step in the unit cube when the file does not say.
 pub const DEFAULT_SIGMA0: f64 = 0.3;
 /// The most control points of a signal (published falsifiers use 2 to 4).
@@ -154,8 +157,8 @@ impl FalsifyTable {
     /// `(field path, reason)` of the first bad key, paths under `falsify`.
     pub fn validate(&self) -> Result<(), (String, String)> {
         let bad = |key: &str, reason: &str| Err((format!("falsify.{key}"), reason.to_string()));
-        if self.budget == Some(0) {
-            return bad("budget", "must be at least 1");
+        if self.budget.is_some_and(|b| !(1..=MAX_BUDGET).contains(&b)) {
+            return bad("budget", &format!("must be 1 to {MAX_BUDGET} runs"));
         }
         if let Property::ClearanceBelowM(x) = self.property
             && !(x.is_finite() && (0.0..=100.0).contains(&x))
@@ -251,6 +254,12 @@ mod tests {
     #[test]
     fn bad_values_are_refused_naming_the_field() {
         assert_eq!(field_of(&format!("budget = 0\n{SIGNAL}")), "falsify.budget");
+        assert_eq!(
+            field_of(&format!("budget = 10000000000\n{SIGNAL}")),
+            "falsify.budget",
+            "over --budget's cap"
+        );
+        assert_eq!(table(&format!("budget = {MAX_BUDGET}\n{SIGNAL}")).validate(), Ok(()), "at the cap");
         assert_eq!(
             field_of(&format!("property = {{ clearance_below_m = -1.0 }}\n{SIGNAL}")),
             "falsify.property.clearance_below_m"

@@ -108,7 +108,7 @@ pub struct FalsifyArgs {
     /// The scenario file, with a [falsify] table (and the [sweep] families it names).
     pub file: PathBuf,
     /// Runs per search (default: the file's `falsify.budget`, else 300).
-    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=falsify::table::MAX_BUDGET))]
     pub budget: Option<u64>,
     /// Methods, each a search of every space with the same budget and seed (comma-separated;
     /// `cmaes,random` draws the optimiser beside its baseline; default: the file's
