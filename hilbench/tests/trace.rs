@@ -215,6 +215,61 @@ fn a_plain_echo_gives_the_round_trips_and_ctrl_c_keeps_what_was_recorded() {
 }
 
 #[test]
+fn ctrl_c_between_slow_ticks_stops_the_recording_without_waiting_out_the_timeout_and_a_bad_out_is_refused_first()
+ {
+    let dir = temp("slow-ctrl-c");
+    // An echo that answers the first probe only: the second is still waiting at Ctrl-C.
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").expect("a socket");
+    let addr = socket.local_addr().expect("addr").to_string();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 2048];
+        if let Ok((n, from)) = socket.recv_from(&mut buf) {
+            let _ = socket.send_to(&buf[..n], from);
+        }
+        while socket.recv_from(&mut buf).is_ok() {}
+    });
+    let record = |out: &Path| {
+        Command::new(env!("CARGO_BIN_EXE_hilbench"))
+            .args(["trace", "record", "--target", &addr, "--rate-hz", "0.5", "--duration-s", "600"])
+            .args(["--timeout-s", "120", "--out", &out.display().to_string()])
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("record starts")
+    };
+    // A directory that does not exist: refused before a probe is sent.
+    let refused = record(&dir.join("no-such-dir/link.csv")).wait_with_output().expect("ends");
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("--out") && stderr.contains("no directory") && !stderr.contains("recording "),
+        "{stderr}"
+    );
+
+    let out = dir.join("slow.csv");
+    let mut child = record(&out);
+    // Probes at 0 and 2 s; the next tick is at 4 s, the second probe's timeout at 122 s.
+    std::thread::sleep(std::time::Duration::from_millis(3000));
+    let signal = Command::new("kill").args(["-INT", &child.id().to_string()]).status().expect("kill runs");
+    assert!(signal.success());
+    // Ended long before the timeout (a bound on a hang, not a measured time).
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    while child.try_wait().expect("waits").is_none() {
+        if std::time::Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("still recording 60 s after Ctrl-C: it waited out the tick or the timeout");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let result = child.wait_with_output().expect("record ends");
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert_eq!(result.status.code(), Some(130), "{stderr}");
+    assert!(stderr.contains("1 still waiting left out"), "{stderr}");
+    let rtt = delay::parse_trace_file(&std::fs::read_to_string(&out).expect("the trace")).expect("a trace");
+    assert_eq!((rtt.delays_s.len(), rtt.losses()), (1, 0), "the answered probe only");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn a_target_where_nothing_answers_writes_nothing_and_says_why() {
     let dir = temp("silent");
     let port = std::net::UdpSocket::bind("127.0.0.1:0").expect("a port").local_addr().expect("addr").port();

@@ -169,6 +169,17 @@ impl Exchange {
         }
     }
 
+    /// Whether the far side claims to have held the probe longer than its whole round trip
+    /// (its stamps are wrong): [`Exchange::round_trip_ns`] is then 0.
+    pub fn held_past_round_trip(&self) -> bool {
+        match self.outcome {
+            Outcome::Answered { received_ns, far: Some(f) } => {
+                f.sent_ns.saturating_sub(f.received_ns) > received_ns.saturating_sub(self.sent_ns)
+            }
+            _ => false,
+        }
+    }
+
     /// The round trip in s, or [`LOST_S`]: a trace entry.
     pub fn trace_entry(&self) -> f64 {
         self.round_trip_ns().map_or(LOST_S, |ns| ns as f64 * 1e-9)

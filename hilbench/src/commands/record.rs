@@ -42,9 +42,20 @@ fn lock(l: &Mutex<Ledger>) -> std::sync::MutexGuard<'_, Ledger> {
     l.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
+/// How long the recorder waits for the last replies after Ctrl-C, at most (the probes still
+/// waiting then are left out): the user asked to stop, not to wait out `--timeout-s`.
+const INTERRUPTED_WAIT: Duration = Duration::from_secs(1);
+
 /// `hilbench trace record`.
 pub fn record(spec: &RecordSpec, quiet: bool) -> anyhow::Result<Exit> {
     probe::check_size(spec.probe_bytes).map_err(|e| anyhow::anyhow!("--probe-bytes: {e}"))?;
+    // Where the files go is checked before the recording, which a bad path would lose.
+    check_writable(&spec.out, "--out")?;
+    if let Some(prefix) = &spec.out_directions {
+        for name in ["up", "down"] {
+            check_writable(&with_suffix(prefix, name), "--out-directions")?;
+        }
+    }
     let target = spec
         .target
         .to_socket_addrs()
@@ -111,10 +122,16 @@ pub fn record(spec: &RecordSpec, quiet: bool) -> anyhow::Result<Exit> {
     let mut k: u64 = 0;
     while k < total && !interrupted.load(Ordering::Relaxed) {
         let due = (tick as f64 * period_ns) as u64;
+        // Slept in slices, so that Ctrl-C is seen within one at any rate (0.01 Hz included).
+        while now_ns(origin) < due && !interrupted.load(Ordering::Relaxed) {
+            let left = Duration::from_nanos(due - now_ns(origin).min(due));
+            std::thread::sleep(left.min(READ_TICK));
+        }
+        if interrupted.load(Ordering::Relaxed) {
+            break;
+        }
         let now = now_ns(origin);
-        if due > now {
-            std::thread::sleep(Duration::from_nanos(due - now));
-        } else if now - due > period_ns as u64 && tick > 0 {
+        if now > due && now - due > period_ns as u64 && tick > 0 {
             let behind = ((now - due) as f64 / period_ns) as u64;
             slips += behind;
             tick += behind;
@@ -140,9 +157,13 @@ pub fn record(spec: &RecordSpec, quiet: bool) -> anyhow::Result<Exit> {
     // The last probes' replies: until all are in or their timeout has passed (after Ctrl-C
     // too, at most the timeout: the probes still waiting then are left out, not called lost).
     let last_send = now_ns(origin);
+    let mut wait_ns = timeout_ns;
     loop {
+        if interrupted.load(Ordering::Relaxed) {
+            wait_ns = wait_ns.min(INTERRUPTED_WAIT.as_nanos() as u64);
+        }
         let l = lock(&ledger);
-        if l.all_answered() || now_ns(origin).saturating_sub(last_send) > timeout_ns {
+        if l.all_answered() || now_ns(origin).saturating_sub(last_send) > wait_ns {
             break;
         }
         drop(l);
@@ -184,6 +205,13 @@ pub fn record(spec: &RecordSpec, quiet: bool) -> anyhow::Result<Exit> {
     };
     if slips > 0 {
         provenance.other.push(("ticks_skipped".into(), slips.to_string()));
+    }
+    let held_past = exchanges.iter().filter(|e| e.held_past_round_trip()).count();
+    if held_past > 0 {
+        provenance.other.push(("held_past_round_trip".into(), held_past.to_string()));
+        eprintln!(
+            "warning: {held_past} replies claim the echo held them longer than their whole round trip (recorded as 0 s): the far side's stamps are wrong"
+        );
     }
     write(&spec.out, &probe::round_trips_s(&exchanges), &provenance)?;
     let mut written = vec![spec.out.clone()];
@@ -230,6 +258,28 @@ pub fn record(spec: &RecordSpec, quiet: bool) -> anyhow::Result<Exit> {
         );
     }
     Ok(if interrupted.load(Ordering::Relaxed) { Exit::Interrupted } else { Exit::Success })
+}
+
+/// Refuses `path` (of `flag`) unless a file can be written there: its directory exists and
+/// takes a new file, and it is not a directory. Nothing is left behind.
+fn check_writable(path: &Path, flag: &str) -> anyhow::Result<()> {
+    anyhow::ensure!(!path.is_dir(), "{flag} {}: is a directory, not a file", path.display());
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    anyhow::ensure!(dir.is_dir(), "{flag} {}: no directory {}", path.display(), dir.display());
+    let probe = dir.join(format!(".hilbench-record-check-{}", std::process::id()));
+    std::fs::File::create(&probe)
+        .with_context(|| format!("{flag} {}: cannot write in {}", path.display(), dir.display()))?;
+    let _ = std::fs::remove_file(&probe);
+    if path.exists() {
+        std::fs::OpenOptions::new()
+            .append(true)
+            .open(path)
+            .with_context(|| format!("{flag} {}: cannot be written", path.display()))?;
+    }
+    Ok(())
 }
 
 /// `PREFIX-up.csv`.

@@ -65,6 +65,23 @@ fn the_far_sides_holding_time_is_not_part_of_the_round_trip() {
         },
     };
     assert_eq!(e.round_trip_ns(), Some(8_000));
+    assert!(!e.held_past_round_trip());
+}
+
+#[test]
+fn a_far_side_claiming_a_hold_longer_than_the_round_trip_is_flagged_and_gives_zero() {
+    let e = Exchange {
+        seq: 0,
+        sent_ns: 1_000,
+        outcome: Outcome::Answered {
+            received_ns: 11_000,
+            far: Some(FarStamps { received_ns: 50_000, sent_ns: 70_000 }),
+        },
+    };
+    assert_eq!(e.round_trip_ns(), Some(0));
+    assert!(e.held_past_round_trip());
+    let plain = Exchange { outcome: Outcome::Answered { received_ns: 11_000, far: None }, ..e };
+    assert!(!plain.held_past_round_trip(), "a plain echo claims nothing");
 }
 
 /// A recording against a far clock 5 s ahead drifting 20 ppm, with legs of 2 ms up and 1 ms
