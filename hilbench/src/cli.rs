@@ -295,6 +295,10 @@ pub enum TraceCommand {
         /// Skip a bad line and count it, instead of stopping there with its number.
         #[arg(long)]
         skip_bad: bool,
+        /// Probes per second, written in the trace's provenance (ping -D's stamps and irtt give
+        /// it; a CSV or a plain ping log does not).
+        #[arg(long, value_name = "HZ", value_parser = rate_hz)]
+        rate_hz: Option<f64>,
     },
     /// Record a live link: probes at a rate to an echo on the far side (`hilbench trace echo`,
     /// or any UDP echo), the round trip of each into a trace file, a probe without a reply as

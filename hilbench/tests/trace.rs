@@ -270,6 +270,21 @@ fn ctrl_c_between_slow_ticks_stops_the_recording_without_waiting_out_the_timeout
 }
 
 #[test]
+fn an_import_whose_out_is_its_own_measurement_is_refused_and_leaves_it_as_it_was() {
+    let dir = temp("import-onto-itself");
+    let file = dir.join("link.csv");
+    std::fs::write(&file, "rtt_ms\n12\n15\n").expect("the measurement");
+    let f = file.display().to_string();
+    let same = dir.join(".").join("link.csv").display().to_string();
+    let result = hilbench(&["trace", "import", "--format", "csv", &f, "--out", &same]);
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert_eq!(result.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("is the measurement being imported"), "{stderr}");
+    assert_eq!(std::fs::read_to_string(&file).expect("still there"), "rtt_ms\n12\n15\n");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn a_target_where_nothing_answers_writes_nothing_and_says_why() {
     let dir = temp("silent");
     let port = std::net::UdpSocket::bind("127.0.0.1:0").expect("a port").local_addr().expect("addr").port();

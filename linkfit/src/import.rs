@@ -132,12 +132,15 @@ pub struct ImportOptions {
     pub skip_bad: bool,
     /// irtt: which delay.
     pub irtt_delay: IrttDelay,
+    /// Probes per second, for the provenance: over what the text says (ping -D's stamps,
+    /// irtt's interval), else the only source for a CSV or a plain ping log.
+    pub rate_hz: Option<f64>,
 }
 
 impl ImportOptions {
     /// `format` with every other option at its default.
     pub fn new(format: Format) -> Self {
-        Self { format, column: None, unit: None, skip_bad: false, irtt_delay: IrttDelay::Rtt }
+        Self { format, column: None, unit: None, skip_bad: false, irtt_delay: IrttDelay::Rtt, rate_hz: None }
     }
 }
 
@@ -205,6 +208,13 @@ impl Bad {
 
 /// Imports `text` as `options` say.
 pub fn import(text: &str, options: &ImportOptions) -> Result<Imported, ImportError> {
+    // A byte-order mark (a spreadsheet's UTF-8 export) is no part of the first line.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    if let Some(r) = options.rate_hz
+        && !(r.is_finite() && r > 0.0 && r <= MAX_RATE_HZ)
+    {
+        return Err(ImportError::Text(format!("--rate-hz must be in (0, {MAX_RATE_HZ}], got {r}")));
+    }
     if options.format != Format::Csv {
         if let Some(u) = options.unit {
             return Err(ImportError::Text(format!(
@@ -216,12 +226,23 @@ pub fn import(text: &str, options: &ImportOptions) -> Result<Imported, ImportErr
             return Err(ImportError::Text("--column applies to csv only".into()));
         }
     }
-    match options.format {
+    let mut imported = match options.format {
         Format::Ping => ping(text, options.skip_bad),
         Format::Irtt => irtt(text, options.irtt_delay, options.skip_bad),
         Format::Csv => csv(text, options.column.as_deref(), options.unit, options.skip_bad),
+    }?;
+    if options.rate_hz.is_some() {
+        imported.trace.provenance.rate_hz = options.rate_hz;
     }
+    Ok(imported)
 }
+
+/// A CSV column whose unit is not said is read as seconds only while its median stays below
+/// this, s: above, the values are most likely ms, and the unit is asked for.
+pub const ASSUMED_SECONDS_MAX_MEDIAN_S: f64 = 1.0;
+
+/// The highest probe rate an import takes, Hz (a probe every 10 µs).
+pub const MAX_RATE_HZ: f64 = 100_000.0;
 
 /// Most entries an imported trace holds (ten million probes: 28 hours at 100 Hz). A log that
 /// claims more (a `packets transmitted` count or a sequence number far past the probes it
@@ -279,7 +300,7 @@ fn value_after<'a>(line: &'a str, key: &str) -> Option<&'a str> {
 /// `icmp_seq=N` or macOS's `icmp_seq N` (in `Request timeout for icmp_seq N`).
 fn icmp_seq(line: &str) -> Option<Result<u16, String>> {
     let v = value_after(line, "icmp_seq=").or_else(|| value_after(line, "icmp_seq "))?;
-    Some(v.parse::<u16>().map_err(|_| format!("icmp_seq `{v}` is not a number in 0..=65535")))
+    Some(v.parse::<u16>().map_err(|_| format!("icmp_seq `{}` is not a number in 0..=65535", clip(v))))
 }
 
 /// Unwraps 16-bit sequence numbers: each to the value nearest the previous one.
@@ -319,13 +340,17 @@ fn ping(text: &str, skip_bad: bool) -> Result<Imported, ImportError> {
         lowest = Some(lowest.map_or(k, |l| l.min(k)));
         highest = Some(highest.map_or(k, |h| h.max(k)));
     };
+    // `ping -D`'s stamps of the replies, `(probe number, Unix s)`: the rate they imply.
+    let mut stamped: Vec<(u64, f64)> = Vec::new();
     for (i, raw) in text.lines().enumerate() {
         let line_no = i + 1;
         let mut line = raw.trim();
+        let mut stamp_s = None;
         // `ping -D`: `[1795813059.422084] 64 bytes from ...`
         if line.starts_with('[')
             && let Some(end) = line.find(']')
         {
+            stamp_s = line[1..end].parse::<f64>().ok().filter(|t| t.is_finite());
             line = line[end + 1..].trim_start();
         }
         if line.is_empty() {
@@ -350,7 +375,7 @@ fn ping(text: &str, skip_bad: bool) -> Result<Imported, ImportError> {
         if let Some((n, _)) = line.split_once(" packets transmitted") {
             match n.trim().parse() {
                 Ok(n) => transmitted = Some(n),
-                Err(_) => bad.line(line_no, format!("`{n}` packets transmitted is not a number"))?,
+                Err(_) => bad.line(line_no, format!("`{}` packets transmitted is not a number", clip(n)))?,
             }
             continue;
         }
@@ -378,6 +403,9 @@ fn ping(text: &str, skip_bad: bool) -> Result<Imported, ImportError> {
         }
         let k = unwrap.next(seq);
         note(k);
+        if let Some(t) = stamp_s {
+            stamped.push((k, t));
+        }
         if line.contains("DUP!") {
             dup_lines += 1;
             continue;
@@ -390,10 +418,11 @@ fn ping(text: &str, skip_bad: bool) -> Result<Imported, ImportError> {
         let unit_ms = t.ends_with("ms") || line[line.find("time=").unwrap_or(0)..].contains(" ms");
         match parse_scaled(ms, -3) {
             Some(v) if unit_ms && (0.0..=MAX_DELAY_S).contains(&v) => probes.seen.push((k, Some(v))),
-            Some(v) if unit_ms => {
-                bad.line(line_no, format!("time {ms} ms is not a delay in [0, {MAX_DELAY_S}] s ({v} s)"))?
-            }
-            _ => bad.line(line_no, format!("time `{t}` is not a number of ms"))?,
+            Some(v) if unit_ms => bad.line(
+                line_no,
+                format!("time {} ms is not a delay in [0, {MAX_DELAY_S}] s ({v:e} s)", clip(ms)),
+            )?,
+            _ => bad.line(line_no, format!("time `{}` is not a number of ms", clip(t)))?,
         }
     }
     let Some(hi) = highest else {
@@ -417,7 +446,23 @@ fn ping(text: &str, skip_bad: bool) -> Result<Imported, ImportError> {
         _ => (hi, format!("icmp_seq up to {hi}")),
     };
     let (delays_s, repeated) = probes.entries(first, last, &claim)?;
+    provenance.rate_hz = stamped_rate_hz(&stamped);
     finish(delays_s, provenance, bad, dup_lines + repeated)
+}
+
+/// The probe rate of `ping -D`'s stamps, Hz: the probes between the first and the last stamped
+/// reply over the time between them (each reply's stamp is its send time plus its delay, so
+/// the delays' spread is the error, over the whole span). `None` for fewer than two.
+fn stamped_rate_hz(stamped: &[(u64, f64)]) -> Option<f64> {
+    let first = stamped.iter().min_by_key(|(k, _)| *k)?;
+    let last = stamped.iter().max_by_key(|(k, _)| *k)?;
+    let span_s = last.1 - first.1;
+    (last.0 > first.0 && span_s > 0.0).then(|| {
+        let rate = (last.0 - first.0) as f64 / span_s;
+        // Four significant digits: what the stamps can say.
+        let scale = 10f64.powi(3 - rate.log10().floor() as i32);
+        (rate * scale).round() / scale
+    })
 }
 
 /// The number `text` times `10^exp`, rounded once: `0.047` ms is `0.047e-3` s, read as
@@ -593,6 +638,9 @@ fn csv(
     let mut index: Option<usize> = None; // the column, once the first row is read
     let mut width = 0;
     let mut scale = unit.unwrap_or(Unit::S);
+    // Whether the unit was said (--unit, or the column's suffix) rather than taken as s.
+    let mut unit_said = unit.is_some();
+    let mut column_name = String::from("the column");
     for (i, raw) in text.lines().enumerate() {
         let line_no = i + 1;
         let line = raw.split('#').next().unwrap_or("").trim();
@@ -610,8 +658,9 @@ fn csv(
                 let i = match column {
                     Some(name) => row.iter().position(|c| *c == name).ok_or_else(|| {
                         ImportError::Text(format!(
-                            "line {line_no}: no column `{name}` (columns: {})",
-                            row.join(", ")
+                            "line {line_no}: no column `{}` (columns: {})",
+                            clip(name),
+                            clip(&row.join(", "))
                         ))
                     })?,
                     None if row.len() == 1 => 0,
@@ -619,7 +668,7 @@ fn csv(
                         return Err(ImportError::Text(format!(
                             "line {line_no}: {} columns ({}); name one with --column",
                             row.len(),
-                            row.join(", ")
+                            clip(&row.join(", "))
                         )));
                     }
                 };
@@ -628,14 +677,16 @@ fn csv(
                         Some(u) if u != named => {
                             return Err(ImportError::Text(format!(
                                 "column `{}` says {} but --unit is {}",
-                                row[i],
+                                clip(row[i]),
                                 named.name(),
                                 u.name()
                             )));
                         }
                         _ => scale = named,
                     }
+                    unit_said = true;
                 }
+                column_name = format!("column `{}`", clip(row[i]));
                 i
             } else {
                 if let Some(name) = column {
@@ -676,14 +727,28 @@ fn csv(
         }
         match parse_scaled(c, scale.exponent()) {
             Some(v) if (0.0..=MAX_DELAY_S).contains(&v) => delays_s.push(v),
-            Some(_) => {
-                bad.line(line_no, format!("{c} {} is not a delay in [0, {MAX_DELAY_S}] s", scale.name()))?
-            }
+            Some(_) => bad.line(
+                line_no,
+                format!("{} {} is not a delay in [0, {MAX_DELAY_S}] s", clip(c), scale.name()),
+            )?,
             None => bad.line(line_no, format!("`{}` is not a number (nor empty or `lost`)", clip(c)))?,
         }
     }
     if delays_s.is_empty() {
         return Err(ImportError::Text("holds no delay".into()));
+    }
+    // Seconds were assumed: a median round trip of a second or more is most likely ms (a
+    // column `rtt` of 40 to 69 would be 40 to 69 s delays); the user says which.
+    let mut delivered: Vec<f64> = delays_s.iter().copied().filter(|d| !delay::is_lost(*d)).collect();
+    delivered.sort_by(f64::total_cmp);
+    if let Some(median) = delivered.get(delivered.len() / 2)
+        && !unit_said
+        && *median >= ASSUMED_SECONDS_MAX_MEDIAN_S
+    {
+        return Err(ImportError::Text(format!(
+            "{column_name} names no unit and its median is {median} s if the values are seconds: \
+             give --unit s, ms or us (or name the column with a suffix, e.g. rtt_ms)"
+        )));
     }
     finish(delays_s, Provenance { tool: Some("csv".into()), ..Provenance::default() }, bad, 0)
 }

@@ -15,12 +15,21 @@ const MAX_FILE_BYTES: u64 = 512 << 20;
 
 pub fn trace(args: TraceArgs, opts: &Options) -> anyhow::Result<Exit> {
     match args.command {
-        TraceCommand::Import { file, format, out, column, unit, skip_bad } => {
+        TraceCommand::Import { file, format, out, column, unit, skip_bad, rate_hz } => {
             let format: Format = format.parse().map_err(|e: String| anyhow::anyhow!("--format: {e}"))?;
             let unit = unit
                 .map(|u| u.parse::<Unit>().map_err(|e: String| anyhow::anyhow!("--unit: {e}")))
                 .transpose()?;
-            let options = ImportOptions { column, unit, skip_bad, ..ImportOptions::new(format) };
+            // The measurement is never overwritten by its own import.
+            let same = |a: &Path, b: &Path| {
+                a.canonicalize().ok().zip(b.canonicalize().ok()).is_some_and(|(a, b)| a == b)
+            };
+            anyhow::ensure!(
+                !same(&file, &out),
+                "--out {}: is the measurement being imported; name another file",
+                out.display()
+            );
+            let options = ImportOptions { column, unit, skip_bad, rate_hz, ..ImportOptions::new(format) };
             let imported = linkfit::import(&read(&file)?, &options)
                 .map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
             let text = delay::write_trace(&imported.trace.delays_s, &imported.trace.provenance)

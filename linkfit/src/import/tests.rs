@@ -193,3 +193,61 @@ fn a_log_claiming_more_probes_than_a_trace_holds_is_refused_naming_the_claim_bef
     let e = import(irtt, &ImportOptions::new(Format::Irtt)).expect_err("refused").to_string();
     assert!(e.contains("seqno 0 to 1000000000000000"), "{e}");
 }
+
+#[test]
+fn ping_dash_d_stamps_give_the_rate_and_rate_hz_says_it_for_any_format_within_bounds() {
+    let got =
+        import(&data("ping-linux-loopback-O-D.txt"), &ImportOptions::new(Format::Ping)).expect("imported");
+    // icmp_seq 2 to 60, stamped 1795813059.422189 to 1795813060.386145: 58 probes in 0.963956 s.
+    assert_eq!(got.trace.provenance.rate_hz, Some(60.17));
+    let plain =
+        import(&data("ping-linux-loopback.txt"), &ImportOptions::new(Format::Ping)).expect("imported");
+    assert_eq!(plain.trace.provenance.rate_hz, None, "no stamps, no rate");
+    let said = ImportOptions { rate_hz: Some(100.0), ..ImportOptions::new(Format::Ping) };
+    let got = import(&data("ping-linux-loopback-O-D.txt"), &said).expect("imported");
+    assert_eq!(got.trace.provenance.rate_hz, Some(100.0), "--rate-hz over the stamps");
+    let csv = ImportOptions { rate_hz: Some(20.0), ..ImportOptions::new(Format::Csv) };
+    assert_eq!(import("delay_s\n0.1\n", &csv).expect("imported").trace.provenance.rate_hz, Some(20.0));
+    for bad in [0.0, -1.0, f64::NAN, f64::INFINITY, 1e6] {
+        let o = ImportOptions { rate_hz: Some(bad), ..ImportOptions::new(Format::Csv) };
+        assert!(
+            matches!(import("delay_s\n0.1\n", &o), Err(ImportError::Text(m)) if m.contains("--rate-hz")),
+            "{bad}"
+        );
+    }
+}
+
+#[test]
+fn a_byte_order_mark_is_no_part_of_the_first_value_or_header() {
+    let csv = ImportOptions::new(Format::Csv);
+    assert_eq!(import("\u{feff}0.1\n0.2\n", &csv).expect("imported").trace.delays_s, vec![0.1, 0.2]);
+    let named = ImportOptions { column: Some("rtt_ms".into()), ..csv };
+    assert_eq!(import("\u{feff}rtt_ms\n40\n", &named).expect("imported").trace.delays_s, vec![0.04]);
+}
+
+#[test]
+fn milliseconds_in_a_column_that_names_no_unit_are_refused_asking_for_the_unit() {
+    let text = "rtt\n40\n55\n69\n";
+    let csv = ImportOptions::new(Format::Csv);
+    let Err(ImportError::Text(m)) = import(text, &csv) else { panic!("40-69 s delays taken") };
+    assert!(m.contains("column `rtt` names no unit") && m.contains("--unit"), "{m}");
+    let ms = ImportOptions { unit: Some(Unit::Ms), ..csv.clone() };
+    assert_eq!(import(text, &ms).expect("imported").trace.delays_s, vec![0.04, 0.055, 0.069]);
+    let s = ImportOptions { unit: Some(Unit::S), ..csv.clone() };
+    assert_eq!(import("rtt\n4\n", &s).expect("said: seconds").trace.delays_s, vec![4.0]);
+    assert_eq!(import("rtt\n0.04\n0.5\n", &csv).expect("seconds").trace.delays_s, vec![0.04, 0.5]);
+}
+
+#[test]
+fn a_refused_value_is_echoed_cut_to_a_few_dozen_characters() {
+    let huge = "9".repeat(300);
+    let text = format!("rtt_ms\n1\n{huge}\n");
+    let Err(ImportError::Line { line: 3, reason }) = import(&text, &ImportOptions::new(Format::Csv)) else {
+        panic!("a 300-digit delay taken")
+    };
+    assert!(reason.len() < 120 && reason.contains("..."), "{reason}");
+    let header = format!("{}\n1\n", "x".repeat(10_000));
+    let named = ImportOptions { column: Some("rtt".into()), ..ImportOptions::new(Format::Csv) };
+    let Err(ImportError::Text(m)) = import(&header, &named) else { panic!("no such column") };
+    assert!(m.len() < 200, "{m}");
+}
