@@ -457,6 +457,10 @@ pub struct SweepArgs {
     /// (default: the file's `sweep.shrink_total_runs`, else 1500).
     #[arg(long, value_name = "N", requires = "shrink")]
     pub shrink_total_runs: Option<u64>,
+    /// Wall time the shrinking of all the failures may take, s: no rerun starts after it, and
+    /// each failure keeps what it had shrunk (default: no limit but the reruns').
+    #[arg(long, value_name = "S", requires = "shrink", value_parser = seconds)]
+    pub shrink_wall_s: Option<f64>,
     /// A run that takes longer than this (wall clock) is a failure, and the sweep goes on
     /// (default: the file's `sweep.run_timeout_s`, else 300).
     #[arg(long, value_name = "S", value_parser = seconds)]

@@ -5,9 +5,12 @@
 //!
 //! The trace of a failure is the delays of the cycles it flew (the rest were never used), so
 //! replaying it flies the same run to the bit. Shrinking then tries, in this order, each within
-//! a budget of reruns: deleting chunks of delays (halves, quarters, ... single delays: a shorter
-//! trace), setting chunks to zero (fewer bursts, smaller delays), and rounding every delay to
-//! the millisecond. A candidate is kept when its run still fails (the caller says what failing
+//! a budget of reruns (and of wall time, when given): setting chunks to zero (halves, quarters,
+//! ... single delays: fewer bursts), flattening chunks to their smallest delay (smaller
+//! spikes), deleting chunks (a shorter trace), and rounding every delay to the millisecond.
+//! Deletion comes last: it moves every later delay to an earlier cycle, so a failure tied to
+//! when a spike comes survives no deletion before the spike, while zeroing and flattening
+//! keep every delay at its cycle. A candidate is kept when its run still fails (the caller says what failing
 //! is: the same outcome for a sweep, the property for a falsifier); a candidate the run
 //! outlasts ends in an error and is not kept. After each kept candidate the trace is cut to the
 //! cycles that run flew. The result is the trace of the last kept run, so its replay is that
@@ -15,7 +18,7 @@
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use mav::Scenario;
 use mpc::ControllerMode;
@@ -88,7 +91,7 @@ impl FailureTrace {
                 "shrunk from {} to {} delays in {reruns} reruns{}",
                 self.original_len,
                 self.delays_s.len(),
-                if complete { "" } else { " (budget used up or interrupted)" }
+                if complete { "" } else { " (its budget of reruns or wall time used up, or interrupted)" }
             ),
             (None, Some(_)) => "the delays the run drew up to its end".into(),
             (None, None) => "every delay the run had".into(),
@@ -171,6 +174,8 @@ pub struct Rerun<'a> {
     pub driver: &'a Driver,
     pub timeout: Duration,
     pub stop: &'a AtomicBool,
+    /// No rerun starts after this (a wall-time budget of the shrinking, `--shrink-wall-s`).
+    pub deadline: Option<Instant>,
 }
 
 impl Rerun<'_> {
@@ -212,9 +217,12 @@ pub fn shrink(
     let mut best = failure;
     let mut reruns = 0u64;
     // The candidate's run if it still fails, and the trace cut to what it flew.
-    let mut attempt = |delays: Vec<f64>, reruns: &mut u64| -> Option<(Vec<f64>, Flight)> {
+    let mut attempt = |delays: Vec<f64>, reruns: &mut u64| -> Tried {
         if rerun.stop.load(Ordering::Relaxed) {
-            return None;
+            return Tried::Stop;
+        }
+        if rerun.deadline.is_some_and(|d| Instant::now() >= d) {
+            return Tried::Stop;
         }
         *reruns += 1;
         let job = Job { scenario: rerun.scenario_with(delays.clone()), mode: rerun.mode };
@@ -222,9 +230,9 @@ pub fn shrink(
             RunFate::Flown(f) if fails(&f) => {
                 let mut d = delays;
                 d.truncate(f.delays_needed(d.len()));
-                Some((d, *f))
+                Tried::Fails(d, Box::new(*f))
             }
-            _ => None,
+            _ => Tried::Passes,
         }
     };
     let complete = shrink_with(&mut best, budget, passes, &mut reruns, &mut attempt)
@@ -233,9 +241,18 @@ pub fn shrink(
     best
 }
 
-/// Flies a candidate trace (counting the rerun): the trace cut to what its run flew, and the
-/// run, when it fails as the original did.
-type Attempt<'a> = dyn FnMut(Vec<f64>, &mut u64) -> Option<(Vec<f64>, Flight)> + 'a;
+/// What a candidate trace's rerun gave.
+enum Tried {
+    /// It fails as the original did: the trace cut to what its run flew, and the run.
+    Fails(Vec<f64>, Box<Flight>),
+    /// It does not (or the run ended in an error).
+    Passes,
+    /// Not flown: Ctrl-C, or the wall-time budget is spent.
+    Stop,
+}
+
+/// Flies a candidate trace, counting the rerun.
+type Attempt<'a> = dyn FnMut(Vec<f64>, &mut u64) -> Tried + 'a;
 
 /// The passes of [`shrink`] over `best` (kept up to date), at most `budget` attempts; true when
 /// they ran to their end.
@@ -250,15 +267,40 @@ fn shrink_with(
         if *reruns >= budget {
             return None;
         }
-        Some(match attempt(candidate, reruns) {
-            Some((delays, flown)) => {
+        match attempt(candidate, reruns) {
+            Tried::Fails(delays, flown) => {
                 best.delays_s = delays;
                 best.replay = Some(Replay::of(&flown));
-                true
+                Some(true)
             }
-            None => false,
-        })
+            Tried::Passes => Some(false),
+            Tried::Stop => None,
+        }
     };
+    // Fewer bursts: zero chunks; then smaller spikes: each chunk flattened to its smallest
+    // delay. Every delay stays at its cycle.
+    for flatten in [false, true] {
+        let mut size = best.delays_s.len() / 2;
+        while size >= 1 {
+            let mut i = 0;
+            while i < best.delays_s.len() {
+                let end = (i + size).min(best.delays_s.len());
+                let chunk = &best.delays_s[i..end];
+                let to = if flatten { chunk.iter().copied().fold(f64::INFINITY, f64::min) } else { 0.0 };
+                if chunk.iter().all(|d| *d == to) {
+                    i += size;
+                    continue;
+                }
+                let mut candidate = best.delays_s.clone();
+                candidate[i..end].iter_mut().for_each(|d| *d = to);
+                match keep(best, candidate, reruns) {
+                    None => return false,
+                    Some(_) => i += size,
+                }
+            }
+            size /= 2;
+        }
+    }
     // Shorter: delete chunks.
     let mut size = if passes == Passes::All { best.delays_s.len() / 2 } else { 0 };
     while size >= 1 {
@@ -270,25 +312,6 @@ fn shrink_with(
                 None => return false,
                 Some(true) => {}
                 Some(false) => i += size,
-            }
-        }
-        size /= 2;
-    }
-    // Fewer bursts, smaller delays: zero chunks.
-    let mut size = best.delays_s.len() / 2;
-    while size >= 1 {
-        let mut i = 0;
-        while i < best.delays_s.len() {
-            let end = (i + size).min(best.delays_s.len());
-            if best.delays_s[i..end].iter().all(|d| *d == 0.0) {
-                i += size;
-                continue;
-            }
-            let mut candidate = best.delays_s.clone();
-            candidate[i..end].iter_mut().for_each(|d| *d = 0.0);
-            match keep(best, candidate, reruns) {
-                None => return false,
-                Some(_) => i += size,
             }
         }
         size /= 2;
@@ -342,6 +365,57 @@ mod tests {
         Some((delays[..cycles].to_vec(), flown(cycles, true)))
     }
 
+    fn tried(run: Option<(Vec<f64>, Flight)>) -> Tried {
+        run.map_or(Tried::Passes, |(d, f)| Tried::Fails(d, Box::new(f)))
+    }
+
+    #[test]
+    fn a_failure_tied_to_when_its_spike_comes_keeps_the_spike_at_its_cycle_and_loses_every_other_delay() {
+        // A stand-in for a failure that needs a spike at cycle 60 (deleting any delay before it
+        // moves the spike, and the run passes); it flies 61 cycles.
+        let model = |d: &[f64]| (d.len() > 60 && d[60] >= 0.3).then(|| (d[..61].to_vec(), flown(61, true)));
+        let delays: Vec<f64> =
+            (0..103).map(|k| if k == 60 { 0.35 } else { 0.01 + 0.02 * (k % 5) as f64 }).collect();
+        let (cut, f) = model(&delays).expect("fails");
+        let mut best =
+            FailureTrace { delays_s: cut, original_len: 103, shrink: None, replay: Some(Replay::of(&f)) };
+        let mut reruns = 0;
+        // Zeroing first: about 2 log2(61) reruns to clear everything but the spike.
+        let complete = shrink_with(&mut best, 40, Passes::All, &mut reruns, &mut |d, r| {
+            *r += 1;
+            tried(model(&d))
+        });
+        assert!(!complete, "the deletions after it spend the rest of the budget");
+        let mut want = vec![0.0; 61];
+        want[60] = 0.35;
+        assert_eq!(best.delays_s, want, "after {reruns} reruns");
+    }
+
+    #[test]
+    fn a_stop_ends_the_shrinking_at_once_keeping_what_was_shrunk() {
+        let mut delays: Vec<f64> = (0..120).map(|k| 0.0123 * (k % 7) as f64).collect();
+        delays[50] = 0.3123;
+        delays[51] = 0.33;
+        let (cut, f) = model(&delays).expect("fails");
+        let mut best = FailureTrace {
+            delays_s: cut.clone(),
+            original_len: 52,
+            shrink: None,
+            replay: Some(Replay::of(&f)),
+        };
+        let mut reruns = 0;
+        let complete = shrink_with(&mut best, 1000, Passes::All, &mut reruns, &mut |d, r| {
+            if *r >= 3 {
+                return Tried::Stop;
+            }
+            *r += 1;
+            tried(model(&d))
+        });
+        assert!(!complete);
+        assert_eq!(reruns, 3);
+        assert!(model(&best.delays_s).is_some(), "still fails");
+    }
+
     #[test]
     fn shrinking_keeps_the_failure_and_leaves_the_smallest_trace_that_fails() {
         let mut delays: Vec<f64> = (0..120).map(|k| 0.0123 * (k % 7) as f64).collect();
@@ -354,7 +428,7 @@ mod tests {
         let mut reruns = 0;
         let complete = shrink_with(&mut best, 1000, Passes::All, &mut reruns, &mut |d, r| {
             *r += 1;
-            model(&d)
+            tried(model(&d))
         });
         assert!(complete);
         assert_eq!(best.delays_s, vec![0.312, 0.33], "after {reruns} reruns");
@@ -366,7 +440,7 @@ mod tests {
         let mut reruns = 0;
         assert!(!shrink_with(&mut early, 5, Passes::All, &mut reruns, &mut |d, r| {
             *r += 1;
-            model(&d)
+            tried(model(&d))
         }));
         assert_eq!(reruns, 5);
         assert!(model(&early.delays_s).is_some() && early.delays_s.len() <= 52);
@@ -384,14 +458,14 @@ mod tests {
         let (_, f) = model(&delays).expect("misses");
         let mut best =
             FailureTrace { delays_s: delays, original_len: 40, shrink: None, replay: Some(Replay::of(&f)) };
-        let mut tried = Vec::new();
+        let mut lengths = Vec::new();
         let complete = shrink_with(&mut best, 1000, Passes::KeepLength, &mut 0, &mut |d, r| {
             *r += 1;
-            tried.push(d.len());
-            model(&d)
+            lengths.push(d.len());
+            tried(model(&d))
         });
         assert!(complete);
-        assert!(tried.iter().all(|n| *n == 40), "a candidate was shortened: {tried:?}");
+        assert!(lengths.iter().all(|n| *n == 40), "a candidate was shortened: {lengths:?}");
         let mut want = vec![0.0; 40];
         want[17] = 0.25;
         assert_eq!(best.delays_s, want);

@@ -149,6 +149,38 @@ fn a_failures_trace_replays_it_bit_for_bit_shrunk_or_not() {
     }
 }
 
+#[test]
+fn a_spent_shrink_wall_budget_starts_no_rerun_and_each_failure_says_its_line() {
+    let file = long_delays();
+    let out = out_dir("sweep-shrink-wall");
+    // A nanosecond of wall time: spent before the first rerun could start.
+    let args = [
+        "sweep",
+        &file,
+        "--runs",
+        "2",
+        "--no-plots",
+        "--out",
+        s(&out),
+        "--shrink",
+        "--shrink-wall-s",
+        "1e-9",
+    ];
+    let sweep = hilbench(&args);
+    let stderr = String::from_utf8_lossy(&sweep.stderr);
+    assert!(sweep.status.success(), "{stderr}");
+    let v = json_of(&out.join("sweep.json"));
+    assert_eq!(v["collided"], 2, "{v}");
+    assert_eq!(v["shrinking"]["reruns"], 0, "{v}");
+    for failure in v["failures"].as_array().expect("failures") {
+        assert_eq!(failure["shrink"]["complete"], false, "{failure}");
+        assert_eq!(failure["trace_delays"], failure["flown_delays"], "nothing shrunk: {failure}");
+    }
+    // Not a terminal here: the lines are printed all the same.
+    assert!(stderr.contains("stopping after") && stderr.contains("shrunk 1 of 2: run "), "{stderr}");
+    assert!(stderr.contains("shrunk 2 of 2: run ") && stderr.contains("in 0 reruns (its budget"), "{stderr}");
+}
+
 /// The variables `--shard auto` reads.
 const SCHEDULER_VARS: [&str; 7] = [
     "SLURM_ARRAY_TASK_ID",

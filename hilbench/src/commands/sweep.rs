@@ -77,6 +77,7 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
             .shrink_total_runs
             .or(table.shrink_total_runs)
             .unwrap_or(hilbench_scenario_file::sweep_table::DEFAULT_SHRINK_TOTAL_RUNS),
+        shrink_wall: args.shrink_wall_s.map(std::time::Duration::from_secs_f64),
         scenario: spec.scenario,
         table,
         batch: None,
@@ -180,5 +181,6 @@ fn identity(sweep: &Sweep, file_text: &[u8], until_bound: Option<f64>) -> Value 
         "shrink": sweep.shrink,
         "shrink_runs": sweep.shrink_runs,
         "shrink_total_runs": sweep.shrink_total_runs,
+        "shrink_wall_s": sweep.shrink_wall.map(|w| w.as_secs_f64()),
     })
 }

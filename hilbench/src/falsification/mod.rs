@@ -158,6 +158,7 @@ impl Falsification {
             mode: self.mode,
             driver: &self.driver,
             timeout: self.run_timeout,
+            deadline: None,
         }
     }
 

@@ -59,6 +59,8 @@ pub struct Sweep {
     pub shrink_runs: u64,
     /// Reruns the shrinking of all the failures may spend, shared out in run order.
     pub shrink_total_runs: u64,
+    /// Wall time the shrinking of all the failures may take.
+    pub shrink_wall: Option<Duration>,
     /// Fly these runs instead of the shard's (a batch of `--until-bound`, [`until`]).
     pub batch: Option<Range<u64>>,
     /// Where each finished run is kept as it finishes (a killed sweep can be resumed).
@@ -303,9 +305,13 @@ pub fn shrink_failures(sweep: &Sweep, result: &mut SweepResult, show: bool) -> S
         let walls: Vec<f64> = todo.iter().map(|&i| result.done[i].row.wall_s).collect();
         let run_s = walls.iter().sum::<f64>() / walls.len() as f64;
         let jobs = sweep.jobs.clamp(1, todo.len());
+        let wall = sweep
+            .shrink_wall
+            .map(|w| format!(", stopping after {}", crate::progress::duration_text(w.as_secs_f64())))
+            .unwrap_or_default();
         eprintln!(
             "shrinking {} failure(s) on {jobs} job(s): at most {planned} reruns ({} each at most, {} in all \
-             at most), about {} at {run_s:.2} s a run; Ctrl-C keeps what is shrunk so far",
+             at most), about {} at {run_s:.2} s a run{wall}; a line as each is done; Ctrl-C keeps what is shrunk so far",
             todo.len(),
             sweep.shrink_runs,
             sweep.shrink_total_runs,
@@ -314,12 +320,15 @@ pub fn shrink_failures(sweep: &Sweep, result: &mut SweepResult, show: bool) -> S
     }
     let stop = Arc::new(AtomicBool::new(false));
     watch_ctrl_c(Arc::clone(&stop), "hilbench-shrink-ctrl-c");
+    let deadline = sweep.shrink_wall.map(|w| started + w);
+    let finished = AtomicUsize::new(0);
     let next = AtomicUsize::new(0);
     let (tx, rx) = mpsc::channel::<(usize, shrink::FailureTrace)>();
     std::thread::scope(|s| {
         for _ in 0..sweep.jobs.clamp(1, todo.len().max(1)) {
             let tx = tx.clone();
-            let (next, stop, todo, budgets, done) = (&next, &stop, &todo, &budgets, &result.done);
+            let (next, stop, todo, budgets, done, finished) =
+                (&next, &stop, &todo, &budgets, &result.done, &finished);
             s.spawn(move || {
                 while !stop.load(Ordering::Relaxed) {
                     let k = next.fetch_add(1, Ordering::Relaxed);
@@ -349,11 +358,27 @@ pub fn shrink_failures(sweep: &Sweep, result: &mut SweepResult, show: bool) -> S
                         driver: &sweep.driver,
                         timeout: sweep.run_timeout,
                         stop,
+                        deadline,
                     };
                     let want = d.row.outcome.clone();
                     let fails = |f: &crate::fly::Flight| f.summary.outcome().name() == want;
                     let passes = shrink::Passes::for_outcome(&want);
+                    let from = failure.delays_s.len();
                     let shrunk = shrink::shrink(&rerun, budget, failure, passes, &fails);
+                    if show {
+                        // A line a failure, on a terminal or in a log alike.
+                        let n = finished.fetch_add(1, Ordering::Relaxed) + 1;
+                        let (reruns, complete) = shrunk.shrink.unwrap_or((0, false));
+                        eprintln!(
+                            "  shrunk {n} of {}: run {} ({}) from {from} to {} delays in {reruns} reruns{}, {} in",
+                            todo.len(),
+                            d.row.run,
+                            d.row.controller,
+                            shrunk.delays_s.len(),
+                            if complete { "" } else { " (its budget of reruns or wall time used up, or interrupted)" },
+                            crate::progress::duration_text(started.elapsed().as_secs_f64()),
+                        );
+                    }
                     if tx.send((i, shrunk)).is_err() {
                         break;
                     }
