@@ -88,9 +88,10 @@ impl FailureTrace {
     pub fn provenance(&self, replay: &str) -> Vec<String> {
         let mut lines = vec![match (self.shrink, &self.replay) {
             (Some((reruns, complete)), _) => format!(
-                "shrunk from {} to {} delays in {reruns} reruns{}",
+                "shrunk from {} delays to {} ({} not zero) in {reruns} reruns{}",
                 self.original_len,
                 self.delays_s.len(),
+                self.delays_s.iter().filter(|d| **d != 0.0).count(),
                 if complete { "" } else { " (its budget of reruns or wall time used up, or interrupted)" }
             ),
             (None, Some(_)) => "the delays the run drew up to its end".into(),
@@ -225,12 +226,17 @@ pub fn shrink(
             return Tried::Stop;
         }
         *reruns += 1;
-        let job = Job { scenario: rerun.scenario_with(delays.clone()), mode: rerun.mode };
+        // Flown with zeros after it: a candidate whose run lasts longer than the trace (smaller
+        // delays can move the failure later, and an external controller sends commands at its
+        // own rate) finds a delay for every command instead of running out, which would reject
+        // every such candidate; the kept trace is cut to what its run drew.
+        let mut padded = delays;
+        padded.resize(padded.len() + padded.len().max(MIN_PADDING), 0.0);
+        let job = Job { scenario: rerun.scenario_with(padded.clone()), mode: rerun.mode };
         match fly_one(&job, rerun.driver, rerun.timeout) {
             RunFate::Flown(f) if fails(&f) => {
-                let mut d = delays;
-                d.truncate(f.delays_needed(d.len()));
-                Tried::Fails(d, Box::new(*f))
+                padded.truncate(f.delays_needed(padded.len()));
+                Tried::Fails(padded, Box::new(*f))
             }
             _ => Tried::Passes,
         }
@@ -240,6 +246,22 @@ pub fn shrink(
     best.shrink = Some((reruns, complete));
     best
 }
+
+/// Whether trace `a` is smaller than `b`: fewer non-zero delays (a lost command counts as
+/// one), else a smaller sum of the delivered delays, else fewer delays. Zeroing, flattening and deleting each make a trace smaller, unless the run
+/// that flies it needs more delays than before.
+fn smaller(a: &[f64], b: &[f64]) -> bool {
+    let key = |t: &[f64]| {
+        let sum: f64 = t.iter().filter(|d| !delay::is_lost(**d)).sum();
+        (t.iter().filter(|d| **d != 0.0).count(), sum, t.len())
+    };
+    let (ka, kb) = (key(a), key(b));
+    ka.0 < kb.0 || (ka.0 == kb.0 && (ka.1 < kb.1 || (ka.1 == kb.1 && ka.2 < kb.2)))
+}
+
+/// The fewest zero delays a candidate is flown with after its own (it gets as many as it has,
+/// at least these).
+const MIN_PADDING: usize = 16;
 
 /// What a candidate trace's rerun gave.
 enum Tried {
@@ -263,22 +285,29 @@ fn shrink_with(
     reruns: &mut u64,
     attempt: &mut Attempt<'_>,
 ) -> bool {
-    let mut keep = |best: &mut FailureTrace, candidate: Vec<f64>, reruns: &mut u64| -> Option<bool> {
+    // A failing candidate is kept when its trace, as its run cut it, is smaller than the best
+    // ([`smaller`]; the rounding is kept whenever it still fails): a deletion that the cut
+    // grows back to the same trace is no progress, and would be tried forever.
+    let mut keep_if = |best: &mut FailureTrace, candidate: Vec<f64>, reruns: &mut u64, any: bool| {
         if *reruns >= budget {
             return None;
         }
         match attempt(candidate, reruns) {
-            Tried::Fails(delays, flown) => {
+            Tried::Fails(delays, flown) if any || smaller(&delays, &best.delays_s) => {
                 best.delays_s = delays;
                 best.replay = Some(Replay::of(&flown));
                 Some(true)
             }
-            Tried::Passes => Some(false),
+            Tried::Fails(..) | Tried::Passes => Some(false),
             Tried::Stop => None,
         }
     };
-    // Fewer bursts: zero chunks; then smaller spikes: each chunk flattened to its smallest
-    // delay. Every delay stays at its cycle.
+    let mut keep = |best: &mut FailureTrace, candidate: Vec<f64>, reruns: &mut u64| -> Option<bool> {
+        keep_if(best, candidate, reruns, false)
+    };
+    // Fewer bursts: zero chunks (a lost command becomes a delivered one); then smaller
+    // spikes: each chunk's delays flattened to its smallest (lost commands stay lost). Every
+    // delay stays at its cycle.
     for flatten in [false, true] {
         let mut size = best.delays_s.len() / 2;
         while size >= 1 {
@@ -286,13 +315,18 @@ fn shrink_with(
             while i < best.delays_s.len() {
                 let end = (i + size).min(best.delays_s.len());
                 let chunk = &best.delays_s[i..end];
-                let to = if flatten { chunk.iter().copied().fold(f64::INFINITY, f64::min) } else { 0.0 };
-                if chunk.iter().all(|d| *d == to) {
+                let delivered = || chunk.iter().copied().filter(|d| !delay::is_lost(*d));
+                let to = if flatten { delivered().fold(f64::INFINITY, f64::min) } else { 0.0 };
+                let changes = |d: &f64| !(flatten && delay::is_lost(*d)) && *d != to;
+                if !to.is_finite() || !chunk.iter().any(changes) {
                     i += size;
                     continue;
                 }
                 let mut candidate = best.delays_s.clone();
-                candidate[i..end].iter_mut().for_each(|d| *d = to);
+                candidate[i..end]
+                    .iter_mut()
+                    .filter(|d| !(flatten && delay::is_lost(**d)))
+                    .for_each(|d| *d = to);
                 match keep(best, candidate, reruns) {
                     None => return false,
                     Some(_) => i += size,
@@ -318,7 +352,7 @@ fn shrink_with(
     }
     // Round numbers: every delay to the millisecond.
     let rounded: Vec<f64> = best.delays_s.iter().map(|d| (d * 1e3).round() / 1e3).collect();
-    if rounded != best.delays_s && keep(best, rounded, reruns).is_none() {
+    if rounded != best.delays_s && keep_if(best, rounded, reruns, true).is_none() {
         return false;
     }
     true

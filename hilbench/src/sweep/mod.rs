@@ -363,18 +363,20 @@ pub fn shrink_failures(sweep: &Sweep, result: &mut SweepResult, show: bool) -> S
                     let want = d.row.outcome.clone();
                     let fails = |f: &crate::fly::Flight| f.summary.outcome().name() == want;
                     let passes = shrink::Passes::for_outcome(&want);
-                    let from = failure.delays_s.len();
+                    let nonzero = |d: &[f64]| d.iter().filter(|x| **x != 0.0).count();
+                    let (from, from_nonzero) = (failure.delays_s.len(), nonzero(&failure.delays_s));
                     let shrunk = shrink::shrink(&rerun, budget, failure, passes, &fails);
                     if show {
                         // A line a failure, on a terminal or in a log alike.
                         let n = finished.fetch_add(1, Ordering::Relaxed) + 1;
                         let (reruns, complete) = shrunk.shrink.unwrap_or((0, false));
                         eprintln!(
-                            "  shrunk {n} of {}: run {} ({}) from {from} to {} delays in {reruns} reruns{}, {} in",
+                            "  shrunk {n} of {}: run {} ({}) from {from} delays ({from_nonzero} not zero) to {} ({} not zero) in {reruns} reruns{}, {} in",
                             todo.len(),
                             d.row.run,
                             d.row.controller,
                             shrunk.delays_s.len(),
+                            nonzero(&shrunk.delays_s),
                             if complete { "" } else { " (its budget of reruns or wall time used up, or interrupted)" },
                             crate::progress::duration_text(started.elapsed().as_secs_f64()),
                         );
