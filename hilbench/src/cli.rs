@@ -368,6 +368,11 @@ pub enum TraceCommand {
         /// Draw the data with the fitted densities into DIR (PNG and SVG).
         #[arg(long, value_name = "DIR")]
         plot: Option<PathBuf>,
+        /// Widen the [[sweep.families]] ranges to hold at least a factor F either side of each
+        /// estimate (a lognormal's level e^mu too), for links like this one on a worse or
+        /// better day: the 95 % intervals alone are tiny on a long recording. 1 to 100.
+        #[arg(long, value_name = "F", value_parser = widening)]
+        widen: Option<f64>,
     },
 }
 
@@ -529,6 +534,15 @@ fn probability(s: &str) -> Result<f64, String> {
     let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a probability"))?;
     if !(v > 0.0 && v < 1.0) {
         return Err(format!("must be in (0, 1), e.g. 0.01 for 1 %, got {s}"));
+    }
+    Ok(v)
+}
+
+/// `--widen`: a factor in [1, 100].
+fn widening(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a factor"))?;
+    if !(v.is_finite() && (1.0..=linkfit::fit::MAX_WIDEN).contains(&v)) {
+        return Err(format!("must be a factor in [1, {}], got {s}", linkfit::fit::MAX_WIDEN));
     }
     Ok(v)
 }

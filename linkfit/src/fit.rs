@@ -645,7 +645,7 @@ fn pareto_intervals(n: usize, scale_s: f64, shape: f64) -> Vec<Param> {
 pub mod regime;
 
 mod tables;
-pub use tables::TableError;
+pub use tables::{MAX_WIDEN, TableError};
 
 #[cfg(test)]
 mod tests;

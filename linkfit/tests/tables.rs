@@ -84,3 +84,35 @@ fn a_recorded_irtt_trace_imports_fits_and_loads_with_its_losses_and_dwell_in_sec
         assert!(states.iter().all(|s| s.mean_dwell_s.is_some() && s.mean_dwell_messages.is_none()));
     }
 }
+
+#[test]
+fn a_widened_family_holds_a_factor_either_side_of_each_estimate_and_still_loads() {
+    let x = draws(Distribution::Lognormal { mu: -3.9, sigma: 0.3 }, 6000);
+    let options = FitOptions { kinds: vec![Kind::Lognormal], ..FitOptions::default() };
+    let report = fit(&x, &options).expect("a fit");
+    let estimate = |name: &str| {
+        report.candidates[0].params.iter().find(|p| p.name == name).map(|p| p.value).expect("a parameter")
+    };
+    let (mu, sigma) = (estimate("mu"), estimate("sigma"));
+    let range = |file: &ScenarioFile, name: &str| {
+        let family = &file.sweep.as_ref().expect("a sweep").families[0];
+        match if name == "mu" { &family.mu } else { &family.sigma } {
+            Some(Param::Range(lo, hi)) => (*lo, *hi),
+            other => panic!("{name}: {other:?}"),
+        }
+    };
+    let tight = scenario_with(&both(&report)).unwrap_or_else(|e| panic!("{e}"));
+    let (lo, hi) = range(&tight, "mu");
+    assert!(hi - lo < 0.05, "6,000 probes pin the location: [{lo}, {hi}]");
+    let sweep = report.sweep_toml_widened(2.0).expect("widened");
+    assert!(sweep.contains("widened to a factor of 2"), "{sweep}");
+    let file = scenario_with(&format!("{}\n{sweep}", report.scenario_toml().expect("scenario")))
+        .unwrap_or_else(|e| panic!("{e}"));
+    let (lo, hi) = range(&file, "mu");
+    assert!(lo <= mu - 2f64.ln() && hi >= mu + 2f64.ln(), "the level within a factor 2: [{lo}, {hi}]");
+    let (lo, hi) = range(&file, "sigma");
+    assert!(lo <= sigma / 2.0 && hi >= sigma * 2.0, "[{lo}, {hi}] around {sigma}");
+    for bad in [0.5, f64::NAN, 1e3] {
+        assert!(report.sweep_toml_widened(bad).is_err(), "{bad}");
+    }
+}

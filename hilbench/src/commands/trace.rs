@@ -88,7 +88,7 @@ pub fn trace(args: TraceArgs, opts: &Options) -> anyhow::Result<Exit> {
             }
             Ok(Exit::Success)
         }
-        TraceCommand::Fit { file, seed, json, plot } => {
+        TraceCommand::Fit { file, seed, json, plot, widen } => {
             let trace = read_trace(&file)?;
             let options = FitOptions { seed, rate_hz: trace.provenance.rate_hz, ..FitOptions::default() };
             let report = linkfit::fit(&trace.delays_s, &options)
@@ -118,7 +118,7 @@ pub fn trace(args: TraceArgs, opts: &Options) -> anyhow::Result<Exit> {
                 }
             }
             if !json {
-                println!("{}\n{}", report.scenario_toml()?, report.sweep_toml()?);
+                println!("{}\n{}", report.scenario_toml()?, report.sweep_toml_widened(widen.unwrap_or(1.0))?);
             }
             if let Some(dir) = plot {
                 let laws: Vec<(String, &linkfit::Model)> =

@@ -7,6 +7,11 @@ use toml::{Table, Value};
 
 use super::{Candidate, FitReport, Kind, Model};
 
+/// The widest widening of [`FitReport::sweep_toml_widened`]: a factor of 100 either side.
+pub const MAX_WIDEN: f64 = 100.0;
+/// The largest loss share a widened range reaches (a share must stay below 1).
+const MAX_WIDENED_LOSS: f64 = 0.5;
+
 /// Why a fit gives no table.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum TableError {
@@ -95,11 +100,31 @@ impl FitReport {
     /// their 95 % intervals, and, when the trace lost probes, whose `loss` ranges over the
     /// loss share's (Clopper–Pearson, exact).
     pub fn sweep_toml(&self) -> Result<String, TableError> {
+        self.sweep_toml_widened(1.0)
+    }
+
+    /// As [`FitReport::sweep_toml`], each range widened to hold at least a factor `widen` (at
+    /// least 1) either side of its estimate: `[v / widen, v * widen]` for a scale, shape,
+    /// sigma, dwell or loss share (the loss below 1), `mu ± ln widen` for a lognormal's
+    /// location (its level `e^mu` within the factor). The intervals alone are the estimate's
+    /// uncertainty, which a long recording makes tiny: "my link and links like it" is a
+    /// factor, e.g. 2 for a link's bad days.
+    pub fn sweep_toml_widened(&self, widen: f64) -> Result<String, TableError> {
+        if !(widen.is_finite() && (1.0..=MAX_WIDEN).contains(&widen)) {
+            return Err(TableError::Invalid(format!(
+                "the widening must be in [1, {MAX_WIDEN}], got {widen}"
+            )));
+        }
         let best = self.best_replayable().ok_or(TableError::NothingReplayable)?;
         self.delays_table(best)?;
         let range = |name: &str| -> Option<Value> {
             let p = best.params.iter().find(|p| p.name == name)?;
-            let (lo, hi) = (p.lower.min(p.value), p.upper.max(p.value));
+            let (mut lo, mut hi) = (p.lower.min(p.value), p.upper.max(p.value));
+            if name == "mu" || name.ends_with(".mu") {
+                (lo, hi) = (lo.min(p.value - widen.ln()), hi.max(p.value + widen.ln()));
+            } else {
+                (lo, hi) = (lo.min(p.value / widen), hi.max(p.value * widen));
+            }
             Some(Value::Array(vec![Value::Float(lo), Value::Float(hi)]))
         };
         let mut family = Table::new();
@@ -117,7 +142,11 @@ impl FitReport {
                         }
                     }
                     if let Some(Value::Array(r)) = range(&format!("states[{i}].mean_dwell_messages")) {
-                        let r: Vec<f64> = r.iter().filter_map(Value::as_float).map(|v| v.max(1.0)).collect();
+                        let r: Vec<f64> = r
+                            .iter()
+                            .filter_map(Value::as_float)
+                            .map(|v| v.clamp(1.0, delay::MAX_MEAN_DWELL))
+                            .collect();
                         let (key, r) = match self.dwell_in_seconds() {
                             Some(hz) => ("mean_dwell_s", r.iter().map(|v| v / hz).collect::<Vec<_>>()),
                             None => ("mean_dwell_messages", r),
@@ -140,10 +169,9 @@ impl FitReport {
         let loss = if losses > 0 {
             let share = crate::confidence::clopper_pearson(losses, self.entries as u64, 0.95)
                 .map_err(|e| TableError::Invalid(e.to_string()))?;
-            family.insert(
-                "loss".into(),
-                Value::Array(vec![Value::Float(share.lower), Value::Float(share.upper)]),
-            );
+            let lower = share.lower.min(share.rate / widen);
+            let upper = share.upper.max((share.rate * widen).min(MAX_WIDENED_LOSS)).max(share.upper);
+            family.insert("loss".into(), Value::Array(vec![Value::Float(lower), Value::Float(upper)]));
             format!(
                 "# loss: the trace lost {losses} of {} probes ({:.4}); the range is that share's 95 % interval.\n",
                 self.entries, share.rate
@@ -156,7 +184,15 @@ impl FitReport {
         let mut doc = Table::new();
         doc.insert("sweep".into(), Value::Table(sweep));
         let body = toml::to_string(&doc).map_err(|e| TableError::Toml(e.to_string()))?;
-        Ok(format!("{}# Ranges: the parameters' 95 % intervals.\n{loss}{body}", self.comment(best)))
+        let ranges = if widen > 1.0 {
+            format!(
+                "# Ranges: the parameters' 95 % intervals, widened to a factor of {widen} either side of each \
+                 estimate (a lognormal's level e^mu too).\n"
+            )
+        } else {
+            "# Ranges: the parameters' 95 % intervals.\n".to_string()
+        };
+        Ok(format!("{}{ranges}{loss}{body}", self.comment(best)))
     }
 
     /// Comment lines naming the fit and the ranking.
