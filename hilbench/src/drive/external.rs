@@ -156,6 +156,9 @@ pub async fn run_external(
             // A vehicle behind a gateway must be up and flying setpoints before its run, as
             // for the bench's own controller.
             let deadline = Instant::now() + PLANT_READY_WAIT;
+            // In the run's time mode, as the bench's own controller's plant must be.
+            let mut described = PlantClient::new(connect(addr, deadline).await?);
+            super::grpc::described_in(&mut described, addr, controller.time_mode).await?;
             super::grpc::vehicle_ready(addr, &Default::default(), deadline).await?;
             (None, addr.clone())
         }

@@ -284,6 +284,27 @@ pub(crate) async fn with_vehicle_start(
     Ok(moved)
 }
 
+/// The plant at `addr`'s description, refused unless it runs in `time_mode` (a real-time
+/// plant never advances on Step; a lockstep one never moves without it).
+pub(crate) async fn described_in(
+    plant: &mut PlantClient<tonic::transport::Channel>,
+    addr: &str,
+    time_mode: TimeMode,
+) -> anyhow::Result<pb::PlantDescription> {
+    let described = within(CALL_DEADLINE, "plant", addr, "Describe", plant.describe(pb::DescribeRequest {}))
+        .await?
+        .context("plant Describe")?;
+    let wanted = pb::TimeMode::from(time_mode);
+    if described.time_mode != wanted as i32 {
+        bail!(
+            "the plant at {addr} runs in {:?}, this run needs {:?}",
+            pb::TimeMode::try_from(described.time_mode).unwrap_or(pb::TimeMode::Unspecified),
+            wanted
+        );
+    }
+    Ok(described)
+}
+
 /// A plant that is a vehicle behind a gateway (it serves `VehicleControl`) must have its link
 /// up and fly setpoints (armed, in its external mode) before a run starts: otherwise the run
 /// would fly for its whole time limit with a vehicle that ignores it. A simulated plant (no
@@ -422,18 +443,7 @@ async fn drive(
         .ok_or_else(|| anyhow!("no plant or netem address to read the final state from"))?;
     let mut plant = PlantClient::new(connect_with(state_addr, tls, deadline).await?);
     let real_time = services.time_mode == TimeMode::RealTime;
-    let described =
-        within(CALL_DEADLINE, "plant", state_addr, "Describe", plant.describe(pb::DescribeRequest {}))
-            .await?
-            .context("plant Describe")?;
-    let wanted = pb::TimeMode::from(services.time_mode);
-    if described.time_mode != wanted as i32 {
-        bail!(
-            "the plant at {state_addr} runs in {:?}, this run needs {:?}",
-            pb::TimeMode::try_from(described.time_mode).unwrap_or(pb::TimeMode::Unspecified),
-            wanted
-        );
-    }
+    let described = described_in(&mut plant, state_addr, services.time_mode).await?;
     progress.plant = Some(described.implementation.clone());
     vehicle_ready(state_addr, tls, deadline).await?;
     let moved;

@@ -514,3 +514,25 @@ fn an_empty_controller_command_a_bad_stall_timeout_or_a_mode_beside_it_is_a_usag
         assert!(stderr.contains(named), "{args:?}: {stderr}");
     }
 }
+
+/// `--plant` with a user's controller: a plant in the other time mode is refused before the
+/// controller starts, naming both modes (a real-time plant never advances on Step).
+#[test]
+fn a_users_controller_on_a_plant_in_the_other_time_mode_is_refused_naming_both() {
+    let addr = hilbench_tests::free_loopback_address();
+    let _plant = hilbench_tests::Service::start(
+        "plant",
+        &["--listen", &addr, "--time-mode", "real-time", "--scenario", "paper-2"],
+    );
+    let out = TempDir::new("external-time-mode");
+    let file = repo("examples/python-controller/open-field.toml").display().to_string();
+    let run = Command::new(hilbench_tests::service_binary("hilbench"))
+        .args(["run", &file, "--controller-cmd", &python_controller(), "--plant", &addr, "--quiet"])
+        .args(["--no-plots", "--out", &out.path().display().to_string()])
+        .stdin(Stdio::null())
+        .output()
+        .expect("hilbench runs");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("runs in RealTime, this run needs Lockstep"), "{stderr}");
+}
