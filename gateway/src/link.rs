@@ -716,11 +716,11 @@ mod tests {
         assert_eq!(time_boot_ms(gateway.recv()), 4, "the first time");
         plain.send_to(&buf[..n], at).expect("sent");
         assert!(matches!(gateway.recv(), Some(Frame::Refused(_, Refusal::Replayed))));
-        // What the gateway sends is signed: a verifier with the key takes it.
+        // What the gateway sends is signed: a verifier with the key, opened before, takes it.
+        let mut check = mavbridge::Verifier::new(SigningKey::new([9; 32]), signing_stamp());
         gateway.answer(tap.local_addr().ok());
         gateway.send(&attitude(5)).expect("sent");
         let n = tap.recv(&mut buf).expect("received");
-        let mut check = mavbridge::Verifier::new(SigningKey::new([9; 32]), signing_stamp());
         assert_eq!(check.check(&buf[..n], 255, 191, signing_stamp()), Ok(()));
     }
 
