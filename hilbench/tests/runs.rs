@@ -105,7 +105,8 @@ fn the_run_table_prints_a_dash_for_a_clearance_or_solve_time_that_does_not_exist
     let mut run = flown.runs[0].summary.clone();
     let row = |table: &str| table.lines().nth(1).expect("a row").to_string();
     let numbers = row(&run_table(std::slice::from_ref(&run)));
-    assert!(numbers.contains(&format!("{:+.3}", run.min_clearance_m)), "{numbers}");
+    let clearance = format!("{:+}", mpc::record::Millimetres(run.min_clearance_m));
+    assert!(clearance.ends_with(" mm") && numbers.contains(&clearance), "{numbers}");
     // No obstacle in the field, and an external controller (no solve times).
     run.min_clearance_m = f64::INFINITY;
     run.solve_ms_median = f64::NAN;
