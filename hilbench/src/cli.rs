@@ -476,6 +476,10 @@ pub struct SweepArgs {
     /// file's sweep.runs); sweep.json's until_bound says which and how many runs it took.
     #[arg(long, value_name = "P", value_parser = probability, conflicts_with = "shard")]
     pub until_bound: Option<f64>,
+    /// With --until-bound: the bound must fall below P for each family the sweep draws, on
+    /// its own runs (every controller too), not for the families pooled: "my link".
+    #[arg(long, requires = "until_bound")]
+    pub per_family: bool,
     /// Print sweep.json on stdout instead of the table.
     #[arg(long)]
     pub json: bool,

@@ -471,6 +471,58 @@ fn short_delays(dir: &Path) -> String {
 }
 
 #[test]
+fn until_bound_per_family_waits_for_each_familys_own_bound() {
+    let dir = out_dir("until-bound-per-family");
+    // Two short-delay families, drawn in turn: run i flies family i mod 2.
+    let text = std::fs::read_to_string(long_delays()).expect("the file");
+    let text = text
+        .replace("[sweep]\n", "[sweep]\nfamily_choice = \"in_turn\"\n")
+        .replace(
+            "name = \"long\"\nkind = \"constant\"\ndelay_s = [0.31, 0.33]",
+            "name = \"near\"\nkind = \"constant\"\ndelay_s = [0.0, 0.02]",
+        )
+        .replace("name = \"short\"\nweight = 0.0\n", "name = \"short\"\n");
+    std::fs::create_dir_all(&dir).expect("a dir");
+    let file = dir.join("two.toml");
+    std::fs::write(&file, text).expect("write");
+    let out = dir.join("out");
+    let run = hilbench(&[
+        "sweep",
+        s(&file),
+        "--until-bound",
+        "0.3",
+        "--per-family",
+        "--jobs",
+        "2",
+        "--no-plots",
+        "--out",
+        s(&out),
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
+    // 11 runs without a failure put a family's bound below 0.3 (pooled, 11 runs in all would
+    // have done): 22 in turn, 11 of each.
+    let v = json_of(&out.join("sweep.json"));
+    assert_eq!(
+        (v["until_bound"]["stopped"].as_str(), v["until_bound"]["runs"].as_u64()),
+        (Some("below"), Some(22)),
+        "{v}"
+    );
+    for family in ["near", "short"] {
+        assert_eq!(v["families"][family]["runs"], 11, "{family}: {v}");
+        let upper = v["until_bound"]["by_family"][family]["multistage"]["upper"].as_f64().expect("a bound");
+        assert!(upper < 0.3, "{family}: {upper}");
+    }
+    assert!(
+        stderr.contains("below 30.000 % for each family") && stderr.contains("by family: near multistage"),
+        "{stderr}"
+    );
+    // Without --until-bound the flag is refused.
+    let refused = hilbench(&["sweep", s(&file), "--per-family", "--no-plots", "--out", s(&dir.join("x"))]);
+    assert_eq!(refused.status.code(), Some(2), "{refused:?}");
+}
+
+#[test]
 fn until_bound_stops_at_the_first_run_count_that_decides_whatever_the_jobs() {
     let dir = out_dir("until-bound");
     let file = short_delays(&dir);

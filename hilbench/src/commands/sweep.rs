@@ -90,7 +90,7 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
     // The output directory before the first run: a sweep that cannot write loses nothing.
     let file_text =
         std::fs::read(&args.file).with_context(|| format!("cannot read {}", args.file.display()))?;
-    let identity = identity(&sweep, &file_text, args.until_bound);
+    let identity = identity(&sweep, &file_text, args.until_bound, args.per_family);
     // --resume where no sweep was killed starts one: a scheduler's retry of a task is the same
     // command line whether the first try was killed or never started.
     let (out_dir, journal, finished) = match (args.resume, args.out.as_deref()) {
@@ -115,7 +115,7 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
     let (mut result, sweep) = match args.until_bound {
         None => (execute(&sweep, &bar, show), sweep),
         Some(bound) => {
-            let (result, runs) = until::execute_until(&sweep, bound, &bar, show)?;
+            let (result, runs) = until::execute_until(&sweep, bound, args.per_family, &bar, show)?;
             (result, Sweep { runs, ..sweep })
         }
     };
@@ -167,8 +167,8 @@ fn check_runs(sweep: &Sweep, from_flag: bool) -> anyhow::Result<()> {
 /// What makes a sweep the same sweep (`--resume` refuses another): the file's contents and
 /// every setting that changes which runs fly or what they give; not `--jobs`, not the file's
 /// path (the same file may be named from elsewhere).
-fn identity(sweep: &Sweep, file_text: &[u8], until_bound: Option<f64>) -> Value {
-    json!({
+fn identity(sweep: &Sweep, file_text: &[u8], until_bound: Option<f64>, per_family: bool) -> Value {
+    let mut identity = json!({
         "file_fnv1a64": format!("{:016x}", fnv1a64(file_text)),
         "seed": sweep.seed,
         "runs": sweep.runs,
@@ -182,5 +182,10 @@ fn identity(sweep: &Sweep, file_text: &[u8], until_bound: Option<f64>) -> Value 
         "shrink_runs": sweep.shrink_runs,
         "shrink_total_runs": sweep.shrink_total_runs,
         "shrink_wall_s": sweep.shrink_wall.map(|w| w.as_secs_f64()),
-    })
+    });
+    // Only when given, so that every other sweep's identity is as before.
+    if per_family {
+        identity["per_family"] = json!(true);
+    }
+    identity
 }

@@ -1,7 +1,9 @@
 //! `hilbench sweep --until-bound P`: runs drawn in batches (run `i` is still run `i`: the same
 //! draws as a sweep of a fixed size) until the 95 % Clopper-Pearson upper bound on the
 //! failure probability (a collision or a missed goal: `sweep.json`'s `failure_probability.any`)
-//! is below `P` for every controller, or a run fails, or the cap is reached.
+//! is below `P` for every controller, or a run fails, or the cap is reached. With
+//! `--per-family` the bound must fall below `P` for each family the sweep draws (a positive
+//! weight) on its own runs, every controller too: "my link", not the pool of links.
 //!
 //! The decision is taken on the runs in order, the first `n` of them: the sweep stops at the
 //! first `n` that decides, and the runs a batch flew past it are left out. So the same file,
@@ -57,8 +59,15 @@ pub fn check(bound: f64, cap: u64) -> anyhow::Result<u64> {
 }
 
 /// The first `n` runs of `done` (sorted by run) that decide, and why; `None`: none does.
-fn decide(done: &[Done], modes: &[String], bound: f64) -> Option<(u64, Stopped)> {
-    let mut counts = vec![0u64; modes.len()];
+/// `families`: each of these on its own (`--per-family`), else the runs pooled.
+fn decide(
+    done: &[Done],
+    modes: &[String],
+    families: Option<&[String]>,
+    bound: f64,
+) -> Option<(u64, Stopped)> {
+    let groups = families.map_or(1, <[String]>::len);
+    let mut counts = vec![0u64; modes.len() * groups];
     let mut i = 0;
     while i < done.len() {
         let run = done[i].row.run;
@@ -68,8 +77,12 @@ fn decide(done: &[Done], modes: &[String], bound: f64) -> Option<(u64, Stopped)>
             match row.outcome.as_str() {
                 "collided" | "missed" | "aborted" => failed = true,
                 "reached" => {
-                    if let Some(k) = modes.iter().position(|m| *m == row.controller) {
-                        counts[k] += 1;
+                    let family = match families {
+                        Some(f) => f.iter().position(|name| *name == row.family),
+                        None => Some(0),
+                    };
+                    if let (Some(k), Some(f)) = (modes.iter().position(|m| *m == row.controller), family) {
+                        counts[f * modes.len() + k] += 1;
                     }
                 }
                 _ => {}
@@ -94,10 +107,15 @@ fn decide(done: &[Done], modes: &[String], bound: f64) -> Option<(u64, Stopped)>
 pub fn execute_until(
     sweep: &Sweep,
     bound: f64,
+    per_family: bool,
     bar: &indicatif::ProgressBar,
     show: bool,
 ) -> anyhow::Result<(SweepResult, u64)> {
-    let need = check(bound, sweep.runs)?;
+    let drawn: Vec<String> =
+        sweep.table.families.iter().filter(|f| f.weight > 0.0).map(|f| f.name().to_string()).collect();
+    let families = per_family.then_some(drawn.as_slice());
+    // Each family needs `need` runs of its own: about that many times the families, drawn.
+    let need = check(bound, sweep.runs)? * families.map_or(1, |f| f.len().max(1) as u64);
     let modes = sweep.controllers();
     let jobs = sweep.jobs.max(1) as u64;
     let mut done: Vec<Done> = Vec::new();
@@ -115,7 +133,7 @@ pub fn execute_until(
         if r.interrupted {
             break (done.iter().map(|d| d.row.run + 1).max().unwrap_or(0), Stopped::Interrupted);
         }
-        if let Some(decided) = decide(&done, &modes, bound) {
+        if let Some(decided) = decide(&done, &modes, families, bound) {
             break decided;
         }
         if next >= sweep.runs {
@@ -131,8 +149,20 @@ pub fn execute_until(
         let rows: Vec<_> = done.iter().map(|d| &d.row).filter(|r| &r.controller == m).collect();
         by_controller.insert(m.clone(), super::stats::failure_probability(&rows)["any"].clone());
     }
+    let mut by_family = serde_json::Map::new();
+    for name in families.unwrap_or_default() {
+        let mut by = serde_json::Map::new();
+        for m in &modes {
+            let rows: Vec<_> =
+                done.iter().map(|d| &d.row).filter(|r| &r.controller == m && &r.family == name).collect();
+            by.insert(m.clone(), super::stats::failure_probability(&rows)["any"].clone());
+        }
+        by_family.insert(name.clone(), Value::Object(by));
+    }
     let until = json!({
         "bound": bound,
+        "per_family": per_family,
+        "by_family": if per_family { Value::Object(by_family) } else { Value::Null },
         "level": CONFIDENCE,
         "cap": sweep.runs,
         "runs": n,
@@ -154,10 +184,24 @@ pub fn say(until: &Value) -> String {
         .as_object()
         .map(|o| o.iter().map(|(c, p)| format!("{c} {}", pct(&p["upper"]))).collect())
         .unwrap_or_default();
-    let uppers = uppers.join(", ");
+    let mut uppers = uppers.join(", ");
+    // Per family: each family's bound, the one the rule waited for.
+    if let Some(families) = until["by_family"].as_object() {
+        let each: Vec<String> = families
+            .iter()
+            .flat_map(|(f, by)| {
+                by.as_object()
+                    .into_iter()
+                    .flatten()
+                    .map(move |(c, p)| format!("{f} {c} {}", pct(&p["upper"])))
+            })
+            .collect();
+        uppers = format!("{uppers}; by family: {}", each.join(", "));
+    }
+    let each = if until["per_family"] == true { " for each family" } else { "" };
     match until["stopped"].as_str() {
         Some("below") => format!(
-            "until-bound: after {runs} runs without a failure the failure probability is below {} (95 % upper bound: {uppers})",
+            "until-bound: after {runs} runs without a failure the failure probability is below {}{each} (95 % upper bound: {uppers})",
             pct(&until["bound"])
         ),
         Some("failure") => format!(
