@@ -182,7 +182,9 @@ async fn a_recording_through_netems_gamma_is_the_gamma_its_fit_recovers_it_and_t
     // negative and their spread tens of milliseconds.
     assert!(excess[0] > -50e-6, "a round trip shorter than its probe's delay: {} us", excess[0] * 1e6);
     assert!(floor_p50 < 2e-3, "the floor's median {} ms", floor_p50 * 1e3);
-    assert!(quantile(&excess, 0.99) < 10e-3, "the floor's p99 {} ms", quantile(&excess, 0.99) * 1e3);
+    // The floor's tail is the machine's scheduling (11.4 ms seen on a loaded 2-core VM); a
+    // pairing error would spread it over the draws' differences, tens of ms (p99 about 50 ms).
+    assert!(quantile(&excess, 0.99) < 25e-3, "the floor's p99 {} ms", quantile(&excess, 0.99) * 1e3);
 
     // (a) The recorded distribution is the process's: against the draws as they are, and
     // against the Gamma once the floor's median is taken off.

@@ -609,7 +609,9 @@ async fn a_gateway_arms_a_listening_vehicle_through_netem_with_the_plant_side_fo
     assert_eq!((udp.plant_side.as_str(), udp.refused_no_client), ("forward", 0), "{udp:?}");
     let (c2p, p2c) = (s.controller_to_plant.expect("stats"), s.plant_to_controller.expect("stats"));
     assert!(c2p.delivered > 50 && p2c.delivered > 50, "{c2p:?} {p2c:?}");
-    assert!((c2p.delay_p50_s - DELAY_S).abs() < 0.005 && p2c.delay_p99_s < 0.005, "{c2p:?} {p2c:?}");
+    // The way back has no delay: its tail is the machine's scheduling (6.6 ms seen on a loaded
+    // 2-core VM), far below the commands' 60 ms.
+    assert!((c2p.delay_p50_s - DELAY_S).abs() < 0.005 && p2c.delay_p99_s < 0.02, "{c2p:?} {p2c:?}");
     {
         let a = vehicle.autopilot();
         assert!(a.armed() && a.mode() == mavbridge::SimMode::Offboard);
