@@ -243,7 +243,9 @@ async fn a_recording_through_netems_gamma_is_the_gamma_its_fit_recovers_it_and_t
         gamma_spread * 1e3
     );
     assert!(quantile(&up, 0.5) > quantile(&down, 0.5) + 0.02, "the way out is not the slow one");
-    assert!(spread(&down) < 2e-3, "the way back spreads {} ms", spread(&down) * 1e3);
+    // The way back's spread is the floor's scheduling (2.4 ms seen on CI's loaded VM); carrying
+    // the delay, it would spread as the draws do (35.7 ms here).
+    assert!(spread(&down) < 0.2 * gamma_spread, "the way back spreads {} ms", spread(&down) * 1e3);
     assert!((spread(&up) - gamma_spread).abs() < 0.1 * gamma_spread, "the way out lost the Gamma's spread");
 }
 
