@@ -25,7 +25,7 @@ use mpc::ControllerMode;
 
 use crate::drive::Driver;
 use crate::fly::{Flight, RunFate, fly_one};
-use crate::run::Job;
+use crate::run::{Job, Verdict};
 
 /// A failure's trace, and the numbers its replay gives.
 #[derive(Debug, Clone, PartialEq)]
@@ -44,7 +44,7 @@ pub struct FailureTrace {
 /// The numbers of a replayed failure, as `summary.json` has them.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Replay {
-    pub outcome: String,
+    pub outcome: Verdict,
     pub end_reason: String,
     pub cycles: u64,
     pub min_clearance_m: f64,
@@ -56,7 +56,7 @@ impl Replay {
     pub fn of(flown: &Flight) -> Self {
         let s = &flown.summary;
         Self {
-            outcome: s.outcome().name().to_string(),
+            outcome: s.outcome().into(),
             end_reason: s.end_reason.name().to_string(),
             cycles: s.cycles,
             min_clearance_m: s.min_clearance_m,
@@ -200,9 +200,9 @@ pub enum Passes {
 }
 
 impl Passes {
-    /// The passes for a failure whose outcome is named `outcome` (`RunOutcome::name`).
-    pub fn for_outcome(outcome: &str) -> Self {
-        if outcome == mpc::RunOutcome::Missed.name() { Passes::KeepLength } else { Passes::All }
+    /// The passes for a failure of verdict `outcome`.
+    pub fn for_outcome(outcome: Verdict) -> Self {
+        if outcome == Verdict::Missed { Passes::KeepLength } else { Passes::All }
     }
 }
 

@@ -324,7 +324,7 @@ fn a_run_past_the_time_limit_is_a_failure_with_its_reason_and_the_sweep_goes_on(
         "{v}"
     );
     let rows = rows_of(&out);
-    assert!(rows.iter().all(|r| r.outcome == "timeout" && r.what.contains("time limit")), "{rows:?}");
+    assert!(rows.iter().all(|r| r.outcome.name() == "timeout" && r.what.contains("time limit")), "{rows:?}");
 }
 
 #[test]

@@ -203,23 +203,13 @@ pub struct RunSummary {
     pub collisions: Vec<CollisionSummary>,
 }
 
-/// What a run amounts to when runs are counted (a sweep's `outcome`): a collision first,
-/// whatever ended the run, then the goal; anything else missed it.
+/// What a run that flew to its end amounts to when runs are counted (the bench's verdict names
+/// it): a collision first, whatever ended the run, then the goal; anything else missed it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RunOutcome {
     Collided,
     Reached,
     Missed,
-}
-
-impl RunOutcome {
-    pub fn name(self) -> &'static str {
-        match self {
-            RunOutcome::Collided => "collided",
-            RunOutcome::Reached => "reached",
-            RunOutcome::Missed => "missed",
-        }
-    }
 }
 
 impl RunSummary {

@@ -21,7 +21,7 @@ use mpc::ControllerMode;
 
 use crate::drive::Driver;
 use crate::fly::{Flight, RunFate, fly_one, watch_ctrl_c};
-use crate::run::Job;
+use crate::run::{Job, RunErrorKind, Verdict};
 use crate::shrink::{self, FailureTrace, Rerun};
 
 /// Everything a falsification needs, flags applied.
@@ -66,8 +66,7 @@ pub struct Evaluation {
     /// stopped or that timed out (a failure of the property outright); NaN for one the bench
     /// could not fly (an error of its own: not evaluated).
     pub score: f64,
-    /// reached, collided, missed, aborted (the controller stopped the run), timeout, error.
-    pub outcome: String,
+    pub outcome: Verdict,
     /// Why a run did not finish (its error), else empty.
     pub error: String,
     pub cycles: u64,
@@ -174,7 +173,7 @@ impl Falsification {
             run,
             point: point.to_vec(),
             score: f64::NAN,
-            outcome: "error".into(),
+            outcome: Verdict::Failed(RunErrorKind::Bench),
             error: String::new(),
             cycles: 0,
             min_clearance_m: None,
@@ -197,7 +196,7 @@ impl Falsification {
             RunFate::Flown(f) => {
                 let s = &f.summary;
                 evaluation.score = self.score(&f);
-                evaluation.outcome = s.outcome().name().to_string();
+                evaluation.outcome = s.outcome().into();
                 evaluation.cycles = s.cycles;
                 evaluation.min_clearance_m = Some(s.min_clearance_m);
                 evaluation.end_time_s = Some(s.end_time_s);
@@ -206,14 +205,14 @@ impl Falsification {
             // The controller stopping the run fails the property outright; the bench's own
             // error leaves the point unevaluated.
             RunFate::Failed(e) => {
+                evaluation.outcome = Verdict::Failed(e.kind);
                 if e.is_controllers() {
-                    evaluation.outcome = "aborted".into();
                     evaluation.score = f64::NEG_INFINITY;
                 }
                 evaluation.error = e.message;
             }
             RunFate::TimedOut(limit) => {
-                evaluation.outcome = "timeout".into();
+                evaluation.outcome = Verdict::TimedOut;
                 evaluation.score = f64::NEG_INFINITY;
                 evaluation.error =
                     format!("the run took longer than the per-run time limit of {} s", limit.as_secs_f64());

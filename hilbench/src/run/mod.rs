@@ -6,6 +6,9 @@
 use mav::Scenario;
 use mpc::{ControllerMode, CycleRecord, RunSummary};
 
+mod verdict;
+pub use verdict::Verdict;
+
 /// A run to make: a scenario and the bench's controller to fly it with (an external
 /// controller, when the driver is one, replaces the controller).
 #[derive(Debug, Clone, PartialEq)]
@@ -184,7 +187,7 @@ impl RunFaults {
 
 /// Whose doing it was that a run stopped before its end: it decides what a sweep or a
 /// falsification makes of the run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum RunErrorKind {
     /// The controller stopped the run: it ended its episode with an error (a problem it could
     /// not solve), froze, went away, exited early or stopped stepping the plant. A failure of

@@ -180,6 +180,7 @@ fn from_line(line: &str) -> Result<Done, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::run::Verdict;
     use crate::shrink::Replay;
 
     fn temp(name: &str) -> PathBuf {
@@ -190,14 +191,14 @@ mod tests {
     }
 
     fn done(run: u64, failed: bool) -> Done {
-        let mut row = RunRow::of_error(run, "multistage", "gamma", "k=2", "reached", "", 0.25);
+        let mut row = RunRow::of_error(run, "multistage", "gamma", "k=2", Verdict::Reached, "", 0.25);
         row.min_clearance_m = Some(0.1 + 1e-17 * run as f64);
         let failure = failed.then(|| FailureTrace {
             delays_s: vec![0.1, 1.0 / 3.0, 0.2 + f64::EPSILON],
             original_len: 3,
             shrink: None,
             replay: Some(Replay {
-                outcome: "collided".into(),
+                outcome: Verdict::Collided,
                 end_reason: "collided".into(),
                 cycles: 7,
                 min_clearance_m: -0.012_345_678_901_234_5,
@@ -206,7 +207,7 @@ mod tests {
             }),
         });
         if failed {
-            row.outcome = "collided".into();
+            row.outcome = Verdict::Collided;
         }
         Done { row, failure }
     }

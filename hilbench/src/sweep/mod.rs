@@ -29,7 +29,7 @@ use mpc::ControllerMode;
 
 use crate::drive::Driver;
 use crate::fly::{RunFate, fly_one, watch_ctrl_c};
-use crate::run::Job;
+use crate::run::{Job, RunErrorKind, Verdict};
 use crate::shrink::{self, Rerun};
 use draw::RunPlan;
 use stats::RunRow;
@@ -195,7 +195,7 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
             }
             match result {
                 Some(d) => {
-                    if d.row.outcome != "reached" {
+                    if d.row.failed() {
                         let text = format!(
                             "  run {} {}: {} ({})",
                             d.row.run, d.row.controller, d.row.outcome, d.row.what
@@ -228,7 +228,7 @@ fn one(sweep: &Sweep, index: u64, mode: ControllerMode) -> Option<Done> {
     let plan = match sweep.plan(index) {
         Ok(plan) => plan,
         Err(e) => {
-            let row = RunRow::of_error(index, controller, "", "", "error", &e, 0.0);
+            let row = RunRow::of_error(index, controller, "", "", Verdict::Failed(RunErrorKind::Bench), &e, 0.0);
             return Some(Done { row, failure: None });
         }
     };
@@ -241,24 +241,23 @@ fn one(sweep: &Sweep, index: u64, mode: ControllerMode) -> Option<Done> {
         // The controller stopping the run is a failure of it, with its own outcome; the
         // bench's own errors are not outcomes.
         RunFate::Failed(e) => {
-            let outcome = if e.is_controllers() { "aborted" } else { "error" };
             RunRow::of_error(
                 index,
                 controller,
                 &plan.family,
                 &plan.params_text(),
-                outcome,
+                Verdict::Failed(e.kind),
                 &e.message,
                 wall_s,
             )
         }
         RunFate::TimedOut(limit) => {
             let e = format!("the run took longer than the per-run time limit of {} s", limit.as_secs_f64());
-            RunRow::of_error(index, controller, &plan.family, &plan.params_text(), "timeout", &e, wall_s)
+            RunRow::of_error(index, controller, &plan.family, &plan.params_text(), Verdict::TimedOut, &e, wall_s)
         }
     };
     let failure = match &flight {
-        _ if row.outcome == "reached" => None,
+        _ if row.outcome.is_reached() => None,
         RunFate::Flown(f) => Some(shrink::FailureTrace::unshrunk(&plan.delays_s, f)),
         _ => Some(shrink::FailureTrace::whole(&plan.delays_s)),
     };
@@ -360,9 +359,9 @@ pub fn shrink_failures(sweep: &Sweep, result: &mut SweepResult, show: bool) -> S
                         stop,
                         deadline,
                     };
-                    let want = d.row.outcome.clone();
-                    let fails = |f: &crate::fly::Flight| f.summary.outcome().name() == want;
-                    let passes = shrink::Passes::for_outcome(&want);
+                    let want = d.row.outcome;
+                    let fails = |f: &crate::fly::Flight| Verdict::from(f.summary.outcome()) == want;
+                    let passes = shrink::Passes::for_outcome(want);
                     let nonzero = |d: &[f64]| d.iter().filter(|x| **x != 0.0).count();
                     let (from, from_nonzero) = (failure.delays_s.len(), nonzero(&failure.delays_s));
                     let shrunk = shrink::shrink(&rerun, budget, failure, passes, &fails);

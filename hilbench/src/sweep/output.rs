@@ -485,7 +485,7 @@ fn check_failures_agree(listed: &[Value], rows: &[RunRow]) -> Result<(), String>
     let from_csv: std::collections::BTreeMap<(u64, &str), &str> = rows
         .iter()
         .filter(|r| r.failed())
-        .map(|r| ((r.run, r.controller.as_str()), r.outcome.as_str()))
+        .map(|r| ((r.run, r.controller.as_str()), r.outcome.name()))
         .collect();
     let mut from_json = std::collections::BTreeMap::new();
     for f in listed {

@@ -13,6 +13,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::stats::RunRow;
+use crate::run::Verdict;
 use crate::output::plots::paths::{Swatch, circle, draw_legend as draw_legend_below};
 use crate::output::plots::style::{
     BOUND, CYLINDER, PALETTE, controller_color, controller_label, draw_legend, draw_mesh, equal_axes_chart,
@@ -179,7 +180,7 @@ fn path_length<DB: DrawingBackend>(
     controllers: &[String],
 ) -> DrawResult<DB> {
     let root = root.titled("Path length of the runs that reached the goal", title_font())?;
-    let length = |r: &&RunRow| r.path_length_m.filter(|l| r.outcome == "reached" && l.is_finite());
+    let length = |r: &&RunRow| r.path_length_m.filter(|l| r.outcome.is_reached() && l.is_finite());
     let (lo, hi) = extent(rows.iter().filter_map(length), (0.0, 1.0));
     let bins = 30usize;
     let width = ((hi - lo) / bins as f64).max(1e-3);
@@ -233,7 +234,7 @@ fn failures<DB: DrawingBackend>(
     scenario: &Scenario,
 ) -> DrawResult<DB> {
     let failed: Vec<&&RunRow> = rows.iter().filter(|r| r.failed()).collect();
-    let at = |outcome: &str| -> Vec<(f64, f64)> {
+    let at = |outcome: Verdict| -> Vec<(f64, f64)> {
         failed
             .iter()
             .filter(|r| r.outcome == outcome)
@@ -241,7 +242,7 @@ fn failures<DB: DrawingBackend>(
             .map(|p| (p[0], p[1]))
             .collect()
     };
-    let (collided, missed) = (at("collided"), at("missed"));
+    let (collided, missed) = (at(Verdict::Collided), at(Verdict::Missed));
     let mut wide = Vec::new();
     if !collided.is_empty() {
         wide.push((Swatch::Triangle(BOUND), format!("first collision ({} runs)", collided.len())));
@@ -288,7 +289,7 @@ mod tests {
     use crate::sweep::stats::RunRow;
     use mpc::ControllerMode;
 
-    fn failed(run: u64, mode: ControllerMode, outcome: &str, at: [f64; 3]) -> RunRow {
+    fn failed(run: u64, mode: ControllerMode, outcome: Verdict, at: [f64; 3]) -> RunRow {
         let mut r = RunRow::of_error(run, mode.name(), "long", "", outcome, "", 0.0);
         r.fail_position_m = Some(at);
         r.min_clearance_m = Some(-0.01);
@@ -322,9 +323,9 @@ mod tests {
         register_font().expect("the font");
         let scenario = Scenario::paper_2();
         let rows = [
-            failed(0, ControllerMode::Multistage, "collided", [3.3, 1.4, 1.0]),
-            failed(1, ControllerMode::Nmpc, "missed", [3.1, 2.2, 1.0]),
-            failed(2, ControllerMode::Nmpc, "collided", [4.0, 4.0, 1.0]),
+            failed(0, ControllerMode::Multistage, Verdict::Collided, [3.3, 1.4, 1.0]),
+            failed(1, ControllerMode::Nmpc, Verdict::Missed, [3.1, 2.2, 1.0]),
+            failed(2, ControllerMode::Nmpc, Verdict::Collided, [4.0, 4.0, 1.0]),
         ];
         let refs: Vec<&RunRow> = rows.iter().collect();
         for controllers in

@@ -15,6 +15,7 @@ use serde_json::{Value, json};
 
 use super::draw::RunPlan;
 use crate::fly::Flight;
+use crate::run::{RunErrorKind, Verdict};
 
 /// One (run, controller) of a sweep: a line of `runs.csv`.
 #[derive(Debug, Clone, PartialEq)]
@@ -24,10 +25,8 @@ pub struct RunRow {
     pub family: String,
     /// The family's drawn parameters, `key=value;...`.
     pub params: String,
-    /// `reached`, `collided`, `missed` (the time limit without a collision), `aborted` (the
-    /// controller stopped the run: its own error, a freeze, an early exit), `error` (the
-    /// bench's: a trace that ran out, a service that died), `timeout`.
-    pub outcome: String,
+    /// The column `outcome`: the verdict's name.
+    pub outcome: Verdict,
     /// Some collision was with the ground.
     pub collided_ground: bool,
     pub min_clearance_m: Option<f64>,
@@ -69,15 +68,15 @@ impl RunRow {
             .copied()
             .filter(|d| !delay::is_lost(*d))
             .collect();
-        let outcome = s.outcome();
+        let outcome = Verdict::from(s.outcome());
         let first = s.collisions.first();
         let (fail_time_s, fail_position_m, what) = match outcome {
-            mpc::RunOutcome::Collided => (
+            Verdict::Collided => (
                 first.map(|c| c.time_s),
                 first.map(|c| c.position_m),
                 s.collisions.iter().map(|c| c.describe()).collect::<Vec<_>>().join("; "),
             ),
-            mpc::RunOutcome::Missed => {
+            Verdict::Missed => {
                 let p = s.final_position_m;
                 (
                     Some(s.end_time_s),
@@ -88,14 +87,14 @@ impl RunRow {
                     ),
                 )
             }
-            mpc::RunOutcome::Reached => (None, None, String::new()),
+            _ => (None, None, String::new()),
         };
         Self {
             run,
             controller: controller.to_string(),
             family: plan.family.clone(),
             params: plan.params_text(),
-            outcome: outcome.name().to_string(),
+            outcome,
             collided_ground: s.collisions.iter().any(|c| c.kind == "ground"),
             min_clearance_m: Some(s.min_clearance_m),
             path_length_m: Some(s.path_length_m),
@@ -118,13 +117,13 @@ impl RunRow {
         }
     }
 
-    /// The row of a run that did not fly to its end (`outcome` `error` or `timeout`).
+    /// The row of a run that did not fly to its end (a failed run or a time-out).
     pub fn of_error(
         run: u64,
         controller: &str,
         family: &str,
         params: &str,
-        outcome: &str,
+        outcome: Verdict,
         what: &str,
         wall_s: f64,
     ) -> Self {
@@ -133,7 +132,7 @@ impl RunRow {
             controller: controller.to_string(),
             family: family.to_string(),
             params: params.to_string(),
-            outcome: outcome.to_string(),
+            outcome,
             collided_ground: false,
             min_clearance_m: None,
             path_length_m: None,
@@ -164,7 +163,7 @@ impl RunRow {
             quote(&self.controller),
             quote(&self.family),
             quote(&self.params),
-            self.outcome.clone(),
+            self.outcome.to_string(),
             self.collided_ground.to_string(),
             n(self.min_clearance_m),
             n(self.path_length_m),
@@ -216,7 +215,7 @@ impl RunRow {
             controller: cells[1].clone(),
             family: cells[2].clone(),
             params: cells[3].clone(),
-            outcome: cells[4].clone(),
+            outcome: cells[4].parse().map_err(|e| format!("line {line}: `outcome`: {e}"))?,
             collided_ground: cells[5] == "true",
             min_clearance_m: num(6)?,
             path_length_m: num(7)?,
@@ -239,7 +238,7 @@ impl RunRow {
     }
 
     pub fn failed(&self) -> bool {
-        self.outcome != "reached"
+        !self.outcome.is_reached()
     }
 }
 
@@ -300,9 +299,9 @@ fn pct(values: &[f64], p: f64) -> Value {
 
 /// The keys of `sweep.json` over `rows` (and of each of its families).
 pub fn aggregate(rows: &[&RunRow]) -> Value {
-    let count = |outcome: &str| rows.iter().filter(|r| r.outcome == outcome).count();
+    let count = |outcome: Verdict| rows.iter().filter(|r| r.outcome == outcome).count();
     let clearance: Vec<f64> = rows.iter().filter_map(|r| r.min_clearance_m).collect();
-    let reached: Vec<&&RunRow> = rows.iter().filter(|r| r.outcome == "reached").collect();
+    let reached: Vec<&&RunRow> = rows.iter().filter(|r| r.outcome.is_reached()).collect();
     let path: Vec<f64> = reached.iter().filter_map(|r| r.path_length_m).collect();
     let time: Vec<f64> = reached.iter().filter_map(|r| r.time_to_goal_s).collect();
     let p50s: Vec<f64> = rows.iter().filter_map(|r| r.solve_ms_p50).collect();
@@ -310,13 +309,13 @@ pub fn aggregate(rows: &[&RunRow]) -> Value {
     let max = rows.iter().filter_map(|r| r.solve_ms_max).reduce(f64::max);
     json!({
         "runs": rows.len(),
-        "reached": count("reached"),
-        "collided": count("collided"),
+        "reached": count(Verdict::Reached),
+        "collided": count(Verdict::Collided),
         "collided_ground": rows.iter().filter(|r| r.collided_ground).count(),
-        "missed": count("missed"),
-        "aborted": count("aborted"),
-        "errors": count("error") + count("timeout"),
-        "timeouts": count("timeout"),
+        "missed": count(Verdict::Missed),
+        "aborted": count(Verdict::Failed(RunErrorKind::Controller)),
+        "errors": rows.iter().filter(|r| r.outcome.is_the_benchs()).count(),
+        "timeouts": count(Verdict::TimedOut),
         "best_effort_cycles": rows.iter().map(|r| r.best_effort_cycles).sum::<u64>(),
         "fallbacks": rows.iter().map(|r| r.fallbacks).sum::<u64>(),
         "min_clearance_m": { "p1": pct(&clearance, 1.0), "p5": pct(&clearance, 5.0), "p50": pct(&clearance, 50.0) },
@@ -336,12 +335,9 @@ pub const CONFIDENCE: f64 = 0.95;
 /// Clopper-Pearson interval at [`CONFIDENCE`]: `{failures, runs, rate, lower, upper, level}`,
 /// `null` without a run.
 pub fn failure_probability(rows: &[&RunRow]) -> Value {
-    let flown = rows
-        .iter()
-        .filter(|r| matches!(r.outcome.as_str(), "reached" | "collided" | "missed" | "aborted"))
-        .count();
-    let of = |failed: &dyn Fn(&str) -> bool| -> Value {
-        let failures = rows.iter().filter(|r| failed(&r.outcome)).count() as u64;
+    let flown = rows.iter().filter(|r| r.outcome.judges_the_controller()).count();
+    let of = |failed: &dyn Fn(Verdict) -> bool| -> Value {
+        let failures = rows.iter().filter(|r| failed(r.outcome)).count() as u64;
         match linkfit::clopper_pearson(failures, flown as u64, CONFIDENCE) {
             Ok(i) => json!({
                 "failures": failures,
@@ -355,10 +351,10 @@ pub fn failure_probability(rows: &[&RunRow]) -> Value {
         }
     };
     json!({
-        "collision": of(&|o| o == "collided"),
-        "missed": of(&|o| o == "missed"),
-        "aborted": of(&|o| o == "aborted"),
-        "any": of(&|o| o == "collided" || o == "missed" || o == "aborted"),
+        "collision": of(&|o| o == Verdict::Collided),
+        "missed": of(&|o| o == Verdict::Missed),
+        "aborted": of(&|o| o == Verdict::Failed(RunErrorKind::Controller)),
+        "any": of(&Verdict::fails_the_controller),
     })
 }
 
@@ -448,7 +444,7 @@ fn gaps(have: impl Iterator<Item = u64>, runs: u64) -> Vec<std::ops::Range<u64>>
 mod tests {
     use super::*;
 
-    fn row(run: u64, outcome: &str, clearance: f64) -> RunRow {
+    fn row(run: u64, outcome: Verdict, clearance: f64) -> RunRow {
         let mut r = RunRow::of_error(run, "multistage", "gamma", "shape=1.5;x=2", outcome, "", 0.25);
         r.min_clearance_m = Some(clearance);
         r.path_length_m = Some(5.0 + run as f64);
@@ -461,7 +457,7 @@ mod tests {
     #[test]
     fn merged_rows_with_runs_missing_or_repeated_or_foreign_are_refused_naming_them() {
         let modes = vec!["multistage".to_string()];
-        let rows = |runs: &[u64]| runs.iter().map(|&r| row(r, "reached", 0.5)).collect::<Vec<_>>();
+        let rows = |runs: &[u64]| runs.iter().map(|&r| row(r, Verdict::Reached, 0.5)).collect::<Vec<_>>();
         let merged = merge_rows(rows(&[3, 0, 2, 1]), &modes, 4, false).expect("every run once");
         assert_eq!(merged.iter().map(|r| r.run).collect::<Vec<_>>(), [0, 1, 2, 3]);
         let e = merge_rows(rows(&[0, 4, 5, 9]), &modes, 12, false).expect_err("runs missing");
@@ -477,7 +473,7 @@ mod tests {
     #[test]
     fn a_runs_csv_line_reads_back_to_the_bit() {
         let rows =
-            [row(0, "reached", 0.1 / 3.0), row(1, "collided", -0.02), row(2, "error", f64::MIN_POSITIVE)];
+            [row(0, Verdict::Reached, 0.1 / 3.0), row(1, Verdict::Collided, -0.02), row(2, Verdict::Failed(RunErrorKind::Bench), f64::MIN_POSITIVE)];
         let text = to_csv(&rows.iter().collect::<Vec<_>>());
         assert_eq!(text.lines().count(), 4);
         assert_eq!(from_csv(&text), Ok(rows.to_vec()));
@@ -485,9 +481,16 @@ mod tests {
     }
 
     #[test]
+    fn a_runs_csv_line_with_an_outcome_that_is_no_verdict_is_refused_naming_line_and_column() {
+        let text = to_csv(&[&row(0, Verdict::Reached, 0.5)]).replace(",reached,", ",crashed,");
+        let e = from_csv(&text).expect_err("not a verdict");
+        assert!(e.starts_with("line 2: `outcome`: \"crashed\" is not an outcome"), "{e}");
+    }
+
+    #[test]
     fn aggregates_count_outcomes_and_take_nearest_rank_percentiles() {
         let rows: Vec<RunRow> =
-            (0..100).map(|i| row(i, if i < 3 { "collided" } else { "reached" }, i as f64)).collect();
+            (0..100).map(|i| row(i, if i < 3 { Verdict::Collided } else { Verdict::Reached }, i as f64)).collect();
         let refs: Vec<&RunRow> = rows.iter().collect();
         let v = aggregate_with_families(&refs, &["gamma".to_string()]);
         assert_eq!(
@@ -513,9 +516,9 @@ mod tests {
         // 0 collisions in 1,600 runs: the exact 95 % upper end is 1 - 0.025^(1/1600)
         // (scipy's binomtest(0, 1600).proportion_ci('exact'): 0.0023028939...); errors and
         // time-outs are not runs that flew.
-        let mut rows: Vec<RunRow> = (0..1600).map(|i| row(i, "reached", 1.0)).collect();
-        rows.push(row(1600, "error", 1.0));
-        rows.push(row(1601, "timeout", 1.0));
+        let mut rows: Vec<RunRow> = (0..1600).map(|i| row(i, Verdict::Reached, 1.0)).collect();
+        rows.push(row(1600, Verdict::Failed(RunErrorKind::Bench), 1.0));
+        rows.push(row(1601, Verdict::TimedOut, 1.0));
         let refs: Vec<&RunRow> = rows.iter().collect();
         let p = failure_probability(&refs);
         assert_eq!(
@@ -535,11 +538,11 @@ mod tests {
                 row(
                     i,
                     if i < 3 {
-                        "collided"
+                        Verdict::Collided
                     } else if i == 3 {
-                        "missed"
+                        Verdict::Missed
                     } else {
-                        "reached"
+                        Verdict::Reached
                     },
                     1.0,
                 )

@@ -14,6 +14,7 @@
 use serde_json::{Value, json};
 
 use super::{Done, Sweep, SweepResult, execute, stats::CONFIDENCE};
+use crate::run::Verdict;
 
 /// The most runs `--until-bound` flies when `--runs` does not say (`P = 3e-5` needs 100,000
 /// runs without a failure).
@@ -74,9 +75,9 @@ fn decide(
         let mut failed = false;
         while i < done.len() && done[i].row.run == run {
             let row = &done[i].row;
-            match row.outcome.as_str() {
-                "collided" | "missed" | "aborted" => failed = true,
-                "reached" => {
+            match row.outcome {
+                v if v.fails_the_controller() => failed = true,
+                Verdict::Reached => {
                     let family = match families {
                         Some(f) => f.iter().position(|name| *name == row.family),
                         None => Some(0),
