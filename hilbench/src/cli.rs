@@ -162,6 +162,11 @@ pub struct FalsifyArgs {
     /// Output directory (default: runs/falsify-<unix time>).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// When --out holds this falsification, killed before it finished, fly only the runs it
+    /// lacks (the same file and flags; refused, naming what differs, when they are not);
+    /// otherwise start it as without --resume.
+    #[arg(long, requires = "out")]
+    pub resume: bool,
     /// Print falsify.json on stdout instead of the table.
     #[arg(long)]
     pub json: bool,

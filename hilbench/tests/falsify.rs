@@ -209,3 +209,83 @@ fn bad_flags_and_files_without_a_falsify_table_are_refused_before_anything_flies
         assert!(!out.join("falsify.json").exists(), "{args:?} flew");
     }
 }
+
+#[test]
+fn a_falsification_killed_mid_search_resumes_to_the_outputs_of_one_never_stopped() {
+    let file = plan_check();
+    let args = |dir: &Path| -> Vec<String> {
+        [
+            "falsify",
+            &file,
+            "--space",
+            "gamma",
+            "--budget",
+            "14",
+            "--seed",
+            "7",
+            "--jobs",
+            "2",
+            "--whole-budget",
+            "--no-shrink",
+            "--no-plots",
+            "--quiet",
+            "--out",
+            s(dir),
+        ]
+        .map(String::from)
+        .to_vec()
+    };
+    let whole = out_dir("falsify-never-stopped");
+    let run = hilbench(&args(&whole).iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(matches!(run.status.code(), Some(0 | 3)), "{}", stderr(&run));
+    // kill -9 once a few runs are in the journal (a line each as they finish).
+    let killed = out_dir("falsify-killed");
+    let journal = killed.join(".falsify-journal.jsonl");
+    let mut child =
+        std::process::Command::new(env!("CARGO_BIN_EXE_hilbench")).args(args(&killed)).spawn().expect("starts");
+    let started = std::time::Instant::now();
+    while std::fs::read_to_string(&journal).map_or(0, |t| t.lines().count()) < 4 {
+        assert!(started.elapsed().as_secs() < 120, "no runs in the journal");
+        assert!(child.try_wait().expect("wait").is_none(), "the falsification ended before it was killed");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    child.kill().expect("kill -9");
+    child.wait().expect("reaped");
+    let kept = std::fs::read_to_string(&journal).expect("the journal is kept").lines().count() - 1;
+    assert!((3..14).contains(&kept), "{kept} runs kept");
+    assert!(!killed.join("falsify.json").exists());
+    // The directory is refused to a new falsification, saying how to go on.
+    let again = hilbench(&args(&killed).iter().map(String::as_str).collect::<Vec<_>>());
+    assert_eq!(again.status.code(), Some(1), "{again:?}");
+    assert!(stderr(&again).contains("did not finish (killed)") && stderr(&again).contains("--resume"), "{again:?}");
+    // Resumed with another seed: refused, naming it; with the same flags: the runs it lacks.
+    let mut other = args(&killed);
+    let seed = other.iter().position(|a| a == "--seed").expect("--seed") + 1;
+    other[seed] = "8".into();
+    other.push("--resume".into());
+    let refused = hilbench(&other.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_eq!(refused.status.code(), Some(1), "{refused:?}");
+    assert!(stderr(&refused).contains("seed: 7 then, 8 now"), "{refused:?}");
+    let mut resume = args(&killed);
+    resume.push("--resume".into());
+    let resumed = hilbench(&resume.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_eq!(resumed.status.code(), run.status.code(), "{}", stderr(&resumed));
+    assert_eq!(
+        without_timing(json_of(&killed.join("falsify.json"))),
+        without_timing(json_of(&whole.join("falsify.json")))
+    );
+    // runs.csv without its wall-clock column; the worst run's trace as the never-stopped one's.
+    let csv = |dir: &Path| -> Vec<String> {
+        let text = std::fs::read_to_string(dir.join("runs.csv")).expect("runs.csv");
+        text.lines().map(|l| l.split(',').enumerate().filter(|(i, _)| *i != 8).map(|(_, c)| c).collect()).collect()
+    };
+    assert_eq!(csv(&killed), csv(&whole));
+    let trace = json_of(&whole.join("falsify.json"))["searches"][0]["worst_trace"]["file"].clone();
+    let trace = trace.as_str().expect("the worst run's trace file");
+    let delays = |dir: &Path| {
+        let text = std::fs::read_to_string(dir.join(trace)).expect("the trace");
+        text.lines().filter(|l| !l.starts_with('#')).map(str::to_string).collect::<Vec<_>>()
+    };
+    assert_eq!(delays(&killed), delays(&whole));
+    assert!(!journal.exists(), "the journal goes once the outputs are written");
+}

@@ -1,11 +1,15 @@
 //! `hilbench falsify FILE`: search the file's `[falsify]` spaces for a run that fails the
 //! property; falsify.json, runs.csv, the worst runs' traces, report.md.
 
+use std::sync::Arc;
+
 use anyhow::Context;
 use mav::TimeMode;
+use serde_json::{Value, json};
 
 use super::{Exit, Options};
 use crate::cli::FalsifyArgs;
+use crate::falsification::journal::Journal;
 use crate::falsification::{Falsification, execute, output};
 use crate::output::out_dir::OutDir;
 use crate::scenario_file::ScenarioFile;
@@ -80,11 +84,32 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
                 .unwrap_or(hilbench_scenario_file::sweep_table::DEFAULT_SHRINK_RUNS)
         },
         scenario: spec.scenario,
+        journal: None,
     };
     // The output directory before the first run: a search that cannot write loses nothing.
-    let out_dir = OutDir::claim_or_new(args.out.as_deref(), "falsify-", "falsify")?;
-    let dir = out_dir.path().to_path_buf();
+    let file_text =
+        std::fs::read(&args.file).with_context(|| format!("cannot read {}", args.file.display()))?;
+    let identity = identity(&falsification, &file_text);
     let show = !args.json && !opts.quiet;
+    // --resume where no falsification was killed starts one, as a sweep does.
+    let (out_dir, journal) = match (args.resume, args.out.as_deref()) {
+        (true, Some(dir)) if crate::output::out_dir::unfinished(dir) => {
+            let (out_dir, _) = OutDir::reclaim(dir, "falsify")?;
+            let journal = Journal::resume(dir, &identity)?;
+            if show {
+                eprintln!("resuming {}: {} run(s) had finished", dir.display(), journal.len());
+            }
+            (out_dir, journal)
+        }
+        (_, out) => {
+            let out_dir = OutDir::claim_or_new(out, "falsify-", "falsify")?;
+            let journal = Journal::start(out_dir.path(), &identity)?;
+            (out_dir, journal)
+        }
+    };
+    let dir = out_dir.path().to_path_buf();
+    let journal = Arc::new(journal);
+    let falsification = Falsification { journal: Some(Arc::clone(&journal)), ..falsification };
     if show {
         eprintln!(
             "falsify {}: {} space(s) x {} method(s), {} runs each at most, property {}",
@@ -108,6 +133,7 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
     };
     let result = execute(&falsification, &mut progress);
     let summary = output::write(&dir, &falsification, &result, opts.plots)?;
+    journal.finish()?;
     out_dir.finish()?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
@@ -129,4 +155,25 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
         );
     }
     Ok(if result.found() { Exit::Falsified } else { Exit::Success })
+}
+
+/// What makes a falsification the same one (`--resume` refuses another): the file's contents
+/// and every setting that changes which points fly or what they give; not `--jobs` (the same
+/// seed gives the same search whatever it), not the file's path.
+fn identity(f: &Falsification, file_text: &[u8]) -> Value {
+    json!({
+        "file_fnv1a64": format!("{:016x}", crate::sweep::fnv1a64(file_text)),
+        "seed": f.seed,
+        "spaces": f.spaces.iter().map(|s| s.name.as_str()).collect::<Vec<_>>(),
+        "methods": f.methods.iter().map(|m| m.name()).collect::<Vec<_>>(),
+        "property": f.property.name(),
+        "budget": f.budget,
+        "whole_budget": f.whole_budget,
+        "warmup": f.warmup,
+        "controller": f.mode.name(),
+        "controller_cmd": f.controller_cmd,
+        "transport": f.driver.name(),
+        "run_timeout_s": f.run_timeout.as_secs_f64(),
+        "shrink_runs": f.shrink_runs,
+    })
 }

@@ -8,6 +8,7 @@
 //! the same search, bit for bit, whatever `--jobs`**, since the points of a batch do not
 //! depend on the order its runs finish in.
 
+pub mod journal;
 pub mod output;
 
 use std::path::PathBuf;
@@ -53,6 +54,8 @@ pub struct Falsification {
     pub run_timeout: Duration,
     /// Reruns to shrink the worst run's trace (0: not shrunk).
     pub shrink_runs: u64,
+    /// Where each run goes as it finishes, and the runs of an earlier try (`--resume`).
+    pub journal: Option<Arc<journal::Journal>>,
 }
 
 /// One run of a search.
@@ -95,6 +98,8 @@ pub struct SearchRecord {
     pub worst: Option<Worst>,
     pub interrupted: bool,
     pub wall_time_s: f64,
+    /// Of `evaluations`, those taken from the journal of an earlier try (`--resume`).
+    pub resumed_runs: usize,
 }
 
 impl SearchRecord {
@@ -136,6 +141,8 @@ struct PointRun {
     delays_s: Vec<f64>,
     flight: Option<Box<Flight>>,
     interrupted: bool,
+    /// Taken from the journal of an earlier try, not flown: no delays, no flight.
+    journaled: bool,
 }
 
 impl Falsification {
@@ -184,7 +191,7 @@ impl Falsification {
             Ok(d) => d,
             Err(e) => {
                 evaluation.error = e;
-                return PointRun { evaluation, delays_s: Vec::new(), flight: None, interrupted: false };
+                return PointRun { evaluation, delays_s: Vec::new(), flight: None, interrupted: false, journaled: false };
             }
         };
         let job = Job { scenario: self.rerun(space, stop).scenario_with(delays_s.clone()), mode: self.mode };
@@ -219,7 +226,7 @@ impl Falsification {
             }
             RunFate::Interrupted => interrupted = true,
         }
-        PointRun { evaluation, delays_s, flight, interrupted }
+        PointRun { evaluation, delays_s, flight, interrupted, journaled: false }
     }
 }
 
@@ -247,9 +254,16 @@ pub fn execute(
     FalsifyResult { searches, interrupted, wall_time_s: started.elapsed().as_secs_f64() }
 }
 
-/// The worst run of a search so far: its score, run number, delays (s) and flight (none for a
-/// run the controller stopped or that timed out).
-type WorstSoFar = (f64, u64, Vec<f64>, Option<Box<Flight>>);
+/// The worst run of a search so far.
+struct WorstSoFar {
+    score: f64,
+    run: u64,
+    point: Vec<f64>,
+    delays_s: Vec<f64>,
+    /// None for a run the controller stopped or that timed out, or one taken from the journal.
+    flight: Option<Box<Flight>>,
+    journaled: bool,
+}
 
 /// One search of `space` with `method`, to its budget, its first failure or Ctrl-C; then the
 /// worst run's trace.
@@ -267,6 +281,7 @@ fn search_one(
     // controller stopped or that timed out).
     let mut worst: Option<WorstSoFar> = None;
     let mut interrupted = false;
+    let mut resumed_runs = 0;
     while !search.done() {
         if stop.load(Ordering::Relaxed) {
             interrupted = true;
@@ -279,17 +294,32 @@ fn search_one(
             if stop.load(Ordering::Relaxed) {
                 return None;
             }
-            Some(f.fly_point(space, *run, point, stop))
+            if let Some(evaluation) = f.journal.as_ref().and_then(|j| j.finished(&space.name, method, *run, point)) {
+                let p = PointRun { evaluation, delays_s: Vec::new(), flight: None, interrupted: false, journaled: true };
+                return Some(p);
+            }
+            let p = f.fly_point(space, *run, point, stop);
+            if let (Some(journal), false) = (&f.journal, p.interrupted) {
+                journal.record(&space.name, method, &p.evaluation);
+            }
+            Some(p)
         });
         let cut = flown.iter().any(|p| p.as_ref().is_none_or(|p| p.interrupted));
         let mut scores = Vec::with_capacity(flown.len());
         for p in flown.into_iter().flatten().filter(|p| !p.interrupted) {
             let score = p.evaluation.score;
             scores.push(score);
-            if (p.flight.is_some() || score == f64::NEG_INFINITY)
-                && worst.as_ref().is_none_or(|(s, ..)| score < *s)
-            {
-                worst = Some((score, p.evaluation.run, p.delays_s, p.flight));
+            resumed_runs += usize::from(p.journaled);
+            let flew = p.flight.is_some() || score == f64::NEG_INFINITY || (p.journaled && !score.is_nan());
+            if flew && worst.as_ref().is_none_or(|w| score < w.score) {
+                worst = Some(WorstSoFar {
+                    score,
+                    run: p.evaluation.run,
+                    point: p.evaluation.point.clone(),
+                    delays_s: p.delays_s,
+                    flight: p.flight,
+                    journaled: p.journaled,
+                });
             }
             evaluations.push(p.evaluation);
         }
@@ -300,7 +330,18 @@ fn search_one(
         }
         progress(&space.name, method, search.tell(&scores));
     }
-    let worst = worst.map(|(score, run, delays_s, flight)| {
+    let worst = worst.map(|w| {
+        let WorstSoFar { score, run, mut delays_s, mut flight, .. } = w;
+        if w.journaled {
+            // Flown by an earlier try: its delays again, and (lockstep: the same flight) its
+            // flight for the trace, unless the controller stopped it or it timed out.
+            if score.is_finite() {
+                let again = f.fly_point(space, run, &w.point, stop);
+                (delays_s, flight) = (again.delays_s, again.flight);
+            } else {
+                delays_s = space.delays(&w.point, &f.scenario).unwrap_or_default();
+            }
+        }
         let trace = match flight {
             Some(flight) if score < 0.0 && f.shrink_runs > 0 => {
                 let fails = |flight: &Flight| f.score(flight) < 0.0;
@@ -322,5 +363,6 @@ fn search_one(
         worst,
         interrupted,
         wall_time_s: started.elapsed().as_secs_f64(),
+        resumed_runs,
     }
 }

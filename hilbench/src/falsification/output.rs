@@ -120,6 +120,7 @@ pub fn falsify_json(f: &Falsification, result: &FalsifyResult, dir: &Path) -> Va
             "wall_time_s": result.wall_time_s,
             "runs": runs,
             "runs_per_s": runs as f64 / result.wall_time_s.max(1e-9),
+            "resumed_runs": result.searches.iter().map(|s| s.resumed_runs).sum::<usize>(),
             "jobs": f.jobs,
         },
     })

@@ -6,6 +6,7 @@
 
 pub mod cycle_log;
 pub mod foxglove;
+pub mod journal;
 pub mod out_dir;
 pub mod paper;
 pub mod plots;

@@ -8,8 +8,9 @@
 //! naming what is there, and a refusal costs nothing. The claim is a marker file,
 //! [`IN_PROGRESS`], created exclusively and locked (`flock`) while the command runs; when the
 //! outputs are complete it gives way to the list of outputs. A marker left behind is a command
-//! that was killed (the lock went with its process): `hilbench sweep --resume` takes such a
-//! directory back and flies the runs it lacks; other commands refuse it, saying so.
+//! that was killed (the lock went with its process): `hilbench sweep --resume` and `hilbench
+//! falsify --resume` take such a directory back and fly the runs it lacks; other commands
+//! refuse it, saying so.
 
 use std::fs::File;
 use std::io::Write;
@@ -256,10 +257,11 @@ fn in_progress(dir: &Path) -> anyhow::Error {
             c.pid
         ),
         (_, true) => anyhow::anyhow!("--out {}: another hilbench is writing into it", dir.display()),
-        (Some(c), false) if c.command == "sweep" => anyhow::anyhow!(
-            "--out {}: holds the outputs of a `hilbench sweep` that did not finish (killed): give the same \
+        (Some(c), false) if c.command == "sweep" || c.command == "falsify" => anyhow::anyhow!(
+            "--out {}: holds the outputs of a `hilbench {}` that did not finish (killed): give the same \
              command with --resume to fly the runs it lacks, or give another --out",
-            dir.display()
+            dir.display(),
+            c.command
         ),
         (c, false) => anyhow::anyhow!(
             "--out {}: holds the outputs of a `hilbench {}` that did not finish (killed); remove it or give \

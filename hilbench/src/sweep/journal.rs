@@ -21,6 +21,7 @@ use serde_json::{Value, json};
 
 use super::Done;
 use super::stats::{self, RunRow};
+use crate::output::journal::JournalFile;
 use crate::shrink::FailureTrace;
 
 /// The journal's file name in the sweep's directory (removed when the sweep is written).
@@ -33,7 +34,8 @@ pub type Finished = BTreeMap<(u64, String), Done>;
 #[derive(Debug)]
 pub struct Journal {
     dir: PathBuf,
-    files: Mutex<(File, File)>,
+    journal: JournalFile,
+    runs_csv: Mutex<File>,
     /// A write failed (said once): from then on a kill loses the runs since.
     failed: AtomicBool,
 }
@@ -42,51 +44,23 @@ impl Journal {
     /// Starts the journal of a new sweep in `dir` (claimed, empty): the identity, and
     /// `runs.csv`'s header.
     pub fn start(dir: &Path, identity: &Value) -> anyhow::Result<Self> {
-        let mut journal = create(&dir.join(JOURNAL))?;
-        writeln!(journal, "{}", serde_json::to_string(identity)?)?;
+        let journal = JournalFile::start(&dir.join(JOURNAL), identity)?;
         let mut runs_csv = create(&dir.join("runs.csv"))?;
         writeln!(runs_csv, "{}", stats::CSV_HEADER)?;
-        Ok(Self {
-            dir: dir.to_path_buf(),
-            files: Mutex::new((journal, runs_csv)),
-            failed: AtomicBool::new(false),
-        })
+        Ok(Self { dir: dir.to_path_buf(), journal, runs_csv: Mutex::new(runs_csv), failed: AtomicBool::new(false) })
     }
 
     /// Reopens the journal a killed sweep left in `dir`: refused when `identity` is not the
     /// one it was started with. Returns it with the runs it holds; `runs.csv` is written anew
     /// from them (a line cut by the kill is dropped from both).
     pub fn resume(dir: &Path, identity: &Value) -> anyhow::Result<(Self, Finished)> {
-        let path = dir.join(JOURNAL);
-        let text = std::fs::read_to_string(&path).with_context(|| {
-            format!("--resume: {} has no journal of a sweep ({})", dir.display(), path.display())
-        })?;
-        let mut lines = text.split_inclusive('\n');
-        let first = lines.next().unwrap_or_default();
-        let before: Value = serde_json::from_str(first.trim_end())
-            .with_context(|| format!("{}: line 1 is not a sweep's identity", path.display()))?;
-        let differ = differences(&before, identity);
-        anyhow::ensure!(
-            differ.is_empty(),
-            "--resume: this is not the sweep {} was started with: {}",
-            dir.display(),
-            differ.join("; ")
-        );
+        let (journal, lines) = JournalFile::resume(&dir.join(JOURNAL), identity, "sweep")?;
         let mut finished = Finished::new();
-        let mut kept = first.len();
-        for (k, line) in lines.enumerate() {
-            // The last line may have been cut by the kill: it has no newline, and goes.
-            if !line.ends_with('\n') {
-                break;
-            }
-            let done = from_line(line.trim_end())
-                .map_err(|e| anyhow::anyhow!("{}: line {}: {e}", path.display(), k + 2))?;
+        for (k, line) in lines {
+            let done = from_line(&line)
+                .map_err(|e| anyhow::anyhow!("{}: line {k}: {e}", journal.path().display()))?;
             finished.insert((done.row.run, done.row.controller.clone()), done);
-            kept += line.len();
         }
-        let journal = File::options().write(true).open(&path)?;
-        journal.set_len(kept as u64)?;
-        let journal = File::options().append(true).open(&path)?;
         let rows: Vec<&RunRow> = finished.values().map(|d| &d.row).collect();
         let runs_csv_path = dir.join("runs.csv");
         std::fs::write(&runs_csv_path, stats::to_csv(&rows))
@@ -94,7 +68,8 @@ impl Journal {
         let runs_csv = File::options().append(true).open(&runs_csv_path)?;
         let journal = Self {
             dir: dir.to_path_buf(),
-            files: Mutex::new((journal, runs_csv)),
+            journal,
+            runs_csv: Mutex::new(runs_csv),
             failed: AtomicBool::new(false),
         };
         Ok((journal, finished))
@@ -103,10 +78,10 @@ impl Journal {
     /// Appends a finished run (its journal line, then its `runs.csv` line). A failure to
     /// write is said once on stderr; the sweep goes on.
     pub fn record(&self, done: &Done) {
-        let line = to_line(done);
-        let mut files = self.files.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-        let (journal, runs_csv) = &mut *files;
-        let written = writeln!(journal, "{line}").and_then(|()| writeln!(runs_csv, "{}", done.row.to_csv()));
+        let written = self.journal.append(&to_line(done)).and_then(|()| {
+            let mut runs_csv = self.runs_csv.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            writeln!(runs_csv, "{}", done.row.to_csv())
+        });
         if let Err(e) = written
             && !self.failed.swap(true, Ordering::Relaxed)
         {
@@ -120,31 +95,12 @@ impl Journal {
 
     /// The sweep's outputs are written: the journal goes.
     pub fn finish(&self) -> anyhow::Result<()> {
-        let path = self.dir.join(JOURNAL);
-        std::fs::remove_file(&path).with_context(|| format!("cannot remove {}", path.display()))
+        self.journal.finish()
     }
 }
 
 fn create(path: &Path) -> anyhow::Result<File> {
     File::create(path).with_context(|| format!("cannot write {}", path.display()))
-}
-
-/// The keys of `identity` whose values differ in `before`, as `key: before vs now`.
-fn differences(before: &Value, identity: &Value) -> Vec<String> {
-    let (Some(a), Some(b)) = (before.as_object(), identity.as_object()) else {
-        return vec!["the journal's identity is not an object".into()];
-    };
-    let mut keys: Vec<&String> = a.keys().chain(b.keys()).collect();
-    keys.sort();
-    keys.dedup();
-    keys.into_iter()
-        .filter(|k| a.get(*k) != b.get(*k))
-        .map(|k| format!("{k}: {} then, {} now", show(a.get(k)), show(b.get(k))))
-        .collect()
-}
-
-fn show(v: Option<&Value>) -> String {
-    v.map_or_else(|| "none".to_string(), Value::to_string)
 }
 
 /// A finished run as a journal line: its `runs.csv` line, and its failure trace (delays to
