@@ -20,7 +20,7 @@ struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
     #[command(flatten)]
-    server: hilbench_svc::tls::ServerArgs,
+    server: hilbench_svc::ServerArgs,
     /// Plant API endpoint, HOST:PORT: a plant, netem, or a vehicle gateway (netem's `--plant`
     /// names the same kind of endpoint).
     #[arg(long, default_value = "127.0.0.1:50052")]

@@ -309,7 +309,7 @@ enum LoopError {
     Timeout { call: &'static str, after: Duration },
     // The chain: tonic's transport error says only "transport error"; its sources say why
     // (refused, a TLS handshake failure, a certificate for another name).
-    #[error("connect: {}", hilbench_svc::tls::error_chain(.0))]
+    #[error("connect: {}", hilbench_svc::error_chain(.0))]
     Connect(#[from] tonic::transport::Error),
     #[error("{0}")]
     Bad(String),

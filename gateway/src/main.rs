@@ -12,7 +12,7 @@ use gateway::GatewayConfig;
 #[command(mut_arg("listen", |a| a.default_value("127.0.0.1:50054").value_name("HOST:PORT").required(false).help("Address of the Plant and VehicleControl APIs, HOST:PORT.")))]
 struct Args {
     #[command(flatten)]
-    server: hilbench_svc::tls::ServerArgs,
+    server: hilbench_svc::ServerArgs,
     /// The vehicle's link: udpin:HOST:PORT (listen; PX4 SITL's offboard link is
     /// udpin:0.0.0.0:14540), udpout:HOST:PORT, or serial:DEVICE:BAUD.
     #[arg(long, default_value = "udpin:0.0.0.0:14540")]

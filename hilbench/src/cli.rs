@@ -4,14 +4,9 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use clap::builder::PossibleValuesParser;
 use clap::{Parser, Subcommand, ValueEnum};
-use hilbench_svc::tls::TlsFiles;
 use mav::{ControllerMode, Scenario, TimeMode};
-
-use crate::drive::services::{BenchTls, Endpoints};
-use crate::sweep::shard::ShardArg;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -441,7 +436,7 @@ pub struct SweepArgs {
     /// directories with `hilbench sweep-merge`. `auto`: the shard of a Slurm array task
     /// (SLURM_ARRAY_TASK_ID, SLURM_ARRAY_TASK_COUNT or _MIN/_MAX) or of a Kubernetes Indexed
     /// Job's pod (JOB_COMPLETION_INDEX, with HILBENCH_SHARD_COUNT or `auto/K`).
-    #[arg(long, value_name = "I/K|auto|auto/K", value_parser = crate::sweep::shard::parse)]
+    #[arg(long, value_name = "I/K|auto|auto/K", value_parser = shard_arg)]
     pub shard: Option<ShardArg>,
     /// Fly each run over the services (plant, netem, controller on loopback) instead of in
     /// process: the same numbers, slower.
@@ -565,6 +560,40 @@ fn rate_hz(s: &str) -> Result<f64, String> {
     Ok(v)
 }
 
+/// What `--shard` says.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ShardArg {
+    /// `I/K`: the I-th (from 0) of K slices.
+    Slice { index: u64, count: u64 },
+    /// `auto`, or `auto/K` (K shards expected, or given where the environment has no count).
+    Auto { count: Option<u64> },
+}
+
+/// `--shard I/K`, `--shard auto` or `--shard auto/K`.
+pub fn shard_arg(text: &str) -> Result<ShardArg, String> {
+    let (i, k) = match text.split_once('/') {
+        Some((i, k)) => (i.trim(), Some(k.trim())),
+        None => (text.trim(), None),
+    };
+    let count = |k: &str| -> Result<u64, String> {
+        match k.parse::<u64>() {
+            Ok(0) => Err("K must be at least 1".to_string()),
+            Ok(k) => Ok(k),
+            Err(_) => Err(format!("{k:?} is not a number of shards")),
+        }
+    };
+    if i == "auto" {
+        return Ok(ShardArg::Auto { count: k.map(count).transpose()? });
+    }
+    let k = k.ok_or("expected I/K (e.g. 0/4), auto or auto/K")?;
+    let i: u64 = i.parse().map_err(|_| format!("{i:?} is not a shard number"))?;
+    let k = count(k)?;
+    if i >= k {
+        return Err(format!("shard {i} of {k}: I must be below K (shards 0 to K-1)"));
+    }
+    Ok(ShardArg::Slice { index: i, count: k })
+}
+
 /// `hilbench`'s TLS flags: a directory made by `hilbench certs`, or the files one by one.
 #[derive(Debug, Clone, Default, clap::Args)]
 pub struct TlsArgs {
@@ -586,14 +615,6 @@ impl TlsArgs {
             || self.identity.tls_cert.is_some()
             || self.identity.tls_key.is_some()
             || self.trust.tls_ca.is_some()
-    }
-
-    /// Reads and checks the files (errors name the flag).
-    pub fn load(&self) -> anyhow::Result<BenchTls> {
-        match &self.tls_dir {
-            Some(dir) => BenchTls::from_dir(dir).with_context(|| format!("--tls-dir {}", dir.display())),
-            None => BenchTls::shared(&TlsFiles::client(&self.identity, &self.trust)),
-        }
     }
 }
 
@@ -628,19 +649,6 @@ impl EndpointArgs {
     /// Whether any service was given.
     pub fn given(&self) -> bool {
         self.plant.is_some() || self.netem.is_some() || self.controller.is_some()
-    }
-
-    pub fn endpoints(self, time_mode: TimeMode) -> Endpoints {
-        Endpoints {
-            plant: self.plant,
-            netem: self.netem,
-            controller: self.controller,
-            time_mode,
-            keep_netem_profile: self.keep_netem_profile,
-            live: None,
-            tls: Default::default(),
-            start_from_vehicle: self.start_from_vehicle,
-        }
     }
 }
 

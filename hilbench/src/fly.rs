@@ -274,13 +274,13 @@ async fn fly(
 ) -> Result<FinishedRun, (RunError, Option<FinishedRun>)> {
     let name = &job.scenario.name;
     let failed = |e: tokio::task::JoinError| format!("the run {}", hilbench_svc::task_failure(e));
-    match driver {
-        Driver::Services(endpoints) => {
-            let what = format!("{name} with {} over gRPC", job.mode.name());
-            let (task_job, endpoints) = (job.clone(), endpoints.clone());
+    match (driver, &job.controller) {
+        (Driver::Services(endpoints), &Controller::Bench(mode)) => {
+            let what = format!("{name} with {} over gRPC", mode.name());
+            let (scenario, endpoints) = (job.scenario.clone(), endpoints.clone());
             let task = tokio::spawn(async move {
                 let settings = grpc::GrpcSettings { cancel: Some(cancel), ..grpc::GrpcSettings::default() };
-                grpc::run_against(&task_job.scenario, task_job.mode, &settings, &endpoints).await
+                grpc::run_against(&scenario, mode, &settings, &endpoints).await
             });
             settle(job, &what, task.await.map_err(failed))
         }

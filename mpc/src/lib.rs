@@ -22,6 +22,7 @@ pub mod command {
 }
 pub mod cycle;
 pub mod delays;
+pub mod end;
 pub mod episode;
 pub mod error;
 pub mod fail_safe;
@@ -38,7 +39,8 @@ pub use command::{braking_command, sanitize_command};
 pub use cycle::{CycleController, CycleOutcome};
 pub use cycle::{FaultInjection, PanocFault};
 pub use delays::{DelayWindow, GammaParams, ScenarioWeights, WeightSettings, WeightSource};
-pub use episode::{CycleOutput, CycleTiming, Episode, EpisodeSettings, RunEnd};
+pub use end::RunEnd;
+pub use episode::{CycleOutput, CycleTiming, Episode, EpisodeSettings};
 pub use error::MpcError;
 pub use fail_safe::{BrakingCheck, Envelope, FailSafe, InFlight};
 pub use problem::{

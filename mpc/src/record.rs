@@ -11,8 +11,7 @@ use std::collections::BTreeMap;
 use mav::{CollisionKind, PlantSample, ns_to_s};
 
 use crate::cycle::CycleOutcome;
-use crate::episode::RunEnd;
-use crate::problem::ControllerMode;
+use crate::end::RunEnd;
 use crate::safety::Decision;
 use crate::solver::{SolveReport, SolveStatus};
 
@@ -157,7 +156,7 @@ pub struct RunSummary {
     pub reached: bool,
     pub collided: bool,
     /// Why the run ended (`summary.json`'s `end_reason`): decided once, by
-    /// [`crate::episode::finish_at`] or the driver's error.
+    /// [`crate::end::finish_at`] or the driver's error.
     pub end_reason: RunEnd,
     pub time_to_goal_s: Option<f64>,
     pub end_time_s: f64,

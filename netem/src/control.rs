@@ -182,7 +182,7 @@ impl pb::netem_control_server::NetemControl for Control {
 }
 
 /// The UDP proxy's part of `NetemStats`.
-fn udp_stats(p: &crate::udp::Peers) -> pb::UdpStats {
+fn udp_stats(p: &crate::peers::Peers) -> pb::UdpStats {
     pb::UdpStats {
         listen_address: p.listen.to_string(),
         forward_address: p.forward.to_string(),

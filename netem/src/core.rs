@@ -95,7 +95,7 @@ pub struct Inner {
     /// Records `StreamDeliveries` readers missed because they fell behind, summed over readers.
     pub deliveries_lagged: u64,
     /// The UDP proxy's peers and refusals (`None` in gRPC mode).
-    pub udp: Option<crate::udp::Peers>,
+    pub udp: Option<crate::peers::Peers>,
     /// Lockstep: the plant time each command was drawn at, since the plant's last reset
     /// through netem (`NetemControl.CommandsSentBefore`).
     pub command_times: crate::command_times::CommandTimes,

@@ -24,6 +24,7 @@ pub mod clock;
 pub mod command_times;
 pub mod control;
 mod core;
+pub mod peers;
 pub mod proxy;
 pub mod release;
 pub mod udp;

@@ -23,7 +23,7 @@ enum SideArg {
 #[command(mut_arg("listen", |a| a.default_value("127.0.0.1:50052").value_name("HOST:PORT").required(false).help("Address to listen on, HOST:PORT.")))]
 struct Args {
     #[command(flatten)]
-    server: hilbench_svc::tls::ServerArgs,
+    server: hilbench_svc::ServerArgs,
     /// The Plant API behind netem, HOST:PORT: a plant or a vehicle gateway (the controller's
     /// `--plant` names the same kind of endpoint; `--upstream` is an alias).
     #[arg(long, visible_alias = "upstream", default_value = "127.0.0.1:50051")]

@@ -19,7 +19,7 @@ enum WatchdogArg {
 #[command(mut_arg("listen", |a| a.default_value("127.0.0.1:50051").value_name("HOST:PORT").required(false).help("Address of the Plant API, HOST:PORT.")))]
 struct Args {
     #[command(flatten)]
-    server: hilbench_svc::tls::ServerArgs,
+    server: hilbench_svc::ServerArgs,
     /// Scenario loaded at start: a built-in name (paper-1, paper-2, paper-3) or a scenario file
     /// (as `hilbench run` takes). A controller resets the plant to its own scenario when an
     /// episode starts (unless it runs with `--no-reset`).

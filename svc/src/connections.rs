@@ -408,7 +408,7 @@ impl<IO: AsyncRead + AsyncWrite + Unpin + Send + 'static> Incoming<IO> {
                 Ok(Err(e)) => {
                     pending.finish();
                     ConnectionStats::bump(&shared.stats.tls_refused);
-                    shared.log.warn("TLS handshake refused", peer, &crate::tls::error_chain(&e));
+                    shared.log.warn("TLS handshake refused", peer, &crate::error_chain(&e));
                     None
                 }
                 Err(_) => {

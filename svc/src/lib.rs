@@ -165,6 +165,26 @@ impl GrpcServer {
     }
 }
 
+/// A server's address and TLS flags, flattened into each service's `main` (its default
+/// address and help set there with `mut_arg("listen", ..)`).
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct ServerArgs {
+    /// Address to listen on, HOST:PORT.
+    #[arg(long)]
+    pub listen: String,
+    #[command(flatten)]
+    pub tls: tls::ServeTlsArgs,
+    #[command(flatten)]
+    pub connections: connections::ConnectionArgs,
+}
+
+impl ServerArgs {
+    /// Binds `--listen` ([`bind`]).
+    pub async fn bind(&self) -> Result<tokio::net::TcpListener, BindError> {
+        bind(&self.listen).await
+    }
+}
+
 /// Why a service's `--listen` address could not be bound.
 #[derive(Debug, thiserror::Error)]
 #[error("--listen {address}: cannot listen: {source}")]
@@ -178,6 +198,19 @@ pub async fn bind(address: &str) -> Result<tokio::net::TcpListener, BindError> {
     tokio::net::TcpListener::bind(address)
         .await
         .map_err(|source| BindError { address: address.to_string(), source })
+}
+
+/// `e: its source: its source's source ...` (tonic's transport errors say "transport error"
+/// and keep the reason in their sources).
+pub fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut text = e.to_string();
+    let mut source = e.source();
+    while let Some(s) = source {
+        text.push_str(": ");
+        text.push_str(&s.to_string());
+        source = s.source();
+    }
+    text
 }
 
 /// What a panic said (its `&str` or `String` payload).

@@ -21,6 +21,8 @@ use tokio_rustls::rustls::server::WebPkiClientVerifier;
 use tokio_rustls::rustls::{RootCertStore, ServerConfig};
 use tonic::transport::{Certificate, ClientTlsConfig, Endpoint, Identity};
 
+use crate::error_chain;
+
 /// This process's identity: served by a server, presented by a client to servers that ask for
 /// a certificate (`--tls-client-ca`).
 #[derive(Debug, Clone, Default, clap::Args)]
@@ -43,26 +45,6 @@ pub struct ServeTlsArgs {
     /// one, or with one from another CA, are refused at the handshake. Needs --tls-cert.
     #[arg(long, value_name = "PEM")]
     pub tls_client_ca: Option<PathBuf>,
-}
-
-/// A server's address and TLS flags, flattened into each service's `main` (its default
-/// address and help set there with `mut_arg("listen", ..)`).
-#[derive(Debug, Clone, Default, clap::Args)]
-pub struct ServerArgs {
-    /// Address to listen on, HOST:PORT.
-    #[arg(long)]
-    pub listen: String,
-    #[command(flatten)]
-    pub tls: ServeTlsArgs,
-    #[command(flatten)]
-    pub connections: crate::connections::ConnectionArgs,
-}
-
-impl ServerArgs {
-    /// Binds `--listen` ([`crate::bind`]).
-    pub async fn bind(&self) -> Result<tokio::net::TcpListener, crate::BindError> {
-        crate::bind(&self.listen).await
-    }
 }
 
 /// A client's trust: the CA the servers' certificates must chain to.
@@ -304,19 +286,6 @@ pub fn client_common_name<T>(request: &tonic::Request<T>) -> Result<String, &'st
     name.as_str().map(str::to_owned).map_err(|_| "a certificate whose common name is not text")
 }
 
-/// `e: its source: its source's source ...` (tonic's transport errors say "transport error"
-/// and keep the reason in their sources).
-pub fn error_chain(e: &dyn std::error::Error) -> String {
-    let mut text = e.to_string();
-    let mut source = e.source();
-    while let Some(s) = source {
-        text.push_str(": ");
-        text.push_str(&s.to_string());
-        source = s.source();
-    }
-    text
-}
-
 /// Whether `e` is a TLS refusal (a certificate not trusted or for another name, a handshake
 /// the peer refused) rather than a server not listening yet: retrying the connection does not
 /// help. tokio-rustls reports these as `InvalidData` I/O errors, somewhere in tonic's chain.
@@ -471,7 +440,7 @@ mod tests {
         #[command(mut_arg("listen", |a| a.default_value("127.0.0.1:50051").required(false)))]
         struct Cli {
             #[command(flatten)]
-            server: ServerArgs,
+            server: crate::ServerArgs,
         }
         let plain = Cli::try_parse_from(["plant"]).expect("parses");
         assert_eq!(plain.server.listen, "127.0.0.1:50051");

@@ -55,7 +55,7 @@ async fn main() -> anyhow::Result<()> {
         match endpoint.connect().await {
             Ok(channel) => break VehicleControlClient::new(channel),
             Err(e) if tokio::time::Instant::now() >= deadline => {
-                let why = hilbench_svc::tls::error_chain(&e);
+                let why = hilbench_svc::error_chain(&e);
                 anyhow::bail!("cannot reach the gateway at {}: {why}", args.gateway)
             }
             Err(_) => tokio::time::sleep(Duration::from_millis(200)).await,

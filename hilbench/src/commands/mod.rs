@@ -129,7 +129,7 @@ fn lockstep_driver(
             anyhow::bail!("the TLS flags need --grpc (a {what} flies in process otherwise)")
         }
         None if grpc => Driver::Services(crate::drive::services::Endpoints {
-            tls: tls.load()?.into(),
+            tls: load_tls(tls)?.into(),
             ..Default::default()
         }),
         None => Driver::InProcess,
@@ -144,4 +144,29 @@ fn jobs_or_cores(jobs: Option<u64>) -> usize {
 /// The exit of a command whose runs all finished.
 fn exit_of(batch: &Batch) -> Exit {
     if batch.any_collided() { Exit::Collision } else { Exit::Success }
+}
+
+/// The TLS set-up of `hilbench`'s flags: the files read and checked (errors name the flag).
+fn load_tls(args: &crate::cli::TlsArgs) -> anyhow::Result<crate::drive::services::BenchTls> {
+    use crate::drive::services::BenchTls;
+    use anyhow::Context;
+    match &args.tls_dir {
+        Some(dir) => BenchTls::from_dir(dir).with_context(|| format!("--tls-dir {}", dir.display())),
+        None => BenchTls::shared(&hilbench_svc::tls::TlsFiles::client(&args.identity, &args.trust)),
+    }
+}
+
+/// The services the flags give (`--plant`, `--netem`, `--controller`), for runs in `time_mode`;
+/// what they do not name is started by the driver.
+fn endpoints(args: crate::cli::EndpointArgs, time_mode: mav::TimeMode) -> crate::drive::services::Endpoints {
+    crate::drive::services::Endpoints {
+        plant: args.plant,
+        netem: args.netem,
+        controller: args.controller,
+        time_mode,
+        keep_netem_profile: args.keep_netem_profile,
+        live: None,
+        tls: Default::default(),
+        start_from_vehicle: args.start_from_vehicle,
+    }
 }

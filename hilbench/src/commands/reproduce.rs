@@ -15,8 +15,8 @@ pub fn reproduce(args: ReproduceArgs, opts: &Options) -> anyhow::Result<Exit> {
         anyhow::ensure!(!args.tls.given(), "--in-process has no links: the TLS flags need the services");
         Driver::InProcess
     } else {
-        let mut endpoints = args.services.endpoints(TimeMode::Lockstep);
-        endpoints.tls = args.tls.load()?.into();
+        let mut endpoints = super::endpoints(args.services, TimeMode::Lockstep);
+        endpoints.tls = super::load_tls(&args.tls)?.into();
         Driver::Services(endpoints)
     };
     let mut jobs = paper_jobs(&args.scenario)?;

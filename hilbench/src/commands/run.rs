@@ -127,8 +127,8 @@ fn driver(
         }
         return Ok(Driver::InProcess);
     }
-    let mut endpoints = args.services.clone().endpoints(time_mode);
-    endpoints.tls = args.tls.load()?.into();
+    let mut endpoints = super::endpoints(args.services.clone(), time_mode);
+    endpoints.tls = super::load_tls(&args.tls)?.into();
     if let Some(addr) = args.foxglove_ws {
         if endpoints.time_mode != TimeMode::RealTime {
             anyhow::bail!(

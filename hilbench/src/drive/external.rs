@@ -10,7 +10,7 @@
 //! lockstep it calls `Step` itself (netem delays its commands and advances the plant on to
 //! each release), in real time it streams.
 //!
-//! The run ends at the first plant step whose sample ends a flight (`mpc::episode::finish_at`,
+//! The run ends at the first plant step whose sample ends a flight (`mpc::end::finish_at`,
 //! the rule of the bench's own controller: a collision unless the scenario goes on after one,
 //! the goal within `goal_tolerance_m` and `goal_speed_tolerance_mps`, or `max_duration_s` of
 //! plant time). The summary is that sample's: path length, smallest clearance, collisions,
@@ -570,7 +570,7 @@ impl Judge {
                 cost_gap: None,
             });
         }
-        if let Some(end) = mpc::episode::finish_at(&self.scenario, &sample) {
+        if let Some(end) = mpc::end::finish_at(&self.scenario, &sample) {
             self.end = Some((end, sample.clone()));
         }
         self.last = Some(sample);

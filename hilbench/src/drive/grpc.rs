@@ -19,7 +19,7 @@
 //! Real time: the plant integrates on its clock (with its command watchdog), netem releases
 //! commands on its own thread, and the controller cycles every `min_cycle_s` of wall time and
 //! keeps flying after the goal (it is a service, and a vehicle must not be left uncontrolled),
-//! so the run ends here, by the rule every driver uses (`mpc::episode::finish_at`): at the
+//! so the run ends here, by the rule every driver uses (`mpc::end::finish_at`): at the
 //! first telemetry cycle whose sample has collided (unless the scenario goes on after a
 //! collision), is at the goal (its plant time is the time to the goal), or is past the
 //! scenario's `max_duration_s` of plant time. The final state is read from the plant just
@@ -557,7 +557,7 @@ async fn drive(
                     let sample = item.sample.as_ref().map(PlantSample::try_from).transpose()
                         .map_err(|e| anyhow!("telemetry of cycle {} of episode {}: sample: {e}", item.cycle, item.episode))?;
                     real_time_end = sample
-                        .and_then(|sample| mpc::episode::finish_at(scenario, &sample))
+                        .and_then(|sample| mpc::end::finish_at(scenario, &sample))
                         .map(|end| (item.episode, end));
                 }
                 let cycles = progress.episodes.entry(item.episode).or_default();

@@ -346,17 +346,14 @@ pub async fn connect_with(addr: &str, tls: &Tls, deadline: Instant) -> anyhow::R
                 } else {
                     String::new()
                 };
-                return Err(anyhow!(
-                    "cannot connect to {addr}{waited}: {}",
-                    hilbench_svc::tls::error_chain(&e)
-                ));
+                return Err(anyhow!("cannot connect to {addr}{waited}: {}", hilbench_svc::error_chain(&e)));
             }
             Err(e) => {
                 if !said && started.elapsed() >= CONNECT_SAY_AFTER {
                     said = true;
                     eprintln!(
                         "waiting for {addr} ({}); trying for up to {:.0} s",
-                        hilbench_svc::tls::error_chain(&e),
+                        hilbench_svc::error_chain(&e),
                         deadline.saturating_duration_since(started).as_secs_f64()
                     );
                 }

@@ -8,6 +8,8 @@
 
 use std::collections::BTreeMap;
 
+use crate::cli::ShardArg;
+
 /// Slurm: the task's index in the array.
 pub const SLURM_ID: &str = "SLURM_ARRAY_TASK_ID";
 /// Slurm: the number of tasks in the array.
@@ -23,15 +25,6 @@ pub const K8S_INDEX: &str = "JOB_COMPLETION_INDEX";
 /// The number of shards where the scheduler does not say it (a Kubernetes Indexed Job's
 /// `completions`): the manifest sets it.
 pub const COUNT_VAR: &str = "HILBENCH_SHARD_COUNT";
-
-/// What `--shard` says.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ShardArg {
-    /// `I/K`: the I-th (from 0) of K slices.
-    Slice { index: u64, count: u64 },
-    /// `auto`, or `auto/K` (K shards expected, or given where the environment has no count).
-    Auto { count: Option<u64> },
-}
 
 /// Where a shard came from (`sweep.json`'s `shard_from`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -57,31 +50,6 @@ pub struct Shard {
     pub index: u64,
     pub count: u64,
     pub from: ShardFrom,
-}
-
-/// `--shard I/K`, `--shard auto` or `--shard auto/K`.
-pub fn parse(text: &str) -> Result<ShardArg, String> {
-    let (i, k) = match text.split_once('/') {
-        Some((i, k)) => (i.trim(), Some(k.trim())),
-        None => (text.trim(), None),
-    };
-    let count = |k: &str| -> Result<u64, String> {
-        match k.parse::<u64>() {
-            Ok(0) => Err("K must be at least 1".to_string()),
-            Ok(k) => Ok(k),
-            Err(_) => Err(format!("{k:?} is not a number of shards")),
-        }
-    };
-    if i == "auto" {
-        return Ok(ShardArg::Auto { count: k.map(count).transpose()? });
-    }
-    let k = k.ok_or("expected I/K (e.g. 0/4), auto or auto/K")?;
-    let i: u64 = i.parse().map_err(|_| format!("{i:?} is not a shard number"))?;
-    let k = count(k)?;
-    if i >= k {
-        return Err(format!("shard {i} of {k}: I must be below K (shards 0 to K-1)"));
-    }
-    Ok(ShardArg::Slice { index: i, count: k })
 }
 
 /// The shard `arg` names; for `auto`, the one `env` (the process's environment) gives.
@@ -210,6 +178,7 @@ fn count_source(from: ShardFrom, env: &BTreeMap<String, String>) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::cli::shard_arg;
 
     fn env(vars: &[(&str, &str)]) -> BTreeMap<String, String> {
         vars.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect()
@@ -225,9 +194,9 @@ mod tests {
 
     #[test]
     fn parse_reads_slices_auto_and_auto_with_a_count_and_names_what_is_wrong() {
-        assert_eq!(parse("1/4"), Ok(ShardArg::Slice { index: 1, count: 4 }));
-        assert_eq!(parse("auto"), Ok(ShardArg::Auto { count: None }));
-        assert_eq!(parse("auto/8"), Ok(ShardArg::Auto { count: Some(8) }));
+        assert_eq!(shard_arg("1/4"), Ok(ShardArg::Slice { index: 1, count: 4 }));
+        assert_eq!(shard_arg("auto"), Ok(ShardArg::Auto { count: None }));
+        assert_eq!(shard_arg("auto/8"), Ok(ShardArg::Auto { count: Some(8) }));
         for (bad, says) in [
             ("3/2", "below K"),
             ("1", "I/K"),
@@ -236,7 +205,7 @@ mod tests {
             ("auto/0", "at least 1"),
             ("auto/x", "number of shards"),
         ] {
-            let e = parse(bad).expect_err(bad);
+            let e = shard_arg(bad).expect_err(bad);
             assert!(e.contains(says), "{bad}: {e}");
         }
     }

@@ -6,7 +6,8 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use hilbench::sweep::shard::{self, Shard, ShardArg, ShardFrom};
+use hilbench::cli::{ShardArg, shard_arg};
+use hilbench::sweep::shard::{self, Shard, ShardFrom};
 use hilbench_tests::python::run_script;
 use serde_json::Value;
 
@@ -44,7 +45,7 @@ fn the_sweep_manifest_is_valid_against_the_kubernetes_schemas_and_its_pods_get_s
     let k = spec["completions"].as_u64().expect("completions");
     let container = &spec["template"]["spec"]["containers"][0];
     let args = strings(&container["args"]);
-    let arg = shard::parse(flag(&args, "--shard")).expect("--shard");
+    let arg = shard_arg(flag(&args, "--shard")).expect("--shard");
     assert!(matches!(arg, ShardArg::Auto { .. }), "{arg:?}");
     assert!(flag(&args, "--runs").parse::<u64>().expect("--runs") >= k);
     assert_eq!(flag(&args, "--jobs"), container["resources"]["requests"]["cpu"].as_str().expect("cpu"));
