@@ -15,7 +15,7 @@ use mpc::RunSummary;
 use anyhow::Context;
 
 use crate::drive::{Driver, grpc, in_process};
-use crate::run::{Batch, FinishedRun, Job, RunError, RunFailure};
+use crate::run::{Batch, Controller, FinishedRun, Job, RunError, RunFailure};
 
 /// How often a real-time run without a terminal says it is still flying.
 const HEARTBEAT: Duration = Duration::from_secs(5);
@@ -49,7 +49,7 @@ pub fn fly_all(jobs: &[Job], driver: &Driver, progress: bool) -> anyhow::Result<
     let real_time = driver.time_mode() == TimeMode::RealTime;
     for job in jobs {
         let name = &job.scenario.name;
-        let controller = driver.controller_name(job.mode);
+        let controller = job.controller.name();
         bar.set_message(format!("{name} with {controller}"));
         let mut ctrl_c = ctrl_c_rx.clone();
         if *ctrl_c.borrow_and_update() {
@@ -284,19 +284,18 @@ async fn fly(
             });
             settle(job, &what, task.await.map_err(failed))
         }
-        Driver::External(controller) => {
+        (Driver::External(external), Controller::External(command)) => {
             let what = format!("{name} with an external controller");
-            let (scenario, controller) = (job.scenario.clone(), controller.clone());
-            let task =
-                tokio::spawn(
-                    async move { crate::drive::external::run_external(&scenario, &controller).await },
-                );
+            let (scenario, command, external) = (job.scenario.clone(), command.clone(), external.clone());
+            let task = tokio::spawn(async move {
+                crate::drive::external::run_external(&scenario, &command, &external).await
+            });
             settle(job, &what, task.await.map_err(failed))
         }
-        Driver::InProcess => {
-            let what = format!("{name} with {}", job.mode.name());
+        (Driver::InProcess, &Controller::Bench(mode)) => {
+            let what = format!("{name} with {}", mode.name());
             let task_job = job.clone();
-            match tokio::task::spawn_blocking(move || in_process::fly(task_job)).await {
+            match tokio::task::spawn_blocking(move || in_process::fly(task_job, mode)).await {
                 Ok(Ok(run)) => Ok(run),
                 Ok(Err(e)) => Err((RunError { message: format!("{what}: {}", e.message), ..e }, None)),
                 Err(join) => Err((
@@ -305,5 +304,14 @@ async fn fly(
                 )),
             }
         }
+        // The commands make their jobs for their driver: any other pair is a bug, said as one.
+        (driver, controller) => Err((
+            RunError::bench(format!(
+                "{name}: the {} driver does not fly the {} controller (a bug of the bench)",
+                driver.name(),
+                controller.name()
+            )),
+            None,
+        )),
     }
 }

@@ -21,11 +21,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use mav::Scenario;
-use mpc::ControllerMode;
 
 use crate::drive::Driver;
 use crate::fly::{Flight, RunFate, fly_one};
-use crate::run::{Job, Verdict};
+use crate::run::{Controller, Job, Verdict};
 
 /// A failure's trace, and the numbers its replay gives.
 #[derive(Debug, Clone, PartialEq)]
@@ -166,12 +165,12 @@ pub fn shell_quote(text: &str) -> String {
 }
 
 /// How a candidate trace is flown: `scenario` with the trace (named `trace_name`) as its round
-/// trip, the controller `mode`, through `driver`, each rerun within `timeout`; none once
-/// `stop` is set (Ctrl-C: shrinking ends within a run, keeping what it had).
+/// trip, by `controller`, through `driver`, each rerun within `timeout`; none once `stop` is
+/// set (Ctrl-C: shrinking ends within a run, keeping what it had).
 pub struct Rerun<'a> {
     pub scenario: &'a Scenario,
     pub trace_name: String,
-    pub mode: ControllerMode,
+    pub controller: &'a Controller,
     pub driver: &'a Driver,
     pub timeout: Duration,
     pub stop: &'a AtomicBool,
@@ -232,7 +231,7 @@ pub fn shrink(
         // every such candidate; the kept trace is cut to what its run drew.
         let mut padded = delays;
         padded.resize(padded.len() + padded.len().max(MIN_PADDING), 0.0);
-        let job = Job { scenario: rerun.scenario_with(padded.clone()), mode: rerun.mode };
+        let job = Job { scenario: rerun.scenario_with(padded.clone()), controller: rerun.controller.clone() };
         match fly_one(&job, rerun.driver, rerun.timeout) {
             RunFate::Flown(f) if fails(&f) => {
                 padded.truncate(f.delays_needed(padded.len()));
@@ -365,8 +364,13 @@ mod tests {
     fn flown(cycles: usize, collided: bool) -> Flight {
         let scenario = mav::Scenario::paper_2();
         let sim = mav::PlantSim::new(&scenario, mav::SimSettings::default()).expect("a plant");
-        let mut summary =
-            mpc::summarize("x", ControllerMode::Multistage, &[], &sim.peek(), mpc::RunEnd::TimeLimit);
+        let mut summary = mpc::summarize(
+            "x",
+            mpc::ControllerMode::Multistage.name(),
+            &[],
+            &sim.peek(),
+            mpc::RunEnd::TimeLimit,
+        );
         summary.collided = collided;
         summary.cycles = cycles as u64;
         let row = crate::run::CycleRow {

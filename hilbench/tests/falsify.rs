@@ -241,8 +241,10 @@ fn a_falsification_killed_mid_search_resumes_to_the_outputs_of_one_never_stopped
     // kill -9 once a few runs are in the journal (a line each as they finish).
     let killed = out_dir("falsify-killed");
     let journal = killed.join(".falsify-journal.jsonl");
-    let mut child =
-        std::process::Command::new(env!("CARGO_BIN_EXE_hilbench")).args(args(&killed)).spawn().expect("starts");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_hilbench"))
+        .args(args(&killed))
+        .spawn()
+        .expect("starts");
     let started = std::time::Instant::now();
     while std::fs::read_to_string(&journal).map_or(0, |t| t.lines().count()) < 4 {
         assert!(started.elapsed().as_secs() < 120, "no runs in the journal");
@@ -257,7 +259,10 @@ fn a_falsification_killed_mid_search_resumes_to_the_outputs_of_one_never_stopped
     // The directory is refused to a new falsification, saying how to go on.
     let again = hilbench(&args(&killed).iter().map(String::as_str).collect::<Vec<_>>());
     assert_eq!(again.status.code(), Some(1), "{again:?}");
-    assert!(stderr(&again).contains("did not finish (killed)") && stderr(&again).contains("--resume"), "{again:?}");
+    assert!(
+        stderr(&again).contains("did not finish (killed)") && stderr(&again).contains("--resume"),
+        "{again:?}"
+    );
     // Resumed with another seed: refused, naming it; with the same flags: the runs it lacks.
     let mut other = args(&killed);
     let seed = other.iter().position(|a| a == "--seed").expect("--seed") + 1;
@@ -277,7 +282,9 @@ fn a_falsification_killed_mid_search_resumes_to_the_outputs_of_one_never_stopped
     // runs.csv without its wall-clock column; the worst run's trace as the never-stopped one's.
     let csv = |dir: &Path| -> Vec<String> {
         let text = std::fs::read_to_string(dir.join("runs.csv")).expect("runs.csv");
-        text.lines().map(|l| l.split(',').enumerate().filter(|(i, _)| *i != 8).map(|(_, c)| c).collect()).collect()
+        text.lines()
+            .map(|l| l.split(',').enumerate().filter(|(i, _)| *i != 8).map(|(_, c)| c).collect())
+            .collect()
     };
     assert_eq!(csv(&killed), csv(&whole));
     let trace = json_of(&whole.join("falsify.json"))["searches"][0]["worst_trace"]["file"].clone();

@@ -49,7 +49,7 @@ fn run_of_the_paper_3_file_gives_the_summary_of_reproduce_paper_3() {
     let reproduce: Vec<Job> = paper_jobs(&["paper-3".to_string()])
         .expect("paper-3")
         .into_iter()
-        .filter(|j| j.mode == ControllerMode::Nmpc)
+        .filter(|j| j.controller.mode() == Some(ControllerMode::Nmpc))
         .collect();
     let run = file_jobs(&load("paper-3.toml"), Some(&[ControllerMode::Nmpc]));
     assert_eq!(run, reproduce);

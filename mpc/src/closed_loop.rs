@@ -188,6 +188,6 @@ pub fn run_closed_loop(
         });
     };
     let records: Vec<CycleRecord> = traces.iter().map(|t| t.record.clone()).collect();
-    let summary = summarize(&scenario.name, settings.mode, &records, &sim.peek(), end);
+    let summary = summarize(&scenario.name, settings.mode.name(), &records, &sim.peek(), end);
     Ok((summary, traces))
 }

@@ -458,11 +458,12 @@ pub fn explain(records: &[CycleRecord], last: &PlantSample, reached: bool) -> Ve
 }
 
 /// The run's numbers: the trajectory's from the plant's last sample (`last`), the solver's from
-/// the records; `end` is how the run ended (from [`crate::episode::finish_at`], or
-/// [`RunEnd::Error`] for a run that failed).
+/// the records; `end` is how the run ended (from [`crate::end::finish_at`], or
+/// [`RunEnd::Error`] for a run that failed). `controller` names what flew it (a mode's name,
+/// or the bench's name for a controller that is not ours).
 pub fn summarize(
     scenario: &str,
-    mode: ControllerMode,
+    controller: &str,
     records: &[CycleRecord],
     last: &PlantSample,
     end: RunEnd,
@@ -475,7 +476,7 @@ pub fn summarize(
     let x = &last.state;
     RunSummary {
         scenario: scenario.to_string(),
-        controller: mode.name().to_string(),
+        controller: controller.to_string(),
         reached: time_to_goal_ns.is_some(),
         end_reason: end,
         collided: last.collided,
@@ -522,6 +523,7 @@ pub fn summarize(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::problem::ControllerMode;
 
     #[test]
     fn millimetres_print_a_graze_in_two_digits_never_as_zero_and_sign_on_request() {
@@ -589,7 +591,7 @@ mod tests {
         let scenario = mav::Scenario::paper_1();
         let mut last = mav::PlantSim::new(&scenario, mav::SimSettings::default()).expect("valid").sample();
         last.path_length_m = 1.0;
-        let s = summarize("paper-1", ControllerMode::Multistage, &records, &last, RunEnd::TimeLimit);
+        let s = summarize("paper-1", ControllerMode::Multistage.name(), &records, &last, RunEnd::TimeLimit);
         assert_eq!((s.iteration_limits, s.infeasible_at_limit), (3, 2));
         assert!(
             s.explanation

@@ -12,6 +12,7 @@ use crate::cli::FalsifyArgs;
 use crate::falsification::journal::Journal;
 use crate::falsification::{Falsification, execute, output};
 use crate::output::out_dir::OutDir;
+use crate::run::Controller;
 use crate::scenario_file::ScenarioFile;
 
 pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
@@ -54,7 +55,8 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
         m
     };
     let jobs = super::jobs_or_cores(args.jobs);
-    let driver = super::lockstep_driver(args.controller_cmd.clone(), args.grpc, &args.tls, "falsification")?;
+    let driver =
+        super::lockstep_driver(args.controller_cmd.as_deref(), args.grpc, &args.tls, "falsification")?;
     let sweep = spec.sweep.as_ref();
     let falsification = Falsification {
         file: args.file.clone(),
@@ -67,8 +69,10 @@ pub fn falsify(args: FalsifyArgs, opts: &Options) -> anyhow::Result<Exit> {
         population: table.population.map(|p| p as usize),
         sigma0: table.sigma0.unwrap_or(falsify::table::DEFAULT_SIGMA0),
         warmup: args.warmup.or(table.warmup).unwrap_or(0) as usize,
-        mode,
-        controller_cmd: args.controller_cmd.clone(),
+        controller: match &args.controller_cmd {
+            Some(command) => Controller::External(command.clone()),
+            None => Controller::Bench(mode),
+        },
         jobs,
         driver,
         run_timeout: std::time::Duration::from_secs_f64(
@@ -170,8 +174,8 @@ fn identity(f: &Falsification, file_text: &[u8]) -> Value {
         "budget": f.budget,
         "whole_budget": f.whole_budget,
         "warmup": f.warmup,
-        "controller": f.mode.name(),
-        "controller_cmd": f.controller_cmd,
+        "controller": f.controller.name(),
+        "controller_cmd": f.controller.command(),
         "transport": f.driver.name(),
         "run_timeout_s": f.run_timeout.as_secs_f64(),
         "shrink_runs": f.shrink_runs,

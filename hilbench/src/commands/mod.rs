@@ -110,16 +110,15 @@ fn fly_and_write(
 /// error): the external controller `controller_cmd`, the services on loopback with `--grpc`
 /// (over TLS when its flags are given), or in process.
 fn lockstep_driver(
-    controller_cmd: Option<String>,
+    controller_cmd: Option<&str>,
     grpc: bool,
     tls: &crate::cli::TlsArgs,
     what: &str,
 ) -> anyhow::Result<Driver> {
-    use crate::drive::external::{ExternalController, ExternalSettings};
+    use crate::drive::external::{ExternalDriver, ExternalSettings};
     use mav::TimeMode;
     Ok(match controller_cmd {
-        Some(command) => Driver::External(ExternalController {
-            command,
+        Some(_) => Driver::External(ExternalDriver {
             time_mode: TimeMode::Lockstep,
             settings: ExternalSettings::default(),
             plant: None,

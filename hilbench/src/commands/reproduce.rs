@@ -8,7 +8,7 @@ use super::{Exit, Options, Written, exit_of, fly_and_write};
 use crate::cli::ReproduceArgs;
 use crate::drive::Driver;
 use crate::output::{ReportParts, paper, terminal};
-use crate::run::Job;
+use crate::run::{Controller, Job};
 
 pub fn reproduce(args: ReproduceArgs, opts: &Options) -> anyhow::Result<Exit> {
     let driver = if args.in_process {
@@ -77,7 +77,7 @@ pub fn paper_jobs(only: &[String]) -> anyhow::Result<Vec<Job>> {
         }
         let scenario = Scenario::by_name(name)?;
         for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
-            jobs.push(Job { scenario: scenario.clone(), mode });
+            jobs.push(Job { scenario: scenario.clone(), controller: Controller::Bench(mode) });
         }
     }
     Ok(jobs)

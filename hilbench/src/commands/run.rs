@@ -9,9 +9,9 @@ use mav::{ControllerMode, TimeMode};
 use super::{Exit, Options, Written, exit_of, fly_and_write};
 use crate::cli::RunArgs;
 use crate::drive::Driver;
-use crate::drive::external::{ExternalController, ExternalSettings};
+use crate::drive::external::{ExternalDriver, ExternalSettings};
 use crate::output::{ReportParts, terminal};
-use crate::run::{CycleSink, Job};
+use crate::run::{Controller, CycleSink, Job};
 use crate::scenario_file::ScenarioFile;
 
 pub fn run(args: RunArgs, opts: &Options) -> anyhow::Result<Exit> {
@@ -24,14 +24,14 @@ pub fn run(args: RunArgs, opts: &Options) -> anyhow::Result<Exit> {
     if args.controller_cmd.is_none() {
         spec.nmpc_tuning(file)?;
     }
-    let driver = driver(file, &spec, args.controller_cmd.clone(), &args, opts)?;
+    let driver = driver(file, &spec, args.controller_cmd.is_some(), &args, opts)?;
     let modes = args.mode.map(|m| m.modes());
-    let jobs = match driver {
-        // One run of the file's scenario; the mode of the job is not used.
-        Driver::External(_) => {
-            vec![Job { scenario: spec.scenario.clone(), mode: ControllerMode::Multistage }]
+    let jobs = match &args.controller_cmd {
+        // One run of the file's scenario with the user's controller.
+        Some(command) => {
+            vec![Job { scenario: spec.scenario.clone(), controller: Controller::External(command.clone()) }]
         }
-        _ => file_jobs(&spec, modes.as_deref()),
+        None => file_jobs(&spec, modes.as_deref()),
     };
     let header = |batch_time_mode: TimeMode| {
         format!(
@@ -98,23 +98,22 @@ fn scenario_as_flown(file: &Path, args: &RunArgs) -> anyhow::Result<ScenarioFile
 fn driver(
     file: &Path,
     spec: &ScenarioFile,
-    controller_cmd: Option<String>,
+    external: bool,
     args: &RunArgs,
     opts: &Options,
 ) -> anyhow::Result<Driver> {
-    if args.foxglove_ws.is_some() && (controller_cmd.is_some() || args.in_process) {
+    if args.foxglove_ws.is_some() && (external || args.in_process) {
         anyhow::bail!(
             "--foxglove-ws needs the bench's services in real time (not --in-process or --controller-cmd)"
         );
     }
     let time_mode = args.time_mode.unwrap_or(spec.run.time_mode);
-    if let Some(command) = controller_cmd {
+    if external {
         let mut settings = ExternalSettings::default();
         if let Some(s) = args.stall_timeout_s {
             settings.stall_timeout = std::time::Duration::from_secs_f64(s);
         }
-        return Ok(Driver::External(ExternalController {
-            command,
+        return Ok(Driver::External(ExternalDriver {
             time_mode,
             settings,
             plant: args.services.plant.clone(),
@@ -147,5 +146,8 @@ fn driver(
 /// The file's scenario with `modes`, or with the file's `run.modes`.
 pub fn file_jobs(file: &ScenarioFile, modes: Option<&[ControllerMode]>) -> Vec<Job> {
     let modes = modes.unwrap_or(&file.run.modes);
-    modes.iter().map(|&mode| Job { scenario: file.scenario.clone(), mode }).collect()
+    modes
+        .iter()
+        .map(|&mode| Job { scenario: file.scenario.clone(), controller: Controller::Bench(mode) })
+        .collect()
 }

@@ -34,12 +34,8 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
             args.file.display()
         )
     })?;
-    let modes = match args.mode {
-        // One flight per run for an external controller (the mode names no controller then).
-        None if args.controller_cmd.is_some() => vec![mpc::ControllerMode::Multistage],
-        None => spec.run.modes.clone(),
-        Some(m) => m.modes(),
-    };
+    let modes = args.mode.map_or_else(|| spec.run.modes.clone(), |m| m.modes());
+    let controllers = crate::run::Controller::of(args.controller_cmd.as_deref(), &modes);
     anyhow::ensure!(
         spec.run.time_mode == TimeMode::Lockstep,
         "{}: a sweep flies in lockstep (run.time_mode is real-time)",
@@ -54,12 +50,12 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
     };
     let shard = args.shard.map(|arg| shard::resolve(arg, &env())).transpose().map_err(anyhow::Error::msg)?;
     let jobs = super::jobs_or_cores(args.jobs);
-    let driver = super::lockstep_driver(args.controller_cmd, args.grpc, &args.tls, "sweep")?;
+    let driver = super::lockstep_driver(args.controller_cmd.as_deref(), args.grpc, &args.tls, "sweep")?;
     let sweep = Sweep {
         file: args.file.clone(),
         seed: args.seed.or(table.seed).unwrap_or(spec.scenario.seed),
         runs,
-        modes,
+        controllers,
         shard,
         jobs,
         driver,
@@ -86,7 +82,7 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
     };
     check_runs(&sweep, args.runs.is_some())?;
     let show = !args.json && !opts.quiet;
-    let items = (sweep.indices().end - sweep.indices().start) * sweep.modes.len() as u64;
+    let items = (sweep.indices().end - sweep.indices().start) * sweep.controllers.len() as u64;
     // The output directory before the first run: a sweep that cannot write loses nothing.
     let file_text =
         std::fs::read(&args.file).with_context(|| format!("cannot read {}", args.file.display()))?;
@@ -172,8 +168,8 @@ fn identity(sweep: &Sweep, file_text: &[u8], until_bound: Option<f64>, per_famil
         "file_fnv1a64": format!("{:016x}", fnv1a64(file_text)),
         "seed": sweep.seed,
         "runs": sweep.runs,
-        "controllers": sweep.controllers(),
-        "controller_cmd": sweep.driver.controller_cmd(),
+        "controllers": sweep.controller_names(),
+        "controller_cmd": sweep.controller_cmd(),
         "transport": sweep.driver.name(),
         "shard": sweep.shard.map(|s| format!("{}/{}", s.index, s.count)),
         "until_bound": until_bound,

@@ -50,7 +50,7 @@ use crate::run::{
 use crate::scenario_file::ScenarioFile;
 
 /// `RunSummary::controller` of an external controller's run (and its CSV's name).
-pub const CONTROLLER_NAME: &str = "external";
+pub const CONTROLLER_NAME: &str = crate::run::EXTERNAL_CONTROLLER;
 
 /// Lines of the controller's output (stdout and stderr) kept for error messages.
 const TAIL_LINES: usize = 20;
@@ -63,12 +63,10 @@ const LINE_CAP_BYTES: usize = 4 * TAIL_LINE_CHARS;
 /// what it produced is taken as complete.
 const DRAIN_QUIET: Duration = Duration::from_millis(200);
 
-/// An external controller and how to fly it.
+/// How an external controller's runs are flown (the command line is the job's,
+/// `crate::run::Controller::External`).
 #[derive(Debug, Clone)]
-pub struct ExternalController {
-    /// A shell command line, run with `sh -c` (e.g.
-    /// `python examples/python-controller/controller.py`).
-    pub command: String,
+pub struct ExternalDriver {
     pub time_mode: TimeMode,
     pub settings: ExternalSettings,
     /// A running plant or a vehicle's gateway (`--plant`) to fly instead of a plant started
@@ -141,11 +139,13 @@ impl ExternalRun {
 /// before the plant's first sample), its `end_reason` "error".
 pub type ExternalFailure = RunFailure<ExternalRun>;
 
-/// Flies `scenario` with `controller` against a plant and netem started here (see the module's
-/// documentation).
+/// Flies `scenario` with the controller `command` (a shell command line, run with `sh -c`,
+/// e.g. `python examples/python-controller/controller.py`) the way `controller` says, against
+/// a plant and netem started here (see the module's documentation).
 pub async fn run_external(
     scenario: &Scenario,
-    controller: &ExternalController,
+    command: &str,
+    controller: &ExternalDriver,
 ) -> Result<ExternalRun, ExternalFailure> {
     let started = Instant::now();
     let network = scenario.network().map_err(|e| anyhow!("{e}"))?;
@@ -182,7 +182,7 @@ pub async fn run_external(
             return Err(e.into());
         }
     };
-    let mut flight = ExternalFlight::new(scenario, controller, delay_profile);
+    let mut flight = ExternalFlight::new(scenario, command, controller, delay_profile);
     let result = flight.fly(&plant_addr, &netem_addr, started).await;
     if result.is_err() && flight.commands_delayed.is_none() {
         // A run that ended in an error still says what netem delayed and refused (a controller
@@ -223,7 +223,8 @@ async fn stop_all(running: [Option<Running>; 2]) -> anyhow::Result<()> {
 /// One run as it goes: the judge, the process, the facts.
 struct ExternalFlight<'a> {
     scenario: &'a Scenario,
-    controller: &'a ExternalController,
+    command: &'a str,
+    controller: &'a ExternalDriver,
     judge: Judge,
     delay_profile: DelayProfileInForce,
     exit: Option<String>,
@@ -241,11 +242,13 @@ struct ExternalFlight<'a> {
 impl<'a> ExternalFlight<'a> {
     fn new(
         scenario: &'a Scenario,
-        controller: &'a ExternalController,
+        command: &'a str,
+        controller: &'a ExternalDriver,
         delay_profile: DelayProfileInForce,
     ) -> Self {
         Self {
             scenario,
+            command,
             controller,
             judge: Judge::new(scenario),
             delay_profile,
@@ -298,7 +301,7 @@ impl<'a> ExternalFlight<'a> {
             .into_inner();
         let scenario_file = ScenarioTempFile::write(start.as_ref().unwrap_or(self.scenario))?;
         let mut process = Process::spawn(
-            &self.controller.command,
+            self.command,
             &[
                 ("HILBENCH_PLANT_ADDR", netem_addr),
                 ("HILBENCH_SCENARIO", &scenario_file.path.display().to_string()),
@@ -424,7 +427,7 @@ impl<'a> ExternalFlight<'a> {
 
     fn facts(&self) -> ExternalFacts {
         ExternalFacts {
-            command: self.controller.command.clone(),
+            command: self.command.to_string(),
             exit: self.exit.clone().unwrap_or_else(|| "killed by the bench".to_string()),
             commands_applied: self.judge.rows.len() as u64,
             commands_delayed: self.commands_delayed.map(|(sent, _)| sent),
@@ -598,9 +601,7 @@ impl Judge {
     /// The one summary (`mpc::summarize`) of the plant's `last` sample; the controller's
     /// solve statistics are unknown (no records), its cycles are the commands applied.
     fn summary(&self, last: &PlantSample, end: RunEnd) -> RunSummary {
-        // The mode only names the controller, which is replaced.
-        let mut summary = mpc::summarize(&self.scenario.name, ControllerMode::Multistage, &[], last, end);
-        summary.controller = CONTROLLER_NAME.to_string();
+        let mut summary = mpc::summarize(&self.scenario.name, CONTROLLER_NAME, &[], last, end);
         summary.cycles = self.rows.len() as u64;
         summary
     }

@@ -230,7 +230,7 @@ async fn partial_run(
         _ => progress.status.filter(|s| s.episode == episode),
     }
     .unwrap_or_default();
-    let summary = mpc::summarize(&scenario.name, mode, &records, &last, RunEnd::Error);
+    let summary = mpc::summarize(&scenario.name, mode.name(), &records, &last, RunEnd::Error);
     let faults = faults_of(&status, &records, &last);
     let solver_s = summary.solver_s;
     let episode_s = progress.episode_started.map_or(0.0, |t| t.elapsed().as_secs_f64());
@@ -640,7 +640,7 @@ async fn drive(
             .ok_or_else(|| anyhow!("the controller's finished episode has no finish reason"))?,
     };
     let records = telemetry;
-    let summary = mpc::summarize(&scenario.name, mode, &records, &final_sample, end);
+    let summary = mpc::summarize(&scenario.name, mode.name(), &records, &final_sample, end);
     let faults = faults_of(&status, &records, &final_sample);
     let solver_s = summary.solver_s;
     Ok(GrpcRun {

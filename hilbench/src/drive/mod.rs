@@ -20,34 +20,12 @@ pub enum Driver {
     InProcess,
     /// Plant, netem and controller over gRPC; what the endpoints do not name is started here.
     Services(services::Endpoints),
-    /// An external controller's process against a plant and netem started here, judged from
-    /// the plant's truth; a job's controller mode is not used.
-    External(external::ExternalController),
-}
-
-/// The controller a run flies, as the outputs name it: the bench's `mode`, or
-/// [`external::CONTROLLER_NAME`] for an external controller's command line.
-pub fn controller_name(controller_cmd: Option<&str>, mode: mpc::ControllerMode) -> &'static str {
-    match controller_cmd {
-        Some(_) => external::CONTROLLER_NAME,
-        None => mode.name(),
-    }
+    /// An external controller's process (the job's `Controller::External`) against a plant
+    /// and netem started here, judged from the plant's truth.
+    External(external::ExternalDriver),
 }
 
 impl Driver {
-    /// The external controller's command line, if the runs fly one.
-    pub fn controller_cmd(&self) -> Option<&str> {
-        match self {
-            Driver::External(c) => Some(&c.command),
-            _ => None,
-        }
-    }
-
-    /// The controller a job of `mode` flies with this driver, as the outputs name it.
-    pub fn controller_name(&self, mode: mpc::ControllerMode) -> &'static str {
-        controller_name(self.controller_cmd(), mode)
-    }
-
     /// The `transport` value of `summary.json`.
     pub fn name(&self) -> &'static str {
         match self {

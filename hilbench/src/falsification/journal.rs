@@ -60,7 +60,8 @@ impl Journal {
     /// very `point` (to the bit).
     pub fn finished(&self, space: &str, method: Method, run: u64, point: &[f64]) -> Option<Evaluation> {
         let e = self.finished.get(&(space.to_string(), method.name().to_string(), run))?;
-        let same = e.point.len() == point.len() && e.point.iter().zip(point).all(|(a, b)| a.to_bits() == b.to_bits());
+        let same = e.point.len() == point.len()
+            && e.point.iter().zip(point).all(|(a, b)| a.to_bits() == b.to_bits());
         same.then(|| e.clone())
     }
 

@@ -18,11 +18,10 @@ use std::time::{Duration, Instant};
 
 use falsify::{Dim, Method, Property, RunFacts, Search, SearchResult, SearchSettings, Space};
 use mav::Scenario;
-use mpc::ControllerMode;
 
 use crate::drive::Driver;
 use crate::fly::{Flight, RunFate, fly_one, watch_ctrl_c};
-use crate::run::{Job, RunErrorKind, Verdict};
+use crate::run::{Controller, Job, RunErrorKind, Verdict};
 use crate::shrink::{self, FailureTrace, Rerun};
 
 /// Everything a falsification needs, flags applied.
@@ -46,9 +45,7 @@ pub struct Falsification {
     pub sigma0: f64,
     /// CMA-ES's warm-up: random points flown before its first generation.
     pub warmup: usize,
-    pub mode: ControllerMode,
-    /// The external controller's command line, when it flies one (for the replay command).
-    pub controller_cmd: Option<String>,
+    pub controller: Controller,
     pub jobs: usize,
     pub driver: Driver,
     pub run_timeout: Duration,
@@ -161,7 +158,7 @@ impl Falsification {
             stop,
             scenario: &self.scenario,
             trace_name: format!("falsify-{}", space.name),
-            mode: self.mode,
+            controller: &self.controller,
             driver: &self.driver,
             timeout: self.run_timeout,
             deadline: None,
@@ -191,10 +188,19 @@ impl Falsification {
             Ok(d) => d,
             Err(e) => {
                 evaluation.error = e;
-                return PointRun { evaluation, delays_s: Vec::new(), flight: None, interrupted: false, journaled: false };
+                return PointRun {
+                    evaluation,
+                    delays_s: Vec::new(),
+                    flight: None,
+                    interrupted: false,
+                    journaled: false,
+                };
             }
         };
-        let job = Job { scenario: self.rerun(space, stop).scenario_with(delays_s.clone()), mode: self.mode };
+        let job = Job {
+            scenario: self.rerun(space, stop).scenario_with(delays_s.clone()),
+            controller: self.controller.clone(),
+        };
         let fate = fly_one(&job, &self.driver, self.run_timeout);
         evaluation.wall_s = started.elapsed().as_secs_f64();
         let mut flight = None;
@@ -294,8 +300,16 @@ fn search_one(
             if stop.load(Ordering::Relaxed) {
                 return None;
             }
-            if let Some(evaluation) = f.journal.as_ref().and_then(|j| j.finished(&space.name, method, *run, point)) {
-                let p = PointRun { evaluation, delays_s: Vec::new(), flight: None, interrupted: false, journaled: true };
+            if let Some(evaluation) =
+                f.journal.as_ref().and_then(|j| j.finished(&space.name, method, *run, point))
+            {
+                let p = PointRun {
+                    evaluation,
+                    delays_s: Vec::new(),
+                    flight: None,
+                    interrupted: false,
+                    journaled: true,
+                };
                 return Some(p);
             }
             let p = f.fly_point(space, *run, point, stop);

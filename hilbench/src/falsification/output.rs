@@ -26,7 +26,7 @@ pub fn trace_file(record: &SearchRecord) -> String {
 
 /// The controller flown, as the outputs name it.
 fn controller(f: &Falsification) -> String {
-    crate::drive::controller_name(f.controller_cmd.as_deref(), f.mode).to_string()
+    f.controller.name().to_string()
 }
 
 /// The command that flies a trace of this falsification again.
@@ -37,8 +37,8 @@ pub fn replay_command(f: &Falsification, dir: &Path, trace: &str) -> String {
         if trace == "<this file>" { trace.to_string() } else { crate::shrink::absolute(&dir.join(trace)) };
     crate::shrink::replay_command(
         &f.file.display().to_string(),
-        f.controller_cmd.as_deref(),
-        f.mode.name(),
+        f.controller.command(),
+        f.controller.name(),
         &trace,
     )
 }
@@ -105,7 +105,7 @@ pub fn falsify_json(f: &Falsification, result: &FalsifyResult, dir: &Path) -> Va
         "file": f.file.display().to_string(),
         "scenario": f.scenario.name,
         "controller": controller(f),
-        "controller_cmd": f.controller_cmd,
+        "controller_cmd": f.controller.command(),
         "driver": f.driver.name(),
         "property": f.property.name(),
         "budget": f.budget,

@@ -33,7 +33,11 @@ impl JournalFile {
     /// Reopens the journal a killed `command` left at `path`: refused when `identity` is not
     /// the one it was started with. Returns it, cut to its whole lines, with those lines after
     /// the identity (numbered from 2, for errors) to be read by the caller.
-    pub fn resume(path: &Path, identity: &Value, command: &str) -> anyhow::Result<(Self, Vec<(usize, String)>)> {
+    pub fn resume(
+        path: &Path,
+        identity: &Value,
+        command: &str,
+    ) -> anyhow::Result<(Self, Vec<(usize, String)>)> {
         let dir = path.parent().unwrap_or(Path::new("."));
         let text = std::fs::read_to_string(path).with_context(|| {
             format!("--resume: {} has no journal of a {command} ({})", dir.display(), path.display())
@@ -161,8 +165,12 @@ mod tests {
         let (journal, lines) = JournalFile::resume(&path, &identity, "falsify").expect("resume again");
         assert_eq!(lines.iter().map(|(k, _)| *k).collect::<Vec<_>>(), [2, 3]);
         drop(journal);
-        let e = JournalFile::resume(&path, &json!({"seed": 4, "budget": 10}), "falsify").expect_err("other seed");
-        assert!(e.to_string().contains("not the falsify") && e.to_string().contains("seed: 3 then, 4 now"), "{e}");
+        let e =
+            JournalFile::resume(&path, &json!({"seed": 4, "budget": 10}), "falsify").expect_err("other seed");
+        assert!(
+            e.to_string().contains("not the falsify") && e.to_string().contains("seed: 3 then, 4 now"),
+            "{e}"
+        );
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -96,7 +96,12 @@ pub fn write_scenarios(dir: &Path, jobs: &[Job]) -> anyhow::Result<()> {
             continue;
         }
         written.push(&scenario.name);
-        let modes = jobs.iter().filter(|j| j.scenario.name == scenario.name).map(|j| j.mode).collect();
+        // `run.modes` needs a mode: an external controller's file names multistage there.
+        let modes = jobs
+            .iter()
+            .filter(|j| j.scenario.name == scenario.name)
+            .map(|j| j.controller.mode().unwrap_or(mpc::ControllerMode::Multistage))
+            .collect();
         let path = dir.join(format!("{}.scenario.toml", scenario.name));
         let text = ScenarioFile::as_flown(scenario, modes).map_err(anyhow::Error::msg)?;
         std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;

@@ -9,12 +9,59 @@ use mpc::{ControllerMode, CycleRecord, RunSummary};
 mod verdict;
 pub use verdict::Verdict;
 
-/// A run to make: a scenario and the bench's controller to fly it with (an external
-/// controller, when the driver is one, replaces the controller).
+/// A run to make: a scenario and the controller to fly it with.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Job {
     pub scenario: Scenario,
-    pub mode: ControllerMode,
+    pub controller: Controller,
+}
+
+/// The controller a run flies.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Controller {
+    /// The bench's NMPC (`mpc`), in this mode.
+    Bench(ControllerMode),
+    /// The user's process (`--controller-cmd`): its command line, run with `sh -c`.
+    External(String),
+}
+
+/// The name of an external controller in the outputs (`RunSummary::controller`, `runs.csv`,
+/// its CSV log's name).
+pub const EXTERNAL_CONTROLLER: &str = "external";
+
+impl Controller {
+    /// The controllers of a command: the user's when it gives one (one flight a run), else
+    /// the bench's in each of `modes`.
+    pub fn of(controller_cmd: Option<&str>, modes: &[ControllerMode]) -> Vec<Controller> {
+        match controller_cmd {
+            Some(command) => vec![Controller::External(command.to_string())],
+            None => modes.iter().map(|&m| Controller::Bench(m)).collect(),
+        }
+    }
+
+    /// As the outputs name it: the mode's name, or [`EXTERNAL_CONTROLLER`].
+    pub fn name(&self) -> &'static str {
+        match self {
+            Controller::Bench(mode) => mode.name(),
+            Controller::External(_) => EXTERNAL_CONTROLLER,
+        }
+    }
+
+    /// The bench's controller's mode.
+    pub fn mode(&self) -> Option<ControllerMode> {
+        match self {
+            Controller::Bench(mode) => Some(*mode),
+            Controller::External(_) => None,
+        }
+    }
+
+    /// The external controller's command line.
+    pub fn command(&self) -> Option<&str> {
+        match self {
+            Controller::Bench(_) => None,
+            Controller::External(command) => Some(command),
+        }
+    }
 }
 
 /// The runs of one command, in the order of their jobs.
@@ -398,7 +445,27 @@ pub fn rows_of(records: &[CycleRecord]) -> Vec<CycleRow> {
 
 #[cfg(test)]
 mod tests {
-    use super::total;
+    use super::{Controller, EXTERNAL_CONTROLLER, total};
+    use mpc::ControllerMode;
+
+    #[test]
+    fn a_commands_controllers_are_the_users_alone_or_the_benchs_in_each_mode_and_name_themselves() {
+        let modes = [ControllerMode::Nmpc, ControllerMode::Multistage];
+        let bench = Controller::of(None, &modes);
+        assert_eq!(
+            bench,
+            [Controller::Bench(ControllerMode::Nmpc), Controller::Bench(ControllerMode::Multistage)]
+        );
+        assert_eq!(bench.iter().map(Controller::name).collect::<Vec<_>>(), ["nmpc", "multistage"]);
+        assert!(bench.iter().all(|c| c.command().is_none() && c.mode().is_some()));
+        // The user's controller flies once a run, whatever the modes; it has no mode.
+        let users = Controller::of(Some("python3 ctl.py"), &modes);
+        assert_eq!(users, [Controller::External("python3 ctl.py".into())]);
+        assert_eq!(
+            (users[0].name(), users[0].command(), users[0].mode()),
+            (EXTERNAL_CONTROLLER, Some("python3 ctl.py"), None)
+        );
+    }
 
     #[test]
     fn a_total_of_nothing_or_of_negative_zeros_prints_as_zero_not_minus_zero() {

@@ -47,7 +47,12 @@ impl Journal {
         let journal = JournalFile::start(&dir.join(JOURNAL), identity)?;
         let mut runs_csv = create(&dir.join("runs.csv"))?;
         writeln!(runs_csv, "{}", stats::CSV_HEADER)?;
-        Ok(Self { dir: dir.to_path_buf(), journal, runs_csv: Mutex::new(runs_csv), failed: AtomicBool::new(false) })
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            journal,
+            runs_csv: Mutex::new(runs_csv),
+            failed: AtomicBool::new(false),
+        })
     }
 
     /// Reopens the journal a killed sweep left in `dir`: refused when `identity` is not the

@@ -25,11 +25,10 @@ use std::time::{Duration, Instant};
 
 use hilbench_scenario_file::sweep_table::SweepSection;
 use mav::Scenario;
-use mpc::ControllerMode;
 
 use crate::drive::Driver;
 use crate::fly::{RunFate, fly_one, watch_ctrl_c};
-use crate::run::{Job, RunErrorKind, Verdict};
+use crate::run::{Controller, Job, RunErrorKind, Verdict};
 use crate::shrink::{self, Rerun};
 use draw::RunPlan;
 use stats::RunRow;
@@ -48,7 +47,8 @@ pub struct Sweep {
     pub seed: u64,
     /// Runs of the whole sweep (all shards).
     pub runs: u64,
-    pub modes: Vec<ControllerMode>,
+    /// The controllers each run is flown with, in this order.
+    pub controllers: Vec<Controller>,
     /// The i-th of k slices of the runs, and where that came from.
     pub shard: Option<shard::Shard>,
     pub jobs: usize,
@@ -98,9 +98,14 @@ impl Sweep {
         }
     }
 
-    /// The controllers flown, as the outputs name them (`modes` order).
-    pub fn controllers(&self) -> Vec<String> {
-        self.modes.iter().map(|m| self.driver.controller_name(*m).to_string()).collect()
+    /// The controllers flown, as the outputs name them (in order).
+    pub fn controller_names(&self) -> Vec<String> {
+        self.controllers.iter().map(|c| c.name().to_string()).collect()
+    }
+
+    /// The external controller's command line, when the sweep flies one.
+    pub fn controller_cmd(&self) -> Option<&str> {
+        self.controllers.iter().find_map(Controller::command)
     }
 
     /// Run `index`'s delays.
@@ -120,7 +125,7 @@ pub struct Done {
 /// What a sweep gives back.
 #[derive(Debug, Clone)]
 pub struct SweepResult {
-    /// Sorted by run, then controller (in `modes` order).
+    /// Sorted by run, then controller (in `controllers` order).
     pub done: Vec<Done>,
     pub interrupted: bool,
     pub wall_time_s: f64,
@@ -135,11 +140,11 @@ pub struct SweepResult {
 pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> SweepResult {
     let started = Instant::now();
     // The (run, controller) pairs, by their number: nothing is allocated per run up front.
-    let (runs, per_run) = (sweep.indices(), sweep.modes.len().max(1));
+    let (runs, per_run) = (sweep.indices(), sweep.controllers.len().max(1));
     let total = usize::try_from(runs.end - runs.start).unwrap_or(usize::MAX).saturating_mul(per_run);
-    let item = |k: usize| -> Option<(u64, ControllerMode)> {
-        let mode = *sweep.modes.get(k % per_run)?;
-        (k < total).then(|| (runs.start + (k / per_run) as u64, mode))
+    let item = |k: usize| -> Option<(u64, &Controller)> {
+        let controller = sweep.controllers.get(k % per_run)?;
+        (k < total).then(|| (runs.start + (k / per_run) as u64, controller))
     };
     let stop = Arc::new(AtomicBool::new(false));
     watch_ctrl_c(Arc::clone(&stop), "hilbench-sweep-ctrl-c");
@@ -153,12 +158,12 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
             let (item, next, stop) = (&item, &next, &stop);
             s.spawn(move || {
                 while !stop.load(Ordering::Relaxed) {
-                    let Some((index, mode)) = item(next.fetch_add(1, Ordering::Relaxed)) else { break };
-                    let key = (index, sweep.driver.controller_name(mode).to_string());
+                    let Some((index, controller)) = item(next.fetch_add(1, Ordering::Relaxed)) else { break };
+                    let key = (index, controller.name().to_string());
                     let result = match sweep.finished.get(&key) {
                         Some(done) => Some(done.clone()),
                         None => {
-                            let result = one(sweep, index, mode);
+                            let result = one(sweep, index, controller);
                             if let (Some(done), Some(journal)) = (&result, &sweep.journal) {
                                 journal.record(done);
                             }
@@ -210,7 +215,7 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
         }
     });
     interrupted |= stop.load(Ordering::Relaxed) && done.len() < total;
-    let order = |m: &str| sweep.controllers().iter().position(|x| x == m).unwrap_or(usize::MAX);
+    let order = |m: &str| sweep.controllers.iter().position(|c| c.name() == m).unwrap_or(usize::MAX);
     done.sort_by_key(|a| (a.row.run, order(&a.row.controller)));
     SweepResult {
         done,
@@ -221,18 +226,20 @@ pub fn execute(sweep: &Sweep, bar: &indicatif::ProgressBar, show: bool) -> Sweep
     }
 }
 
-/// Run `index` with `mode`: drawn, flown, its row, its failure's trace. `None`: Ctrl-C.
-fn one(sweep: &Sweep, index: u64, mode: ControllerMode) -> Option<Done> {
+/// Run `index` with `controller`: drawn, flown, its row, its failure's trace. `None`: Ctrl-C.
+fn one(sweep: &Sweep, index: u64, controller: &Controller) -> Option<Done> {
     let started = Instant::now();
-    let controller = sweep.driver.controller_name(mode);
+    let job_controller = controller.clone();
+    let controller = controller.name();
     let plan = match sweep.plan(index) {
         Ok(plan) => plan,
         Err(e) => {
-            let row = RunRow::of_error(index, controller, "", "", Verdict::Failed(RunErrorKind::Bench), &e, 0.0);
+            let row =
+                RunRow::of_error(index, controller, "", "", Verdict::Failed(RunErrorKind::Bench), &e, 0.0);
             return Some(Done { row, failure: None });
         }
     };
-    let job = Job { scenario: plan.scenario(&sweep.scenario), mode };
+    let job = Job { scenario: plan.scenario(&sweep.scenario), controller: job_controller };
     let flight = fly_one(&job, &sweep.driver, sweep.run_timeout);
     let wall_s = started.elapsed().as_secs_f64();
     let row = match &flight {
@@ -240,20 +247,26 @@ fn one(sweep: &Sweep, index: u64, mode: ControllerMode) -> Option<Done> {
         RunFate::Flown(f) => RunRow::of_flight(index, controller, &plan, f, wall_s),
         // The controller stopping the run is a failure of it, with its own outcome; the
         // bench's own errors are not outcomes.
-        RunFate::Failed(e) => {
+        RunFate::Failed(e) => RunRow::of_error(
+            index,
+            controller,
+            &plan.family,
+            &plan.params_text(),
+            Verdict::Failed(e.kind),
+            &e.message,
+            wall_s,
+        ),
+        RunFate::TimedOut(limit) => {
+            let e = format!("the run took longer than the per-run time limit of {} s", limit.as_secs_f64());
             RunRow::of_error(
                 index,
                 controller,
                 &plan.family,
                 &plan.params_text(),
-                Verdict::Failed(e.kind),
-                &e.message,
+                Verdict::TimedOut,
+                &e,
                 wall_s,
             )
-        }
-        RunFate::TimedOut(limit) => {
-            let e = format!("the run took longer than the per-run time limit of {} s", limit.as_secs_f64());
-            RunRow::of_error(index, controller, &plan.family, &plan.params_text(), Verdict::TimedOut, &e, wall_s)
         }
     };
     let failure = match &flight {
@@ -342,18 +355,14 @@ pub fn shrink_failures(sweep: &Sweep, result: &mut SweepResult, show: bool) -> S
                         }
                         continue;
                     }
-                    let Some(mode) = sweep
-                        .modes
-                        .iter()
-                        .copied()
-                        .find(|m| sweep.driver.controller_name(*m) == d.row.controller)
+                    let Some(controller) = sweep.controllers.iter().find(|c| c.name() == d.row.controller)
                     else {
                         continue;
                     };
                     let rerun = Rerun {
                         scenario: &sweep.scenario,
                         trace_name: format!("sweep-run-{}", d.row.run),
-                        mode,
+                        controller,
                         driver: &sweep.driver,
                         timeout: sweep.run_timeout,
                         stop,

@@ -13,13 +13,13 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::stats::RunRow;
-use crate::run::Verdict;
 use crate::output::plots::paths::{Swatch, circle, draw_legend as draw_legend_below};
 use crate::output::plots::style::{
     BOUND, CYLINDER, PALETTE, controller_color, controller_label, draw_legend, draw_mesh, equal_axes_chart,
     extent, pad, panel_font, title_font,
 };
 use crate::output::plots::{DrawResult, PLOTS_DIR, register_font};
+use crate::run::Verdict;
 
 enum Figure<'a> {
     ClearanceCdf { rows: &'a [&'a RunRow], families: &'a [String], controllers: &'a [String] },

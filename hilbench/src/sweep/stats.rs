@@ -472,8 +472,11 @@ mod tests {
 
     #[test]
     fn a_runs_csv_line_reads_back_to_the_bit() {
-        let rows =
-            [row(0, Verdict::Reached, 0.1 / 3.0), row(1, Verdict::Collided, -0.02), row(2, Verdict::Failed(RunErrorKind::Bench), f64::MIN_POSITIVE)];
+        let rows = [
+            row(0, Verdict::Reached, 0.1 / 3.0),
+            row(1, Verdict::Collided, -0.02),
+            row(2, Verdict::Failed(RunErrorKind::Bench), f64::MIN_POSITIVE),
+        ];
         let text = to_csv(&rows.iter().collect::<Vec<_>>());
         assert_eq!(text.lines().count(), 4);
         assert_eq!(from_csv(&text), Ok(rows.to_vec()));
@@ -489,8 +492,9 @@ mod tests {
 
     #[test]
     fn aggregates_count_outcomes_and_take_nearest_rank_percentiles() {
-        let rows: Vec<RunRow> =
-            (0..100).map(|i| row(i, if i < 3 { Verdict::Collided } else { Verdict::Reached }, i as f64)).collect();
+        let rows: Vec<RunRow> = (0..100)
+            .map(|i| row(i, if i < 3 { Verdict::Collided } else { Verdict::Reached }, i as f64))
+            .collect();
         let refs: Vec<&RunRow> = rows.iter().collect();
         let v = aggregate_with_families(&refs, &["gamma".to_string()]);
         assert_eq!(

@@ -117,7 +117,7 @@ pub fn execute_until(
     let families = per_family.then_some(drawn.as_slice());
     // Each family needs `need` runs of its own: about that many times the families, drawn.
     let need = check(bound, sweep.runs)? * families.map_or(1, |f| f.len().max(1) as u64);
-    let modes = sweep.controllers();
+    let modes = sweep.controller_names();
     let jobs = sweep.jobs.max(1) as u64;
     let mut done: Vec<Done> = Vec::new();
     let (mut next, mut wall_time_s) = (0u64, 0.0);

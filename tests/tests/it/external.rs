@@ -8,7 +8,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use hilbench::drive::external::{
-    ExternalController, ExternalFailure, ExternalRun, ExternalSettings, run_external,
+    ExternalDriver, ExternalFailure, ExternalRun, ExternalSettings, run_external,
 };
 use hilbench::scenario_file::ScenarioFile;
 use hilbench_tests::TempDir;
@@ -77,19 +77,13 @@ fn fly_in(
     command: &str,
     settings: ExternalSettings,
 ) -> Result<ExternalRun, ExternalFailure> {
-    let controller = ExternalController {
-        command: command.to_string(),
-        time_mode,
-        settings,
-        plant: None,
-        start_from_vehicle: false,
-    };
+    let controller = ExternalDriver { time_mode, settings, plant: None, start_from_vehicle: false };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()
         .expect("a runtime");
-    runtime.block_on(run_external(scenario, &controller))
+    runtime.block_on(run_external(scenario, command, &controller))
 }
 
 #[test]

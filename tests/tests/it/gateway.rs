@@ -1142,7 +1142,7 @@ async fn mavsim_signing_with_the_gateways_key_is_served_and_with_another_key_is_
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_users_controller_flies_the_vehicle_behind_the_gateway_and_the_next_run_starts_from_where_it_left_it()
  {
-    use hilbench::drive::external::{ExternalController, ExternalSettings, run_external};
+    use hilbench::drive::external::{ExternalDriver, ExternalSettings, run_external};
     let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let scenario =
         hilbench::scenario_file::ScenarioFile::load(&repo.join("examples/python-controller/open-field.toml"))
@@ -1156,14 +1156,14 @@ async fn a_users_controller_flies_the_vehicle_behind_the_gateway_and_the_next_ru
     let bench = start(&scenario).await;
     let addr = bench.gateway.addr;
     arm_and_offboard(addr).await;
-    let controller = |start_from_vehicle| ExternalController {
-        command: command.clone(),
+    let controller = |start_from_vehicle| ExternalDriver {
         time_mode: TimeMode::RealTime,
         settings: ExternalSettings::default(),
         plant: Some(addr.to_string()),
         start_from_vehicle,
     };
-    let first = run_external(&scenario, &controller(false)).await.map_err(|f| format!("{:#}", f.error));
+    let first =
+        run_external(&scenario, &command, &controller(false)).await.map_err(|f| format!("{:#}", f.error));
     let first = first.expect("the user's controller flies the vehicle");
     assert!(first.summary.reached && !first.summary.collided, "{:?}", first.summary);
     assert!(first.plant.starts_with(gateway::service::IMPLEMENTATION), "{}", first.plant);
@@ -1174,11 +1174,13 @@ async fn a_users_controller_flies_the_vehicle_behind_the_gateway_and_the_next_ru
         assert!(d < 0.5, "the simulator's vehicle is {d} m from the goal: {x:?}");
     }
 
-    let refused = run_external(&scenario, &controller(false)).await.map(|_| ()).expect_err("refused");
+    let refused =
+        run_external(&scenario, &command, &controller(false)).await.map(|_| ()).expect_err("refused");
     let text = format!("{:#}", refused.error);
     assert!(text.contains("teleport"), "{text}");
 
-    let second = run_external(&scenario, &controller(true)).await.map_err(|f| format!("{:#}", f.error));
+    let second =
+        run_external(&scenario, &command, &controller(true)).await.map_err(|f| format!("{:#}", f.error));
     let second = second.expect("a run from where the vehicle is");
     assert!(second.summary.reached && !second.summary.collided, "{:?}", second.summary);
     let moved =
