@@ -33,14 +33,8 @@ fn bench(c: &mut Criterion) {
     let regime = DirectionProfile::with_delay(
         Distribution::Regime {
             states: [
-                RegimeState {
-                    delay: Distribution::Lognormal { mu: -2.9, sigma: 0.3 },
-                    mean_dwell: Dwell::Messages(80.0),
-                },
-                RegimeState {
-                    delay: Distribution::Uniform { min_s: 0.08, max_s: 0.33 },
-                    mean_dwell: Dwell::Seconds(1.0),
-                },
+                RegimeState::new(Distribution::Lognormal { mu: -2.9, sigma: 0.3 }, Dwell::Messages(80.0)),
+                RegimeState::new(Distribution::Uniform { min_s: 0.08, max_s: 0.33 }, Dwell::Seconds(1.0)),
             ]
             .into(),
         },

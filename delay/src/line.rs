@@ -26,7 +26,11 @@ enum Sampler {
 #[derive(Debug, Clone)]
 struct RegimeSampler {
     states: Vec<(Sampler, Dwell)>,
+    /// Each state's own loss probability, if it has one.
+    losses: Vec<Option<f64>>,
     current: usize,
+    /// The state the latest message was sent in (its loss is that state's).
+    sent_in: usize,
     /// End of the current state's dwell, ns, for a state of [`Dwell::Seconds`] once entered
     /// at a known time (`None` before the first message).
     until_ns: Option<u64>,
@@ -70,6 +74,7 @@ impl RegimeSampler {
         while let Some(end) = self.until_ns.filter(|end| *end <= time_ns) {
             self.switch(end, regime_rng);
         }
+        self.sent_in = self.current;
         let (sampler, dwell) = &mut self.states[self.current];
         let delay_s = sampler.sample(time_ns, delay_rng, regime_rng).unwrap_or(0.0);
         if let Dwell::Messages(mean) = *dwell
@@ -114,6 +119,8 @@ impl Sampler {
             }
             Distribution::Trace(trace) => Sampler::Trace { trace: trace.clone(), next: 0 },
             Distribution::Regime { states } => Sampler::Regime(Box::new(RegimeSampler {
+                losses: states.iter().map(|s| s.loss_probability).collect(),
+                sent_in: 0,
                 states: states.iter().map(|s| Ok((Sampler::new(&s.delay)?, s.mean_dwell))).collect::<Result<
                     _,
                     ProfileError,
@@ -151,6 +158,15 @@ impl Sampler {
             }
             Sampler::Regime(r) => r.sample(time_ns, rng, regime_rng),
         })
+    }
+
+    /// The loss probability of the latest message sampled, when it is its regime state's own
+    /// (`None`: the direction's).
+    fn state_loss(&self) -> Option<f64> {
+        match self {
+            Sampler::Regime(r) => r.losses[r.sent_in],
+            _ => None,
+        }
     }
 
     /// The trace has no delay for the next message.
@@ -382,7 +398,8 @@ impl DelayLine {
         let sampled = self.sampler.sample(time_ns, &mut self.streams.delay, &mut self.streams.regime);
         // One draw per message on each of the loss and duplicate streams, always, so that the
         // streams stay aligned with the message numbers whatever the probabilities are.
-        let lost = self.streams.loss.random::<f64>() < self.profile.loss_probability;
+        let loss_probability = self.sampler.state_loss().unwrap_or(self.profile.loss_probability);
+        let lost = self.streams.loss.random::<f64>() < loss_probability;
         let duplicated = self.streams.duplicate.random::<f64>() < self.profile.duplicate_probability;
         match sampled {
             // A message the trace records as lost is lost here too, whatever the loss stream

@@ -80,11 +80,26 @@ pub enum Dwell {
 /// times are those of a continuous-time Markov chain observed at the send times. Every draw
 /// comes from the line's seeded streams: the same seed and send times give the same states
 /// and delays.
+///
+/// A state may have a loss of its own (a link that loses 8 % in its spikes and 0.2 %
+/// otherwise): a message sent in the state is lost with it, in place of the direction's
+/// `loss_probability`. The draw is the same one on the line's loss stream either way, so
+/// giving a state its loss changes no other message's fate.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RegimeState {
     /// The delay law in this state: any kind but a trace or a regime.
     pub delay: Distribution,
     pub mean_dwell: Dwell,
+    /// The probability in `[0, 1]` that a message sent in this state is lost; `None`: the
+    /// direction's `loss_probability`.
+    pub loss_probability: Option<f64>,
+}
+
+impl RegimeState {
+    /// A state with this delay and dwell and the direction's loss.
+    pub fn new(delay: Distribution, mean_dwell: Dwell) -> Self {
+        Self { delay, mean_dwell, loss_probability: None }
+    }
 }
 
 /// Largest number of states of a regime process.
@@ -263,6 +278,9 @@ impl Distribution {
                         Dwell::Messages(m) => ("mean_dwell_messages", m, 1.0),
                         Dwell::Seconds(t) => ("mean_dwell_s", t, f64::MIN_POSITIVE),
                     };
+                    if let Some(p) = s.loss_probability {
+                        probability(&format!("{at}.loss_probability"), p)?;
+                    }
                     if !mean.is_finite() || mean < least || mean > MAX_MEAN_DWELL {
                         let unit = if least == 1.0 { "at least 1 (message)" } else { "> 0" };
                         return Err(ProfileError::new(
@@ -278,6 +296,17 @@ impl Distribution {
             }
         }
     }
+}
+
+/// `p` is a probability, else the error names `field`.
+fn probability(field: &str, p: f64) -> Result<(), ProfileError> {
+    if !p.is_finite() || !(0.0..=1.0).contains(&p) {
+        return Err(ProfileError::new(
+            field,
+            format!("must be a probability in [0, 1], got {}", crate::Number(p)),
+        ));
+    }
+    Ok(())
 }
 
 /// Ordering of releases on one direction (`"fifo"` or `"independent"` in files).
@@ -330,18 +359,8 @@ impl DirectionProfile {
     /// Checks every field; the error names it as in `hilbench.v1.DirectionProfile`.
     pub fn validate(&self) -> Result<(), ProfileError> {
         self.delay.validate()?;
-        for (field, p) in [
-            ("loss_probability", self.loss_probability),
-            ("duplicate_probability", self.duplicate_probability),
-        ] {
-            if !p.is_finite() || !(0.0..=1.0).contains(&p) {
-                return Err(ProfileError::new(
-                    field,
-                    format!("must be a probability in [0, 1], got {}", crate::Number(p)),
-                ));
-            }
-        }
-        Ok(())
+        probability("loss_probability", self.loss_probability)?;
+        probability("duplicate_probability", self.duplicate_probability)
     }
 }
 

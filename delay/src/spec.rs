@@ -25,7 +25,7 @@
 //! | `lognormal` | `mean_s`, `std_s` of the delay itself; or `mu`, `sigma` of its log |
 //! | `pareto` | `scale_s` (the minimum), `shape` (the tail index) |
 //! | `trace` | `file` (one delay in s per line or `lost`, optional first line `delay_s`; see [`crate::trace`]), `looping` (default false) |
-//! | `regime` | `[[...states]]`: each a kind above but trace, with `mean_dwell_messages` or `mean_dwell_s` |
+//! | `regime` | `[[...states]]`: each a kind above but trace, with `mean_dwell_messages` or `mean_dwell_s`, and optionally its own `loss_probability` (a message sent in the state is lost with it instead of the direction's) |
 //!
 //! `gamma_moments` and `lognormal_moments`, the names of netem's API, are accepted too. A
 //! trace without `looping = true` ends the run when it is used up ([`crate::TraceEnd::Stop`]).
@@ -333,7 +333,6 @@ impl DelaysTable {
         read_trace: &mut dyn FnMut(&str) -> Result<Vec<f64>, String>,
     ) -> Result<RegimeState, SpecError> {
         for (key, set) in [
-            ("loss_probability", self.loss_probability.is_some()),
             ("duplicate_probability", self.duplicate_probability.is_some()),
             ("ordering", self.ordering.is_some()),
             ("to_plant", self.to_plant.is_some()),
@@ -362,7 +361,11 @@ impl DelaysTable {
                 ));
             }
         };
-        Ok(RegimeState { delay: self.distribution(path, read_trace)?, mean_dwell })
+        Ok(RegimeState {
+            delay: self.distribution(path, read_trace)?,
+            mean_dwell,
+            loss_probability: self.loss_probability,
+        })
     }
 }
 
@@ -489,6 +492,7 @@ impl DelaysTable {
                                 Dwell::Messages(m) => t.mean_dwell_messages = Some(m),
                                 Dwell::Seconds(d) => t.mean_dwell_s = Some(d),
                             }
+                            t.loss_probability = s.loss_probability;
                             t
                         })
                         .collect(),

@@ -1,6 +1,6 @@
 //! The regime (Markov-modulated) process against the laws it claims: mean dwell times in
-//! messages and in seconds, uniform choice of the next state, each state's own delay law, and
-//! reproducibility from the seed.
+//! messages and in seconds, uniform choice of the next state, each state's own delay law and
+//! loss, and reproducibility from the seed.
 
 mod common;
 use common::ks;
@@ -9,7 +9,7 @@ use statrs::distribution::{ContinuousCDF, Gamma};
 
 fn regime(states: Vec<(Distribution, Dwell)>) -> Distribution {
     Distribution::Regime {
-        states: states.into_iter().map(|(delay, mean_dwell)| RegimeState { delay, mean_dwell }).collect(),
+        states: states.into_iter().map(|(delay, mean_dwell)| RegimeState::new(delay, mean_dwell)).collect(),
     }
 }
 
@@ -168,4 +168,71 @@ fn lognormal_by_moments_has_the_mean_and_std_it_was_given() {
     assert!((s - std).abs() < 0.02 * std, "std {s}");
     let (mu, sigma) = Distribution::lognormal_from_moments(mean, std);
     assert!((mu - (mean.ln() - sigma * sigma / 2.0)).abs() < 1e-15);
+}
+
+/// Per state (told apart by its constant delay): messages sent in it, and how many were lost.
+fn losses_by_state(states: Vec<RegimeState>, direction_loss: f64, n: u64) -> Vec<(f64, u64, u64)> {
+    let mut profile = DirectionProfile::with_delay(Distribution::Regime { states: states.into() }, 11);
+    profile.loss_probability = direction_loss;
+    let mut l = DelayLine::new(Direction::ControllerToPlant, profile).expect("a valid profile");
+    let mut out: Vec<(f64, u64, u64)> = Vec::new();
+    for k in 0..n {
+        let d = l.send(k * 1_000_000);
+        let lost = u64::from(matches!(d.fate, delay::Fate::Dropped));
+        match out.iter_mut().find(|(v, _, _)| *v == d.sampled_delay_s) {
+            Some((_, sent, dropped)) => (*sent, *dropped) = (*sent + 1, *dropped + lost),
+            None => out.push((d.sampled_delay_s, 1, lost)),
+        }
+    }
+    out.sort_by(|a, b| a.0.total_cmp(&b.0));
+    out
+}
+
+#[test]
+fn a_state_with_a_loss_of_its_own_loses_at_its_rate_and_the_others_at_the_directions() {
+    // 0.01 s: no loss at all; 0.5 s: a quarter; 0.2 s: none of its own, the direction's 5 %.
+    let states = |spike_loss: Option<f64>| {
+        vec![
+            RegimeState {
+                loss_probability: Some(0.0),
+                ..RegimeState::new(constant(0.01), Dwell::Messages(20.0))
+            },
+            RegimeState {
+                loss_probability: spike_loss,
+                ..RegimeState::new(constant(0.5), Dwell::Messages(5.0))
+            },
+            RegimeState::new(constant(0.2), Dwell::Messages(10.0)),
+        ]
+    };
+    let n = 300_000;
+    let by_state = losses_by_state(states(Some(0.25)), 0.05, n);
+    assert_eq!(by_state.iter().map(|s| s.0).collect::<Vec<_>>(), [0.01, 0.2, 0.5]);
+    assert_eq!(by_state[0].2, 0, "the loss-free state lost messages");
+    for ((_, sent, lost), p) in [(by_state[1], 0.05), (by_state[2], 0.25)] {
+        let rate = lost as f64 / sent as f64;
+        let se = (p * (1.0 - p) / sent as f64).sqrt();
+        assert!((rate - p).abs() < 4.0 * se, "loss {rate} where {p} was asked ({sent} sent)");
+    }
+    // The one loss draw a message: giving the spikes their loss changes no other state's fate.
+    let without = losses_by_state(states(None), 0.05, n);
+    assert_eq!((without[0], without[1]), (by_state[0], by_state[1]));
+    assert_ne!(without[2], by_state[2]);
+}
+
+#[test]
+fn a_states_loss_outside_zero_to_one_is_refused_naming_the_state() {
+    for p in [-0.1, 1.5, f64::NAN, f64::INFINITY] {
+        let d = Distribution::Regime {
+            states: vec![
+                RegimeState::new(constant(0.01), Dwell::Messages(20.0)),
+                RegimeState {
+                    loss_probability: Some(p),
+                    ..RegimeState::new(constant(0.5), Dwell::Messages(5.0))
+                },
+            ]
+            .into(),
+        };
+        let e = DirectionProfile::with_delay(d, 1).validate().expect_err("refused");
+        assert_eq!(e.field, "delay.regime.states[1].loss_probability", "{e}");
+    }
 }

@@ -4,7 +4,7 @@
 //! `cargo bench -p linkfit`
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use delay::{DelayLine, Direction, DirectionProfile, Distribution};
+use delay::{DelayLine, Direction, DirectionProfile, Distribution, Dwell, Fate, LOST_S, RegimeState};
 use linkfit::{FitOptions, Format, ImportOptions, Kind, StatsOptions, fit, import, trace_stats};
 
 /// `n` lines of Linux ping output, every 50th reply missing.
@@ -30,6 +30,26 @@ fn gamma(n: usize) -> Vec<f64> {
     (0..n).map(|_| line.sample_delay_s()).collect()
 }
 
+/// `n` entries of a two-state regime that loses 8 % of its spikes and 0.2 % otherwise: the
+/// regime is fitted twice (one loss share, a share per state).
+fn lossy_regime(n: usize) -> Vec<f64> {
+    let state = |mu, sigma, dwell, loss| RegimeState {
+        loss_probability: Some(loss),
+        ..RegimeState::new(Distribution::Lognormal { mu, sigma }, Dwell::Messages(dwell))
+    };
+    let d = Distribution::Regime {
+        states: vec![state(-3.5, 0.2, 100.0, 0.002), state(-1.9, 0.3, 20.0, 0.08)].into(),
+    };
+    let mut line =
+        DelayLine::new(Direction::ControllerToPlant, DirectionProfile::with_delay(d, 1)).expect("profile");
+    (0..n as u64)
+        .map(|k| {
+            let decision = line.send(k * 50_000_000);
+            if matches!(decision.fate, Fate::Dropped) { LOST_S } else { decision.sampled_delay_s }
+        })
+        .collect()
+}
+
 fn benches(c: &mut Criterion) {
     let text = ping_text(1_000_000);
     let mut g = c.benchmark_group("linkfit");
@@ -50,6 +70,8 @@ fn benches(c: &mut Criterion) {
     g.bench_function("fit_100k_iid_kinds", |b| b.iter(|| fit(&x, &iid).expect("fit")));
     let regime = FitOptions { kinds: vec![Kind::Regime], ..FitOptions::default() };
     g.bench_function("fit_100k_regime", |b| b.iter(|| fit(&x, &regime).expect("fit")));
+    let lossy = lossy_regime(100_000);
+    g.bench_function("fit_100k_lossy_regime", |b| b.iter(|| fit(&lossy, &regime).expect("fit")));
     g.finish();
 }
 

@@ -22,10 +22,14 @@
 //!   maximum, so `x^k` never overflows.
 //! - the log-likelihoods from the sufficient statistics (one pass over the data, not `n`
 //!   calls of statrs' `ln_pdf`; a test checks them against statrs);
-//! - the regime's EM (Baum–Welch with scaled forward–backward): lost entries are missing
-//!   observations (both states explain them equally), so the chain still steps over them;
-//!   its states are ordered by `mu` (the faster state first; the bench's regime starts in
-//!   its first state).
+//! - the regime's EM (Baum–Welch with scaled forward–backward): a lost entry is an emission
+//!   of its own, with its state's loss share, so the chain still steps over it. A trace with
+//!   losses is fitted with the trace's one share for both states and with a share each (a
+//!   link that loses 8 % in its spikes and 0.2 % otherwise), the second kept where AIC
+//!   prefers it; the likelihood is that of the delays and the losses, less the Bernoulli
+//!   likelihood of the losses at the trace's one share, which the i.i.d. kinds carry as a
+//!   common term and AIC drops. Its states are ordered by `mu` (the faster state first; the
+//!   bench's regime starts in its first state).
 //!
 //! Intervals (95 %, seeded ChaCha8, deterministic):
 //! - Gamma, lognormal, Weibull: the percentile bootstrap, [`FitOptions::replicates`]
@@ -38,7 +42,7 @@
 //!   Pareto(1, n alpha)` (`x_m`'s interval is one-sided, up to `min x`).
 //! - Regime: a parametric bootstrap, [`FitOptions::regime_replicates`] sequences of
 //!   `min(entries, FitOptions::regime_bootstrap_size)` entries drawn from the fitted model
-//!   (losses where the trace's are), each refitted by at most 25 EM iterations from the fit,
+//!   (losses drawn at each state's share, or where the trace's are), each refitted by at most 25 EM iterations from the fit,
 //!   percentile intervals scaled as above. Fewer and shorter replicates than for the i.i.d.
 //!   kinds (each is an EM), so its intervals' ends are coarser. A trace longer than 10,000
 //!   entries is fitted on its first 10,000, then polished by EM on the whole.
@@ -92,15 +96,22 @@ pub enum Model {
 }
 
 /// Two states with lognormal delays; after each message the chain leaves state `i` with
-/// probability `leave[i]`.
+/// probability `leave[i]`; a probe sent in state `i` is lost with probability `loss[i]`, or,
+/// with `loss` `None`, at the trace's one share (`FitReport::loss_probability`).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct RegimeModel {
     pub mu: [f64; 2],
     pub sigma: [f64; 2],
     pub leave: [f64; 2],
+    pub loss: Option<[f64; 2]>,
 }
 
 impl RegimeModel {
+    /// Whether the states have loss shares of their own.
+    pub fn loses(&self) -> bool {
+        self.loss.is_some()
+    }
+
     /// Mean dwell of each state, messages (`1 / leave`, at most `delay::MAX_MEAN_DWELL`).
     pub fn mean_dwell_messages(&self) -> [f64; 2] {
         self.leave.map(|p| (1.0 / p).min(delay::MAX_MEAN_DWELL))
@@ -176,23 +187,29 @@ impl Model {
             Model::Weibull { shape, scale_s } => vec![p("shape", shape), p("scale_s", scale_s)],
             Model::Regime(r) => {
                 let dwell = r.mean_dwell_messages();
-                (0..2)
-                    .flat_map(|i| {
-                        [
-                            p(&format!("states[{i}].mu"), r.mu[i]),
-                            p(&format!("states[{i}].sigma"), r.sigma[i]),
-                            p(&format!("states[{i}].mean_dwell_messages"), dwell[i]),
-                        ]
-                    })
-                    .collect()
+                let mut params = Vec::new();
+                for i in 0..2 {
+                    params.push(p(&format!("states[{i}].mu"), r.mu[i]));
+                    params.push(p(&format!("states[{i}].sigma"), r.sigma[i]));
+                    params.push(p(&format!("states[{i}].mean_dwell_messages"), dwell[i]));
+                    if let Some(loss) = r.loss {
+                        params.push(p(&format!("states[{i}].loss_probability"), loss[i]));
+                    }
+                }
+                params
             }
         }
     }
 
     /// Number of free parameters (AIC's `k`): two for each i.i.d. law, seven for the regime
-    /// (two states' `mu` and `sigma`, two leave probabilities, the initial state).
+    /// (two states' `mu` and `sigma`, two leave probabilities, the initial state), and one
+    /// more for a regime whose states have loss shares of their own (two where every other
+    /// kind has the trace's one, which each of them shares and AIC leaves out).
     pub fn free_parameters(&self) -> usize {
-        if matches!(self, Model::Regime(_)) { 7 } else { 2 }
+        match self {
+            Model::Regime(r) => 7 + usize::from(r.loses()),
+            _ => 2,
+        }
     }
 }
 
@@ -547,7 +564,7 @@ pub fn fit(delays_s: &[f64], options: &FitOptions) -> Result<FitReport, FitError
     {
         models.push((Model::Weibull { shape: k, scale_s: l }, weibull_ll(&sums, &sample.ln_x, k, l)));
     }
-    let regime = if wants(Kind::Regime) { regime::fit(delays_s, None) } else { None };
+    let regime = if wants(Kind::Regime) { regime::fit(delays_s) } else { None };
     if let Some((r, ll)) = regime {
         models.push((Model::Regime(r), ll));
     }

@@ -34,14 +34,8 @@ fn draws(d: Distribution, n: usize) -> Vec<f64> {
 fn each_replayable_kind_loads_as_a_scenario_and_a_sweep_family() {
     let regime = Distribution::Regime {
         states: vec![
-            RegimeState {
-                delay: Distribution::Lognormal { mu: -3.5, sigma: 0.2 },
-                mean_dwell: Dwell::Messages(80.0),
-            },
-            RegimeState {
-                delay: Distribution::Uniform { min_s: 0.08, max_s: 0.3 },
-                mean_dwell: Dwell::Messages(20.0),
-            },
+            RegimeState::new(Distribution::Lognormal { mu: -3.5, sigma: 0.2 }, Dwell::Messages(80.0)),
+            RegimeState::new(Distribution::Uniform { min_s: 0.08, max_s: 0.3 }, Dwell::Messages(20.0)),
         ]
         .into(),
     };
@@ -74,6 +68,7 @@ fn a_recorded_irtt_trace_imports_fits_and_loads_with_its_losses_and_dwell_in_sec
     let report = fit(&trace.delays_s, &options).expect("a fit");
     let file = scenario_with(&both(&report)).unwrap_or_else(|e| panic!("{e}"));
     let delays = file.scenario.delays.expect("delays");
+    // Five losses do not tell two states' shares apart: the trace's one share.
     assert_eq!(delays.loss_probability, Some(5.0 / 199.0));
     // The sweep family's loss: the loss share's Clopper–Pearson 95 % interval.
     let family = &file.sweep.as_ref().expect("a sweep").families[0];
@@ -114,5 +109,39 @@ fn a_widened_family_holds_a_factor_either_side_of_each_estimate_and_still_loads(
     assert!(lo <= sigma / 2.0 && hi >= sigma * 2.0, "[{lo}, {hi}] around {sigma}");
     for bad in [0.5, f64::NAN, 1e3] {
         assert!(report.sweep_toml_widened(bad).is_err(), "{bad}");
+    }
+}
+
+#[test]
+fn a_regime_losing_in_its_spikes_loads_with_a_loss_per_state_as_a_scenario_and_a_sweep_family() {
+    let state =
+        |delay, dwell, loss| RegimeState { loss_probability: Some(loss), ..RegimeState::new(delay, dwell) };
+    let truth = Distribution::Regime {
+        states: vec![
+            state(Distribution::Lognormal { mu: -3.5, sigma: 0.2 }, Dwell::Messages(80.0), 0.002),
+            state(Distribution::Lognormal { mu: -1.9, sigma: 0.3 }, Dwell::Messages(20.0), 0.1),
+        ]
+        .into(),
+    };
+    let mut line = DelayLine::new(Direction::ControllerToPlant, DirectionProfile::with_delay(truth, 5))
+        .expect("a valid profile");
+    let x: Vec<f64> = (0..30_000)
+        .map(|k| {
+            let d = line.send(k as u64 * 50_000_000);
+            if matches!(d.fate, delay::Fate::Dropped) { delay::LOST_S } else { d.sampled_delay_s }
+        })
+        .collect();
+    let report = fit(&x, &FitOptions::default()).expect("a fit");
+    let file = scenario_with(&both(&report)).unwrap_or_else(|e| panic!("{e}"));
+    let delays = file.scenario.delays.as_ref().expect("delays");
+    assert_eq!(delays.loss_probability, None, "the states carry the losses");
+    let network = delays.to_network(1, &mut |f| Err(format!("{f}: no file"))).expect("a network");
+    let Distribution::Regime { states } = &network.to_plant.delay else { panic!("{network:?}") };
+    let shares: Vec<f64> = states.iter().filter_map(|s| s.loss_probability).collect();
+    assert!(shares.len() == 2 && shares[0] < 0.01 && (0.07..0.13).contains(&shares[1]), "{shares:?}");
+    let family = &file.sweep.as_ref().expect("a sweep").families[0];
+    assert_eq!(family.loss, None, "the states carry the losses");
+    for s in family.states.as_ref().expect("states") {
+        assert!(matches!(s.loss, Some(Param::Range(lo, hi)) if lo < hi && hi < 1.0), "{s:?}");
     }
 }

@@ -13,7 +13,8 @@
 //! kind = "gamma"          # a kind of [scenario.delays] ...
 //! shape = [1.0, 30.0]     # ... whose parameters are numbers or ranges [min, max]
 //! scale_s = [0.002, 0.04]
-//! loss = [0.0, 0.05]     # the run's loss probability (optional, any kind; not a state's)
+//! loss = [0.0, 0.05]     # the run's loss probability (optional, any kind; a regime's state
+//!                         # may have its own: the loss of a message sent in that state)
 //! ```
 //!
 //! A family is a delay kind of `delay::spec` (`constant`, `uniform`, `normal`, `gamma`,
@@ -141,8 +142,9 @@ pub struct Family {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub looping: Option<bool>,
     /// The run's loss probability, in [0, 1): each command is lost with it, whatever its
-    /// delay (the table's `loss_probability`). Drawn after the other ranges; a family's, not
-    /// a regime state's.
+    /// delay (the table's `loss_probability`), drawn after the other ranges; in a regime's
+    /// state, the loss of a command sent in that state (the state table's own), drawn after
+    /// the state's other ranges.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub loss: Option<Param>,
     /// `traces`: the files read from `dir` (name, delays), sorted by name; filled by the loader.
@@ -236,6 +238,10 @@ impl Family {
             };
             *slot = Some(drawn);
         }
+        // A regime state's own loss (the family's is drawn last, by `table`).
+        if let Some(p) = self.loss.filter(|_| !path.is_empty()) {
+            table.loss_probability = Some(value(p, join(path, "loss"), pick, params));
+        }
         if let Some(states) = &self.states {
             table.states = Some(
                 states
@@ -279,12 +285,6 @@ impl Family {
         }
         if let Some(p) = self.loss {
             let key = join(path, "loss");
-            if state {
-                return Err((
-                    key,
-                    "is the run's loss: it belongs to the family, not to a regime's state".into(),
-                ));
-            }
             let (lo, hi) = p.bounds();
             if !(0.0..1.0).contains(&lo) || !(0.0..1.0).contains(&hi) {
                 return Err((key, "a loss probability must be in [0, 1)".into()));
@@ -638,7 +638,7 @@ mod tests {
     }
 
     #[test]
-    fn a_loss_outside_0_to_1_or_in_a_state_is_refused_naming_the_field() {
+    fn a_loss_outside_0_to_1_is_refused_naming_the_field_in_a_family_or_a_state() {
         let gamma = |loss: &str| {
             format!("[[families]]\nkind = \"gamma\"\nshape = 2.0\nscale_s = 0.01\nloss = {loss}")
         };
@@ -650,12 +650,30 @@ mod tests {
         }
         let (_, why) = section(&gamma("1.5")).validate().expect_err("refused");
         assert!(why.contains("[0, 1)"), "{why}");
-        assert_eq!(
-            field_of(
-                "[[families]]\nkind = \"regime\"\n[[families.states]]\nkind = \"constant\"\ndelay_s = 0.1\nmean_dwell_messages = 2\nloss = 0.1"
-            ),
-            "sweep.families[0].states[0].loss"
+        let state = |loss: &str| {
+            format!(
+                "[[families]]\nkind = \"regime\"\n[[families.states]]\nkind = \"constant\"\ndelay_s = 0.1\nmean_dwell_messages = 2\nloss = {loss}"
+            )
+        };
+        assert_eq!(field_of(&state("[0.1, 1.0]")), "sweep.families[0].states[0].loss");
+        assert_eq!(section(&state("[0.0, 0.1]")).validate(), Ok(()));
+    }
+
+    #[test]
+    fn a_regime_states_loss_is_drawn_after_its_other_ranges_into_the_states_table() {
+        let s = section(
+            "[[families]]\nkind = \"regime\"\n\
+             [[families.states]]\nkind = \"constant\"\ndelay_s = [0.0, 0.06]\nmean_dwell_messages = 10\nloss = 0.002\n\
+             [[families.states]]\nkind = \"constant\"\ndelay_s = 0.3\nmean_dwell_messages = [2.0, 8.0]\nloss = [0.04, 0.12]\n",
         );
+        assert_eq!(s.validate(), Ok(()));
+        let (t, params) = s.families[0].table(&mut |_, _, hi| hi, &mut |_| 0);
+        let names: Vec<&str> = params.iter().map(|(k, _)| k.as_str()).collect();
+        assert_eq!(names, ["states[0].delay_s", "states[1].mean_dwell_messages", "states[1].loss"]);
+        assert_eq!(t.loss_probability, None);
+        let network = t.to_network(1, &mut |_| Ok(vec![])).expect("a network");
+        let delay::Distribution::Regime { states } = &network.to_plant.delay else { panic!("{network:?}") };
+        assert_eq!((states[0].loss_probability, states[1].loss_probability), (Some(0.002), Some(0.12)));
     }
 
     #[test]

@@ -30,7 +30,7 @@ fn bad_parameters_name_their_field() {
         field_of(with(Distribution::LognormalMoments { mean_s: 0.0, std_s: 0.1 })),
         "delay.lognormal_moments.mean_s"
     );
-    let state = |delay, mean_dwell| RegimeState { delay, mean_dwell };
+    let state = RegimeState::new;
     let regime = |states: Vec<RegimeState>| with(Distribution::Regime { states: states.into() });
     let fast = Distribution::Constant { delay_s: 0.01 };
     assert_eq!(field_of(regime(vec![])), "delay.regime.states");

@@ -91,6 +91,20 @@ fn a_regime_reads_its_states_with_their_dwells() -> Result<(), SpecError> {
     assert_eq!(states[0].mean_dwell, Dwell::Messages(50.0));
     assert_eq!(states[1].delay, Distribution::Uniform { min_s: 0.2, max_s: 0.4 });
     assert_eq!(states[1].mean_dwell, Dwell::Seconds(1.5));
+    assert_eq!((states[0].loss_probability, states[1].loss_probability), (None, None));
+    Ok(())
+}
+
+#[test]
+fn a_regime_state_may_have_a_loss_of_its_own_beside_the_directions() -> Result<(), SpecError> {
+    let n = network(
+        "kind = \"regime\"\nloss_probability = 0.002\n\
+         [[states]]\nkind = \"constant\"\ndelay_s = 0.02\nmean_dwell_messages = 50\n\
+         [[states]]\nkind = \"constant\"\ndelay_s = 0.3\nmean_dwell_s = 1.5\nloss_probability = 0.08\n",
+    )?;
+    let Distribution::Regime { states } = &n.to_plant.delay else { panic!("{n:?}") };
+    assert_eq!(n.to_plant.loss_probability, 0.002);
+    assert_eq!((states[0].loss_probability, states[1].loss_probability), (None, Some(0.08)));
     Ok(())
 }
 
@@ -133,8 +147,12 @@ fn every_bad_table_names_its_key() {
     assert_eq!(regime("kind = \"constant\"\ndelay_s = -1.0\nmean_dwell_s = 1.0"), "states[1].delay_s");
     assert_eq!(regime("kind = \"trace\"\nfile = \"wifi.csv\"\nmean_dwell_s = 1.0"), "states[1].kind");
     assert_eq!(
-        regime("kind = \"none\"\nmean_dwell_s = 1.0\nloss_probability = 0.1"),
+        regime("kind = \"none\"\nmean_dwell_s = 1.0\nloss_probability = 1.1"),
         "states[1].loss_probability"
+    );
+    assert_eq!(
+        regime("kind = \"none\"\nmean_dwell_s = 1.0\nduplicate_probability = 0.1"),
+        "states[1].duplicate_probability"
     );
     // Unknown keys are serde's, with the key named.
     let e =
@@ -172,6 +190,7 @@ fn every_network_a_table_describes_comes_back_from_its_own_table() -> Result<(),
         "kind = \"trace\"\nfile = \"wifi.csv\"\nlooping = true",
         "kind = \"trace\"\ndelays_s = [0.1, 0.3]",
         "kind = \"regime\"\n[[states]]\nkind = \"constant\"\ndelay_s = 0.02\nmean_dwell_messages = 20.0\n[[states]]\nkind = \"uniform\"\nmin_s = 0.1\nmax_s = 0.3\nmean_dwell_s = 1.5",
+        "kind = \"regime\"\n[[states]]\nkind = \"constant\"\ndelay_s = 0.02\nmean_dwell_messages = 20.0\nloss_probability = 0.0\n[[states]]\nkind = \"constant\"\ndelay_s = 0.3\nmean_dwell_s = 1.5\nloss_probability = 0.08",
         "[to_plant]\nkind = \"constant\"\ndelay_s = 0.1\n[to_controller]\nkind = \"gamma\"\nshape = 2.0\nscale_s = 0.01",
     ];
     for text in texts {

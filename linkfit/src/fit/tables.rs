@@ -46,8 +46,8 @@ impl FitReport {
     }
 
     /// `candidate`'s `[scenario.delays]` table, with the trace's loss rate as
-    /// `loss_probability` (when there were losses), checked through
-    /// `DelaysTable::to_network`.
+    /// `loss_probability` (when there were losses; a regime's states have each their own),
+    /// checked through `DelaysTable::to_network`.
     pub fn delays_table(&self, candidate: &Candidate) -> Result<DelaysTable, TableError> {
         let kind = |k: &str| DelaysTable { kind: Some(k.to_string()), ..DelaysTable::default() };
         let mut table = match candidate.model {
@@ -69,13 +69,17 @@ impl FitReport {
                             Some(hz) => s.mean_dwell_s = Some(dwell[i] / hz),
                             None => s.mean_dwell_messages = Some(dwell[i]),
                         }
+                        s.loss_probability = r.loss.map(|l| l[i]);
                         s
                     })
                     .collect();
                 DelaysTable { states: Some(states), ..kind("regime") }
             }
         };
-        table.loss_probability = (self.loss_probability > 0.0).then_some(self.loss_probability);
+        // A regime's losses are its states' own.
+        let states_lose = matches!(candidate.model, Model::Regime(r) if r.loses());
+        table.loss_probability =
+            (self.loss_probability > 0.0 && !states_lose).then_some(self.loss_probability);
         table
             .to_network(0, &mut |f| Err(format!("{f}: a fitted table names no file")))
             .map_err(|e| TableError::Invalid(e.to_string()))?;
@@ -153,6 +157,14 @@ impl FitReport {
                         };
                         s.insert(key.into(), Value::Array(r.into_iter().map(Value::Float).collect()));
                     }
+                    // A share widens as the family's `loss` does: below 1, and up to
+                    // MAX_WIDENED_LOSS by the factor (its interval's end wherever higher).
+                    let name = format!("states[{i}].loss_probability");
+                    if let Some(p) = best.params.iter().find(|p| p.name == name) {
+                        let lower = p.lower.min(p.value / widen);
+                        let upper = p.upper.max((p.value * widen).min(MAX_WIDENED_LOSS)).max(p.value);
+                        s.insert("loss".into(), Value::Array(vec![Value::Float(lower), Value::Float(upper)]));
+                    }
                     states.push(Value::Table(s));
                 }
                 family.insert("states".into(), Value::Array(states));
@@ -166,7 +178,15 @@ impl FitReport {
             }
         }
         let losses = self.entries.saturating_sub(self.delivered) as u64;
-        let loss = if losses > 0 {
+        let states_lose = matches!(best.model, Model::Regime(r) if r.loses());
+        let loss = if states_lose {
+            format!(
+                "# loss: the trace lost {losses} of {} probes ({:.4}); each state's `loss` ranges over its \
+                 share's 95 % interval.\n",
+                self.entries,
+                losses as f64 / self.entries as f64
+            )
+        } else if losses > 0 {
             let share = crate::confidence::clopper_pearson(losses, self.entries as u64, 0.95)
                 .map_err(|e| TableError::Invalid(e.to_string()))?;
             let lower = share.lower.min(share.rate / widen);

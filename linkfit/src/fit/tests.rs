@@ -129,9 +129,8 @@ fn weibull_draws_fit_weibull_and_the_table_is_the_best_replayable_kind() {
 }
 
 fn regime_truth() -> Distribution {
-    let state = |mu: f64, sigma: f64, dwell: f64| RegimeState {
-        delay: Distribution::Lognormal { mu, sigma },
-        mean_dwell: Dwell::Messages(dwell),
+    let state = |mu: f64, sigma: f64, dwell: f64| {
+        RegimeState::new(Distribution::Lognormal { mu, sigma }, Dwell::Messages(dwell))
     };
     Distribution::Regime { states: vec![state(-3.5, 0.2, 100.0), state(-1.9, 0.3, 20.0)].into() }
 }
@@ -154,7 +153,8 @@ fn regime_draws_fit_the_regime_with_the_truth_inside_the_intervals() {
 }
 
 #[test]
-fn losses_are_missing_steps_for_the_regime_and_the_tables_loss_probability() {
+fn losses_the_states_share_are_one_share_the_tables_loss_probability() {
+    // Every 50th entry lost, whatever the state: a share each does not pay for itself.
     let mut x = draws(regime_truth(), 20_000, 16);
     for k in (0..x.len()).step_by(50) {
         x[k] = delay::LOST_S;
@@ -162,9 +162,76 @@ fn losses_are_missing_steps_for_the_regime_and_the_tables_loss_probability() {
     let report = fit(&x, &opts()).expect("a fit");
     assert_eq!(report.best().map(Candidate::kind), Some(Kind::Regime));
     assert_relative_eq!(report.loss_probability, 400.0 / 20_000.0);
+    let Model::Regime(r) = report.best().expect("best").model else { panic!("a regime") };
+    assert_eq!(r.loss, None);
     let table = report.delays_table(report.best().expect("best")).expect("a table");
     assert_eq!(table.loss_probability, Some(0.02));
-    assert_eq!(table.states.as_ref().map(Vec::len), Some(2));
+    let states = table.states.expect("states");
+    assert!(states.iter().all(|s| s.loss_probability.is_none()), "{states:?}");
+}
+
+/// `n` entries of the bench's delay line, a lost message as `LOST_S`.
+fn entries(d: Distribution, n: usize, seed: u64) -> Vec<f64> {
+    let mut line = DelayLine::new(Direction::ControllerToPlant, DirectionProfile::with_delay(d, seed))
+        .expect("a valid profile");
+    (0..n)
+        .map(|k| {
+            let decision = line.send(k as u64 * 50_000_000);
+            if matches!(decision.fate, delay::Fate::Dropped) {
+                delay::LOST_S
+            } else {
+                decision.sampled_delay_s
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn a_link_losing_in_its_spikes_fits_each_states_loss_with_the_truth_inside_the_intervals() {
+    // The newcomer's link: 8 % lost in its spikes, 0.2 % otherwise.
+    let state = |mu: f64, sigma: f64, dwell: f64, loss: f64| RegimeState {
+        loss_probability: Some(loss),
+        ..RegimeState::new(Distribution::Lognormal { mu, sigma }, Dwell::Messages(dwell))
+    };
+    let truth = Distribution::Regime {
+        states: vec![state(-3.5, 0.2, 100.0, 0.002), state(-1.9, 0.3, 20.0, 0.08)].into(),
+    };
+    let x = entries(truth, 40_000, 22);
+    let report = check(
+        &x,
+        Kind::Regime,
+        &[
+            ("states[0].mu", -3.5),
+            ("states[0].mean_dwell_messages", 100.0),
+            ("states[0].loss_probability", 0.002),
+            ("states[1].mu", -1.9),
+            ("states[1].loss_probability", 0.08),
+        ],
+    );
+    let c = report.best().expect("best");
+    assert_eq!(c.model.free_parameters(), 8);
+    // A share each, not the trace's one: AIC preferred the eighth parameter.
+    let Model::Regime(r) = c.model else { panic!("a regime") };
+    let loss = r.loss.expect("a share per state");
+    assert!(loss[1] > 10.0 * loss[0], "{loss:?}");
+    let table = report.delays_table(c).expect("a table");
+    assert_eq!(table.loss_probability, None, "the states carry the losses");
+    let shares: Vec<_> = table.states.expect("states").iter().map(|s| s.loss_probability).collect();
+    assert_eq!(shares, loss.map(Some));
+    // The sweep family ranges each state's loss over its interval (widened by 2, below 1).
+    let family = report.sweep_toml_widened(2.0).expect("a family");
+    let doc: toml::Table = toml::from_str(&family).expect("TOML");
+    let states = doc["sweep"]["families"][0]["states"].as_array().expect("states");
+    for (i, s) in states.iter().enumerate() {
+        let range: Vec<f64> =
+            s["loss"].as_array().expect("a range").iter().filter_map(toml::Value::as_float).collect();
+        let p = c.params.iter().find(|p| p.name == format!("states[{i}].loss_probability")).expect("a share");
+        assert!(
+            range[0] <= p.value / 2.0 && range[1] >= (p.value * 2.0).min(0.5) && range[1] < 1.0,
+            "{range:?}"
+        );
+    }
+    assert!(doc["sweep"]["families"][0].get("loss").is_none(), "{family}");
 }
 
 #[test]

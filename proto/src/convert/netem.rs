@@ -79,7 +79,7 @@ fn distribution_from_pb(field: &str, d: Option<&pb::DelayDistribution>) -> Resul
                     None => return Err(FieldError::new(format!("{at}.mean_dwell"), "is required")),
                 };
                 let delay = distribution_from_pb(&format!("{at}.delay"), s.delay.as_ref())?;
-                states.push(RegimeState { delay, mean_dwell });
+                states.push(RegimeState { delay, mean_dwell, loss_probability: s.loss_probability });
             }
             Distribution::Regime { states: Arc::from(states) }
         }
@@ -145,6 +145,7 @@ impl From<&Distribution> for pb::DelayDistribution {
                             Dwell::Messages(m) => pb::regime_state::MeanDwell::MeanDwellMessages(m),
                             Dwell::Seconds(t) => pb::regime_state::MeanDwell::MeanDwellS(t),
                         }),
+                        loss_probability: s.loss_probability,
                     })
                     .collect(),
             }),
@@ -405,7 +406,7 @@ mod tests {
 
     #[test]
     fn every_kind_round_trips_and_a_bad_regime_state_is_named() -> Result<(), FieldError> {
-        let state = |delay, mean_dwell| RegimeState { delay, mean_dwell };
+        let state = RegimeState::new;
         let kinds = [
             Distribution::LognormalMoments { mean_s: 0.1, std_s: 0.05 },
             Distribution::Trace(Trace::holding(vec![0.1, 0.2])),
@@ -415,6 +416,10 @@ mod tests {
                 states: Arc::from(vec![
                     state(Distribution::Gamma { shape: 2.0, scale_s: 0.01 }, Dwell::Messages(10.0)),
                     state(Distribution::Uniform { min_s: 0.1, max_s: 0.3 }, Dwell::Seconds(2.5)),
+                    RegimeState {
+                        loss_probability: Some(0.08),
+                        ..state(Distribution::Constant { delay_s: 0.4 }, Dwell::Messages(3.0))
+                    },
                 ]),
             },
         ];
@@ -437,6 +442,19 @@ mod tests {
             r.states[0].mean_dwell = None;
         }
         assert_eq!(profile_from_pb(&m).map_err(|e| e.field), Err("delay.regime.states[0].mean_dwell".into()));
+        let mut lossy = pb::DirectionProfile::from(&DirectionProfile::with_delay(
+            Distribution::Regime {
+                states: Arc::from(vec![state(Distribution::Constant { delay_s: 0.1 }, Dwell::Seconds(1.0))]),
+            },
+            3,
+        ));
+        if let Some(Kind::Regime(r)) = lossy.delay.as_mut().and_then(|d| d.kind.as_mut()) {
+            r.states[0].loss_probability = Some(1.5);
+        }
+        assert_eq!(
+            profile_from_pb(&lossy).map_err(|e| e.field),
+            Err("delay.regime.states[0].loss_probability".into())
+        );
         Ok(())
     }
 
