@@ -1,7 +1,7 @@
 //! A run that went wrong says why where the user looks: the line printed per run, report.md,
 //! summary.json and the per-cycle CSV's `decision` and `reason` columns.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

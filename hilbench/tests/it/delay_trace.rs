@@ -1,9 +1,7 @@
 //! `hilbench run --delay-trace`: a recorded trace replayed as a file's round trip, as a user
 //! gives it on the command line.
 
-mod common;
-
-use common::csv_without_solve_times;
+use crate::common::csv_without_solve_times;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 

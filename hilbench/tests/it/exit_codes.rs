@@ -1,7 +1,7 @@
 //! `hilbench`'s exit codes, as a script sees them: 0 no collision, 1 an error, 2 a usage error,
 //! 3 a run collided.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::{Command, Output};

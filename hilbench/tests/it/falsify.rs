@@ -8,8 +8,7 @@ use std::process::Output;
 
 use serde_json::Value;
 
-mod common;
-use common::{hilbench, json_of, out_dir, repo, s};
+use crate::common::{hilbench, json_of, out_dir, repo, s};
 
 /// paper-2 with the plan-check controller: its `[falsify]` table searches a three-level signal
 /// and the `[sweep]` families for a collision.

@@ -7,7 +7,7 @@
 //! long delays on a short base; and delays recorded in real-time runs of the bench
 //! (`tests/traces/`). A failing trace is shrunk by proptest and written to
 //! `target/tmp/delay-traces/` in the `delay` crate's trace format; replay it with
-//! `HILBENCH_REPLAY_TRACE=<file> cargo test --release -p mpc --test delay_traces replay`.
+//! `HILBENCH_REPLAY_TRACE=<file> cargo test --release -p mpc --test it delay_traces::replay`.
 
 use mav::Scenario;
 use mpc::{ClosedLoopSettings, ControllerMode, DelaySource, FaultInjection, PanocFault, run_closed_loop};
@@ -124,7 +124,7 @@ fn check(trace: &Trace) -> Result<(), TestCaseError> {
     let ok = !summary.collided && summary.reached && summary.min_clearance_m >= 0.0;
     prop_assert!(
         ok,
-        "collided {} reached {} clearance {:.3} m; replay: HILBENCH_REPLAY_TRACE={} cargo test --release -p mpc --test delay_traces replay",
+        "collided {} reached {} clearance {:.3} m; replay: HILBENCH_REPLAY_TRACE={} cargo test --release -p mpc --test it delay_traces::replay",
         summary.collided,
         summary.reached,
         summary.min_clearance_m,

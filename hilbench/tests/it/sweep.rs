@@ -8,8 +8,7 @@ use std::process::Command;
 use hilbench::sweep::stats::{RunRow, from_csv};
 use serde_json::Value;
 
-mod common;
-use common::{hilbench, json_of, out_dir, repo, s};
+use crate::common::{hilbench, json_of, out_dir, repo, s};
 
 /// Long delays: the paper's controller collides within a few cycles (runs 0, 1, 3) or misses
 /// the goal (run 2).

@@ -1,7 +1,7 @@
 //! What the CLI tests share: a variant of a shipped scenario file, a CSV without its wall-clock
 //! column.
 
-// Each test binary that includes this module uses some of it.
+// Each test module uses some of it.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};

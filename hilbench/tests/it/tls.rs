@@ -1,9 +1,7 @@
 //! `hilbench certs` and runs over mutual TLS, as a user gives them on the command line:
 //! certificates made at test time (no key committed).
 
-mod common;
-
-use common::csv_without_solve_times;
+use crate::common::csv_without_solve_times;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 

@@ -5,7 +5,7 @@
 //!
 //! The three campaigns against the reference take minutes (a careful solve per sampled state):
 //! they are `#[ignore]`d in README's test command and run by CI once (`.ci/run`):
-//! `cargo test --workspace --release --test accuracy -- --ignored`. OpEn against our PANOC runs
+//! `cargo test --workspace --release --test it -- --ignored accuracy`. OpEn against our PANOC runs
 //! always.
 
 use mpc::{ControllerMode, InactiveSetTolerances, MpcSettings, OcpDefinition, PanocSolver, accuracy};
@@ -79,7 +79,7 @@ fn check_multistage_accuracy(settings: MpcSettings, required: f64, negative_allo
 }
 
 #[test]
-#[ignore = "a campaign of minutes: cargo test --workspace --release --test accuracy -- --ignored"]
+#[ignore = "a campaign of minutes: cargo test --workspace --release --test it -- --ignored accuracy"]
 fn ratchet_at_least_85_percent_of_multistage_solves_are_within_one_percent_of_the_reference() {
     check_multistage_accuracy(MpcSettings::default(), MULTISTAGE_WITHIN_ONE_PERCENT, 0);
 }
@@ -88,7 +88,7 @@ fn ratchet_at_least_85_percent_of_multistage_solves_are_within_one_percent_of_th
 /// accurate than the default (its misses add solves that stop 1-2 % above the reference, and
 /// two of its budget-bound plans predict negative clearance).
 #[test]
-#[ignore = "a campaign of minutes: cargo test --workspace --release --test accuracy -- --ignored"]
+#[ignore = "a campaign of minutes: cargo test --workspace --release --test it -- --ignored accuracy"]
 fn ratchet_with_the_inactive_set_at_least_80_percent_of_multistage_solves_are_within_one_percent() {
     let settings =
         MpcSettings { inactive_set: Some(InactiveSetTolerances::MEASURED), ..MpcSettings::default() };
@@ -96,7 +96,7 @@ fn ratchet_with_the_inactive_set_at_least_80_percent_of_multistage_solves_are_wi
 }
 
 #[test]
-#[ignore = "a campaign of minutes: cargo test --workspace --release --test accuracy -- --ignored"]
+#[ignore = "a campaign of minutes: cargo test --workspace --release --test it -- --ignored accuracy"]
 fn at_least_95_percent_of_nmpc_solves_are_within_one_percent_of_the_reference() {
     let settings = MpcSettings::default();
     let mut gaps = Vec::new();
