@@ -3,7 +3,7 @@
 use std::time::Duration;
 
 use mav::{Scenario, TimeModeChoice};
-use mpc::{ControllerMode, MpcSettings, SafetySettings};
+use mpc::{ControllerMode, EpisodeSettings, MpcSettings, SafetySettings};
 
 #[derive(Debug, Clone)]
 pub struct ControllerConfig {
@@ -11,14 +11,14 @@ pub struct ControllerConfig {
     pub plant: String,
     /// Problem definition, goal and limits.
     pub scenario: Scenario,
-    pub mode: ControllerMode,
-    pub mpc: MpcSettings,
-    /// The safety layer: cross-check of PANOC against the QP fallback and selection of the
-    /// command every cycle; `None` sends PANOC's input as it is (clipped to the bounds).
-    pub safety: Option<SafetySettings>,
-    /// The safety layer's fail-safe check over each episode's scenario, whatever the scenario
-    /// asks (`--fail-safe`); without it, only scenarios with `fail_safe` get it.
-    pub fail_safe: bool,
+    /// What each episode flies with (the first one's mode; a `SetScenario` may name another):
+    /// the solver, the safety layer (cross-check of PANOC against the QP fallback and selection
+    /// of the command every cycle; `None` sends PANOC's input as it is, clipped to the bounds)
+    /// and its fail-safe check over every scenario (`--fail-safe`; without it, only scenarios
+    /// with `fail_safe` get it). `delays_expected` and `plant_watchdog_s` are each episode's,
+    /// from its scenario's delay model and the plant's `Describe`: what they hold here is
+    /// replaced.
+    pub episode: EpisodeSettings,
     /// A floor for every scenario flown (`--min-altitude-m`), those asked for by `SetScenario`
     /// included; `None`: each scenario's own (none for the paper's).
     pub min_altitude_m: Option<f64>,
@@ -63,17 +63,14 @@ impl ControllerConfig {
     /// The safety settings of an episode of `scenario`: these, with the fail-safe check over
     /// the scenario's delay range when the scenario or [`ControllerConfig::fail_safe`] asks.
     pub fn safety_for(&self, scenario: &Scenario) -> Option<SafetySettings> {
-        self.safety.map(|s| s.with_fail_safe(scenario, self.fail_safe || scenario.fail_safe))
+        self.episode.safety.map(|s| s.with_fail_safe(scenario, self.episode.fail_safe || scenario.fail_safe))
     }
 
     pub fn new(plant: impl Into<String>, scenario: Scenario, mode: ControllerMode) -> Self {
         Self {
             plant: plant.into(),
             scenario,
-            mode,
-            mpc: MpcSettings::default(),
-            safety: Some(SafetySettings::default()),
-            fail_safe: false,
+            episode: EpisodeSettings::new(mode, MpcSettings::default()),
             min_altitude_m: None,
             time_mode: TimeModeChoice::Auto,
             reset_plant: true,
@@ -99,8 +96,8 @@ impl ControllerConfig {
             return Err(format!("`plant`: `{}` is not a valid address ({e})", self.plant));
         }
         self.adapt(self.scenario.clone()).validate().map_err(|e| e.to_string())?;
-        self.mpc.validate().map_err(|e| e.to_string())?;
-        if let Some(safety) = &self.safety {
+        self.episode.mpc.validate().map_err(|e| e.to_string())?;
+        if let Some(safety) = &self.episode.safety {
             safety.validate().map_err(|e| e.to_string())?;
         }
         if !(self.deadline_fraction.is_finite()
@@ -158,9 +155,9 @@ mod tests {
         for (flag, asks, set) in (0..8).map(|b| (b & 1 != 0, b & 2 != 0, b & 4 != 0)) {
             let scenario = Scenario { fail_safe: asks, ..Scenario::paper_2() };
             let mut config = ControllerConfig::new("plant:1", scenario.clone(), ControllerMode::Multistage);
-            config.fail_safe = flag;
+            config.episode.fail_safe = flag;
             let base = SafetySettings { braking_check: set.then_some(preset), ..SafetySettings::default() };
-            config.safety = Some(base);
+            config.episode.safety = Some(base);
             let expected = match (set, flag || asks) {
                 (true, _) => Some(preset),
                 (false, true) => Some(BrakingCheck::for_scenario(&scenario)),
@@ -168,7 +165,7 @@ mod tests {
             };
             let got = config.safety_for(&scenario).expect("layer on");
             assert_eq!(got, SafetySettings { braking_check: expected, ..base }, "{flag} {asks} {set}");
-            config.safety = None;
+            config.episode.safety = None;
             assert_eq!(config.safety_for(&scenario), None);
         }
     }

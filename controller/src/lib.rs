@@ -66,7 +66,7 @@ pub async fn serve(
     )
     .await?;
     let addr = server.addr;
-    tracing::info!(%addr, plant = %config.plant, scenario = %config.scenario.name, mode = config.mode.name(), "controller serving");
+    tracing::info!(%addr, plant = %config.plant, scenario = %config.scenario.name, mode = config.episode.mode.name(), "controller serving");
     let mut loop_failure = None;
     let mut loop_joined = false;
     let result = server

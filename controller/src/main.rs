@@ -173,8 +173,8 @@ fn main() -> anyhow::Result<()> {
     // The floor goes with every scenario flown, those set later by SetScenario included.
     config.min_altitude_m = cli.min_altitude_m;
     config.adapt(config.scenario.clone()).validate().context("--min-altitude-m")?;
-    config.mpc = settings;
-    config.safety = (!cli.no_safety).then(|| SafetySettings {
+    config.episode.mpc = settings;
+    config.episode.safety = (!cli.no_safety).then(|| SafetySettings {
         qp_schedule: match cli.qp_schedule {
             Schedule::EveryCycle => QpSchedule::EveryCycle,
             Schedule::EveryNth => QpSchedule::EveryNth(cli.qp_every),
@@ -183,8 +183,8 @@ fn main() -> anyhow::Result<()> {
         qp: QpSettings { elastic_penalty_per_m: cli.qp_elastic_penalty, ..QpSettings::default() },
         ..SafetySettings::default()
     });
-    config.fail_safe = cli.fail_safe;
-    if let Some(safety) = &config.safety {
+    config.episode.fail_safe = cli.fail_safe;
+    if let Some(safety) = &config.episode.safety {
         safety.validate().context("--qp-elastic-penalty")?;
     }
     config.rpc_timeout = std::time::Duration::try_from_secs_f64(cli.rpc_timeout_s)

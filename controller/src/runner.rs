@@ -115,7 +115,7 @@ impl Shared {
         let (telemetry, _) = broadcast::channel(config.telemetry_buffer.max(1));
         let status = Status {
             scenario: config.scenario.name.clone(),
-            mode: config.mode.name().to_string(),
+            mode: config.episode.mode.name().to_string(),
             plant_address: config.plant.clone(),
             goal_m: config.scenario.goal_m,
             definition: Some(config.adapt(config.scenario.clone())),
@@ -286,11 +286,7 @@ struct Current {
 /// The settings of an episode of `mode` under `config` (the scenario's own delay model says
 /// whether delays are expected).
 fn episode_settings(config: &ControllerConfig, scenario: &Scenario, mode: ControllerMode) -> EpisodeSettings {
-    let mut settings = EpisodeSettings::new(mode, config.mpc);
-    settings.safety = config.safety;
-    settings.fail_safe = config.fail_safe;
-    settings.delays_expected = scenario.delays_expected();
-    settings
+    EpisodeSettings { mode, delays_expected: scenario.delays_expected(), ..config.episode.clone() }
 }
 
 enum Outcome {
@@ -354,7 +350,7 @@ impl LoopError {
 /// Runs until `stop` turns true.
 pub async fn run(config: ControllerConfig, shared: Arc<Shared>, mut stop: watch::Receiver<bool>) {
     let mut current =
-        Current { scenario: config.adapt(config.scenario.clone()), mode: config.mode, flight: None };
+        Current { scenario: config.adapt(config.scenario.clone()), mode: config.episode.mode, flight: None };
     let mut active = config.autostart;
     let mut backoff = config.backoff_min;
     loop {

@@ -14,7 +14,7 @@ pub struct Args {
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let mut settings = ClosedLoopSettings::paper(args.run.mode);
-    settings.mpc = args.mpc.settings();
+    settings.episode.mpc = args.mpc.settings();
     let (s, records) = run_closed_loop(&args.run.scenario, &settings)?;
     for r in &records {
         println!(

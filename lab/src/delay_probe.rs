@@ -32,7 +32,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             let (scenario, mut settings) = args.scenario.setup(mode);
             settings.delays = Some(DelaySource::Trace(trace.clone()));
             if !safety {
-                settings.safety = None;
+                settings.episode.safety = None;
             }
             let (s, records) = run_closed_loop(&scenario, &settings)?;
             println!(

@@ -26,9 +26,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         for mode in [ControllerMode::Nmpc, ControllerMode::Multistage] {
             let t = std::time::Instant::now();
             let mut settings = ClosedLoopSettings::paper(mode);
-            settings.mpc = args.mpc.settings();
+            settings.episode.mpc = args.mpc.settings();
             if args.no_safety {
-                settings.safety = None;
+                settings.episode.safety = None;
             }
             match run_closed_loop(scenario, &settings) {
                 Ok((s, _)) => println!(

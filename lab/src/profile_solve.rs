@@ -19,7 +19,7 @@ pub struct Args {
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let mut settings = ClosedLoopSettings::paper(args.mode);
-    settings.mpc = args.mpc.settings();
+    settings.episode.mpc = args.mpc.settings();
     let (s, records) = run_closed_loop(&args.scenario, &settings)?;
     let iterations: usize = records.iter().map(|r| r.report.iterations).sum();
     let forward: u64 = records.iter().map(|r| r.report.passes.forward).sum();

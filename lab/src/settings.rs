@@ -233,7 +233,7 @@ impl ScenarioFlags {
         scenario.min_altitude_m = self.floor_m;
         let mut settings = mpc::ClosedLoopSettings::paper(mode);
         if let Some(m) = self.margin_m {
-            settings.mpc.obstacle_margin_m = m;
+            settings.episode.mpc.obstacle_margin_m = m;
         }
         (scenario, settings)
     }
@@ -273,10 +273,10 @@ impl SurveyFlags {
     pub fn setup(&self) -> (mav::Scenario, mpc::ClosedLoopSettings) {
         let (scenario, mut settings) = self.scenario.setup(ControllerMode::Multistage);
         if self.no_safety {
-            settings.safety = None;
+            settings.episode.safety = None;
         }
         if self.fail_safe
-            && let Some(safety) = settings.safety.as_mut()
+            && let Some(safety) = settings.episode.safety.as_mut()
         {
             let mut check = mpc::BrakingCheck::default();
             if let Some(d) = self.max_delay_s {

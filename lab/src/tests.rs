@@ -59,8 +59,8 @@ fn survey_flags_set_up_paper_2_and_the_fail_safe_check() {
     assert_eq!(scenario.name, "paper-2");
     assert!(scenario.delay_compensation);
     assert_eq!(scenario.min_altitude_m, Some(0.0));
-    assert_eq!(settings.mpc.obstacle_margin_m, 0.2);
-    let check = settings.safety.and_then(|s| s.braking_check).expect("the fail-safe check is on");
+    assert_eq!(settings.episode.mpc.obstacle_margin_m, 0.2);
+    let check = settings.episode.safety.and_then(|s| s.braking_check).expect("the fail-safe check is on");
     assert_eq!(check.max_delay_s, 0.2);
 }
 

@@ -27,7 +27,8 @@ fn closed_loop_per_cycle(c: &mut Criterion) {
     let mut group = c.benchmark_group("closed_loop/paper-2/multistage");
     group.sample_size(10);
     for (name, safety) in variants {
-        let settings = ClosedLoopSettings { safety, ..ClosedLoopSettings::paper(ControllerMode::Multistage) };
+        let mut settings = ClosedLoopSettings::paper(ControllerMode::Multistage);
+        settings.episode.safety = safety;
         let (summary, _) = run_closed_loop(&scenario, &settings).expect("runs");
         eprintln!("{name}: {} cycles, decisions {:?}", summary.cycles, summary.decisions);
         group.bench_function(name, |b| {

@@ -121,7 +121,7 @@ pub fn loop_solves(
     settings: &MpcSettings,
 ) -> Result<Vec<LoopSolve>, MpcError> {
     let mut loop_settings = crate::ClosedLoopSettings::paper(mode);
-    loop_settings.mpc = *settings;
+    loop_settings.episode.mpc = *settings;
     let (_, records) = crate::run_closed_loop(scenario, &loop_settings)?;
     let g = scenario.model.gravity_mps2;
     let mut out = Vec::with_capacity(records.len());

@@ -9,7 +9,7 @@ use crate::episode::{CycleTiming, Episode, EpisodeSettings};
 use crate::error::MpcError;
 use crate::problem::ControllerMode;
 use crate::record::{CycleRecord, RunSummary, summarize};
-use crate::safety::{SafetySettings, Selection};
+use crate::safety::Selection;
 use crate::solver::{MpcSettings, SolveReport};
 
 /// Where the round-trip delays of a run come from.
@@ -81,27 +81,23 @@ impl DelaySource {
 /// Settings of an in-process closed-loop run.
 #[derive(Debug, Clone)]
 pub struct ClosedLoopSettings {
-    pub mode: ControllerMode,
-    pub mpc: MpcSettings,
+    /// The controller's: mode, solver, safety layer, fault. Its `delays_expected` is the
+    /// loop's to decide, from the delays it flies (as the controller service decides it from
+    /// the scenario): whatever it holds here is replaced.
+    pub episode: EpisodeSettings,
     /// `None`: the scenario's own delay model and seed.
     pub delays: Option<DelaySource>,
     /// Keep the predicted trajectories of every cycle in the records.
     pub record_predictions: bool,
-    /// The safety layer (cross-check and selection); `None` sends PANOC's input as it is.
-    pub safety: Option<SafetySettings>,
-    /// A fault forced on PANOC (tests of the fallbacks).
-    pub fault: Option<crate::cycle::FaultInjection>,
 }
 
 impl ClosedLoopSettings {
+    /// `mode` with the default solver and safety layer ([`EpisodeSettings::new`]).
     pub fn paper(mode: ControllerMode) -> Self {
         Self {
-            mode,
-            mpc: MpcSettings::default(),
+            episode: EpisodeSettings::new(mode, MpcSettings::default()),
             delays: None,
             record_predictions: false,
-            safety: Some(SafetySettings::default()),
-            fault: None,
         }
     }
 }
@@ -135,16 +131,12 @@ pub fn run_closed_loop(
         None => DelaySource::of_scenario(scenario)?,
     };
     let mut delay_line = delays.delay_line()?;
-    let mut episode_settings = EpisodeSettings::new(settings.mode, settings.mpc);
-    episode_settings.safety = settings.safety;
     // As the controller service does from the scenario it flies, unless the delays are the
     // caller's own.
-    episode_settings.delays_expected =
+    let delays_expected =
         if settings.delays.is_some() { delays.has_delays() } else { scenario.delays_expected() };
-    {
-        episode_settings.fault = settings.fault;
-    }
-    let mut episode = Episode::new(scenario.clone(), episode_settings)?;
+    let mut episode =
+        Episode::new(scenario.clone(), EpisodeSettings { delays_expected, ..settings.episode.clone() })?;
     let mut sim = PlantSim::new(scenario, SimSettings::default())
         .map_err(|e| MpcError::InvalidProblem(e.to_string()))?;
     let min_cycle_ns = episode.min_cycle_ns();
@@ -188,6 +180,6 @@ pub fn run_closed_loop(
         });
     };
     let records: Vec<CycleRecord> = traces.iter().map(|t| t.record.clone()).collect();
-    let summary = summarize(&scenario.name, settings.mode.name(), &records, &sim.peek(), end);
+    let summary = summarize(&scenario.name, settings.episode.mode.name(), &records, &sim.peek(), end);
     Ok((summary, traces))
 }

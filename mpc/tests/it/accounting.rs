@@ -18,7 +18,7 @@ fn start_near_a_cylinder(gap_m: f64) -> Scenario {
 fn cycles_that_sent_an_unverified_command_are_counted_as_best_effort_fallbacks_and_explained() {
     let mut settings = ClosedLoopSettings::paper(ControllerMode::Multistage);
     // The check asks for more clearance than the start has: nothing passes it at first.
-    let safety = settings.safety.as_mut().expect("paper mode has the safety layer");
+    let safety = settings.episode.safety.as_mut().expect("paper mode has the safety layer");
     safety.required_clearance_m = 0.2;
     let (summary, traces) = run_closed_loop(&start_near_a_cylinder(0.05), &settings).expect("valid run");
     let unverified = traces.iter().filter(|t| t.selection.is_some_and(|s| !s.verified_safe)).count() as u64;

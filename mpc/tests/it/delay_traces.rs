@@ -94,7 +94,7 @@ fn bench_paper_2() -> Scenario {
 /// ([`bench_paper_2`]).
 fn bench_settings() -> ClosedLoopSettings {
     let mut settings = ClosedLoopSettings::paper(ControllerMode::Multistage);
-    settings.mpc.obstacle_margin_m = 0.2;
+    settings.episode.mpc.obstacle_margin_m = 0.2;
     settings
 }
 
@@ -205,10 +205,8 @@ fn replay() {
 #[test]
 fn the_fallbacks_take_over_when_panoc_is_forced_to_fail() {
     for fault in [PanocFault::ZeroBudget, PanocFault::NanPlan] {
-        let settings = ClosedLoopSettings {
-            fault: Some(FaultInjection { fault, first_cycle: 10, cycles: 15 }),
-            ..bench_settings()
-        };
+        let mut settings = bench_settings();
+        settings.episode.fault = Some(FaultInjection { fault, first_cycle: 10, cycles: 15 });
         let (summary, records) = run_closed_loop(&bench_paper_2(), &settings).expect("valid run");
         assert!(!summary.collided && summary.min_clearance_m >= 0.0, "{fault:?}: {summary:?}");
         assert!(summary.reached, "{fault:?}: {summary:?}");

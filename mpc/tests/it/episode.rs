@@ -139,7 +139,7 @@ fn a_sample_of_another_plant_flight_ends_the_episode_with_a_plant_reset_and_chan
 fn a_scenario_that_names_a_solver_is_solved_by_it_whatever_the_controllers_setting() {
     let run = |scenario: &Scenario, solver: mpc::PanocSolver| {
         let mut settings = mpc::ClosedLoopSettings::paper(ControllerMode::Multistage);
-        settings.mpc.solver = solver;
+        settings.episode.mpc.solver = solver;
         let (summary, records) = mpc::run_closed_loop(scenario, &settings).expect("a paper run");
         let iterations: Vec<usize> = records.iter().map(|r| r.report.iterations).collect();
         (summary.path_length_m.to_bits(), iterations)

@@ -94,12 +94,13 @@ fn multistage_reaches_the_goal_of_every_paper_scenario_without_touching_a_cylind
     // With the safety layer, as the paper reproduction flies, and without it: PANOC's plans
     // alone, the paper's controller.
     let with_layer = ClosedLoopSettings::paper(ControllerMode::Multistage);
-    let panoc_alone = ClosedLoopSettings { safety: None, ..with_layer.clone() };
+    let mut panoc_alone = with_layer.clone();
+    panoc_alone.episode.safety = None;
     for (scenario_name, settings) in
         Scenario::BUILT_IN.iter().flat_map(|n| [(n, &with_layer), (n, &panoc_alone)])
     {
         let scenario = Scenario::by_name(scenario_name).expect("built-in scenario");
-        let layer = if settings.safety.is_some() { "on" } else { "off" };
+        let layer = if settings.episode.safety.is_some() { "on" } else { "off" };
         let name = format!("{scenario_name} (safety layer {layer})");
         let (s, records) = run_closed_loop(&scenario, settings).expect("closed loop runs");
         assert!(s.reached, "{name}: multi-stage did not reach the goal (ended at {:?})", s.final_position_m);
