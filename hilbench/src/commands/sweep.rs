@@ -81,6 +81,11 @@ pub fn sweep(args: SweepArgs, opts: &Options) -> anyhow::Result<Exit> {
         finished: Default::default(),
     };
     check_runs(&sweep, args.runs.is_some())?;
+    // A bound the cap cannot reach is refused before --out is claimed: nothing flew, nothing
+    // to resume.
+    if let Some(bound) = args.until_bound {
+        until::check(bound, sweep.runs)?;
+    }
     let show = !args.json && !opts.quiet;
     let items = (sweep.indices().end - sweep.indices().start) * sweep.controllers.len() as u64;
     // The output directory before the first run: a sweep that cannot write loses nothing.

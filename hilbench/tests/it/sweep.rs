@@ -587,15 +587,18 @@ fn until_bound_stops_at_the_first_run_count_that_decides_whatever_the_jobs() {
     );
     assert_eq!(rows_of(&out).len(), 1);
 
-    // A cap the bound cannot be reached within is refused before anything flies.
+    // A cap the bound cannot be reached within is refused before anything flies, and before
+    // --out is claimed: the command set right flies there, no --resume asked for.
     let out = dir.join("capped");
     let run = hilbench(&["sweep", &file, "--until-bound", "0.01", "--runs", "100", "--out", s(&out)]);
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert_eq!(run.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains("only after 368 runs, more than the cap of 100"), "{stderr}");
-    assert!(!out.join("sweep.json").exists());
+    assert!(!out.exists(), "the refused sweep claimed {}", out.display());
     let refused = hilbench(&["sweep", &file, "--until-bound", "1.5", "--out", s(&out)]);
     assert_eq!(refused.status.code(), Some(2));
+    let right = hilbench(&["sweep", &file, "--until-bound", "0.3", "--out", s(&out)]);
+    assert_eq!(right.status.code(), Some(0), "{}", String::from_utf8_lossy(&right.stderr));
 }
 
 #[test]
