@@ -179,10 +179,12 @@ impl FitReport {
         }
         let losses = self.entries.saturating_sub(self.delivered) as u64;
         let states_lose = matches!(best.model, Model::Regime(r) if r.loses());
+        let widened =
+            if widen > 1.0 { format!(", widened to a factor of {widen} either side") } else { String::new() };
         let loss = if states_lose {
             format!(
                 "# loss: the trace lost {losses} of {} probes ({:.4}); each state's `loss` ranges over its \
-                 share's 95 % interval.\n",
+                 share's 95 % interval{widened}.\n",
                 self.entries,
                 losses as f64 / self.entries as f64
             )
@@ -193,7 +195,7 @@ impl FitReport {
             let upper = share.upper.max((share.rate * widen).min(MAX_WIDENED_LOSS)).max(share.upper);
             family.insert("loss".into(), Value::Array(vec![Value::Float(lower), Value::Float(upper)]));
             format!(
-                "# loss: the trace lost {losses} of {} probes ({:.4}); the range is that share's 95 % interval.\n",
+                "# loss: the trace lost {losses} of {} probes ({:.4}); the range is that share's 95 % interval{widened}.\n",
                 self.entries, share.rate
             )
         } else {
@@ -229,6 +231,13 @@ impl FitReport {
             self.entries,
             ranking.join(", ")
         );
+        if best.kind() == Kind::Regime && self.rate_hz.is_none() {
+            s.push_str(
+                "# The dwells are in probes (the trace has no rate_hz): a scenario counts them in the controller's \
+                 messages, one a cycle (50 ms or more). Probed at another rate? Import again with --rate-hz for \
+                 dwells in seconds.\n",
+            );
+        }
         if self.best().is_some_and(|b| !b.kind().replayable()) {
             s.push_str(
                 "# The best fit is weibull, which the bench cannot replay: this is the best it can.\n",

@@ -220,6 +220,7 @@ fn a_link_losing_in_its_spikes_fits_each_states_loss_with_the_truth_inside_the_i
     assert_eq!(shares, loss.map(Some));
     // The sweep family ranges each state's loss over its interval (widened by 2, below 1).
     let family = report.sweep_toml_widened(2.0).expect("a family");
+    assert!(family.contains("its share's 95 % interval, widened to a factor of 2 either side"), "{family}");
     let doc: toml::Table = toml::from_str(&family).expect("TOML");
     let states = doc["sweep"]["families"][0]["states"].as_array().expect("states");
     for (i, s) in states.iter().enumerate() {
@@ -297,4 +298,14 @@ fn intervals_cover_the_truth_in_at_least_85_percent_of_200_data_sets() {
     // gamma's shape, whose estimate is biased up by about 3 / n of itself, the most).
     assert!(covered.values().all(|n| *n >= 170), "covered of 200: {covered:?}");
     assert!(covered.values().all(|n| *n < 200), "an interval that always covers is too wide: {covered:?}");
+}
+
+#[test]
+fn a_regime_fitted_without_a_probe_rate_says_its_dwells_are_in_probes() {
+    let x = draws(regime_truth(), 5_000, 23);
+    let report = fit(&x, &opts()).expect("a fit");
+    assert_eq!(report.best().map(Candidate::kind), Some(Kind::Regime));
+    assert!(report.scenario_toml().expect("toml").contains("The dwells are in probes"));
+    let timed = fit(&x, &FitOptions { rate_hz: Some(20.0), ..opts() }).expect("a fit");
+    assert!(!timed.scenario_toml().expect("toml").contains("in probes"));
 }
