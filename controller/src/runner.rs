@@ -474,6 +474,11 @@ fn injected_delay_s(md: &tonic::metadata::MetadataMap) -> Option<f64> {
     (stamp.outcome != StampOutcome::Dropped).then(|| mav::ns_to_s(stamp.delay_ns))
 }
 
+/// netem stamped the command dropped.
+fn command_lost(md: &tonic::metadata::MetadataMap) -> bool {
+    matches!(Stamp::read(md, Stamped::Command), Ok(Some(stamp)) if stamp.outcome == StampOutcome::Dropped)
+}
+
 /// A sample from the plant, validated by `proto`'s conversion.
 fn decode(sample: &pb::StateSample) -> Result<PlantSample, LoopError> {
     PlantSample::try_from(sample).map_err(|e| LoopError::Bad(format!("plant sent {e}")))
@@ -632,6 +637,7 @@ async fn fly(
             Answer::Command(r) => r.metadata(),
         };
         out.record.injected_delay_s = injected_delay_s(metadata);
+        out.record.command_lost = command_lost(metadata);
         shared.link_answered(!lockstep);
         publish(shared, flight, &wire_sample, out);
         if let Answer::Step(r) = answer {

@@ -117,8 +117,12 @@ pub fn fly_all(jobs: &[Job], driver: &Driver, progress: bool) -> anyhow::Result<
                 collided.push_str(line);
             }
         }
+        let lost = match summary.commands_lost {
+            Some(n) if n > 0 => format!(", {n} lost by the network"),
+            _ => String::new(),
+        };
         let done = format!(
-            "  {name} {controller:<11} done ({} cycles, {:.2} s){collided}",
+            "  {name} {controller:<11} done ({} cycles{lost}, {:.2} s){collided}",
             summary.cycles,
             run_started.elapsed().as_secs_f64()
         );

@@ -168,6 +168,7 @@ pub fn run_closed_loop(
                 .map_err(|e| MpcError::InvalidProblem(e.to_string()))?;
         }
         out.record.injected_delay_s = delay_ns.map(mav::ns_to_s);
+        out.record.command_lost = delay_ns.is_none();
         let delay_ns = delay_ns.unwrap_or(0);
         sim.advance(min_cycle_ns.max(delay_ns) - delay_ns, |_| {});
         traces.push(CycleTrace {

@@ -74,6 +74,9 @@ pub struct CycleRecord {
     /// the delay line's draw in process; `None` when the command was lost, or when nothing
     /// between the controller and the plant stamps it (no netem).
     pub injected_delay_s: Option<f64>,
+    /// The network dropped this cycle's command (the delay line's draw in process, netem's
+    /// stamp over gRPC): it never reached the plant.
+    pub command_lost: bool,
     /// The scenario weights the solve used.
     pub weights: Vec<f64>,
     pub solve: SolveStats,
@@ -111,6 +114,7 @@ impl CycleRecord {
             command_seq,
             known_delay_s,
             injected_delay_s: None,
+            command_lost: false,
             weights,
             solve: SolveStats::from(&outcome.report),
             decision: outcome.selection.as_ref().map(|s| s.decision),
@@ -181,6 +185,10 @@ pub struct RunSummary {
     pub decisions: BTreeMap<String, u64>,
     /// Cycles that sent a command no check verified (`decisions["best_effort"]`).
     pub best_effort_cycles: u64,
+    /// Commands the network dropped (each cycle's own, [`CycleRecord::command_lost`]); `None`
+    /// where the bench does not see the commands (an external controller: its own and
+    /// netem's counts are its run's `external` facts).
+    pub commands_lost: Option<u64>,
     /// Why the run went as it did, when it did not simply reach its goal with verified
     /// commands: one sentence per finding (best-effort streaks with their reason, solves at
     /// the iteration limit, a vehicle that never moved). Empty for a clean run.
@@ -494,6 +502,7 @@ pub fn summarize(
         fallbacks: records.iter().filter(|r| r.is_fallback()).count() as u64,
         decisions: decision_counts(records),
         best_effort_cycles: records.iter().filter(|r| r.best_effort).count() as u64,
+        commands_lost: Some(records.iter().filter(|r| r.command_lost).count() as u64),
         explanation: explain(records, last, time_to_goal_ns.is_some()),
         cost_gap: GapSummary::of(&records.iter().filter_map(|r| r.cost_gap).collect::<Vec<_>>()),
         iteration_limits: records.iter().filter(|r| r.solve.status.at_iteration_limit()).count() as u64,
@@ -563,6 +572,7 @@ mod tests {
             command_seq: k + 1,
             known_delay_s: None,
             injected_delay_s: None,
+            command_lost: false,
             weights: vec![],
             solve: SolveStats {
                 status: SolveStatus::Converged,

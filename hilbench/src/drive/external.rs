@@ -599,10 +599,12 @@ impl Judge {
     }
 
     /// The one summary (`mpc::summarize`) of the plant's `last` sample; the controller's
-    /// solve statistics are unknown (no records), its cycles are the commands applied.
+    /// solve statistics are unknown (no records), its cycles are the commands applied, and
+    /// its commands lost are not the bench's to count (netem's counts are its `external`).
     fn summary(&self, last: &PlantSample, end: RunEnd) -> RunSummary {
         let mut summary = mpc::summarize(&self.scenario.name, CONTROLLER_NAME, &[], last, end);
         summary.cycles = self.rows.len() as u64;
+        summary.commands_lost = None;
         summary
     }
 }

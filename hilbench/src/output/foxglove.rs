@@ -198,7 +198,7 @@ impl Channels {
                 cycle: record.cycle,
                 injected_delay_s: record.injected_delay_s,
                 measured_delay_s: record.known_delay_s,
-                lost: record.injected_delay_s.is_none(),
+                lost: record.command_lost,
                 weights: record.weights.clone(),
                 sampling_times_s,
             }),

@@ -61,6 +61,8 @@ pub struct RunFacts {
     pub end_reason: mpc::RunEnd,
     /// Why the run went as it did (`RunSummary::explanation`).
     pub explanation: Vec<String>,
+    /// Commands the network dropped (`RunSummary::commands_lost`).
+    pub commands_lost: Option<u64>,
 }
 
 impl From<&RunSummary> for RunFacts {
@@ -80,6 +82,7 @@ impl From<&RunSummary> for RunFacts {
             collisions_described: r.collisions.iter().map(|c| c.describe()).collect(),
             end_reason: r.end_reason,
             explanation: r.explanation.clone(),
+            commands_lost: r.commands_lost,
         }
     }
 }

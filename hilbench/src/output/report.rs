@@ -101,6 +101,17 @@ pub fn render(
     if !plants.is_empty() {
         let _ = writeln!(out, "Flown on: {}.\n", plants.join("; "));
     }
+    // Commands the network dropped: a loss is an injected fault, counted where the runs are.
+    let lost: Vec<String> = runs
+        .iter()
+        .filter_map(|r| {
+            let n = r.commands_lost.filter(|n| *n > 0)?;
+            Some(format!("{} {} {n} of {} commands", r.scenario, r.controller, r.cycles))
+        })
+        .collect();
+    if !lost.is_empty() {
+        let _ = writeln!(out, "Lost by the network (never applied): {}.\n", lost.join("; "));
+    }
     // Every run that did not simply reach its goal with verified commands, explained.
     for r in runs.iter().filter(|r| r.collided || !r.reached || !r.explanation.is_empty()) {
         let what = if r.collided {
@@ -195,6 +206,7 @@ mod tests {
         r.min_clearance_m = -0.02;
         r.cycles = 70;
         r.solve_ms_median = 0.9;
+        r.commands_lost = Some(if r.collided { 2 } else { 0 });
         if r.collided {
             let ground = mpc::record::CollisionSummary {
                 kind: "ground".into(),
@@ -246,6 +258,7 @@ mod tests {
         assert!(!md.contains("(paper-2-multistage.csv)"), "links a missing log");
         assert!(md.contains("[summary.json](summary.json)"));
         assert!(md.contains("| paper-2 | nmpc | no | - | 6.18 | -0.020 | 70 | 0.90 | **YES** |"), "{md}");
+        assert!(md.contains("Lost by the network (never applied): paper-2 nmpc 2 of 70 commands.\n"), "{md}");
         assert!(
             md.contains(
                 "paper-2 with nmpc collided:\n\n- ground, 20.0 mm deep, at 4.25 s, at [1.00, 2.00, -0.02] m"

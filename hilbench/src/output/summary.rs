@@ -107,6 +107,7 @@ pub fn run_json(r: &RunSummary) -> serde_json::Value {
         "fallbacks": r.fallbacks,
         "decisions": r.decisions,
         "best_effort_cycles": r.best_effort_cycles,
+        "commands_lost": r.commands_lost,
         "explanation": r.explanation,
         "cost_gap": r.cost_gap,
         "collisions": r.collisions,

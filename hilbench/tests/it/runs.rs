@@ -133,3 +133,23 @@ fn the_fail_safe_check_of_a_scenario_file_reaches_the_controller_over_grpc() {
     assert_ne!(deterministic(&local), deterministic(&without), "the check changed nothing");
     assert!(!local.runs[0].summary.collided);
 }
+
+#[test]
+fn commands_the_network_dropped_are_counted_alike_in_process_and_over_grpc() {
+    // paper-2's round trip, its commands lost one in ten: the summary counts what the
+    // per-cycle log shows.
+    let mut jobs = file_jobs(&load("paper-2.toml"), Some(&[ControllerMode::Nmpc]));
+    jobs[0].scenario.delays.as_mut().expect("paper-2's delays").loss_probability = Some(0.1);
+    let grpc = fly_all(&jobs, &Driver::Services(Endpoints::default()), false).expect("grpc");
+    let local = fly_all(&jobs, &Driver::InProcess, false).expect("in process");
+    for batch in [&grpc, &local] {
+        assert!(batch.error.is_none(), "{}: {:?}", batch.driver, batch.error);
+        let run = &batch.runs[0];
+        let lost = run.summary.commands_lost.expect("the bench's controller's losses are counted");
+        let empty = run.rows.iter().filter(|r| r.injected_delay_s.is_none()).count() as u64;
+        assert!(lost > 5, "{lost} of {} commands lost", run.rows.len());
+        assert_eq!(lost, empty, "{}", batch.driver);
+        assert_eq!(run_json(&run.summary)["commands_lost"], lost);
+    }
+    assert_eq!(deterministic(&grpc), deterministic(&local));
+}

@@ -24,6 +24,7 @@ pub(crate) fn facts(scenario: &str, controller: &str) -> RunFacts {
         collisions_described: Vec::new(),
         end_reason: mpc::RunEnd::Reached { time_ns: 0 },
         explanation: Vec::new(),
+        commands_lost: None,
     }
 }
 
@@ -44,6 +45,7 @@ fn rows(scenario: &Scenario, m: usize) -> Vec<CycleRow> {
                 command_seq: k as u64 + 1,
                 known_delay_s: (k > 0).then(|| 0.15 + 0.05 * ((k * 7 % 11) as f64 / 11.0)),
                 injected_delay_s: Some(0.15 + 0.05 * (((k + 1) * 7 % 11) as f64 / 11.0)),
+                command_lost: false,
                 weights: (0..m)
                     .map(|i| if i == k % m { 0.6 } else { 0.4 / (m as f64 - 1.0).max(1.0) })
                     .collect(),
