@@ -225,7 +225,13 @@ impl ScenarioFile {
             field,
             message,
         };
-        let root = DeTable::parse(text).map_err(|e| error(e.span(), None, e.message().to_string()))?;
+        let root = DeTable::parse(text).map_err(|e| {
+            let message = match e.span() {
+                Some(span) if e.message() == "duplicate key" => duplicate_key(text, span),
+                _ => e.message().to_string(),
+            };
+            error(e.span(), None, message)
+        })?;
         let mut file: ScenarioFile = serde::Deserialize::deserialize(toml::Deserializer::from(root.clone()))
             .map_err(|e| {
                 let field = e.span().and_then(|s| field_at(&root, &s));
@@ -402,6 +408,23 @@ pub fn read_trace(path: &Path) -> Result<Vec<f64>, String> {
 }
 
 /// 1-based line of byte `offset` in `text`.
+/// toml's "duplicate key", said with the key and where it was first given: a table header
+/// (`[scenario.delays]` pasted into a file that has one) by its first line.
+fn duplicate_key(text: &str, span: Range<usize>) -> String {
+    let start = text[..span.start.min(text.len())].rfind('\n').map_or(0, |i| i + 1);
+    let line = text[start..].lines().next().unwrap_or_default().trim();
+    if line.starts_with('[') {
+        let header = line.split('#').next().unwrap_or(line).trim();
+        let first = text[..start].lines().position(|l| l.split('#').next().unwrap_or(l).trim() == header);
+        let first = first.map_or_else(String::new, |i| format!(" (first at line {})", i + 1));
+        return format!(
+            "duplicate key: the table `{header}` is given twice{first}; a file has each table once (replace the first)"
+        );
+    }
+    let key = text.get(span).unwrap_or_default().trim();
+    format!("duplicate key: `{key}` is given twice in its table")
+}
+
 fn line_of(text: &str, offset: usize) -> usize {
     let end = offset.min(text.len());
     text.as_bytes()[..end].iter().filter(|b| **b == b'\n').count() + 1
@@ -828,6 +851,26 @@ mod tests {
         }
         let (text, _) = edited("kind = \"none\"", "kind = \"trace\"\nfile = \"no-such-trace.csv\"");
         assert!(error_of(&text).message.contains("no-such-trace.csv"), "the missing file is named");
+    }
+
+    #[test]
+    fn a_table_or_key_given_twice_is_named_with_where_it_was_first() {
+        // A fit's [scenario.delays] pasted below the file's own.
+        let text = std::fs::read_to_string(repo_root().join("scenarios/paper-3.toml")).expect("paper-3");
+        let first = text.lines().position(|l| l.trim() == "[scenario.delays]").expect("a delays table") + 1;
+        let e = error_of(&format!("{text}\n[scenario.delays]\nkind = \"constant\"\ndelay_s = 0.1\n"));
+        assert_eq!(e.line, Some(text.lines().count() + 2), "{e}");
+        assert!(
+            e.message
+                .contains(&format!("the table `[scenario.delays]` is given twice (first at line {first})")),
+            "{e}"
+        );
+        let (twice, _) = edited("kind = \"none\"", "kind = \"none\"\nkind = \"constant\"");
+        assert!(
+            error_of(&twice).message.contains("`kind` is given twice in its table"),
+            "{}",
+            error_of(&twice)
+        );
     }
 
     #[test]
