@@ -35,11 +35,12 @@ pub fn run(args: RunArgs, opts: &Options) -> anyhow::Result<Exit> {
     };
     let header = |batch_time_mode: TimeMode| {
         format!(
-            "{} ({}): {}, {}",
+            "{} ({}): {}, {}; {}",
             spec.scenario.name,
             file.display(),
             batch_time_mode.name(),
-            driver.describe()
+            driver.describe(),
+            terminal::delays_text(&spec.scenario)
         )
     };
     let written = fly_and_write("run", &jobs, args.out, args.json, opts, &driver, |batch| ReportParts {

@@ -3,6 +3,37 @@
 
 use mpc::RunSummary;
 
+/// A scenario's network in a few words, as a run's header gives it: each direction's kind (a
+/// trace by its file, a regime by its states), its loss, and the seed its draws come from.
+pub fn delays_text(scenario: &mav::Scenario) -> String {
+    fn one(t: &delay::DelaysTable, on: &str) -> String {
+        let mut text = match (t.kind.as_deref().unwrap_or("none"), &t.file) {
+            ("none", _) => return format!("none on {on}"),
+            ("trace", Some(file)) => format!("trace {file}"),
+            ("trace", None) => format!("a trace of {} delays", t.delays_s.as_ref().map_or(0, Vec::len)),
+            ("regime", _) => format!("a regime of {} states", t.states.as_ref().map_or(0, Vec::len)),
+            (kind, _) => kind.to_string(),
+        };
+        text.push_str(&format!(" on {on}"));
+        if let Some(p) = t.loss_probability.filter(|p| *p > 0.0) {
+            text.push_str(&format!(" (loss {p})"));
+        }
+        text
+    }
+    let Some(table) = &scenario.delays else { return "no delays".to_string() };
+    let text = match (&table.to_plant, &table.to_controller) {
+        (None, None) => one(table, "commands"),
+        (to_plant, to_controller) => {
+            let parts = [
+                to_plant.as_deref().map(|t| one(t, "commands")),
+                to_controller.as_deref().map(|t| one(t, "samples")),
+            ];
+            parts.into_iter().flatten().collect::<Vec<_>>().join(", ")
+        }
+    };
+    format!("delays: {text}, seed {}", scenario.seed)
+}
+
 /// A short table of the runs of one scenario file.
 pub fn run_table(runs: &[RunSummary]) -> String {
     use std::fmt::Write;
@@ -298,6 +329,22 @@ pub fn print_falsify(v: &serde_json::Value, dir: &std::path::Path) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_runs_header_names_each_directions_delays_their_loss_and_the_seed() {
+        let mut s = mav::Scenario::by_name("paper-2").expect("paper-2");
+        s.seed = 7;
+        assert_eq!(delays_text(&s), "delays: gamma on commands, seed 7");
+        s.delays.as_mut().expect("delays").loss_probability = Some(0.02);
+        assert_eq!(delays_text(&s), "delays: gamma on commands (loss 0.02), seed 7");
+        s.delays = Some(delay::DelaysTable {
+            to_controller: Some(Box::new(delay::DelaysTable::trace("wifi.csv", vec![0.1], false))),
+            ..delay::DelaysTable::default()
+        });
+        assert_eq!(delays_text(&s), "delays: trace wifi.csv on samples, seed 7");
+        s.delays = None;
+        assert_eq!(delays_text(&s), "no delays");
+    }
 
     #[test]
     fn an_external_controllers_sweep_claims_no_solver_time_and_ours_states_it() {

@@ -20,11 +20,22 @@ fn out_dir(name: &str) -> PathBuf {
 }
 
 #[test]
-fn a_delay_trace_replaces_the_files_delays_and_summary_json_names_it() {
+fn a_delay_trace_replaces_the_files_delays_and_summary_json_and_the_report_name_it() {
     let out = out_dir("delay-trace-replaces");
     let (file, trace) = (repo("scenarios/slalom-4.toml"), repo("scenarios/wifi-trace.csv"));
-    let args =
-        ["run", &file, "--in-process", "--mode", "nmpc", "--no-plots", "--quiet", "--delay-trace", &trace];
+    let args = [
+        "run",
+        &file,
+        "--in-process",
+        "--mode",
+        "nmpc",
+        "--no-plots",
+        "--quiet",
+        "--seed",
+        "99",
+        "--delay-trace",
+        &trace,
+    ];
     let run = hilbench(&[&args[..], &["--out", out.to_str().expect("utf-8")]].concat());
     assert!(run.status.success(), "{run:?}");
     let summary: serde_json::Value =
@@ -34,6 +45,8 @@ fn a_delay_trace_replaces_the_files_delays_and_summary_json_names_it() {
     assert_eq!(profile["source"], "scenario", "{profile}");
     assert_eq!(profile["delays"]["kind"], "trace", "{profile}");
     assert_eq!(profile["delays"]["file"], trace.as_str(), "{profile}");
+    let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    assert!(report.contains(&format!("delays: trace {trace} on commands, seed 99")), "{report}");
     // The CSV's measured delays are the trace's, line by line (cycle k measures cycle k-1's).
     let trace_delays =
         delay::parse_trace(&std::fs::read_to_string(&trace).expect("the trace")).expect("a trace");
