@@ -97,7 +97,16 @@ impl FitReport {
         let mut doc = Table::new();
         doc.insert("scenario".into(), Value::Table(scenario));
         let body = toml::to_string(&doc).map_err(|e| TableError::Toml(e.to_string()))?;
-        Ok(format!("{}{body}", self.comment(best)))
+        // The bench's controllers start from a Gamma prior of the delay (the paper's
+        // [12, 0.015]) until they have measured a window: this link's Gamma is the one to give.
+        let prior = match self.candidate(Kind::Gamma).map(|c| c.model) {
+            Some(Model::Gamma { shape, scale_s }) => format!(
+                "# For the bench's controllers, the Gamma prior of this link's delays (the file's \
+                 `prior_gamma`, used until a window is measured): prior_gamma = [{shape:.4}, {scale_s:.6}]\n"
+            ),
+            _ => String::new(),
+        };
+        Ok(format!("{}{prior}{body}", self.comment(best)))
     }
 
     /// The best replayable fit as a `[[sweep.families]]` table whose parameters range over

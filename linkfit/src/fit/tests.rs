@@ -301,11 +301,16 @@ fn intervals_cover_the_truth_in_at_least_85_percent_of_200_data_sets() {
 }
 
 #[test]
-fn a_regime_fitted_without_a_probe_rate_says_its_dwells_are_in_probes() {
+fn a_fits_scenario_table_says_a_dwell_without_a_probe_rate_is_in_probes_and_gives_the_gamma_prior() {
     let x = draws(regime_truth(), 5_000, 23);
     let report = fit(&x, &opts()).expect("a fit");
     assert_eq!(report.best().map(Candidate::kind), Some(Kind::Regime));
     assert!(report.scenario_toml().expect("toml").contains("The dwells are in probes"));
+    let Some(Model::Gamma { shape, scale_s }) = report.candidate(Kind::Gamma).map(|c| c.model) else {
+        panic!("a Gamma candidate")
+    };
+    let prior = format!("prior_gamma = [{shape:.4}, {scale_s:.6}]");
+    assert!(report.scenario_toml().expect("toml").contains(&prior), "the Gamma prior to give the controller");
     let timed = fit(&x, &FitOptions { rate_hz: Some(20.0), ..opts() }).expect("a fit");
     assert!(!timed.scenario_toml().expect("toml").contains("in probes"));
 }
