@@ -407,15 +407,15 @@ pub fn read_trace(path: &Path) -> Result<Vec<f64>, String> {
     delay::parse_trace(&text).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-/// 1-based line of byte `offset` in `text`.
 /// toml's "duplicate key", said with the key and where it was first given: a table header
 /// (`[scenario.delays]` pasted into a file that has one) by its first line.
 fn duplicate_key(text: &str, span: Range<usize>) -> String {
-    let start = text[..span.start.min(text.len())].rfind('\n').map_or(0, |i| i + 1);
-    let line = text[start..].lines().next().unwrap_or_default().trim();
+    let before = text.get(..span.start).unwrap_or_default();
+    let start = before.rfind('\n').map_or(0, |i| i + 1);
+    let line = text.get(start..).unwrap_or_default().lines().next().unwrap_or_default().trim();
     if line.starts_with('[') {
         let header = line.split('#').next().unwrap_or(line).trim();
-        let first = text[..start].lines().position(|l| l.split('#').next().unwrap_or(l).trim() == header);
+        let first = before[..start].lines().position(|l| l.split('#').next().unwrap_or(l).trim() == header);
         let first = first.map_or_else(String::new, |i| format!(" (first at line {})", i + 1));
         return format!(
             "duplicate key: the table `{header}` is given twice{first}; a file has each table once (replace the first)"
@@ -425,6 +425,7 @@ fn duplicate_key(text: &str, span: Range<usize>) -> String {
     format!("duplicate key: `{key}` is given twice in its table")
 }
 
+/// 1-based line of byte `offset` in `text`.
 fn line_of(text: &str, offset: usize) -> usize {
     let end = offset.min(text.len());
     text.as_bytes()[..end].iter().filter(|b| **b == b'\n').count() + 1

@@ -8,7 +8,7 @@ use mpc::RunSummary;
 pub fn delays_text(scenario: &mav::Scenario) -> String {
     fn one(t: &delay::DelaysTable, on: &str) -> String {
         let mut text = match (t.kind.as_deref().unwrap_or("none"), &t.file) {
-            ("none", _) => return format!("none on {on}"),
+            ("none", _) => "no delay".to_string(),
             ("trace", Some(file)) => format!("trace {file}"),
             ("trace", None) => format!("a trace of {} delays", t.delays_s.as_ref().map_or(0, Vec::len)),
             ("regime", _) => format!("a regime of {} states", t.states.as_ref().map_or(0, Vec::len)),
@@ -342,6 +342,12 @@ mod tests {
             ..delay::DelaysTable::default()
         });
         assert_eq!(delays_text(&s), "delays: trace wifi.csv on samples, seed 7");
+        s.delays = Some(delay::DelaysTable {
+            kind: Some("none".into()),
+            loss_probability: Some(0.1),
+            ..delay::DelaysTable::default()
+        });
+        assert_eq!(delays_text(&s), "delays: no delay on commands (loss 0.1), seed 7");
         s.delays = None;
         assert_eq!(delays_text(&s), "no delays");
     }
