@@ -467,16 +467,15 @@ enum Answer {
     Command(tonic::Response<pb::ApplyCommandResponse>),
 }
 
-/// The delay netem stamped on a command it did not drop, s; `None` without netem's stamps (or
-/// with stamps that do not read), or for a dropped command.
-fn injected_delay_s(md: &tonic::metadata::MetadataMap) -> Option<f64> {
-    let stamp = Stamp::read(md, Stamped::Command).ok()??;
-    (stamp.outcome != StampOutcome::Dropped).then(|| mav::ns_to_s(stamp.delay_ns))
-}
-
-/// netem stamped the command dropped.
-fn command_lost(md: &tonic::metadata::MetadataMap) -> bool {
-    matches!(Stamp::read(md, Stamped::Command), Ok(Some(stamp)) if stamp.outcome == StampOutcome::Dropped)
+/// What netem's stamp says of a command, read once: the delay it put on a command it did not
+/// drop, s (`None` without netem's stamps, with stamps that do not read, or for a dropped
+/// command), and whether it dropped it.
+fn command_fate(md: &tonic::metadata::MetadataMap) -> (Option<f64>, bool) {
+    match Stamp::read(md, Stamped::Command) {
+        Ok(Some(stamp)) if stamp.outcome == StampOutcome::Dropped => (None, true),
+        Ok(Some(stamp)) => (Some(mav::ns_to_s(stamp.delay_ns)), false),
+        _ => (None, false),
+    }
 }
 
 /// A sample from the plant, validated by `proto`'s conversion.
@@ -636,8 +635,7 @@ async fn fly(
             Answer::Step(r) => r.metadata(),
             Answer::Command(r) => r.metadata(),
         };
-        out.record.injected_delay_s = injected_delay_s(metadata);
-        out.record.command_lost = command_lost(metadata);
+        (out.record.injected_delay_s, out.record.command_lost) = command_fate(metadata);
         shared.link_answered(!lockstep);
         publish(shared, flight, &wire_sample, out);
         if let Answer::Step(r) = answer {
