@@ -13,7 +13,7 @@ use crate::packets::{FDM_PACKET_LEN, decode_servo, encode_fdm};
 use crate::pose::{bench_to_enu, encode_odometry};
 use crate::stats::LinkStats;
 use nalgebra::{UnitQuaternion, Vector3};
-use quad::betaflight::{FdmState, motors_from_servo_packet};
+use quad::betaflight::{FdmState, motors_from_servo_packet, wall_clock_timestamp_s};
 use quad::{QuadParams, QuadSample, QuadSim, QuadState, SimSettings};
 use std::io::Write;
 use std::net::{SocketAddr, UdpSocket};
@@ -258,7 +258,13 @@ const PUBLISH_NS: u64 = 10_000_000;
 
 impl Loop {
     fn send_state(&mut self) {
-        let packet: [u8; FDM_PACKET_LEN] = encode_fdm(&FdmState::from_sample(&self.sim.sample()));
+        let mut state = FdmState::from_sample(&self.sim.sample());
+        if self.settings.time_mode == TimeMode::RealTime {
+            // The firmware keeps the wall clock (`wall_clock_timestamp_s`); lockstep's stamps are
+            // its plant time, which is what it measures.
+            state.timestamp_s = wall_clock_timestamp_s(self.sim.time_ns());
+        }
+        let packet: [u8; FDM_PACKET_LEN] = encode_fdm(&state);
         // Unconnected sockets (`send_to`): a port nobody listens on yet does not turn the next
         // sends into errors (ICMP port unreachable is reported on connected sockets only).
         match self.fdm.send_to(&packet, self.settings.fdm_to) {

@@ -72,6 +72,27 @@ pub fn firmware_attitude(imu_orientation_quat: [f64; 4]) -> [f64; 3] {
     [m21.atan2(m22), m20.clamp(-1.0, 1.0).asin(), m10.atan2(m00)]
 }
 
+/// How far apart the timestamps of state packets are when the firmware is to run on the wall
+/// clock, ns: 0.1 s, more than the 20 ms under which `sitl.c` re-estimates its clock.
+pub const WALL_CLOCK_STAMP_STEP_NS: u64 = 100_000_000;
+
+/// The `fdm_packet` timestamp, s, that leaves the firmware's clock at the wall clock's rate: plant
+/// time rounded down to [`WALL_CLOCK_STAMP_STEP_NS`].
+///
+/// Why: `sitl.c` runs the firmware's clock (`micros64`) at `simRate` times the wall clock, and
+/// sets `simRate` at each state packet whose timestamp is 0 to 20 ms after the last one, to that
+/// timestamp difference over the wall time *between the two packets' arrivals*, unsmoothed. Two
+/// packets read back to back after the SITL's thread was descheduled (a 1 ms stamp difference
+/// 20 us apart) make the clock run 50 times fast until the next packet: 150 ms of firmware time
+/// pass in a few ms, the receiver is lost (`RXLOSS`), and the reverse makes it crawl (boot grace
+/// that never ends). Stamps that stay equal for 0.1 s (`deltaSim` 0: the state is applied,
+/// `simRate` untouched) and then step by 0.1 s (not under 20 ms: untouched again) keep `simRate`
+/// at its initial 1.0: the firmware's clock is the wall clock, as a real flight controller's is.
+/// Stamps never go back (an older one is dropped by the firmware).
+pub fn wall_clock_timestamp_s(time_ns: u64) -> f64 {
+    mav::ns_to_s(time_ns - time_ns % WALL_CLOCK_STAMP_STEP_NS)
+}
+
 /// The values of an `fdm_packet` for one sample, in the frames `sitl.c` reads (the position
 /// in both frames the packet may mean; a bridge with `USE_VIRTUAL_GPS` turns the ENU position
 /// into longitude, latitude and altitude about its chosen origin).

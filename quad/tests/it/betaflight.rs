@@ -129,3 +129,26 @@ fn frame_conversions_map_axes_and_aerospace_angles_as_documented() {
     let world_ned = attitude_frd_ned(&q) * flu_to_frd(&v);
     assert!((enu_to_ned(&world_enu) - world_ned).norm() < 1e-12);
 }
+
+/// `sitl.c` re-estimates its clock rate from a state packet only when its timestamp is 0 to
+/// 20 ms (exclusive) after the previous one's: the wall-clock stamps never fall in that window
+/// and never go back, so the firmware's clock keeps the wall clock's rate.
+#[test]
+fn wall_clock_stamps_never_step_by_less_than_20_ms_nor_go_back() {
+    use quad::betaflight::wall_clock_timestamp_s;
+    let mut previous = wall_clock_timestamp_s(0);
+    let mut steps = 0;
+    // 30 s of 1 kHz state packets with a jittered period (0.3 to 1.7 ms).
+    let mut t_ns = 0u64;
+    for k in 0..30_000u64 {
+        t_ns += 300_000 + (k * 7_919 % 1_400_000);
+        let stamp = wall_clock_timestamp_s(t_ns);
+        let delta = stamp - previous;
+        assert!(delta == 0.0 || delta >= 0.02, "a step of {delta} s at {t_ns} ns");
+        steps += usize::from(delta > 0.0);
+        previous = stamp;
+    }
+    // They still say the time, to 0.1 s.
+    assert!((previous - mav::ns_to_s(t_ns)).abs() < 0.1);
+    assert!(steps > 100, "{steps} steps");
+}
