@@ -584,7 +584,7 @@ fn hover_flight() -> bool {
     // is angle_limit * deflection: 20 deg * 100 / 500 = 4 deg (the firmware's defaults gave 1.1).
     assert!((3.0..5.0).contains(&roll), "roll stick right: {roll:.2} deg, 4 expected");
     assert!((3.0..5.0).contains(&-pitch), "pitch stick forward: {pitch:.2} deg, 4 expected");
-    assert!((roll + pitch).abs() < 0.3, "roll and pitch alike: {roll:.2} and {pitch:.2} deg");
+    assert!((roll + pitch).abs() < 0.5, "roll and pitch alike: {roll:.2} and {pitch:.2} deg");
     assert!(heights.len() > 200, "poses (at the loop's 50 Hz) through the hover: {}", heights.len());
     assert!(lo > 0.5 && hi < 1.5, "a steady height about 1 m: {lo:.3} to {hi:.3} m");
     assert!(

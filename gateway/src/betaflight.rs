@@ -546,7 +546,7 @@ impl pb::vehicle_control_server::VehicleControl for MspService {
             watchdog_holds: c.watchdog_holds,
             stale_messages: c.poses_stale,
             bad_messages: c.poses_invalid + c.poses_bad_frame + c.bad_replies,
-            hover_thrust: s.calibration.hover_fraction(),
+            hover_thrust: inner.bridge.stick_map().throttle_curve().hover_output(),
             link_losses: inner.link_losses,
             link_error: inner.link_error.clone().unwrap_or_default(),
             vehicle_locked: s.link_alive,

@@ -30,6 +30,14 @@ struct Args {
     /// measured on the vehicle): T = g maps to it.
     #[arg(long, default_value_t = 1500.0, value_name = "US")]
     hover_throttle_us: f64,
+    /// With --msp: the firmware's min_check, us: the throttle stick below which it reads zero
+    /// throttle.
+    #[arg(long, default_value_t = 1050.0, value_name = "US")]
+    min_check_us: f64,
+    /// With --msp: the firmware's motor_idle, percent of full output (its setting / 100): what
+    /// the motors give at zero throttle while armed.
+    #[arg(long, default_value_t = 5.5, value_name = "PERCENT")]
+    motor_idle_percent: f64,
     /// With --msp: the firmware's angle_limit, degrees (full stick in ANGLE mode); the value
     /// the firmware reports over MSP_PID_ADVANCED replaces it once heard.
     #[arg(long, default_value_t = 20.0, value_name = "DEG")]
@@ -147,6 +155,8 @@ fn msp_config(args: &Args, msp: &str) -> anyhow::Result<gateway::betaflight::Msp
     let s = &mut config.settings;
     s.calibration.hover_throttle_us = args.hover_throttle_us;
     s.calibration.angle_limit_deg = args.angle_limit_deg;
+    s.calibration.min_check_us = args.min_check_us;
+    s.calibration.motor_idle = args.motor_idle_percent / 100.0;
     s.command_timeout_ns = args.command_timeout_ms * 1_000_000;
     s.disarm_timeout_ns = args.disarm_timeout_ms * 1_000_000;
     s.start_tolerance_m = args.start_tolerance_m;
@@ -157,6 +167,8 @@ fn msp_config(args: &Args, msp: &str) -> anyhow::Result<gateway::betaflight::Msp
             mavbridge::betaflight::MspError::Setting(name, _) => match *name {
                 "hover_throttle_us" => "--hover-throttle-us",
                 "angle_limit_deg" => "--angle-limit-deg",
+                "min_check_us" => "--min-check-us",
+                "motor_idle" => "--motor-idle-percent",
                 "disarm_timeout_ns" => "--disarm-timeout-ms",
                 "start_tolerance_m" => "--start-tolerance-m",
                 "envelope_margin_m" => "--envelope-margin-m",

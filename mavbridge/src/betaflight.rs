@@ -9,9 +9,10 @@
 //!   (docs/betaflight.md, section 4).
 //! - **Sticks** ([`StickMap`]): the model's input `[T, phi_d, theta_d]` at the yaw held since
 //!   arming becomes NED roll and pitch ([`crate::frame::ned_angles`]), a stick of
-//!   `angle / angle_limit` (ANGLE mode: full stick is `angle_limit`), and a throttle through
-//!   the hover throttle ([`crate::ThrustMap`], the MAVLink side's line through zero, on the
-//!   throttle's range above 1000 us). Every clamp is counted.
+//!   `angle / angle_limit` (ANGLE mode: full stick is `angle_limit`, a line once
+//!   `hilbench.cli` has straightened the rates curve), and a throttle through the firmware's
+//!   own throttle path and a propeller's thrust, the square of its speed ([`ThrottleCurve`]),
+//!   pinned by the hover throttle. Every clamp is counted.
 //! - **Arming** only when asked ([`MspBridge::request_arm`]): the throttle stays low until the
 //!   firmware says it armed (it refuses a switch raised with the throttle up).
 //! - **A silent controller** (the MAVLink side's rule, docs/gateway.md): no command for
@@ -28,7 +29,6 @@
 
 use crate::episode::{Episode, initial_command};
 use crate::frame::{self, NedState};
-use crate::thrust::ThrustMap;
 use mav::{AppliedCommand, CommandMeta, Input, PlantSample, Scenario, State};
 use mavlink::dialects::common::{MavFrame, ODOMETRY_DATA};
 use msp::messages::{Attitude, BoxIds, FcVariant, FcVersion, PidAdvanced, RawRc, Status, Sticks, boxes};
@@ -62,11 +62,18 @@ pub struct Calibration {
     /// `hilbench.cli`). The firmware's own value, read over `MSP_PID_ADVANCED`, replaces it
     /// once heard.
     pub angle_limit_deg: f64,
+    /// The throttle below which the firmware reads zero throttle, us (its `min_check`, 1050 by
+    /// default): `rc.c` maps `min_check..2000` onto the mixer's whole throttle range.
+    pub min_check_us: f64,
+    /// The motors' output at zero throttle while armed, a fraction of full output (the
+    /// firmware's `motor_idle`, 550 = 5.5 % by default): the mixer maps the throttle onto
+    /// `motor_idle..1`.
+    pub motor_idle: f64,
 }
 
 impl Default for Calibration {
     fn default() -> Self {
-        Self { hover_throttle_us: 1500.0, angle_limit_deg: 20.0 }
+        Self { hover_throttle_us: 1500.0, angle_limit_deg: 20.0, min_check_us: 1050.0, motor_idle: 0.055 }
     }
 }
 
@@ -90,12 +97,86 @@ impl Calibration {
         if !(1.0..=90.0).contains(&a) {
             return Err(MspError::Setting("angle_limit_deg", format!("must be 1 to 90 degrees, got {a}")));
         }
+        let m = self.min_check_us;
+        if !(m.is_finite() && m >= f64::from(STICK_MIN_US) && m < h) {
+            return Err(MspError::Setting(
+                "min_check_us",
+                format!("must be 1000 us or more and below the hover throttle ({h} us), got {m}"),
+            ));
+        }
+        let i = self.motor_idle;
+        if !(i.is_finite() && (0.0..0.5).contains(&i)) {
+            return Err(MspError::Setting("motor_idle", format!("must be in [0, 0.5), got {i}")));
+        }
         Ok(())
     }
+}
 
-    /// The hover throttle as a fraction of the throttle's range above 1000 us.
-    pub fn hover_fraction(&self) -> f64 {
-        (self.hover_throttle_us - f64::from(STICK_MIN_US)) / f64::from(STICK_MAX_US - STICK_MIN_US)
+/// The controller's mass-normalised thrust `T` and the throttle stick, through what lies between
+/// them on a Betaflight quadrotor: `rc.c` maps the stick's `min_check..2000` us onto a throttle
+/// `t` in `[0, 1]` (the default throttle curve is a line), the mixer maps `t` onto a motor output
+/// `m = idle + (1 - idle) t` (no `thrust_linear`, its default), a motor's speed follows its
+/// output, and a propeller's thrust is the square of its speed. So `T = g (m / m_hover)^2`, with
+/// `m_hover` the output at the measured hover throttle: one measurement pins the curve, as
+/// `hover_thrust` pins the MAVLink side's line.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ThrottleCurve {
+    min_check_us: f64,
+    motor_idle: f64,
+    hover_output: f64,
+    gravity_mps2: f64,
+}
+
+impl ThrottleCurve {
+    pub fn new(calibration: &Calibration, gravity_mps2: f64) -> Result<Self, MspError> {
+        calibration.validate()?;
+        if !(gravity_mps2.is_finite() && gravity_mps2 > 0.0) {
+            return Err(MspError::Setting(
+                "gravity_mps2",
+                format!("must be finite and > 0, got {gravity_mps2}"),
+            ));
+        }
+        let mut curve = Self {
+            min_check_us: calibration.min_check_us,
+            motor_idle: calibration.motor_idle,
+            hover_output: 1.0,
+            gravity_mps2,
+        };
+        curve.hover_output = curve.output(calibration.hover_throttle_us);
+        Ok(curve)
+    }
+
+    /// The motor output that hovers, a fraction of full output (the MAVLink side's
+    /// `hover_thrust`).
+    pub fn hover_output(&self) -> f64 {
+        self.hover_output
+    }
+
+    /// The motor output for a throttle stick, a fraction of full output.
+    pub fn output(&self, throttle_us: f64) -> f64 {
+        let range = f64::from(STICK_MAX_US) - self.min_check_us;
+        let t = ((throttle_us - self.min_check_us) / range).clamp(0.0, 1.0);
+        self.motor_idle + (1.0 - self.motor_idle) * t
+    }
+
+    /// The thrust a throttle stick gives, m/s^2.
+    pub fn thrust_mps2(&self, throttle_us: f64) -> f64 {
+        self.gravity_mps2 * (self.output(throttle_us) / self.hover_output).powi(2)
+    }
+
+    /// The throttle stick for `T`, us, and whether it was clamped: below the idle's thrust (an
+    /// armed motor does not stop), above full output, or NaN (zero throttle).
+    pub fn throttle_us(&self, thrust_mps2: f64) -> (u16, bool) {
+        if thrust_mps2.is_nan() {
+            return (STICK_MIN_US, true);
+        }
+        let output = self.hover_output * (thrust_mps2.max(0.0) / self.gravity_mps2).sqrt();
+        let t = (output - self.motor_idle) / (1.0 - self.motor_idle);
+        let clamped = !(0.0..=1.0).contains(&t);
+        let range = f64::from(STICK_MAX_US) - self.min_check_us;
+        let us = if t <= 0.0 { f64::from(STICK_MIN_US) } else { self.min_check_us + t.min(1.0) * range };
+        let (us, _) = clamp_us(us);
+        (us, clamped)
     }
 }
 
@@ -234,27 +315,27 @@ fn clamp_us(us: f64) -> (u16, bool) {
 /// The command to sticks: the calibration in force.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StickMap {
-    thrust: ThrustMap,
+    throttle: ThrottleCurve,
     angle_limit_rad: f64,
 }
 
 impl StickMap {
     pub fn new(calibration: &Calibration, gravity_mps2: f64) -> Result<Self, MspError> {
-        calibration.validate()?;
-        let thrust = ThrustMap::new(calibration.hover_fraction(), gravity_mps2)
-            .map_err(|e| MspError::Setting("hover_throttle_us", e.to_string()))?;
-        Ok(Self { thrust, angle_limit_rad: calibration.angle_limit_deg.to_radians() })
+        let throttle = ThrottleCurve::new(calibration, gravity_mps2)?;
+        Ok(Self { throttle, angle_limit_rad: calibration.angle_limit_deg.to_radians() })
     }
 
     pub fn angle_limit_rad(&self) -> f64 {
         self.angle_limit_rad
     }
 
-    /// The throttle for `T`, us.
+    /// The throttle for `T`, us ([`ThrottleCurve`]).
     pub fn throttle_us(&self, thrust_mps2: f64) -> (u16, bool) {
-        let (n, clamped) = self.thrust.normalise(thrust_mps2);
-        let (us, _) = clamp_us(f64::from(STICK_MIN_US) + n * f64::from(STICK_MAX_US - STICK_MIN_US));
-        (us, clamped || thrust_mps2.is_nan())
+        self.throttle.throttle_us(thrust_mps2)
+    }
+
+    pub fn throttle_curve(&self) -> &ThrottleCurve {
+        &self.throttle
     }
 
     /// The sticks for the model's input at the yaw held, rad. Roll right and pitch nose down
@@ -941,7 +1022,7 @@ mod tests {
     const G: f64 = 9.81;
 
     fn map() -> StickMap {
-        StickMap::new(&Calibration { hover_throttle_us: 1400.0, angle_limit_deg: 20.0 }, G).expect("valid")
+        StickMap::new(&Calibration { hover_throttle_us: 1400.0, ..Calibration::default() }, G).expect("valid")
     }
 
     fn bridge() -> MspBridge {
@@ -1024,8 +1105,36 @@ mod tests {
         let (s, c) = m.sticks(&Input::new(100.0, -2.0 * limit, 0.0), 0.0);
         assert_eq!((s.roll_us, s.throttle_us), (1000, 2000));
         assert!(c.roll && c.throttle && !c.pitch);
-        assert_eq!(m.throttle_us(0.0), (1000, false));
+        // No thrust is below what idling motors give: zero throttle, counted as a clamp.
+        assert_eq!(m.throttle_us(0.0), (1000, true));
         assert_eq!(m.throttle_us(-1.0), (1000, true));
+        assert_eq!(m.throttle_us(f64::NAN), (1000, true));
+    }
+
+    #[test]
+    fn the_throttle_curve_is_the_square_of_the_motor_output_through_min_check_and_idle() {
+        let c = Calibration { hover_throttle_us: 1576.0, ..Calibration::default() };
+        let curve = ThrottleCurve::new(&c, G).expect("valid");
+        // rc.c: min_check..2000 onto [0, 1]; the mixer: [0, 1] onto idle..1.
+        assert_eq!(curve.output(1050.0), 0.055);
+        assert_eq!(curve.output(1000.0), 0.055);
+        assert_eq!(curve.output(2000.0), 1.0);
+        let hover = 0.055 + 0.945 * (526.0 / 950.0);
+        assert!((curve.hover_output() - hover).abs() < 1e-12);
+        // The hover throttle gives g; full throttle (1 / hover)^2 g; idle (0.055 / hover)^2 g.
+        assert!((curve.thrust_mps2(1576.0) - G).abs() < 1e-12);
+        assert!((curve.thrust_mps2(2000.0) - G / (hover * hover)).abs() < 1e-9);
+        assert!((curve.thrust_mps2(1050.0) - G * (0.055 / hover).powi(2)).abs() < 1e-12);
+        // Its inverse to the microsecond, unclamped inside the range.
+        for us in [1051u16, 1200, 1576, 1800, 1999] {
+            let (back, clamped) = curve.throttle_us(curve.thrust_mps2(f64::from(us)));
+            assert_eq!((back, clamped), (us, false), "{us} us");
+        }
+        // Twice the hover thrust needs sqrt(2) times the hover output, not twice the throttle.
+        let (us, _) = curve.throttle_us(2.0 * G);
+        let t = (std::f64::consts::SQRT_2 * hover - 0.055) / 0.945;
+        assert_eq!(us, (1050.0 + 950.0 * t).round() as u16);
+        assert_eq!(curve.throttle_us(100.0), (2000, true));
     }
 
     #[test]
@@ -1034,6 +1143,10 @@ mod tests {
         assert!(matches!(bad.validate(), Err(MspError::Setting("hover_throttle_us", _))));
         let bad = Calibration { angle_limit_deg: f64::NAN, ..Calibration::default() };
         assert!(matches!(bad.validate(), Err(MspError::Setting("angle_limit_deg", _))));
+        let bad = Calibration { min_check_us: 1600.0, ..Calibration::default() };
+        assert!(matches!(bad.validate(), Err(MspError::Setting("min_check_us", _))));
+        let bad = Calibration { motor_idle: f64::INFINITY, ..Calibration::default() };
+        assert!(matches!(bad.validate(), Err(MspError::Setting("motor_idle", _))));
         let s = MspSettings { disarm_timeout_ns: 100_000_000, ..MspSettings::default() };
         assert!(matches!(s.validate(), Err(MspError::Setting("disarm_timeout_ns", _))));
         let s = MspSettings { rc_period_ns: 200_000_000, ..MspSettings::default() };
@@ -1257,7 +1370,9 @@ mod tests {
             let (u_lo, _) = m.throttle_us(tl);
             let (u_hi, c_hi) = m.throttle_us(th);
             prop_assert!(u_lo <= u_hi && (1000..=2000).contains(&u_hi));
-            prop_assert_eq!(c_hi, th < 0.0 || 0.4 * th / G > 1.0);
+            // Clamped below the idling motors' thrust and above full output.
+            let curve = m.throttle_curve();
+            prop_assert_eq!(c_hi, th < curve.thrust_mps2(1000.0) || th > curve.thrust_mps2(2000.0));
         }
 
         #[test]
