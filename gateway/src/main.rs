@@ -38,6 +38,11 @@ struct Args {
     /// the motors give at zero throttle while armed.
     #[arg(long, default_value_t = 5.5, value_name = "PERCENT")]
     motor_idle_percent: f64,
+    /// With --msp: where the samples' roll, pitch and heading come from: `firmware`
+    /// (MSP_ATTITUDE, 10 Hz, what the firmware flies) or `pose` (the pose stream's quaternion,
+    /// at its rate).
+    #[arg(long, value_enum, default_value_t = AttitudeFrom::Firmware, value_name = "SOURCE")]
+    attitude_from: AttitudeFrom,
     /// With --msp: the firmware's angle_limit, degrees (full stick in ANGLE mode); the value
     /// the firmware reports over MSP_PID_ADVANCED replaces it once heard.
     #[arg(long, default_value_t = 20.0, value_name = "DEG")]
@@ -147,6 +152,13 @@ fn config(args: &Args) -> anyhow::Result<GatewayConfig> {
     Ok(config)
 }
 
+/// `--attitude-from`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum AttitudeFrom {
+    Firmware,
+    Pose,
+}
+
 fn msp_config(args: &Args, msp: &str) -> anyhow::Result<gateway::betaflight::MspConfig> {
     let scenario = hilbench_scenario_file::scenario_arg(&args.scenario)
         .map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
@@ -155,6 +167,10 @@ fn msp_config(args: &Args, msp: &str) -> anyhow::Result<gateway::betaflight::Msp
     let s = &mut config.settings;
     s.calibration.hover_throttle_us = args.hover_throttle_us;
     s.calibration.angle_limit_deg = args.angle_limit_deg;
+    s.attitude_source = match args.attitude_from {
+        AttitudeFrom::Firmware => mavbridge::betaflight::AttitudeSource::Firmware,
+        AttitudeFrom::Pose => mavbridge::betaflight::AttitudeSource::Pose,
+    };
     s.calibration.min_check_us = args.min_check_us;
     s.calibration.motor_idle = args.motor_idle_percent / 100.0;
     s.command_timeout_ns = args.command_timeout_ms * 1_000_000;

@@ -180,6 +180,18 @@ impl ThrottleCurve {
     }
 }
 
+/// Where the samples' roll, pitch and heading come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum AttitudeSource {
+    /// The firmware's own estimate, `MSP_ATTITUDE` (what it flies), at most 10 times a second
+    /// within the MSP budget and one round trip old (10 to 150 ms).
+    #[default]
+    Firmware,
+    /// The pose stream's quaternion (motion capture's attitude), at the stream's rate (bfsim:
+    /// 100 Hz) and as fresh as its positions.
+    Pose,
+}
+
 /// Settings of the MSP bridge, with units.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MspSettings {
@@ -216,6 +228,8 @@ pub struct MspSettings {
     pub envelope_margin_m: f64,
     /// A pose faster than this is refused, m/s.
     pub max_speed_mps: f64,
+    /// Where the samples' attitude comes from (`--attitude-from`).
+    pub attitude_source: AttitudeSource,
 }
 
 impl Default for MspSettings {
@@ -234,6 +248,7 @@ impl Default for MspSettings {
             start_tolerance_m: 0.5,
             envelope_margin_m: 100.0,
             max_speed_mps: 50.0,
+            attitude_source: AttitudeSource::Firmware,
         }
     }
 }
@@ -369,6 +384,8 @@ pub struct Pose {
     pub position_m: [f64; 3],
     /// NED, m/s (the message's body FRD velocity rotated by its quaternion).
     pub velocity_mps: [f64; 3],
+    /// The attitude as NED roll, pitch and heading, rad (from `q`).
+    pub attitude_rad: (f64, f64, f64),
 }
 
 /// Why a pose is refused.
@@ -407,6 +424,7 @@ impl Pose {
             time_us: m.time_usec,
             position_m: [m.x, m.y, m.z].map(f64::from),
             velocity_mps: rotate(q, [m.vx, m.vy, m.vz].map(f64::from)),
+            attitude_rad: frame::euler_from_quaternion(q).ok_or(PoseRefusal::Invalid)?,
         })
     }
 }
@@ -627,8 +645,8 @@ impl MspBridge {
         if !self.arm_requested {
             self.armed_seen_ns = None;
             // The yaw to hold: the vehicle's heading now.
-            if let Some(a) = &self.attitude {
-                self.yaw_hold_rad = ned_attitude(a).2;
+            if let Some((_, _, yaw)) = self.attitude_ned() {
+                self.yaw_hold_rad = yaw;
             }
         }
         self.arm_requested = true;
@@ -747,10 +765,19 @@ impl MspBridge {
         }
     }
 
+    /// The attitude the samples carry, NED, rad: the firmware's (`MSP_ATTITUDE`) or the pose's
+    /// ([`AttitudeSource`]); `None` while not heard.
+    fn attitude_ned(&self) -> Option<(f64, f64, f64)> {
+        match self.settings.attitude_source {
+            AttitudeSource::Firmware => self.attitude.as_ref().map(ned_attitude),
+            AttitudeSource::Pose => self.pose.map(|(p, _)| p.attitude_rad),
+        }
+    }
+
     /// The vehicle's state now (`None`: no pose or no attitude yet).
     fn state(&self) -> Option<(State, u64)> {
         let (pose, _) = self.pose?;
-        let (roll_rad, pitch_rad, yaw_rad) = ned_attitude(self.attitude.as_ref()?);
+        let (roll_rad, pitch_rad, yaw_rad) = self.attitude_ned()?;
         let ned = NedState {
             position_m: pose.position_m,
             velocity_mps: pose.velocity_mps,
@@ -761,7 +788,8 @@ impl MspBridge {
         Some((frame::model_state(&ned), pose.time_us.saturating_mul(1_000)))
     }
 
-    /// A pose from `peer` at `now_ns`: a new sample once an attitude was heard. The stream
+    /// A pose from `peer` at `now_ns`: a new sample once an attitude was heard (the pose's own,
+    /// with [`AttitudeSource::Pose`]). The stream
     /// locks to its first sender.
     pub fn on_pose(
         &mut self,
@@ -1298,6 +1326,27 @@ mod tests {
             child_frame_id: MavFrame::MAV_FRAME_BODY_FRD,
             ..Default::default()
         }
+    }
+
+    #[test]
+    fn with_the_pose_as_attitude_source_the_samples_tilt_with_the_quaternion_without_msp_attitude() {
+        let settings = MspSettings { attitude_source: AttitudeSource::Pose, ..MspSettings::default() };
+        let mut b = MspBridge::new(Scenario::paper_2(), settings, 0, 1).expect("valid");
+        let peer: std::net::SocketAddr = "127.0.0.1:5000".parse().expect("addr");
+        let start = Scenario::paper_2().start;
+        let ned = [start[0] as f32, -start[1] as f32, -start[2] as f32];
+        // Roll 6 deg right side down (about body x), heading north.
+        let (roll, yaw) = (6f64.to_radians(), 0.0);
+        let q = frame::quaternion_from_euler(roll, 0.0, yaw).map(|c| c as f32);
+        let s = b.on_pose(peer, &odometry(1_000, ned, [0.0; 3], q), 0).expect("valid").expect("a sample");
+        let (phi, theta) = frame::model_angles(roll, 0.0, yaw);
+        assert!((s.state[6] - phi).abs() < 1e-6 && (s.state[7] - theta).abs() < 1e-6, "{:?}", s.state);
+        assert!(phi.abs() > 0.1, "the tilt shows in the model's angles");
+        // The firmware's attitude, when it comes, does not replace the pose's.
+        b.in_flight.push((command::ATTITUDE, 0));
+        b.on_bytes(&reply(command::ATTITUDE, Attitude { roll_decideg: -200, pitch_decideg: 0, yaw_deg: 0 }.encode()), 0);
+        let s = b.on_pose(peer, &odometry(2_000, ned, [0.0; 3], q), 1).expect("valid").expect("a sample");
+        assert!((s.state[6] - phi).abs() < 1e-6);
     }
 
     #[test]
