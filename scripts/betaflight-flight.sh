@@ -2,14 +2,16 @@
 # Real flight firmware in the bench's loop, end to end: hilbench run -> netem -> gateway --msp
 # -> Betaflight 4.6.0 SITL (the real firmware) -> bfsim's rigid-body quadrotor, in real time.
 #
-#   scripts/betaflight-flight.sh [--kill-firmware] [SCENARIO.toml] [OUT_DIR]
+#   scripts/betaflight-flight.sh [--kill-firmware] [--mode nmpc|multistage] [--attitude-from firmware|pose]
+#                                [--hover-throttle-us US] [SCENARIO.toml] [OUT_DIR]
 #
 # 1. Builds (or finds cached) the SITL with scripts/betaflight-sitl.sh and builds bfsim, the
 #    gateway, vehiclectl and hilbench (release).
 # 2. Starts bfsim at the scenario's start and the gateway on the firmware's MSP port, arms the
 #    firmware (`vehiclectl arm-offboard`, retried while it is in boot grace or calibration) and
-#    flies the scenario with the bench's standard NMPC (default scenarios/paper-2.toml), the
-#    file's delays between the controller and the gateway; prints the run's summary. Whether it
+#    flies the scenario (default scenarios/fields/paper-2-field.toml: paper-2 with the bench's
+#    defaults for files) with the file's controllers (or --mode's), the file's delays between
+#    the controller and the gateway; prints the run's summary. Whether it
 #    reaches the goal is the finding, printed, not the check's verdict: the check fails when the
 #    chain does not fly (no summary, no cycles, a plant that does not name the firmware).
 # 3. With --kill-firmware, instead: kills the firmware (the SITL process) 3 s into the run; the
@@ -24,14 +26,24 @@ set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 kill_firmware=false
-if [ "${1:-}" = "--kill-firmware" ]; then
-    kill_firmware=true
-    shift
-fi
-scenario="${1:-scenarios/paper-2.toml}"
+mode_args=()
+attitude_from=firmware
+# Measured on this vehicle (bfsim's rigid body under the firmware's ANGLE mode: docs/betaflight.md,
+# section 7).
+hover_throttle_us=1576
+while [ $# -gt 0 ]; do
+    case "$1" in
+        --kill-firmware) kill_firmware=true; shift ;;
+        --mode) mode_args=(--mode "$2"); shift 2 ;;
+        --attitude-from) attitude_from="$2"; shift 2 ;;
+        --hover-throttle-us) hover_throttle_us="$2"; shift 2 ;;
+        --*) echo "betaflight-flight: unknown option $1" >&2; exit 2 ;;
+        *) break ;;
+    esac
+done
+scenario="${1:-scenarios/fields/paper-2-field.toml}"
 out="${2:-$(mktemp -d -t hilbench-betaflight-XXXXXX)}"
 target="${CARGO_TARGET_DIR:-target}/release"
-readonly HOVER_THROTTLE_US=1576
 readonly GATEWAY=127.0.0.1:50054
 
 sitl="$(scripts/betaflight-sitl.sh)"
@@ -55,7 +67,7 @@ start_vehicle() {
     done
     grep -q "bfsim: up" "$out/$log-bfsim.log" || { cat "$out/$log-bfsim.log" >&2; echo "betaflight-flight: bfsim did not come up" >&2; exit 1; }
     "$target/gateway" --msp tcp:127.0.0.1:5761 --pose-in 127.0.0.1:14560 --scenario "$scenario" \
-        --hover-throttle-us "$HOVER_THROTTLE_US" --listen "$GATEWAY" >"$out/$log-gateway.log" 2>&1 &
+        --hover-throttle-us "$hover_throttle_us" --attitude-from "$attitude_from" --listen "$GATEWAY" >"$out/$log-gateway.log" 2>&1 &
     pids+=("$!")
     local armed=false
     for _ in $(seq 8); do
@@ -77,7 +89,7 @@ if ! $kill_firmware; then
 # 2. A flight.
 start_vehicle flight
 set +e
-"$target/hilbench" run "$scenario" --mode nmpc --time-mode real-time --plant "$GATEWAY" \
+"$target/hilbench" run "$scenario" "${mode_args[@]}" --time-mode real-time --plant "$GATEWAY" \
     --start-from-vehicle --out "$out/flight" --no-plots
 status=$?
 set -e
@@ -86,17 +98,17 @@ stop_vehicle
 python3 - "$out/flight/summary.json" <<'EOF'
 import json, sys
 summary = json.load(open(sys.argv[1]))
-run = summary["runs"][0]
-print(f"betaflight-flight: plant: {run['plant']}")
-print(f"betaflight-flight: {run['scenario']} {run['controller']}: reached {run['reached']}, collided {run['collided']}, "
-      f"end {run['end_reason']}, path {run['path_length_m']:.2f} m, min clearance {run['min_clearance_m']:+.3f} m, "
-      f"{run['cycles']} cycles, round trip median {run['end_to_end_latency_ms']['median']} ms")
-for line in run["explanation"]:
-    print(f"betaflight-flight:   {line}")
-if "BTFL 4.6.0" not in run["plant"]:
-    sys.exit("betaflight-flight: the run's plant does not name the firmware")
-if run["cycles"] < 20:
-    sys.exit(f"betaflight-flight: only {run['cycles']} cycles flew")
+for run in summary["runs"]:
+    print(f"betaflight-flight: plant: {run['plant']}")
+    print(f"betaflight-flight: {run['scenario']} {run['controller']}: reached {run['reached']}, collided {run['collided']}, "
+          f"end {run['end_reason']}, path {run['path_length_m']:.2f} m, min clearance {run['min_clearance_m']:+.3f} m, "
+          f"{run['cycles']} cycles, round trip median {run['end_to_end_latency_ms']['median']:.0f} ms")
+    for line in run["explanation"]:
+        print(f"betaflight-flight:   {line}")
+    if "BTFL 4.6.0" not in run["plant"]:
+        sys.exit("betaflight-flight: the run's plant does not name the firmware")
+    if run["cycles"] < 20:
+        sys.exit(f"betaflight-flight: only {run['cycles']} cycles flew")
 EOF
 echo "betaflight-flight: passed (outputs in $out)"
 exit 0
@@ -104,7 +116,7 @@ fi
 
 # 3. The firmware killed mid-run.
 start_vehicle kill
-"$target/hilbench" run "$scenario" --mode nmpc --time-mode real-time --plant "$GATEWAY" \
+"$target/hilbench" run "$scenario" "${mode_args[@]}" --time-mode real-time --plant "$GATEWAY" \
     --start-from-vehicle --out "$out/killed" --no-plots --quiet &
 run_pid=$!
 sleep 3
