@@ -1344,7 +1344,10 @@ mod tests {
         assert!(phi.abs() > 0.1, "the tilt shows in the model's angles");
         // The firmware's attitude, when it comes, does not replace the pose's.
         b.in_flight.push((command::ATTITUDE, 0));
-        b.on_bytes(&reply(command::ATTITUDE, Attitude { roll_decideg: -200, pitch_decideg: 0, yaw_deg: 0 }.encode()), 0);
+        b.on_bytes(
+            &reply(command::ATTITUDE, Attitude { roll_decideg: -200, pitch_decideg: 0, yaw_deg: 0 }.encode()),
+            0,
+        );
         let s = b.on_pose(peer, &odometry(2_000, ned, [0.0; 3], q), 1).expect("valid").expect("a sample");
         assert!((s.state[6] - phi).abs() < 1e-6);
     }
