@@ -69,8 +69,9 @@ pub fn write(
         bar.finish_and_clear();
         times.plotting_s = Some(plotting.elapsed().as_secs_f64());
     }
-    let summary = summary::summary_json(batch, times);
-    summary::write(dir, &summary)?;
+    let typed = summary::summary_json(batch, times);
+    summary::write(dir, &typed)?;
+    let summary = serde_json::to_value(&typed)?;
     cycle_log::write_batch(dir, batch)?;
     if complete {
         let parts = report(batch);
