@@ -659,6 +659,19 @@ pub async fn serve(
         let inner = service.shared.lock();
         let (c, d) = (inner.bridge.counters(), inner.bridge.decoder_counters());
         tracing::info!(counters = ?c, decoder = ?d, "MSP link counters");
+        // The gateway's hop of a command's path to the motors (docs/betaflight.md, section 9).
+        let hold = inner.bridge.command_to_rc();
+        let ms = |ns: Option<u64>| ns.map_or_else(|| "-".to_string(), |v| format!("{:.3}", v as f64 / 1e6));
+        tracing::info!(
+            "command to RC frame: commands={} superseded={} hold_ms_min={} hold_ms_median={} hold_ms_p99={} hold_ms_max={} hold_ms_mean={}",
+            hold.count(),
+            c.commands_superseded,
+            ms(hold.min_ns()),
+            ms(hold.quantile_ns(0.5)),
+            ms(hold.quantile_ns(0.99)),
+            ms(hold.max_ns()),
+            ms(hold.mean_ns()),
+        );
     }
     result?;
     tracing::info!("gateway stopped");

@@ -9,6 +9,7 @@
 pub mod command;
 mod exact;
 pub mod geometry;
+pub mod latency;
 pub mod mode;
 pub mod model;
 pub mod scenario;

@@ -451,6 +451,9 @@ pub struct MspCounters {
     pub pitch_clamped: u64,
     /// Times the command timeout made the gateway hold level hover.
     pub watchdog_holds: u64,
+    /// Commands replaced by a newer one before any RC frame carried them (two arrived within
+    /// one RC period): never flown.
+    pub commands_superseded: u64,
     /// Times the disarm timeout lowered the arm switch.
     pub watchdog_disarms: u64,
     /// Times an Arm in progress lowered and raised the switch again because the firmware had
@@ -532,6 +535,10 @@ pub struct MspBridge {
     switch_low_ns: u64,
     command_local_ns: u64,
     watchdog_hover: bool,
+    /// When the command not yet carried by an RC frame arrived, gateway clock, ns.
+    pending_command_ns: Option<u64>,
+    /// From a command's arrival to the first RC frame that carries it, ns.
+    command_to_rc: mav::latency::Latency,
     counters: MspCounters,
 }
 
@@ -573,6 +580,8 @@ impl MspBridge {
             switch_low_ns: now_ns,
             command_local_ns: now_ns,
             watchdog_hover: false,
+            pending_command_ns: None,
+            command_to_rc: mav::latency::Latency::default(),
             counters: MspCounters::default(),
         })
     }
@@ -859,6 +868,9 @@ impl MspBridge {
         self.setpoint = saturated_input;
         self.watchdog_hover = false;
         self.command_local_ns = now_ns;
+        if self.pending_command_ns.replace(now_ns).is_some() {
+            self.counters.commands_superseded += 1;
+        }
         let (_, clamps) = self.sticks.sticks(&saturated_input, self.yaw_hold_rad);
         let vehicle_ns = self.vehicle_ns(now_ns);
         self.episode.last_command = AppliedCommand {
@@ -886,8 +898,13 @@ impl MspBridge {
             self.counters.throttle_clamped += u64::from(clamps.throttle);
             self.counters.roll_clamped += u64::from(clamps.roll);
             self.counters.pitch_clamped += u64::from(clamps.pitch);
+            if let Some(arrived) = self.pending_command_ns.take() {
+                self.command_to_rc.record(now_ns.saturating_sub(arrived));
+            }
             sticks
         } else {
+            // Disarmed, the sticks are not the command's: it is flown by no frame.
+            self.pending_command_ns = None;
             Sticks {
                 roll_us: STICK_CENTRE_US,
                 pitch_us: STICK_CENTRE_US,
@@ -1018,9 +1035,16 @@ impl MspBridge {
         self.setpoint = scenario.model.hover_input();
         self.command_local_ns = now_ns;
         self.watchdog_hover = false;
+        self.pending_command_ns = None;
         let mut sample = self.episode.restart(scenario, flight_id, vehicle_ns, state);
         sample.last_command = initial_command(&self.episode.scenario);
         Ok(sample)
+    }
+
+    /// From each command's arrival to the first RC frame that carried it (the gateway's hop of
+    /// the command's path to the motors).
+    pub fn command_to_rc(&self) -> &mav::latency::Latency {
+        &self.command_to_rc
     }
 
     pub fn status(&self, now_ns: u64) -> MspStatus {
@@ -1179,6 +1203,53 @@ mod tests {
         assert!(matches!(s.validate(), Err(MspError::Setting("disarm_timeout_ns", _))));
         let s = MspSettings { rc_period_ns: 200_000_000, ..MspSettings::default() };
         assert!(matches!(s.validate(), Err(MspError::Setting("rc_period_ns", _))));
+    }
+
+    /// An armed bridge after 30 ms of polls answered.
+    fn armed_bridge() -> MspBridge {
+        let mut b = bridge();
+        let mut out = Vec::new();
+        b.poll(0, &mut out);
+        answer_all(&mut b, &out, true, 0);
+        b.request_arm(0);
+        for ms in 1..30u64 {
+            out.clear();
+            b.poll(ms * 1_000_000, &mut out);
+            answer_all(&mut b, &out, true, ms * 1_000_000);
+        }
+        b
+    }
+
+    #[test]
+    fn the_hold_from_a_command_to_its_rc_frame_is_measured_and_a_superseded_command_counted() {
+        let mut b = armed_bridge();
+        assert!(b.armed());
+        // 1 ms polls from 30 ms on; the RC frames' times, and commands at chosen times.
+        let commands_ms = [41u64, 83, 85];
+        let mut rc_ms = Vec::new();
+        let mut out = Vec::new();
+        for ms in 30..140u64 {
+            let now = ms * 1_000_000;
+            if commands_ms.contains(&ms) {
+                b.apply(Input::new(G, 0.05, 0.0), CommandMeta::default(), now);
+            }
+            out.clear();
+            b.poll(now, &mut out);
+            if !rc_of(&out).is_empty() {
+                rc_ms.push(ms);
+            }
+            answer_all(&mut b, &out, true, now);
+        }
+        let first_after = |t: u64| rc_ms.iter().copied().find(|&r| r >= t).expect("an RC frame after");
+        // 83 and 85 ms fall in one RC period (frames 20 ms apart): the first is never flown.
+        assert_eq!(first_after(83), first_after(85), "RC frames at {rc_ms:?}");
+        assert_eq!(b.counters().commands_superseded, 1);
+        let hold = b.command_to_rc();
+        assert_eq!(hold.count(), 2, "one per RC frame that carried a new command");
+        let holds_ns = [first_after(41) - 41, first_after(85) - 85].map(|ms| ms * 1_000_000);
+        assert_eq!(hold.min_ns(), Some(holds_ns[0].min(holds_ns[1])));
+        assert_eq!(hold.max_ns(), Some(holds_ns[0].max(holds_ns[1])));
+        assert!(holds_ns.iter().all(|&h| h < 20_000_000), "within one RC period: {holds_ns:?}");
     }
 
     #[test]
@@ -1429,16 +1500,8 @@ mod tests {
 
         #[test]
         fn every_clamp_is_counted_once_per_rc_frame(phi in -1.0f64..1.0, theta in -1.0f64..1.0, t in 0.0f64..30.0) {
-            let mut b = bridge();
+            let mut b = armed_bridge();
             let mut out = Vec::new();
-            b.poll(0, &mut out);
-            answer_all(&mut b, &out, true, 0);
-            b.request_arm(0);
-            for ms in 1..30u64 {
-                out.clear();
-                b.poll(ms * 1_000_000, &mut out);
-                answer_all(&mut b, &out, true, ms * 1_000_000);
-            }
             let before = b.counters();
             let input = Input::new(t, phi, theta);
             let (sat, _) = b.scenario().bounds.saturate(&input);
