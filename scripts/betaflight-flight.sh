@@ -110,6 +110,24 @@ for run in summary["runs"]:
     if run["cycles"] < 20:
         sys.exit(f"betaflight-flight: only {run['cycles']} cycles flew")
 EOF
+# The command's path by hop, from the run's cycle logs and the two logs' latency lines.
+python3 - "$out/flight" "$out/flight-gateway.log" "$out/flight-bfsim.log" <<'EOF'
+import csv, glob, re, statistics, sys
+flight, gateway_log, bfsim_log = sys.argv[1:4]
+rows = [r for f in sorted(glob.glob(f"{flight}/*.csv")) for r in csv.DictReader(open(f))]
+def med(xs):
+    return f"{statistics.median(xs):.2f}" if xs else "-"
+solve = [float(r["solve_ms"]) for r in rows]
+netem = [float(r["injected_delay_s"]) * 1e3 for r in rows if r["injected_delay_s"]]
+def line(path, prefix):
+    hits = [l for l in open(path) if prefix in l]
+    return hits[-1] if hits else ""
+hold = dict(re.findall(r"hold_ms_(\w+)=([\d.]+|-)", line(gateway_log, "command to RC frame")))
+motor = dict(re.findall(r"latency_ms_(\w+)=([\d.]+|-)", line(bfsim_log, "bfsim: shutdown")))
+print("betaflight-flight: the command's path by hop (median ms): "
+      f"controller solve {med(solve)}; netem {med(netem)}; gateway, command to RC frame {hold.get('median', '-')} "
+      f"(p99 {hold.get('p99', '-')}); firmware, state packet to motor packet {motor.get('median', '-')} (p99 {motor.get('p99', '-')})")
+EOF
 echo "betaflight-flight: passed (outputs in $out)"
 exit 0
 fi
